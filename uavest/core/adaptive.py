@@ -1,0 +1,106 @@
+"""Sage-Husa adaptive noise estimation with a forgetting factor (seeds 001, 002), as a
+wrapper usable with EKF, UKF and the hybrid filter (any filter whose update returns an
+:class:`Innovation`).
+
+With forgetting factor b (0 < b < 1) and d_k = (1 - b) / (1 - b^(k+1)):
+    R_k = (1 - d_k) R_{k-1} + d_k (nu nu^T - (S - R_{k-1}))       (S - R = H P- H^T)
+    Q_k = (1 - d_k) Q_{k-1} + d_k (dx dx^T + P+ - P- + Q_{k-1})    (dx = K nu = x+ (-) x-)
+The raw Sage-Husa R estimate can lose positive definiteness; each estimate is projected
+to the nearest PD matrix with eigenvalues at least ``floor`` times the initial noise's
+smallest eigenvalue (documented safeguard). ``adapt`` chooses "R", "Q" or "RQ".
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .gaussian import Gaussian
+from .linalg import nearest_pd
+
+
+@dataclass(frozen=True, slots=True)
+class AdaptiveState:
+    inner: object
+    R: np.ndarray | None
+    Q: np.ndarray | None
+    k: int
+    prior: Gaussian | None = None  # predicted estimate (for the Q estimator)
+    Qfix: np.ndarray | None = None  # Q the model would use (for the floor)
+
+
+class _NoiseOverride:
+    """A model proxy that substitutes adapted R or Q and delegates everything else."""
+
+    def __init__(self, model, R=None, Q=None):
+        self._m = model
+        self._R = R
+        self._Q = Q
+
+    def __getattr__(self, k):
+        return getattr(self._m, k)
+
+    @property
+    def R(self):
+        return self._m.R if self._R is None else self._R
+
+    def Q(self, t, dt, u=None):
+        return self._m.Q(t, dt, u) if self._Q is None else self._Q
+
+
+@dataclass(frozen=True)
+class SageHusa:
+    """Adaptive wrapper. ``b`` forgetting factor (0.98), ``adapt`` in {"R", "Q", "RQ"},
+    ``floor`` relative eigenvalue floor (0.1)."""
+
+    filter: object
+    b: float = 0.98
+    adapt: str = "R"
+    floor: float = 0.1
+
+    @property
+    def name(self) -> str:
+        return f"{self.filter.name}_sh"
+
+    def init(self, prior: Gaussian, space, rng=None) -> AdaptiveState:
+        return AdaptiveState(self.filter.init(prior, space, rng), None, None, 0)
+
+    def _d(self, k: int) -> float:
+        return (1.0 - self.b) / (1.0 - self.b ** (k + 1))
+
+    def predict(self, s: AdaptiveState, model, t, dt, u=None, rng=None) -> AdaptiveState:
+        Q0 = model.Q(t, dt, u)
+        Q = s.Q if ("Q" in self.adapt and s.Q is not None) else None
+        inner = self.filter.predict(s.inner, _NoiseOverride(model, Q=Q), t, dt, u, rng)
+        g = self.filter.estimate(inner)
+        return AdaptiveState(inner, s.R, s.Q if s.Q is not None else Q0, s.k, g, Q0)
+
+    def update(self, s: AdaptiveState, z, model, rng=None):
+        R_prev = s.R if s.R is not None else np.asarray(model.R, float)
+        m = _NoiseOverride(model, R=R_prev if "R" in self.adapt else None)
+        inner, inn = self.filter.update(s.inner, z, m, rng)
+        d = self._d(s.k)
+        R_new, Q_new = s.R, s.Q
+        if "R" in self.adapt:
+            R0 = np.asarray(model.R, float)
+            raw = (1 - d) * R_prev + d * (np.outer(inn.nu, inn.nu) - (inn.S - R_prev))
+            R_new = _floor(raw, R0, self.floor)
+        if "Q" in self.adapt and s.prior is not None:
+            post = self.filter.estimate(inner)
+            dx = model.space.local(s.prior.x, post.x)
+            Qp = s.Q if s.Q is not None else s.Qfix
+            raw = (1 - d) * Qp + d * (np.outer(dx, dx) + post.P - s.prior.P + Qp)
+            Q_new = _floor(raw, s.Qfix, self.floor)
+        return AdaptiveState(inner, R_new, Q_new, s.k + 1, None, s.Qfix), inn
+
+    def estimate(self, s: AdaptiveState) -> Gaussian:
+        return self.filter.estimate(s.inner)
+
+
+def _floor(P: np.ndarray, P0: np.ndarray, rel: float) -> np.ndarray:
+    lo = rel * float(np.min(np.linalg.eigvalsh(P0)))
+    out = nearest_pd(P)
+    vals, vecs = np.linalg.eigh(out)
+    vals = np.maximum(vals, lo)
+    return (vecs * vals) @ vecs.T

@@ -1,0 +1,73 @@
+"""Shared filter vocabulary: the innovation record and the ensemble state."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .gaussian import Gaussian
+from .spaces import Space
+
+Array = np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
+class Innovation:
+    """What an update saw: residual ``nu`` = z - predicted z (m,), its covariance ``S``
+    (m, m, including R) and the normalised innovation squared ``nis`` = nu^T S^-1 nu."""
+
+    nu: Array
+    S: Array
+    nis: float
+
+
+@dataclass(frozen=True, slots=True)
+class Ensemble:
+    """A (weighted) ensemble of states ``X`` (M, size) on ``space``.
+
+    ``w`` are normalised positive weights (M,) or None for equal weights.
+    """
+
+    X: Array
+    space: Space
+    w: Array | None = None
+
+    @property
+    def M(self) -> int:
+        return self.X.shape[0]
+
+
+def ensemble_moments(E: Ensemble) -> tuple[Array, Array, Array, Array]:
+    """Weighted mean ``x``, tangent deviations ``dX`` (M, n), weights ``w`` and covariance.
+
+    Equal weights use the unbiased 1/(M-1) covariance; unequal weights the
+    reliability-weighted unbiased form 1/(1 - sum w^2).
+    """
+    M = E.M
+    w = np.full(M, 1.0 / M) if E.w is None else E.w
+    x = E.space.mean(E.X, w, E.X[int(np.argmax(w))])
+    dX = E.space.local(x, E.X)
+    dX = dX - w @ dX  # centre exactly (tangent linearisation on manifolds)
+    denom = 1.0 - float(w @ w)
+    P = (dX.T * w) @ dX / max(denom, 1e-12)
+    return x, dX, w, P
+
+
+def ensemble_estimate(E: Ensemble) -> Gaussian:
+    x, _, _, P = ensemble_moments(E)
+    return Gaussian(x, 0.5 * (P + P.T))
+
+
+def sample_gaussian(g: Gaussian, space: Space, M: int, rng: np.random.Generator) -> Array:
+    """M iid draws from N(g.x, g.P) on ``space`` (tangent-space sampling)."""
+    from .linalg import chol
+
+    L = chol(g.P)
+    return space.retract(g.x, rng.standard_normal((M, space.dim)) @ L.T)
+
+
+def innovation(nu: Array, S: Array) -> Innovation:
+    from .linalg import mahalanobis2
+
+    return Innovation(nu, S, float(mahalanobis2(nu, S)))

@@ -1,0 +1,31 @@
+"""Immutable Gaussian state ``Gaussian(x, P)``.
+
+``x`` is the state on its space (ambient size), ``P`` the covariance of the tangent-space
+error (n x n). Filters never mutate a Gaussian; they return new ones.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True, slots=True)
+class Gaussian:
+    """Mean ``x`` (ambient size,) and tangent covariance ``P`` (n, n)."""
+
+    x: np.ndarray
+    P: np.ndarray
+
+    @staticmethod
+    def of(x, P) -> Gaussian:
+        """Build from array-likes (scalars allowed for 1-D states)."""
+        x = np.atleast_1d(np.asarray(x, dtype=float))
+        P = np.atleast_2d(np.asarray(P, dtype=float))
+        if P.shape == (1, 1) and x.shape[0] > 1:
+            P = P[0, 0] * np.eye(x.shape[0])
+        return Gaussian(x, P)
+
+    def finite(self) -> bool:
+        return bool(np.isfinite(self.x).all() and np.isfinite(self.P).all())

@@ -1,0 +1,99 @@
+"""Divergence detection and recovery around any filter.
+
+A :class:`Guarded` filter has the same interface as the filter it wraps. After every
+predict and update it checks the estimate: non-finite values, a covariance that is not
+positive definite, an exception from the linear algebra (e.g. a failed downdate), or an
+NIS above the gate (chi-square ``gate_prob`` quantile for the measurement dimension) for
+``strikes`` consecutive updates. On divergence it re-initialises the inner filter from the
+last good estimate with its covariance multiplied by ``inflate`` and reports it: the
+state's ``resets`` counter grows and ``reset`` is True for that step. It never returns a
+NaN/inf estimate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from functools import lru_cache
+
+import numpy as np
+from scipy.stats import chi2
+
+from .base import Innovation
+from .gaussian import Gaussian
+from .linalg import is_pd
+
+
+@lru_cache(maxsize=64)
+def nis_gate(m: int, prob: float) -> float:
+    return float(chi2.ppf(prob, m))
+
+
+@dataclass(frozen=True, slots=True)
+class GuardState:
+    inner: object
+    last_good: Gaussian
+    strikes: int = 0
+    resets: int = 0
+    reset: bool = False  # True if this step re-initialised
+    reason: str = ""
+
+
+@dataclass(frozen=True)
+class Guarded:
+    """Wraps ``filter`` with divergence detection and recovery (see module docstring)."""
+
+    filter: object
+    gate_prob: float = 0.9999
+    strikes: int = 5
+    inflate: float = 10.0
+
+    @property
+    def name(self) -> str:
+        return self.filter.name
+
+    def init(self, prior: Gaussian, space, rng=None) -> GuardState:
+        return GuardState(self.filter.init(prior, space, rng), prior)
+
+    def _recover(self, s: GuardState, space, rng, reason: str) -> GuardState:
+        g = s.last_good
+        prior = Gaussian(g.x.copy(), g.P * self.inflate)
+        inner = self.filter.init(prior, space, rng)
+        return GuardState(inner, g, 0, s.resets + 1, True, reason)
+
+    def _check(self, inner) -> tuple[Gaussian | None, str]:
+        try:
+            g = self.filter.estimate(inner)
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError) as e:
+            return None, f"estimate failed: {e}"
+        if not g.finite():
+            return None, "non-finite estimate"
+        if not is_pd(g.P):
+            return None, "covariance not positive definite"
+        return g, ""
+
+    def predict(self, s: GuardState, model, t, dt, u=None, rng=None) -> GuardState:
+        try:
+            inner = self.filter.predict(s.inner, model, t, dt, u, rng)
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError) as e:
+            return self._recover(s, model.space, rng, f"predict failed: {e}")
+        g, why = self._check(inner)
+        if g is None:
+            return self._recover(s, model.space, rng, why)
+        return replace(s, inner=inner, reset=False, reason="")
+
+    def update(self, s: GuardState, z, model, rng=None) -> tuple[GuardState, Innovation | None]:
+        try:
+            inner, inn = self.filter.update(s.inner, z, model, rng)
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError) as e:
+            return self._recover(s, model.space, rng, f"update failed: {e}"), None
+        g, why = self._check(inner)
+        if g is None or not np.isfinite(inn.nis):
+            return self._recover(s, model.space, rng, why or "non-finite NIS"), inn
+        strikes = s.strikes + 1 if inn.nis > nis_gate(len(inn.nu), self.gate_prob) else 0
+        if strikes >= self.strikes:
+            return self._recover(s, model.space, rng, f"NIS above gate {strikes} times"), inn
+        return GuardState(inner, g, strikes, s.resets, False, ""), inn
+
+    def estimate(self, s: GuardState) -> Gaussian:
+        g, _ = self._check(s.inner)
+        return s.last_good if g is None else g

@@ -1,0 +1,83 @@
+"""Kalman filter (linear) and extended Kalman filter, on any :class:`Space`.
+
+Equations as implemented (tangent-space error state, so the EKF on a manifold is the
+multiplicative/error-state EKF):
+
+predict:  x- = f(x),            P- = F P F^T + Q
+update:   nu = z (-) h(x-),     S = H P- H^T + R,      K = P- H^T S^-1 (solve)
+          x+ = retract(x-, K nu)
+          P+ = (I - K H) P- (I - K H)^T + K R K^T      (Joseph form)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .base import Innovation, innovation
+from .gaussian import Gaussian
+from .linalg import gain, symmetrize
+from .model import Measurement, Transition
+
+Array = np.ndarray
+
+
+@dataclass(frozen=True)
+class EKF:
+    """Extended Kalman filter. Uses the model's analytic ``F``/``H`` when it has them,
+    else central finite differences (see :func:`uavest.core.model.fd_jacobian`)."""
+
+    name: str = "ekf"
+
+    def init(self, prior: Gaussian, space, rng=None) -> Gaussian:
+        return prior
+
+    def predict_jac(
+        self, g: Gaussian, model: Transition, t: float, dt: float, u: Array | None = None
+    ) -> tuple[Gaussian, Array]:
+        """Predict and also return the Jacobian F used (for RTS smoothing)."""
+        F = model.F(g.x, t, dt, u)
+        x = model.f(g.x[None, :], t, dt, u)[0]
+        P = symmetrize(F @ g.P @ F.T + model.Q(t, dt, u))
+        return Gaussian(x, P), F
+
+    def predict(self, g: Gaussian, model: Transition, t: float, dt: float, u=None, rng=None):
+        return self.predict_jac(g, model, t, dt, u)[0]
+
+    def update(
+        self, g: Gaussian, z: Array, model: Measurement, rng=None
+    ) -> tuple[Gaussian, Innovation]:
+        H = model.H(g.x)
+        zhat = model.h(g.x[None, :])[0]
+        nu = model.residual(z, zhat)
+        PHt = g.P @ H.T
+        S = symmetrize(H @ PHt + model.R)
+        K = gain(PHt, S)
+        x = model.space.retract(g.x, K @ nu)
+        IKH = np.eye(g.P.shape[0]) - K @ H
+        P = symmetrize(IKH @ g.P @ IKH.T + K @ model.R @ K.T)
+        return Gaussian(x, P), innovation(nu, S)
+
+    def estimate(self, g: Gaussian) -> Gaussian:
+        return g
+
+
+@dataclass(frozen=True)
+class KF(EKF):
+    """Linear Kalman filter: the EKF equations, which are exact for linear models.
+
+    Refuses non-linear models so that a mistaken model choice fails loudly.
+    """
+
+    name: str = "kf"
+
+    def predict_jac(self, g, model, t, dt, u=None):
+        if not getattr(model, "linear", False):
+            raise TypeError(f"KF needs a linear transition model, got {type(model).__name__}")
+        return super().predict_jac(g, model, t, dt, u)
+
+    def update(self, g, z, model, rng=None):
+        if not getattr(model, "linear", False):
+            raise TypeError(f"KF needs a linear measurement model, got {type(model).__name__}")
+        return super().update(g, z, model, rng)

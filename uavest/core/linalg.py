@@ -1,0 +1,80 @@
+"""Numerically careful small linear algebra: Cholesky with jitter, solves, symmetrising.
+
+Rules used everywhere in the core: solve, never invert; symmetrise every covariance that
+is the result of a subtraction; factor with a jitter fallback so that a covariance that is
+PSD up to rounding still yields a factor.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+Array = np.ndarray
+
+
+class NotPositiveDefinite(np.linalg.LinAlgError):
+    """A covariance could not be factored even with jitter."""
+
+
+def symmetrize(P: Array) -> Array:
+    """(P + P^T) / 2."""
+    return 0.5 * (P + P.T)
+
+
+def chol(P: Array, max_tries: int = 6) -> Array:
+    """Lower Cholesky factor of ``P``, adding growing diagonal jitter if needed.
+
+    Jitter starts at 1e-12 * mean(diag) and grows x100 per try. Raises
+    :class:`NotPositiveDefinite` if ``P`` is not finite or stays indefinite.
+    """
+    try:
+        return np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        pass
+    if not np.isfinite(P).all():
+        raise NotPositiveDefinite("covariance has non-finite entries")
+    P = symmetrize(P)
+    scale = float(np.mean(np.abs(np.diag(P)))) or 1.0
+    jitter = 1e-12 * scale
+    eye = np.eye(P.shape[0])
+    for _ in range(max_tries):
+        try:
+            return np.linalg.cholesky(P + jitter * eye)
+        except np.linalg.LinAlgError:
+            jitter *= 100.0
+    raise NotPositiveDefinite("covariance is not positive definite")
+
+
+def is_pd(P: Array) -> bool:
+    """True if ``P`` is finite and Cholesky-factorable without jitter."""
+    if not np.isfinite(P).all():
+        return False
+    try:
+        np.linalg.cholesky(P)
+        return True
+    except np.linalg.LinAlgError:
+        return False
+
+
+def gain(Pxy: Array, S: Array) -> Array:
+    """Kalman gain K = Pxy S^-1 computed by a solve (S symmetric PD)."""
+    return np.linalg.solve(S, Pxy.T).T
+
+
+def mahalanobis2(r: Array, S: Array) -> Array:
+    """Squared Mahalanobis norm of residual(s) ``r`` ((m,) or (M, m)) under ``S``."""
+    L = chol(S)
+    if r.ndim == 1:
+        u = np.linalg.solve(L, r)
+        return float(u @ u)
+    u = np.linalg.solve(L, r.T)
+    return np.einsum("ij,ij->j", u, u)
+
+
+def nearest_pd(P: Array, floor: float = 1e-12) -> Array:
+    """Symmetric matrix with eigenvalues clipped below at ``floor * max(|eig|, 1)``."""
+    P = symmetrize(P)
+    vals, vecs = np.linalg.eigh(P)
+    lo = floor * max(float(np.max(np.abs(vals))), 1.0)
+    vals = np.maximum(vals, lo)
+    return symmetrize((vecs * vals) @ vecs.T)

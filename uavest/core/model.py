@@ -1,0 +1,130 @@
+"""Model interfaces the filters call (Stone Soup's split, kept small).
+
+A :class:`Transition` maps states over one step; a :class:`Measurement` maps states to
+measurements. Both are vectorised over rows: ``f`` and ``h`` take ``X`` shaped
+``(M, size)`` and return ``(M, size)`` / ``(M, m)``. Process noise is additive in the
+tangent space (``Q`` is n x n); measurement noise is additive in measurement space.
+
+Jacobians ``F``/``H`` are tangent-space Jacobians; models supply analytic ones by
+overriding ``F``/``H``, otherwise central finite differences through ``retract`` are used.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .spaces import Space, VectorSpace
+
+Array = np.ndarray
+
+
+class Transition:
+    """Base transition model. Subclasses set ``space`` and implement ``f`` and ``Q``.
+
+    ``t`` is the time at the *end* of the step (s, or the step index for discrete
+    benchmarks), ``dt`` the step length, ``u`` an optional control/input (e.g. gyro rates).
+    """
+
+    space: Space
+    linear: bool = False
+
+    def f(self, X: Array, t: float, dt: float, u: Array | None = None) -> Array:
+        raise NotImplementedError
+
+    def Q(self, t: float, dt: float, u: Array | None = None) -> Array:
+        raise NotImplementedError
+
+    def F(self, x: Array, t: float, dt: float, u: Array | None = None) -> Array:
+        """Tangent-space Jacobian of ``f`` at ``x`` (n x n); finite differences by default."""
+        return fd_jacobian(lambda X: self.f(X, t, dt, u), self.space, self.space, x)
+
+
+class Measurement:
+    """Base measurement model. Subclasses implement ``h`` and set ``R`` (m x m).
+
+    ``residual(a, b)`` is ``a - b`` with any wrapping (angles) the measurement needs, and
+    ``mean(Y, w)`` the matching weighted mean; both default to plain arithmetic.
+    """
+
+    space: Space  # the *state* space the model reads
+    R: Array
+    linear: bool = False
+
+    def h(self, X: Array) -> Array:
+        raise NotImplementedError
+
+    def H(self, x: Array) -> Array:
+        """Jacobian of ``h`` w.r.t. the tangent-space state error at ``x`` (m x n)."""
+        return fd_jacobian(self.h, self.space, None, x)
+
+    def residual(self, a: Array, b: Array) -> Array:
+        return a - b
+
+    def mean(self, Y: Array, w: Array) -> Array:
+        return w @ Y
+
+    @property
+    def dim(self) -> int:
+        return self.R.shape[0]
+
+
+def fd_jacobian(fun, space: Space, out_space: Space | None, x: Array, eps: float = 1e-6) -> Array:
+    """Central finite-difference Jacobian of ``fun`` (vectorised) at ``x``.
+
+    Perturbs ``x`` in its tangent space; reads outputs through ``out_space.local`` (or plain
+    differences when ``out_space`` is None, i.e. measurements). One batched call of ``fun``.
+    """
+    n = space.dim
+    scale = eps * np.maximum(1.0, np.abs(x[:n])) if isinstance(space, VectorSpace) else np.full(
+        n, eps
+    )
+    D = np.diag(scale)
+    X = space.retract(x, np.vstack([D, -D]))
+    Y = fun(X)
+    if out_space is None:
+        dY = Y[:n] - Y[n:]
+    else:
+        y0 = fun(x[None, :])[0]
+        dY = out_space.local(y0, Y[:n]) - out_space.local(y0, Y[n:])
+    return (dY / (2.0 * scale[:, None])).T
+
+
+class LinearTransition(Transition):
+    """x_k = F x_{k-1} (+ B u) + w, w ~ N(0, Q). ``F``/``Q`` fixed matrices."""
+
+    linear = True
+
+    def __init__(self, F: Array, Q: Array, B: Array | None = None) -> None:
+        self._F = np.asarray(F, float)
+        self._Q = np.asarray(Q, float)
+        self._B = None if B is None else np.asarray(B, float)
+        self.space = VectorSpace(self._F.shape[0])
+
+    def f(self, X, t, dt, u=None):
+        Y = X @ self._F.T
+        if self._B is not None and u is not None:
+            Y = Y + self._B @ u
+        return Y
+
+    def Q(self, t, dt, u=None):
+        return self._Q
+
+    def F(self, x, t, dt, u=None):
+        return self._F
+
+
+class LinearMeasurement(Measurement):
+    """z = H x + v, v ~ N(0, R)."""
+
+    linear = True
+
+    def __init__(self, H: Array, R: Array) -> None:
+        self._H = np.atleast_2d(np.asarray(H, float))
+        self.R = np.atleast_2d(np.asarray(R, float))
+        self.space = VectorSpace(self._H.shape[1])
+
+    def h(self, X):
+        return X @ self._H.T
+
+    def H(self, x):
+        return self._H

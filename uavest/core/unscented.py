@@ -1,0 +1,218 @@
+"""Unscented Kalman filter (Van der Merwe scaled sigma points, or cubature points) and
+its square-root form, on any :class:`Space` (UKF-M style: sigma points are tangent-space
+offsets mapped by ``retract``).
+
+Sigma points (n = tangent dimension, L = chol(P)):
+    lambda = alpha^2 (n + kappa) - n,   c = sqrt(n + lambda)
+    chi_0 = x,  chi_i = retract(x, +c L[:, i]),  chi_{n+i} = retract(x, -c L[:, i])
+    Wm_0 = lambda / (n + lambda),  Wc_0 = Wm_0 + 1 - alpha^2 + beta,
+    Wm_i = Wc_i = 1 / (2 (n + lambda))
+Cubature (``points="cubature"``): the 2n points +-sqrt(n) L[:, i], weights 1/(2n).
+
+predict:  X_j = f(chi_j);  x- = mean(X, Wm);  P- = sum Wc_j d_j d_j^T + Q, d_j = local(x-, X_j)
+update:   fresh sigma points of (x-, P-); Z_j = h(chi_j); z- = mean(Z, Wm)
+          Pzz = sum Wc e_j e_j^T + R, e_j = Z_j (-) z-;  Pxz = sum Wc D_j e_j^T (D_j offsets)
+          K = Pxz Pzz^-1 (solve);  x+ = retract(x-, K (z (-) z-));  P+ = P- - K Pzz K^T
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from .base import Innovation, innovation
+from .gaussian import Gaussian
+from .linalg import chol, gain, symmetrize
+from .model import Measurement, Transition
+
+Array = np.ndarray
+
+
+@lru_cache(maxsize=64)
+def sigma_weights(
+    n: int, alpha: float, beta: float, kappa: float, points: str
+) -> tuple[float, np.ndarray, np.ndarray]:
+    """(c, Wm, Wc) for ``points`` in {"merwe", "cubature"}; arrays are read-only."""
+    if points == "cubature":
+        c = np.sqrt(n)
+        Wm = np.full(2 * n, 1.0 / (2 * n))
+        Wc = Wm.copy()
+    elif points == "merwe":
+        lam = alpha**2 * (n + kappa) - n
+        if n + lam <= 0:
+            raise ValueError(f"UKF: n + lambda = {n + lam} must be > 0 (alpha, kappa)")
+        c = np.sqrt(n + lam)
+        Wm = np.full(2 * n + 1, 1.0 / (2 * (n + lam)))
+        Wc = Wm.copy()
+        Wm[0] = lam / (n + lam)
+        Wc[0] = Wm[0] + 1.0 - alpha**2 + beta
+    else:
+        raise ValueError(f"unknown sigma points {points!r}: 'merwe' or 'cubature'")
+    Wm.flags.writeable = False
+    Wc.flags.writeable = False
+    return float(c), Wm, Wc
+
+
+def sigma_offsets(L: Array, c: float, points: str) -> Array:
+    """Tangent offsets (2n+1, n) (merwe, first row zero) or (2n, n) (cubature)."""
+    cL = c * L.T
+    if points == "cubature":
+        return np.vstack([cL, -cL])
+    return np.vstack([np.zeros((1, L.shape[0])), cL, -cL])
+
+
+@dataclass(frozen=True)
+class UKF:
+    """Unscented Kalman filter. ``alpha``, ``beta``, ``kappa`` as Van der Merwe; defaults
+    alpha=1, beta=2, kappa=0 (all weights positive but Wc_0 = 2). ``points="cubature"``
+    gives the cubature Kalman filter."""
+
+    alpha: float = 1.0
+    beta: float = 2.0
+    kappa: float = 0.0
+    points: str = "merwe"
+    name: str = "ukf"
+
+    def _w(self, n: int):
+        return sigma_weights(n, self.alpha, self.beta, self.kappa, self.points)
+
+    def init(self, prior: Gaussian, space, rng=None) -> Gaussian:
+        return prior
+
+    def predict_cross(
+        self, g: Gaussian, model: Transition, t: float, dt: float, u: Array | None = None
+    ) -> tuple[Gaussian, Array]:
+        """Predict; also return the cross-covariance C = Cov(x_k, x_{k+1}) (n x n) used by
+        the unscented RTS smoother."""
+        space = model.space
+        c, Wm, Wc = self._w(space.dim)
+        D = sigma_offsets(chol(g.P), c, self.points)
+        Y = model.f(space.retract(g.x, D), t, dt, u)
+        x = space.mean(Y, Wm, Y[0])
+        dY = space.local(x, Y)
+        dYw = dY.T * Wc
+        P = symmetrize(dYw @ dY + model.Q(t, dt, u))
+        return Gaussian(x, P), (D.T * Wc) @ dY
+
+    def predict(self, g: Gaussian, model: Transition, t: float, dt: float, u=None, rng=None):
+        return self.predict_cross(g, model, t, dt, u)[0]
+
+    def update(
+        self, g: Gaussian, z: Array, model: Measurement, rng=None
+    ) -> tuple[Gaussian, Innovation]:
+        space = model.space
+        c, Wm, Wc = self._w(space.dim)
+        D = sigma_offsets(chol(g.P), c, self.points)
+        Z = model.h(space.retract(g.x, D))
+        zhat = model.mean(Z, Wm)
+        E = model.residual(Z, zhat)
+        Ew = E.T * Wc
+        S = symmetrize(Ew @ E + model.R)
+        Pxz = (D.T * Wc) @ E
+        K = gain(Pxz, S)
+        nu = model.residual(z, zhat)
+        x = space.retract(g.x, K @ nu)
+        P = symmetrize(g.P - K @ S @ K.T)
+        return Gaussian(x, P), innovation(nu, S)
+
+    def estimate(self, g: Gaussian) -> Gaussian:
+        return g
+
+
+# ----------------------------------------------------------------------------- square root
+
+
+@dataclass(frozen=True, slots=True)
+class SqrtGaussian:
+    """Mean ``x`` and lower-triangular square root ``S`` of the covariance (P = S S^T)."""
+
+    x: Array
+    S: Array
+
+
+def cholupdate(L: Array, v: Array, sign: float = 1.0) -> Array:
+    """Rank-1 update (sign=+1) or downdate (sign=-1) of a lower Cholesky factor:
+    returns L' with L' L'^T = L L^T + sign v v^T. Raises LinAlgError if a downdate
+    would lose positive definiteness. O(n^2), loop over the n columns only."""
+    L = L.copy()
+    v = v.astype(float).copy()
+    n = v.shape[0]
+    for k in range(n):
+        r2 = L[k, k] ** 2 + sign * v[k] ** 2
+        if r2 <= 0.0 or not np.isfinite(r2):
+            raise np.linalg.LinAlgError("cholupdate: downdate lost positive definiteness")
+        r = np.sqrt(r2)
+        cc = r / L[k, k]
+        s = v[k] / L[k, k]
+        L[k, k] = r
+        if k + 1 < n:
+            L[k + 1 :, k] = (L[k + 1 :, k] + sign * s * v[k + 1 :]) / cc
+            v[k + 1 :] = cc * v[k + 1 :] - s * L[k + 1 :, k]
+    return L
+
+
+def _qr_lower(A: Array) -> Array:
+    """Lower-triangular L with L L^T = A^T A, via QR of A (positive diagonal)."""
+    R = np.linalg.qr(A, mode="r")
+    n = A.shape[1]
+    R = R[:n, :n]
+    sgn = np.sign(np.diag(R))
+    sgn[sgn == 0] = 1.0
+    return (R * sgn[:, None]).T
+
+
+@dataclass(frozen=True)
+class SRUKF:
+    """Square-root UKF (Van der Merwe & Wan 2001; seed 002): propagates S = sqrt(P) with a
+    QR decomposition of the weighted sigma deviations and a rank-1 Cholesky update for the
+    zeroth point (a downdate when Wc_0 < 0), so P stays PSD by construction."""
+
+    alpha: float = 1.0
+    beta: float = 2.0
+    kappa: float = 0.0
+    name: str = "srukf"
+
+    def _w(self, n: int):
+        return sigma_weights(n, self.alpha, self.beta, self.kappa, "merwe")
+
+    def init(self, prior: Gaussian, space, rng=None) -> SqrtGaussian:
+        return SqrtGaussian(prior.x, chol(prior.P))
+
+    @staticmethod
+    def _sqrt_cov(dev: Array, Wc: Array, sqrt_noise: Array) -> Array:
+        A = np.vstack([np.sqrt(Wc[1]) * dev[1:], sqrt_noise.T])
+        L = _qr_lower(A)
+        return cholupdate(L, np.sqrt(abs(Wc[0])) * dev[0], 1.0 if Wc[0] >= 0 else -1.0)
+
+    def predict(self, s: SqrtGaussian, model: Transition, t, dt, u=None, rng=None):
+        space = model.space
+        c, Wm, Wc = self._w(space.dim)
+        D = sigma_offsets(s.S, c, "merwe")
+        Y = model.f(space.retract(s.x, D), t, dt, u)
+        x = space.mean(Y, Wm, Y[0])
+        dY = space.local(x, Y)
+        return SqrtGaussian(x, self._sqrt_cov(dY, Wc, chol(model.Q(t, dt, u))))
+
+    def update(self, s: SqrtGaussian, z, model: Measurement, rng=None):
+        space = model.space
+        c, Wm, Wc = self._w(space.dim)
+        D = sigma_offsets(s.S, c, "merwe")
+        Z = model.h(space.retract(s.x, D))
+        zhat = model.mean(Z, Wm)
+        E = model.residual(Z, zhat)
+        Sy = self._sqrt_cov(E, Wc, chol(model.R))
+        Pxz = (D.T * Wc) @ E
+        # K = Pxz (Sy Sy^T)^-1 by two triangular solves
+        K = np.linalg.solve(Sy.T, np.linalg.solve(Sy, Pxz.T)).T
+        nu = model.residual(z, zhat)
+        x = space.retract(s.x, K @ nu)
+        U = K @ Sy
+        S = s.S
+        for j in range(U.shape[1]):  # m downdates (m = measurement dim, not members)
+            S = cholupdate(S, U[:, j], -1.0)
+        return SqrtGaussian(x, S), innovation(nu, Sy @ Sy.T)
+
+    def estimate(self, s: SqrtGaussian) -> Gaussian:
+        return Gaussian(s.x, s.S @ s.S.T)

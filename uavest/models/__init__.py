@@ -1,0 +1,1 @@
+"""Transition and measurement models (vectorised; know nothing of files or links)."""
