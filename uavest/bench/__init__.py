@@ -1,0 +1,1 @@
+"""Monte Carlo harness, scenarios and the ``uavest bench`` command."""
