@@ -1,0 +1,263 @@
+"""Public entry points: :func:`open_source` (streaming) and :func:`read_log` (arrays)."""
+
+from __future__ import annotations
+
+import re
+import struct
+from pathlib import Path
+
+import numpy as np
+
+from .mavlink import MavlinkSource
+from .types import (
+    AttitudeRef,
+    ImuSample,
+    ImuSeries,
+    IngestError,
+    LogData,
+    MagSample,
+    MagSeries,
+    PositionSample,
+    PositionSeries,
+    RefSeries,
+)
+from .ulog import ULOG_MAGIC, ULogData, ULogSource
+
+Source = MavlinkSource | ULogSource
+
+_LIVE_RE = re.compile(r"^(udp|udpin|udpout|udpbcast|tcp|tcpin|serial|mcast|com\d+|/dev/)", re.I)
+_DF_MAGIC = b"\xa3\x95\x80"  # DataFlash header + FMT message id 128
+_SNIFF = 64 * 1024
+
+
+def detect_format(path: str | Path) -> str:
+    """Format of a log file by content: "ulog" | "dataflash" | "dataflash-text" | "tlog".
+
+    Raises :class:`IngestError` if the file is missing, empty or none of these.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise IngestError(f"{p}: no such file (expected a .tlog, .bin or .ulg log)")
+    with open(p, "rb") as f:
+        head = f.read(_SNIFF)
+    if not head:
+        raise IngestError(f"{p}: empty file (expected a .tlog, .bin or .ulg log)")
+    if head.startswith(ULOG_MAGIC):
+        return "ulog"
+    if head.startswith(_DF_MAGIC):
+        return "dataflash"
+    if head.startswith(b"FMT,") or head.startswith(b"FMT, "):
+        return "dataflash-text"
+    if _looks_like_tlog(head):
+        return "tlog"
+    ext = p.suffix.lower()
+    expected = {".ulg": "a PX4 ULog (magic 'ULog')", ".bin": "an ArduPilot DataFlash log"}.get(
+        ext, "a MAVLink telemetry log (.tlog: 8-byte timestamp + MAVLink frame records)"
+    )
+    raise IngestError(f"{p}: not {expected}; no valid header or MAVLink frames in the first 64 KiB")
+
+
+def _looks_like_tlog(head: bytes) -> bool:
+    """True if at least 3 CRC-valid MAVLink frames are found in ``head``."""
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    mav = mavlink.MAVLink(None)
+    mav.robust_parsing = True
+    good = 0
+    try:
+        msgs = mav.parse_buffer(head) or []
+    except Exception:  # noqa: BLE001
+        return False
+    for m in msgs:
+        if m.get_type() != "BAD_DATA":
+            good += 1
+    if good < 3:
+        return False
+    # and the records start with a plausible big-endian usec timestamp (tlog framing)
+    (tus,) = struct.unpack(">Q", head[:8])
+    return 0 <= tus < 2**62
+
+
+def open_source(path_or_url: str | Path, *, imu: str | None = None) -> Source:
+    """Open a log file or live MAVLink connection string as a measurement stream.
+
+    Files: ``.tlog`` (MAVLink telemetry), ArduPilot DataFlash ``.bin`` (binary or
+    text), PX4 ``.ulg``; the format is detected from the content.  Live links:
+    pymavlink connection strings (``udpin:0.0.0.0:14550``, ``tcp:host:5760``,
+    ``/dev/ttyACM0``...), format ``"mavlink-live"``.
+
+    The returned source is iterable; it yields :class:`ImuSample` (rad/s, m/s^2,
+    body FRD), :class:`MagSample` (gauss, body FRD), :class:`AttitudeRef`
+    (quaternion [w,x,y,z] body FRD -> NED) and :class:`PositionSample` in
+    vehicle-time order (s).  ``imu`` restricts IMU samples to that source
+    (e.g. ``"RAW_IMU"``, ``"IMU[1]"``); None yields every IMU source.
+    ``.stats``, ``.params`` (name -> float) and ``.format`` are attributes.
+    """
+    s = str(path_or_url)
+    if _LIVE_RE.match(s) and not Path(s).is_file():
+        return MavlinkSource(s, "mavlink-live", imu=imu, reorder_window=0.2)
+    fmt = detect_format(s)
+    if fmt == "ulog":
+        return ULogSource(Path(s), imu=imu)
+    return MavlinkSource(Path(s), fmt, imu=imu)
+
+
+# ---------------------------------------------------------------------- read_log
+
+_IMU_PREF = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "IMU[0]", "sensor_combined")
+
+
+def _imu_rank(name: str, count: int, best: int) -> tuple:
+    # most samples wins; within 2 % of the best, prefer the primary (instance 0) sources
+    near = count >= 0.98 * best
+    pref = _IMU_PREF.index(name) if name in _IMU_PREF else len(_IMU_PREF)
+    return (not near, pref, -count, name)
+
+
+def _sort_dedup(t: np.ndarray, *arrays: np.ndarray):
+    order = np.argsort(t, kind="stable")
+    t = t[order]
+    keep = np.concatenate([[True], np.diff(t) > 0]) if t.size else np.ones(0, bool)
+    return (t[keep],) + tuple(a[order][keep] for a in arrays)
+
+
+def _window(t: np.ndarray, start: float | None, end: float | None) -> np.ndarray:
+    k = np.ones(t.shape[0], dtype=bool)
+    if start is not None:
+        k &= t >= start
+    if end is not None:
+        k &= t <= end
+    return k
+
+
+def _collect_stream(src: MavlinkSource):
+    imu: dict[str, list] = {}
+    mag: dict[str, list] = {}
+    refs: dict[str, list] = {}
+    pos: dict[str, list] = {}
+    for m in src:
+        if isinstance(m, ImuSample):
+            imu.setdefault(m.source, []).append(m)
+        elif isinstance(m, MagSample):
+            mag.setdefault(m.source, []).append(m)
+        elif isinstance(m, AttitudeRef):
+            refs.setdefault(m.source, []).append(m)
+        elif isinstance(m, PositionSample):
+            pos.setdefault(m.source, []).append(m)
+    nan3 = np.full(3, np.nan)
+    out_imu = {
+        s: (
+            np.array([x.t for x in v]),
+            np.array([x.gyro for x in v]),
+            np.array([x.accel for x in v]),
+            v[0].instance,
+        )
+        for s, v in imu.items()
+    }
+    out_mag = {
+        s: (np.array([x.t for x in v]), np.array([x.field for x in v]), v[0].instance)
+        for s, v in mag.items()
+    }
+    out_refs = {
+        s: (np.array([x.t for x in v]), np.array([x.q for x in v]), v[0].kind)
+        for s, v in refs.items()
+    }
+    out_pos = {
+        s: (
+            np.array([x.t for x in v]),
+            np.array([nan3 if x.ned is None else x.ned for x in v]),
+            np.array([nan3 if x.vel_ned is None else x.vel_ned for x in v]),
+            np.array([nan3 if x.lat_lon_alt is None else x.lat_lon_alt for x in v]),
+        )
+        for s, v in pos.items()
+    }
+    return out_imu, out_mag, out_refs, out_pos
+
+
+def read_log(
+    path: str | Path,
+    *,
+    imu: str | None = None,
+    start: float | None = None,
+    end: float | None = None,
+) -> LogData:
+    """Read a whole log into time-sorted, de-duplicated numpy arrays.
+
+    ``imu`` selects an IMU source by name (``"RAW_IMU"``, ``"SCALED_IMU2"``,
+    ``"HIGHRES_IMU"``, ``"IMU[1]"``, ``"sensor_combined"``); by default the source
+    with the most samples is chosen (near-ties within 2 % go to the primary
+    instance).  ``start``/``end`` clip all series to that vehicle-clock window (s,
+    same scale as the ``t`` arrays).  Units/frames as in :mod:`uavest.ingest.types`.
+    Raises :class:`IngestError` for unreadable files or an unknown ``imu`` name.
+    """
+    p = Path(path)
+    fmt = detect_format(p)
+    if fmt == "ulog":
+        from .types import IngestStats
+
+        stats = IngestStats()
+        d = ULogData(p, stats)
+        imu_d, mag_d, ref_d, pos_d, params = d.imu, d.mag, d.refs, d.pos, d.params
+    else:
+        src = MavlinkSource(p, fmt)
+        imu_d, mag_d, ref_d, pos_d = _collect_stream(src)
+        stats, params = src.stats, src.params
+
+    counts = {s: int(v[0].shape[0]) for s, v in imu_d.items()}
+    if imu is not None:
+        if imu not in imu_d:
+            raise IngestError(f"{p}: IMU source {imu!r} not in log (available: {sorted(counts)})")
+        chosen = imu
+    elif counts:
+        best = max(counts.values())
+        chosen = min(counts, key=lambda s: _imu_rank(s, counts[s], best))
+    else:
+        chosen = None
+    if chosen is None:
+        z3 = np.zeros((0, 3))
+        imu_series = ImuSeries(np.zeros(0), z3, z3.copy(), "", 0)
+    else:
+        t, g, a, inst = imu_d[chosen]
+        t, g, a = _sort_dedup(t, g, a)
+        k = _window(t, start, end)
+        imu_series = ImuSeries(t[k], g[k], a[k], chosen, inst)
+
+    mag_counts = {s: int(v[0].shape[0]) for s, v in mag_d.items()}
+    mag_series = None
+    if mag_counts:
+        if chosen in mag_counts:
+            mname = chosen
+        else:
+            best = max(mag_counts.values())
+            mname = min(mag_counts, key=lambda s: _imu_rank(s, mag_counts[s], best))
+        t, f, inst = mag_d[mname]
+        t, f = _sort_dedup(t, f)
+        k = _window(t, start, end)
+        mag_series = MagSeries(t[k], f[k], mname, inst)
+
+    refs = {}
+    for s, (t, q, kind) in ref_d.items():
+        t, q = _sort_dedup(t, q)
+        k = _window(t, start, end)
+        refs[s] = RefSeries(t[k], q[k], kind, s)
+    positions = {}
+    for s, (t, n, v, lla) in pos_d.items():
+        t, n, v, lla = _sort_dedup(t, n, v, lla)
+        k = _window(t, start, end)
+        positions[s] = PositionSeries(t[k], n[k], v[k], lla[k], s)
+
+    return LogData(
+        path=p,
+        format=fmt if fmt != "dataflash-text" else "dataflash",
+        imu=imu_series,
+        mag=mag_series,
+        references=refs,
+        positions=positions,
+        params=dict(params),
+        stats=stats,
+        imu_sources=counts,
+        mag_sources=mag_counts,
+    )
+
+
+__all__ = ["open_source", "read_log", "detect_format", "Source"]

@@ -1,0 +1,333 @@
+"""Unit and frame conversions from log records to SI measurements.
+
+Pure functions, no I/O.  Each ``convert_*`` returns a list of :class:`Raw`
+items (values in SI, explicit frames) still without a vehicle-clock time;
+the sources attach the time, check plausibility and build the dataclasses.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+G0 = 9.80665  # m/s^2 per g (standard gravity, as used by MAVLink "milli-g")
+MG_TO_MS2 = G0 * 1e-3  # milli-g -> m/s^2
+MRAD_TO_RAD = 1e-3  # milli-rad/s -> rad/s
+MGAUSS_TO_GAUSS = 1e-3  # milli-gauss -> gauss
+DEG = math.pi / 180.0
+
+# Plausibility limits (see docs/ingest.md)
+MAX_GYRO = 35.0  # rad/s (|w|, ~2000 deg/s)
+MAX_ACCEL = 32.0 * G0  # m/s^2 (|a|, 32 g)
+MAX_MAG = 10.0  # gauss (|B|; Earth ~0.25..0.65)
+QUAT_NORM_TOL = 1e-3 + 1e-6  # |norm(q) - 1| tolerance (float32 precision included)
+MAX_POS = 1e7  # m, |NED|
+MAX_VEL = 1e3  # m/s, |v|
+
+
+@dataclass(slots=True)
+class Raw:
+    """A converted value waiting for a timestamp.
+
+    cat: "imu" | "mag" | "ref" | "pos".  values: tuple of arrays (imu: gyro,
+    accel; mag: field; ref: q; pos: ned, vel_ned, lat_lon_alt, each may be None).
+    """
+
+    cat: str
+    source: str
+    instance: int
+    values: tuple
+    kind: str = ""  # reference kind for cat == "ref"
+
+
+def stat_key(raw: Raw) -> str:
+    """Name under which an item is counted in IngestStats (mag of an IMU message: '<src>.mag')."""
+    if raw.cat == "mag" and not raw.source.startswith("MAG"):
+        return raw.source + ".mag"
+    return raw.source
+
+
+def euler_to_quat(roll, pitch, yaw) -> np.ndarray:
+    """Aerospace 3-2-1 Euler angles (rad) -> quaternion [w, x, y, z], body FRD -> NED.
+
+    Equals ``Rotation.from_euler('ZYX', [yaw, pitch, roll])`` (scalar-first).
+    Vectorised: array inputs of shape (N,) give (N, 4).
+    """
+    r = np.asarray(roll, dtype=float) * 0.5
+    p = np.asarray(pitch, dtype=float) * 0.5
+    y = np.asarray(yaw, dtype=float) * 0.5
+    cr, sr = np.cos(r), np.sin(r)
+    cp, sp = np.cos(p), np.sin(p)
+    cy, sy = np.cos(y), np.sin(y)
+    q = np.stack(
+        [
+            cr * cp * cy + sr * sp * sy,
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+        ],
+        axis=-1,
+    )
+    return _canonical(q)
+
+
+def _canonical(q: np.ndarray) -> np.ndarray:
+    """Return q with non-negative scalar part (q and -q are the same rotation)."""
+    q = np.array(q, dtype=float)
+    if q.ndim == 1:
+        return -q if q[0] < 0 else q
+    q[q[:, 0] < 0] *= -1.0
+    return q
+
+
+def normalize_quat(q) -> np.ndarray:
+    """Normalise (and make w >= 0); caller must have checked the norm is close to 1."""
+    q = np.asarray(q, dtype=float)
+    n = np.linalg.norm(q, axis=-1, keepdims=True)
+    return _canonical(q / n)
+
+
+# --------------------------------------------------------------------------- checks
+
+
+def check(raw: Raw) -> str | None:
+    """Return the bad-data kind for a converted item, or None if it is plausible."""
+    vals = [v for v in raw.values if v is not None]
+    for v in vals:
+        if not np.all(np.isfinite(v)):
+            return "nan"
+    if raw.cat == "imu":
+        gyro, accel = raw.values
+        if not (np.any(gyro) or np.any(accel)):
+            return "empty"
+        if np.linalg.norm(gyro) > MAX_GYRO or np.linalg.norm(accel) > MAX_ACCEL:
+            return "out_of_range"
+    elif raw.cat == "mag":
+        (f,) = raw.values
+        if not np.any(f):
+            return "empty"
+        if np.linalg.norm(f) > MAX_MAG:
+            return "out_of_range"
+    elif raw.cat == "ref":
+        (q,) = raw.values
+        if abs(np.linalg.norm(q) - 1.0) > QUAT_NORM_TOL:
+            return "out_of_range"
+    elif raw.cat == "pos":
+        ned, vel, lla = raw.values
+        if ned is not None and np.linalg.norm(ned) > MAX_POS:
+            return "out_of_range"
+        if vel is not None and np.linalg.norm(vel) > MAX_VEL:
+            return "out_of_range"
+        if lla is not None:
+            if abs(lla[0]) > 90 or abs(lla[1]) > 180 or abs(lla[2]) > 1e5:
+                return "out_of_range"
+            if lla[0] == 0 and lla[1] == 0:
+                return "empty"
+    return None
+
+
+def _euler_ok(roll: float, pitch: float, yaw: float) -> bool:
+    e = 1e-3
+    return (
+        abs(roll) <= math.pi + e and abs(pitch) <= math.pi / 2 + e and abs(yaw) <= 2 * math.pi + e
+    )
+
+
+def _ref_from_euler(source: str, kind: str, roll: float, pitch: float, yaw: float) -> Raw:
+    vals = np.array([roll, pitch, yaw], dtype=float)
+    if not np.all(np.isfinite(vals)):
+        return Raw("ref", source, 0, (np.full(4, np.nan),), kind)
+    if not _euler_ok(*vals):
+        # encode as a deliberately non-unit quaternion so check() flags out_of_range
+        return Raw("ref", source, 0, (np.zeros(4),), kind)
+    return Raw("ref", source, 0, (euler_to_quat(*vals),), kind)
+
+
+def _ref_from_quat(source: str, kind: str, w, x, y, z) -> Raw:
+    q = np.array([w, x, y, z], dtype=float)
+    if np.all(np.isfinite(q)) and abs(np.linalg.norm(q) - 1.0) <= QUAT_NORM_TOL:
+        q = normalize_quat(q)
+    return Raw("ref", source, 0, (q,), kind)
+
+
+# --------------------------------------------------------------------------- MAVLink
+
+_MILLI_IMU = {"RAW_IMU": 0, "SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}
+
+
+def _milli_imu(m, name: str) -> list[Raw]:
+    # ArduPilot fills RAW_IMU with the same calibrated, scaled units as SCALED_IMU
+    # (milli-g, milli-rad/s, milli-gauss); see docs/ingest.md.
+    inst = _MILLI_IMU[name]
+    if name == "RAW_IMU":
+        inst = int(getattr(m, "id", 0) or 0)
+    gyro = np.array([m.xgyro, m.ygyro, m.zgyro], dtype=float) * MRAD_TO_RAD
+    accel = np.array([m.xacc, m.yacc, m.zacc], dtype=float) * MG_TO_MS2
+    mag = np.array([m.xmag, m.ymag, m.zmag], dtype=float) * MGAUSS_TO_GAUSS
+    out = [Raw("imu", name, inst, (gyro, accel))]
+    if np.any(mag) or not np.all(np.isfinite(mag)):
+        out.append(Raw("mag", name, inst, (mag,)))
+    return out
+
+
+def _highres_imu(m, name: str) -> list[Raw]:
+    inst = int(getattr(m, "id", 0) or 0)
+    upd = int(getattr(m, "fields_updated", 0) or 0)
+    gyro = np.array([m.xgyro, m.ygyro, m.zgyro], dtype=float)
+    accel = np.array([m.xacc, m.yacc, m.zacc], dtype=float)
+    mag = np.array([m.xmag, m.ymag, m.zmag], dtype=float)
+    out = []
+    if upd == 0 or upd & 0x3F:
+        out.append(Raw("imu", name, inst, (gyro, accel)))
+    if upd == 0 or upd & 0x1C0:
+        if np.any(mag) or not np.all(np.isfinite(mag)):
+            out.append(Raw("mag", name, inst, (mag,)))
+    return out
+
+
+def _attitude(m, name: str) -> list[Raw]:
+    return [_ref_from_euler(name, "autopilot", m.roll, m.pitch, m.yaw)]
+
+
+def _attitude_q(m, name: str) -> list[Raw]:
+    return [_ref_from_quat(name, "autopilot", m.q1, m.q2, m.q3, m.q4)]
+
+
+def _simstate(m, name: str) -> list[Raw]:
+    return [_ref_from_euler(name, "truth", m.roll, m.pitch, m.yaw)]
+
+
+def _ahrs2(m, name: str) -> list[Raw]:
+    return [_ref_from_euler(name, "ahrs2", m.roll, m.pitch, m.yaw)]
+
+
+def _global_pos(m, name: str) -> list[Raw]:
+    lla = np.array([m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3])
+    vel = np.array([m.vx, m.vy, m.vz], dtype=float) * 1e-2
+    return [Raw("pos", name, 0, (None, vel, lla))]
+
+
+def _local_pos(m, name: str) -> list[Raw]:
+    ned = np.array([m.x, m.y, m.z], dtype=float)
+    vel = np.array([m.vx, m.vy, m.vz], dtype=float)
+    return [Raw("pos", name, 0, (ned, vel, None))]
+
+
+MAVLINK_CONVERTERS = {
+    "RAW_IMU": _milli_imu,
+    "SCALED_IMU": _milli_imu,
+    "SCALED_IMU2": _milli_imu,
+    "SCALED_IMU3": _milli_imu,
+    "HIGHRES_IMU": _highres_imu,
+    "ATTITUDE": _attitude,
+    "ATTITUDE_QUATERNION": _attitude_q,
+    "SIMSTATE": _simstate,
+    "AHRS2": _ahrs2,
+    "GLOBAL_POSITION_INT": _global_pos,
+    "LOCAL_POSITION_NED": _local_pos,
+}
+
+
+def convert_mavlink(msg) -> list[Raw]:
+    """Convert one pymavlink MAVLink message to SI items (empty list if not used)."""
+    name = msg.get_type()
+    f = MAVLINK_CONVERTERS.get(name)
+    return f(msg, name) if f is not None else []
+
+
+# --------------------------------------------------------------------------- DataFlash
+
+_SUFFIX = re.compile(r"^([A-Z]+?)(\d)$")
+
+
+def _df_instance(m, name: str, base: str) -> int:
+    i = getattr(m, "I", None)
+    if i is not None:
+        return int(i)
+    mo = _SUFFIX.match(name)
+    if mo and mo.group(1) == base:
+        return int(mo.group(2)) - 1
+    return 0
+
+
+def _df_imu(m, name: str) -> list[Raw]:
+    inst = _df_instance(m, name, "IMU")
+    gyro = np.array([m.GyrX, m.GyrY, m.GyrZ], dtype=float)
+    accel = np.array([m.AccX, m.AccY, m.AccZ], dtype=float)
+    return [Raw("imu", f"IMU[{inst}]", inst, (gyro, accel))]
+
+
+def _df_mag(m, name: str) -> list[Raw]:
+    inst = _df_instance(m, name, "MAG")
+    # MagX.. are the calibrated field (offsets already applied) in milligauss.
+    fld = np.array([m.MagX, m.MagY, m.MagZ], dtype=float) * MGAUSS_TO_GAUSS
+    return [Raw("mag", f"MAG[{inst}]", inst, (fld,))]
+
+
+def _df_euler_deg(m, name: str, kind: str) -> Raw:
+    yaw = float(m.Yaw)
+    if yaw > 180.0:
+        yaw -= 360.0
+    return _ref_from_euler(name, kind, float(m.Roll) * DEG, float(m.Pitch) * DEG, yaw * DEG)
+
+
+def _df_att(m, name: str) -> list[Raw]:
+    return [_df_euler_deg(m, name, "autopilot")]
+
+
+def _df_quat_or_euler(m, name: str, kind: str) -> list[Raw]:
+    if all(hasattr(m, k) for k in ("Q1", "Q2", "Q3", "Q4")):
+        return [_ref_from_quat(name, kind, m.Q1, m.Q2, m.Q3, m.Q4)]
+    return [_df_euler_deg(m, name, kind)]
+
+
+def _df_ahr2(m, name: str) -> list[Raw]:
+    return _df_quat_or_euler(m, name, "ahrs2")
+
+
+def _df_sim(m, name: str) -> list[Raw]:
+    return _df_quat_or_euler(m, name, "truth")
+
+
+def _df_pos(m, name: str) -> list[Raw]:
+    lla = np.array([m.Lat, m.Lng, m.Alt], dtype=float)
+    return [Raw("pos", name, 0, (None, None, lla))]
+
+
+def _df_gps(m, name: str) -> list[Raw]:
+    if int(getattr(m, "Status", 3)) < 3:  # no 3D fix
+        return [Raw("pos", name, 0, (None, None, np.zeros(3)))]
+    lla = np.array([m.Lat, m.Lng, m.Alt], dtype=float)
+    spd, crs = float(m.Spd), float(m.GCrs) * DEG
+    vel = np.array([spd * math.cos(crs), spd * math.sin(crs), float(m.VZ)])
+    return [Raw("pos", name, 0, (None, vel, lla))]
+
+
+DATAFLASH_CONVERTERS = {
+    "IMU": _df_imu,
+    "IMU2": _df_imu,
+    "IMU3": _df_imu,
+    "MAG": _df_mag,
+    "MAG2": _df_mag,
+    "MAG3": _df_mag,
+    "ATT": _df_att,
+    "AHR2": _df_ahr2,
+    "SIM": _df_sim,
+    "POS": _df_pos,
+    "GPS": _df_gps,
+}
+
+
+def convert_dataflash(msg) -> list[Raw]:
+    """Convert one pymavlink DataFlash record to SI items (empty list if not used)."""
+    name = msg.get_type()
+    f = DATAFLASH_CONVERTERS.get(name)
+    if f is None:
+        return []
+    try:
+        return f(msg, name)
+    except AttributeError:  # an unexpected column layout for a known name
+        return []

@@ -1,0 +1,316 @@
+"""Sources read through pymavlink: telemetry logs (.tlog), DataFlash (.bin) and live links."""
+
+from __future__ import annotations
+
+import contextlib
+import heapq
+import io
+import math
+import os
+import re
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from .convert import Raw, check, convert_dataflash, convert_mavlink, stat_key
+from .timebase import StreamGate, VehicleClock
+from .types import (
+    AttitudeRef,
+    ImuSample,
+    IngestError,
+    IngestStats,
+    MagSample,
+    Measurement,
+    PositionSample,
+)
+
+# Messages without a time field: timed from receive time (see docs/ingest.md).
+_UNTIMED = {"SIMSTATE", "AHRS2"}
+_MAX_STALL = 1000  # reads without file progress before giving up (hang guard)
+_SKIPPED_RE = re.compile(r"Skipped (\d+) bad bytes")
+
+
+def build(raw: Raw, t: float) -> Measurement:
+    """Attach time ``t`` (s, vehicle clock) to a converted item."""
+    v = raw.values
+    if raw.cat == "imu":
+        return ImuSample(t, v[0], v[1], raw.source, raw.instance)
+    if raw.cat == "mag":
+        return MagSample(t, v[0], raw.source, raw.instance)
+    if raw.cat == "ref":
+        return AttitudeRef(t, v[0], raw.kind, raw.source)
+    return PositionSample(t, v[0], v[1], v[2], raw.source)
+
+
+class _Reorder:
+    """Small heap that releases measurements in time order once older than ``window`` s."""
+
+    def __init__(self, window: float, stats: IngestStats) -> None:
+        self.window = window
+        self.stats = stats
+        self.heap: list = []
+        self.seq = 0
+        self.newest = -math.inf
+        self.last_out = -math.inf
+
+    def push(self, m: Measurement) -> None:
+        if m.t < self.last_out:
+            self.stats.bad("late", m.source + (".mag" if isinstance(m, MagSample) else ""))
+            return
+        heapq.heappush(self.heap, (m.t, self.seq, m))
+        self.seq += 1
+        self.newest = max(self.newest, m.t)
+
+    def pop_ready(self, flush: bool = False) -> Iterator[Measurement]:
+        limit = math.inf if flush else self.newest - self.window
+        while self.heap and self.heap[0][0] <= limit:
+            t, _, m = heapq.heappop(self.heap)
+            self.last_out = t
+            yield m
+
+
+class MavlinkSource:
+    """Iterable of measurements from a tlog, a DataFlash log or a live MAVLink link.
+
+    Yields :class:`ImuSample`, :class:`MagSample`, :class:`AttitudeRef` and
+    :class:`PositionSample` in vehicle-time order (a ``reorder_window`` second
+    buffer absorbs the small disorder between message types).  ``stats`` and
+    ``params`` fill while iterating; ``params`` is complete after the iteration.
+    Iterating twice re-reads the file (not possible for live links).
+    """
+
+    def __init__(
+        self,
+        target: str | Path,
+        fmt: str,
+        *,
+        imu: str | None = None,
+        reorder_window: float = 1.0,
+    ) -> None:
+        self.path = target
+        self.format = fmt
+        self.imu = imu
+        self.reorder_window = reorder_window
+        self.stats = IngestStats()
+        self.params: dict[str, float] = {}
+
+    # ----------------------------------------------------------------- readers
+    def _open(self):
+        from pymavlink import DFReader, mavutil
+
+        try:
+            if self.format == "tlog":
+                return mavutil.mavlogfile(str(self.path), robust_parsing=True)
+            if self.format == "dataflash":
+                with contextlib.redirect_stdout(io.StringIO()):
+                    return DFReader.DFReader_binary(str(self.path), zero_time_base=False)
+            if self.format == "dataflash-text":
+                with contextlib.redirect_stdout(io.StringIO()):
+                    return DFReader.DFReader_text(str(self.path), zero_time_base=False)
+            return mavutil.mavlink_connection(str(self.path), robust_parsing=True)
+        except Exception as e:  # pymavlink raises many kinds on garbage
+            raise IngestError(
+                f"{self.path}: cannot open as {self.format} ({type(e).__name__}: {e})"
+            ) from e
+
+    def _messages(self) -> Iterator[tuple[object, float | None]]:
+        """Yield (message, receive time or None) with bad frames counted, never hanging."""
+        conn = self._open()
+        st = self.stats
+        is_df = self.format.startswith("dataflash")
+        live = self.format == "mavlink-live"
+        stall = 0
+        last_pos = -1
+        try:
+            while True:
+                buf = io.StringIO()
+                try:
+                    if live:
+                        msg = conn.recv_match(blocking=True, timeout=1.0)
+                        if msg is None:
+                            continue
+                    elif is_df:
+                        with contextlib.redirect_stdout(buf):
+                            msg = conn.recv_msg()
+                    else:
+                        msg = conn.recv_msg()
+                except Exception:  # noqa: BLE001 - corrupt bytes must not crash us
+                    st.bad("corrupt")
+                    msg = None
+                    if not is_df and not live and self._at_eof(conn):
+                        break
+                if is_df and buf.tell():
+                    text = buf.getvalue()
+                    st.bad("corrupt", n=len(_SKIPPED_RE.findall(text)))
+                    st.bad("unknown_message", n=text.count("unknown msg type"))
+                if not live:
+                    pos = self._position(conn)
+                    if pos == last_pos:
+                        stall += 1
+                        if stall > _MAX_STALL:
+                            st.bad("corrupt")
+                            break
+                    else:
+                        stall, last_pos = 0, pos
+                if msg is None:
+                    if live or not self._at_eof(conn):
+                        continue
+                    break
+                name = msg.get_type()
+                if name == "BAD_DATA":
+                    reason = str(getattr(msg, "reason", ""))
+                    st.bad("unknown_message" if "unknown" in reason.lower() else "corrupt")
+                    continue
+                if name.startswith("UNKNOWN"):
+                    st.bad("unknown_message")
+                    continue
+                st.messages[name] += 1
+                if live:
+                    rx = time.time()
+                elif is_df:
+                    rx = None
+                else:
+                    rx = getattr(msg, "_timestamp", None)
+                    if rx is not None and not math.isfinite(rx):
+                        rx = None
+                yield msg, rx
+        finally:
+            if not live:
+                self._check_truncated(conn)
+            with contextlib.suppress(Exception):
+                conn.close()
+
+    @staticmethod
+    def _position(conn) -> int:
+        if hasattr(conn, "offset"):
+            return int(conn.offset)
+        with contextlib.suppress(Exception):
+            return int(conn.f.tell())
+        return 0
+
+    def _at_eof(self, conn) -> bool:
+        size = getattr(conn, "data_len", None)
+        if size is None:
+            try:
+                size = os.fstat(conn.f.fileno()).st_size
+            except Exception:  # noqa: BLE001
+                return True
+        return self._position(conn) >= size
+
+    def _check_truncated(self, conn) -> None:
+        if self.format.startswith("dataflash"):
+            left = getattr(conn, "data_len", 0) - getattr(conn, "offset", 0)
+        else:
+            mav = getattr(conn, "mav", None)
+            left = len(getattr(mav, "buf", b"")) - getattr(mav, "buf_index", 0) if mav else 0
+        if left > 0:
+            self.stats.bad("truncated")
+
+    # ----------------------------------------------------------------- main loop
+    def __iter__(self) -> Iterator[Measurement]:
+        st = self.stats
+        is_df = self.format.startswith("dataflash")
+        clocks: dict[int, VehicleClock] = {}
+        gate = StreamGate(st)
+        reorder = _Reorder(self.reorder_window, st)
+        systime: dict[int, float] = {}  # sysid -> unix_us - boot_us offset (s)
+
+        def finish(items) -> None:
+            for t, (sysid, raw) in items:
+                key = (sysid, raw.cat, raw.source, raw.instance)
+                if not gate.admit(key, t, raw.values, stat_key(raw)):
+                    continue
+                st.accepted[stat_key(raw)] += 1
+                reorder.push(build(raw, t))
+
+        def drain(clock: VehicleClock) -> None:
+            for kind, (_sysid, raw) in clock.take_rejected():
+                st.bad(kind, stat_key(raw))
+
+        for msg, rx in self._messages():
+            name = msg.get_type()
+            if is_df:
+                if name == "PARM":
+                    self._param(getattr(msg, "Name", None), getattr(msg, "Value", None))
+                    continue
+                raws = convert_dataflash(msg)
+                sysid = 0
+            else:
+                if name == "PARAM_VALUE":
+                    self._param(getattr(msg, "param_id", None), getattr(msg, "param_value", None))
+                    continue
+                sysid = int(msg.get_srcSystem())
+                if name == "SYSTEM_TIME" and msg.time_boot_ms and msg.time_unix_usec:
+                    systime[sysid] = msg.time_unix_usec * 1e-6 - msg.time_boot_ms * 1e-3
+                    continue
+                raws = convert_mavlink(msg)
+            if not raws:
+                continue
+            if self.imu is not None:
+                raws = [r for r in raws if r.cat != "imu" or r.source == self.imu]
+            good = []
+            for r in raws:
+                bad = check(r)
+                if bad is None:
+                    good.append(r)
+                else:
+                    st.bad(bad, stat_key(r))
+            if not good:
+                continue
+            clock = clocks.get(sysid)
+            if clock is None:
+                clock = clocks[sysid] = VehicleClock(st)
+            raw_t = self._vehicle_time(msg, clock, systime.get(sysid))
+            if raw_t is None:
+                t = clock.map_rx(rx)
+                if t is None:
+                    for r in good:
+                        st.bad("no_time", stat_key(r))
+                    continue
+                finish([(t, (sysid, r)) for r in good])
+            else:
+                accepted: list = []
+                for r in good:
+                    accepted.extend(clock.push(raw_t, rx, (sysid, r)))
+                drain(clock)
+                finish(accepted)
+            yield from reorder.pop_ready()
+        for clock in clocks.values():
+            finish(clock.flush())
+            drain(clock)
+        yield from reorder.pop_ready(flush=True)
+
+    def _param(self, name, value) -> None:
+        if isinstance(name, bytes):
+            name = name.decode("ascii", "replace")
+        if not name or value is None:
+            return
+        name = str(name).rstrip("\x00")
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            return
+        if np.isfinite(v):
+            self.params[name] = v
+
+    @staticmethod
+    def _vehicle_time(msg, clock: VehicleClock, unix_offset: float | None) -> float | None:
+        """Raw vehicle time (s since boot) of a message, or None if it has none."""
+        if msg.get_type() in _UNTIMED:
+            return None
+        v = getattr(msg, "TimeUS", None)
+        if v is not None:
+            return v * 1e-6
+        v = getattr(msg, "time_usec", None)
+        if v is not None:
+            if v > 1e15:  # UNIX epoch time: map to boot time via SYSTEM_TIME if known
+                return v * 1e-6 - unix_offset if unix_offset is not None else None
+            return v * 1e-6
+        v = getattr(msg, "time_boot_ms", None)
+        if v is None:
+            v = getattr(msg, "TimeMS", None)
+        if v is not None:
+            return clock.unwrap_ms32(v * 1e-3)
+        return None

@@ -1,0 +1,170 @@
+"""Vehicle-clock handling: 32-bit wrap, reboots (resets), jumps, per-stream order.
+
+See docs/ingest.md "Timestamps".  All times are seconds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from .types import IngestStats
+
+WRAP_MS32 = 2**32 * 1e-3  # s, period of a uint32 millisecond counter (~49.7 days)
+RESET_JUMP = 2.0  # s, backwards jump (vs. newest time of the system) that may be a reboot
+FORWARD_JUMP_NO_RX = 60.0  # s, forward jump that is suspicious when no receive time
+FORWARD_JUMP_RX = 10.0  # s, forward jump beyond the receive-time elapsed
+CONFIRM = 3  # consecutive consistent messages needed to accept a reset/jump
+JITTER = 1.0  # s, allowed disorder between message types of one system
+
+
+@dataclass
+class _Pending:
+    raw: float
+    rx: float | None
+    payload: object
+
+
+@dataclass
+class VehicleClock:
+    """The clock of one system (MAVLink sysid, or the single DataFlash/ULog writer).
+
+    ``push(raw, rx, payload)`` takes a raw vehicle time (s since boot as read),
+    the log receive time (s, or None) and an opaque payload and returns the list
+    of ``(t, payload)`` that are now accepted, with ``t`` on a monotonic clock
+    (raw + offset; offset grows at each detected reboot).  Suspicious jumps are
+    held until ``CONFIRM`` consistent messages confirm them; otherwise the held
+    payloads are returned by ``take_rejected()`` for counting.
+    """
+
+    stats: IngestStats
+    offset: float = 0.0
+    max_raw: float | None = None
+    rx_at_max: float | None = None
+    last_rx: float | None = None
+    last_out: float | None = None
+    last_out_rx: float | None = None
+    _ms_last: float | None = None
+    _ms_wraps: int = 0
+    _pending: list[_Pending] = field(default_factory=list)
+    _pending_kind: str = ""
+    _rejected: list[tuple[str, object]] = field(default_factory=list)
+
+    def unwrap_ms32(self, t: float) -> float:
+        """Unwrap a time derived from a uint32 ms counter (s)."""
+        if self._ms_last is not None and t < self._ms_last - WRAP_MS32 / 2:
+            self._ms_wraps += 1
+            self.stats.time_wrap += 1
+        self._ms_last = t
+        return t + self._ms_wraps * WRAP_MS32
+
+    def map_rx(self, rx: float | None) -> float | None:
+        """Vehicle time for a message without a time field, from its receive time.
+
+        = latest accepted vehicle time of this system + receive time elapsed since
+        that message was received (0 if no receive times).  None if nothing seen yet.
+        """
+        if self.last_out is None:
+            return None
+        if rx is None or self.last_out_rx is None:
+            return self.last_out
+        return self.last_out + max(0.0, rx - self.last_out_rx)
+
+    def take_rejected(self) -> list[tuple[str, object]]:
+        r, self._rejected = self._rejected, []
+        return r
+
+    def _accept(self, raw: float, rx: float | None) -> float:
+        if self.max_raw is None or raw > self.max_raw:
+            self.max_raw, self.rx_at_max = raw, rx
+        t = raw + self.offset
+        if self.last_out is None or t >= self.last_out:
+            self.last_out, self.last_out_rx = t, rx
+        return t
+
+    def _reject_pending(self) -> None:
+        kind = "time_backwards" if self._pending_kind == "back" else "out_of_range"
+        self._rejected.extend((kind, p.payload) for p in self._pending)
+        self._pending = []
+
+    def _confirm_pending(self) -> list[tuple[float, object]]:
+        pend, self._pending = self._pending, []
+        if self._pending_kind == "back":
+            self.stats.time_reset += 1
+            first = pend[0]
+            gap = 1e-3
+            if first.rx is not None and self.rx_at_max is not None:
+                gap = max(gap, first.rx - self.rx_at_max)
+            new_base = min(p.raw for p in pend)
+            self.offset = (self.max_raw + self.offset) + gap - new_base
+            self.max_raw = None
+        return [(self._accept(p.raw, p.rx), p.payload) for p in pend]
+
+    def push(self, raw: float, rx: float | None, payload: object) -> list[tuple[float, object]]:
+        if rx is not None:
+            self.last_rx = rx
+        if self.max_raw is None:
+            return [(self._accept(raw, rx), payload)]
+        back = raw < self.max_raw - RESET_JUMP
+        if rx is not None and self.rx_at_max is not None:
+            fwd = raw > self.max_raw + max(0.0, rx - self.rx_at_max) + FORWARD_JUMP_RX
+        else:
+            fwd = raw > self.max_raw + FORWARD_JUMP_NO_RX
+        if not (back or fwd):
+            if self._pending:
+                self._reject_pending()
+            return [(self._accept(raw, rx), payload)]
+        kind = "back" if back else "fwd"
+        if self._pending:
+            last = self._pending[-1].raw
+            lo = min(p.raw for p in self._pending)
+            if kind == self._pending_kind and lo - JITTER <= raw <= last + FORWARD_JUMP_NO_RX:
+                self._pending.append(_Pending(raw, rx, payload))
+                if len(self._pending) >= CONFIRM and max(p.raw for p in self._pending) > lo:
+                    return self._confirm_pending()
+                return []
+            self._reject_pending()
+        self._pending_kind = kind
+        self._pending.append(_Pending(raw, rx, payload))
+        return []
+
+    def flush(self) -> list[tuple[float, object]]:
+        """At end of input: confirm a held jump seen >= 2 times with progress, else reject."""
+        if not self._pending:
+            return []
+        if len(self._pending) >= 2 and max(p.raw for p in self._pending) > self._pending[0].raw:
+            return self._confirm_pending()
+        self._reject_pending()
+        return []
+
+
+@dataclass
+class StreamGate:
+    """Per-stream monotonicity: drop duplicates and samples going backwards."""
+
+    stats: IngestStats
+    last: dict = field(default_factory=dict)  # key -> (t, content)
+
+    def admit(self, key: tuple, t: float, content: tuple, source: str) -> bool:
+        prev = self.last.get(key)
+        if prev is not None and t <= prev[0]:
+            if t == prev[0] and _same(content, prev[1]):
+                self.stats.bad("duplicate", source)
+            else:
+                self.stats.bad("time_backwards", source)
+            return False
+        self.last[key] = (t, content)
+        return True
+
+
+def _same(a: tuple, b: tuple) -> bool:
+    import numpy as np
+
+    if len(a) != len(b):
+        return False
+    for x, y in zip(a, b, strict=True):
+        if x is None or y is None:
+            if x is not y:
+                return False
+        elif not np.array_equal(x, y):
+            return False
+    return True

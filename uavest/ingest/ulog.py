@@ -1,0 +1,228 @@
+"""PX4 ULog source (pyulog), vectorised."""
+
+from __future__ import annotations
+
+import contextlib
+import heapq
+import io
+import struct
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from .convert import MAX_ACCEL, MAX_GYRO, MAX_MAG, MAX_POS, MAX_VEL, QUAT_NORM_TOL, _canonical
+from .types import (
+    AttitudeRef,
+    ImuSample,
+    IngestError,
+    IngestStats,
+    MagSample,
+    Measurement,
+    PositionSample,
+)
+
+ULOG_MAGIC = b"ULog\x01\x12\x35"
+_TOPICS = [
+    "sensor_combined",
+    "vehicle_magnetometer",
+    "sensor_mag",
+    "vehicle_attitude",
+    "vehicle_attitude_groundtruth",
+    "vehicle_local_position",
+    "vehicle_global_position",
+]
+_REF_TOPICS = {"vehicle_attitude": "autopilot", "vehicle_attitude_groundtruth": "truth"}
+_INVALID_REL = 0x7FFFFFFF  # PX4 RELATIVE_TIMESTAMP_INVALID
+_VALID_TYPES = set(b"BFIMPQARDLCSO")
+
+
+def _walk_ok(path: Path) -> tuple[bool, bool]:
+    """Walk the ULog record headers: (ends exactly at EOF, saw an invalid record type)."""
+    data = path.read_bytes()
+    n = len(data)
+    pos = 16
+    unpack = struct.Struct("<HB").unpack_from
+    while pos + 3 <= n:
+        size, typ = unpack(data, pos)
+        if typ not in _VALID_TYPES:
+            return True, True  # corruption; pyulog resyncs on its own
+        pos += 3 + size
+    return pos == n, False
+
+
+class ULogData:
+    """All measurements of a ULog as numpy arrays (see ``read_log``)."""
+
+    def __init__(self, path: Path, stats: IngestStats) -> None:
+        from pyulog import ULog
+
+        self.path = path
+        self.stats = stats
+        try:
+            with contextlib.redirect_stdout(io.StringIO()):
+                ul = ULog(str(path), _TOPICS)
+        except Exception as e:  # noqa: BLE001 - pyulog raises many kinds on garbage
+            raise IngestError(f"{path}: not a readable PX4 ULog file ({e})".splitlines()[0]) from e
+        ends_ok, corrupt = _walk_ok(path)
+        if not ends_ok:
+            stats.bad("truncated")
+        if corrupt or getattr(ul, "file_corruption", False):
+            stats.bad("corrupt")
+        self.params: dict[str, float] = {
+            k: float(v) for k, v in ul.initial_parameters.items() if np.isfinite(float(v))
+        }
+        self.imu: dict[str, tuple] = {}
+        self.mag: dict[str, tuple] = {}
+        self.refs: dict[str, tuple] = {}
+        self.pos: dict[str, tuple] = {}
+        for d in ul.data_list:
+            stats.messages[d.name] += len(d.data["timestamp"])
+            try:
+                self._topic(d)
+            except KeyError:  # unexpected field layout for a known topic
+                stats.bad("unknown_message", d.name, len(d.data["timestamp"]))
+        # magnetometer preference: vehicle_magnetometer > sensor_combined (old PX4) > sensor_mag
+        for pref in ("vehicle_magnetometer", "sensor_combined", "sensor_mag"):
+            if any(k.startswith(pref) for k in self.mag):
+                self.mag = {k: v for k, v in self.mag.items() if k.startswith(pref)}
+                break
+
+    # ------------------------------------------------------------------ helpers
+    def _filter(self, src: str, t: np.ndarray, vals: list, bad_rows: dict) -> np.ndarray:
+        """Mask of rows to keep; counts nan/out_of_range/duplicate/time_backwards."""
+        st = self.stats
+        keep = np.ones(t.shape[0], dtype=bool)
+        nan = ~np.isfinite(t)
+        for v in vals:
+            nan |= ~np.all(np.isfinite(v), axis=-1) if v.ndim > 1 else ~np.isfinite(v)
+        st.bad("nan", src, int(nan.sum()))
+        keep &= ~nan
+        for mask in bad_rows.values():
+            m = mask & keep
+            st.bad("out_of_range", src, int(m.sum()))
+            keep &= ~mask
+        idx = np.flatnonzero(keep)
+        if idx.size:
+            tk = t[idx]
+            prev_max = np.concatenate([[-np.inf], np.maximum.accumulate(tk)[:-1]])
+            bad = tk <= prev_max
+            if bad.any():
+                eq = bad & (tk == prev_max)
+                same = np.zeros_like(bad)
+                j = np.flatnonzero(eq)
+                for i in j:  # rare: compare content with the previous kept row
+                    same[i] = all(np.array_equal(v[idx[i]], v[idx[i - 1]]) for v in vals)
+                st.bad("duplicate", src, int(same.sum()))
+                st.bad("time_backwards", src, int((bad & ~same).sum()))
+                keep[idx[bad]] = False
+        st.accepted[src] += int(keep.sum())
+        return keep
+
+    @staticmethod
+    def _vec(data: dict, fmt: str, n: int = 3) -> np.ndarray:
+        return np.stack([np.asarray(data[fmt.format(i)], dtype=float) for i in range(n)], axis=1)
+
+    @staticmethod
+    def _time(data: dict) -> np.ndarray:
+        ts = data.get("timestamp_sample", data["timestamp"])
+        return np.asarray(ts, dtype=float) * 1e-6
+
+    def _topic(self, d) -> None:
+        name, data, inst = d.name, d.data, int(d.multi_id)
+        src = name if inst == 0 else f"{name}[{inst}]"
+        if name == "sensor_combined":
+            t_us = np.asarray(data["timestamp"], dtype=np.int64)
+            t = t_us * 1e-6
+            gyro = self._vec(data, "gyro_rad[{}]")
+            acc = self._vec(data, "accelerometer_m_s2[{}]")
+            oor = {
+                "g": np.linalg.norm(gyro, axis=1) > MAX_GYRO,
+                "a": np.linalg.norm(acc, axis=1) > MAX_ACCEL,
+            }
+            k = self._filter(src, t, [gyro, acc], oor)
+            self.imu[src] = (t[k], gyro[k], acc[k], inst)
+            if "magnetometer_ga[0]" in data:
+                rel = np.asarray(data["magnetometer_timestamp_relative"], dtype=np.int64)
+                fld = self._vec(data, "magnetometer_ga[{}]")
+                valid = rel != _INVALID_REL
+                tm_us = t_us + rel  # integer microseconds: exact repeats stay equal
+                # sensor_combined repeats the latest mag sample: keep new ones only
+                newer = np.concatenate([[True], np.diff(tm_us) != 0]) & valid
+                tm, fld = tm_us[newer] * 1e-6, fld[newer]
+                k = self._filter(
+                    src + ".mag", tm, [fld], {"m": np.linalg.norm(fld, axis=1) > MAX_MAG}
+                )
+                self.mag[src] = (tm[k], fld[k], inst)
+        elif name in ("vehicle_magnetometer", "sensor_mag"):
+            t = self._time(data)
+            fmt = "magnetometer_ga[{}]" if name == "vehicle_magnetometer" else None
+            fld = (
+                self._vec(data, fmt)
+                if fmt
+                else np.stack([np.asarray(data[c], dtype=float) for c in "xyz"], axis=1)
+            )
+            k = self._filter(src, t, [fld], {"m": np.linalg.norm(fld, axis=1) > MAX_MAG})
+            self.mag[src] = (t[k], fld[k], inst)
+        elif name in _REF_TOPICS:
+            t = self._time(data)
+            q = self._vec(data, "q[{}]", 4)
+            nrm = np.linalg.norm(q, axis=1)
+            k = self._filter(src, t, [q], {"q": np.abs(nrm - 1.0) > QUAT_NORM_TOL})
+            q = _canonical(q[k] / nrm[k, None])
+            self.refs[src] = (t[k], q, _REF_TOPICS[name])
+        elif name == "vehicle_local_position":
+            t = self._time(data)
+            ned = np.stack([np.asarray(data[c], dtype=float) for c in "xyz"], axis=1)
+            vel = np.stack([np.asarray(data[c], dtype=float) for c in ("vx", "vy", "vz")], axis=1)
+            oor = {
+                "p": np.linalg.norm(ned, axis=1) > MAX_POS,
+                "v": np.linalg.norm(vel, axis=1) > MAX_VEL,
+            }
+            k = self._filter(src, t, [ned, vel], oor)
+            self.pos[src] = (t[k], ned[k], vel[k], np.full((int(k.sum()), 3), np.nan))
+        elif name == "vehicle_global_position":
+            t = self._time(data)
+            lla = np.stack(
+                [np.asarray(data[c], dtype=float) for c in ("lat", "lon", "alt")], axis=1
+            )
+            oor = {"l": (np.abs(lla[:, 0]) > 90) | (np.abs(lla[:, 1]) > 180)}
+            k = self._filter(src, t, [lla], oor)
+            nan3 = np.full((int(k.sum()), 3), np.nan)
+            self.pos[src] = (t[k], nan3, nan3.copy(), lla[k])
+
+
+class ULogSource:
+    """Streaming view of a ULog: yields measurements merged in time order."""
+
+    format = "ulog"
+
+    def __init__(self, path: Path, *, imu: str | None = None) -> None:
+        self.path = path
+        self.imu = imu
+        self.stats = IngestStats()
+        self._data = ULogData(path, self.stats)
+        self.params = self._data.params
+
+    def __iter__(self) -> Iterator[Measurement]:
+        d = self._data
+        gens = []
+        for s, (t, g, a, i) in d.imu.items():
+            if self.imu is None or self.imu == s:
+                gens.append(ImuSample(*r, s, i) for r in zip(t.tolist(), g, a, strict=True))
+        for s, (t, f, i) in d.mag.items():
+            gens.append(MagSample(*r, s, i) for r in zip(t.tolist(), f, strict=True))
+        for s, (t, q, kind) in d.refs.items():
+            gens.append(AttitudeRef(tt, qq, kind, s) for tt, qq in zip(t.tolist(), q, strict=True))
+        for s, (t, n, v, lla) in d.pos.items():
+            gens.append(
+                PositionSample(
+                    tt,
+                    None if np.isnan(nn[0]) else nn,
+                    None if np.isnan(vv[0]) else vv,
+                    None if np.isnan(ll[0]) else ll,
+                    s,
+                )
+                for tt, nn, vv, ll in zip(t.tolist(), n, v, lla, strict=True)
+            )
+        yield from heapq.merge(*gens, key=lambda m: m.t)
