@@ -41,6 +41,7 @@ class Raw:
     instance: int
     values: tuple
     kind: str = ""  # reference kind for cat == "ref"
+    primary: bool = True  # False for the mag part of an IMU message (time faults counted once)
 
 
 def stat_key(raw: Raw) -> str:
@@ -155,6 +156,17 @@ def _ref_from_quat(source: str, kind: str, w, x, y, z) -> Raw:
 
 # --------------------------------------------------------------------------- MAVLink
 
+def _instance_field(m) -> int:
+    """The MAVLink2 extension field ``id`` (IMU instance), 0 if absent.
+
+    Careful: every pymavlink message object also has a class attribute ``id``
+    (the message id, e.g. 27 for RAW_IMU), so ``getattr(m, "id")`` is wrong.
+    """
+    if "id" in m.get_fieldnames():
+        return int(m.__dict__.get("id", 0) or 0)
+    return 0
+
+
 _MILLI_IMU = {"RAW_IMU": 0, "SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}
 
 
@@ -163,18 +175,18 @@ def _milli_imu(m, name: str) -> list[Raw]:
     # (milli-g, milli-rad/s, milli-gauss); see docs/ingest.md.
     inst = _MILLI_IMU[name]
     if name == "RAW_IMU":
-        inst = int(getattr(m, "id", 0) or 0)
+        inst = _instance_field(m)
     gyro = np.array([m.xgyro, m.ygyro, m.zgyro], dtype=float) * MRAD_TO_RAD
     accel = np.array([m.xacc, m.yacc, m.zacc], dtype=float) * MG_TO_MS2
     mag = np.array([m.xmag, m.ymag, m.zmag], dtype=float) * MGAUSS_TO_GAUSS
     out = [Raw("imu", name, inst, (gyro, accel))]
     if np.any(mag) or not np.all(np.isfinite(mag)):
-        out.append(Raw("mag", name, inst, (mag,)))
+        out.append(Raw("mag", name, inst, (mag,), primary=False))
     return out
 
 
 def _highres_imu(m, name: str) -> list[Raw]:
-    inst = int(getattr(m, "id", 0) or 0)
+    inst = _instance_field(m)
     upd = int(getattr(m, "fields_updated", 0) or 0)
     gyro = np.array([m.xgyro, m.ygyro, m.zgyro], dtype=float)
     accel = np.array([m.xacc, m.yacc, m.zacc], dtype=float)
@@ -184,7 +196,7 @@ def _highres_imu(m, name: str) -> list[Raw]:
         out.append(Raw("imu", name, inst, (gyro, accel)))
     if upd == 0 or upd & 0x1C0:
         if np.any(mag) or not np.all(np.isfinite(mag)):
-            out.append(Raw("mag", name, inst, (mag,)))
+            out.append(Raw("mag", name, inst, (mag,), primary=bool(not out)))
     return out
 
 

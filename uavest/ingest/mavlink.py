@@ -220,14 +220,15 @@ class MavlinkSource:
         def finish(items) -> None:
             for t, (sysid, raw) in items:
                 key = (sysid, raw.cat, raw.source, raw.instance)
-                if not gate.admit(key, t, raw.values, stat_key(raw)):
+                if not gate.admit(key, t, raw.values, stat_key(raw), count=raw.primary):
                     continue
                 st.accepted[stat_key(raw)] += 1
                 reorder.push(build(raw, t))
 
         def drain(clock: VehicleClock) -> None:
             for kind, (_sysid, raw) in clock.take_rejected():
-                st.bad(kind, stat_key(raw))
+                if raw.primary:  # time faults are counted once per message
+                    st.bad(kind, stat_key(raw))
 
         for msg, rx in self._messages():
             name = msg.get_type()
@@ -266,8 +267,7 @@ class MavlinkSource:
             if raw_t is None:
                 t = clock.map_rx(rx)
                 if t is None:
-                    for r in good:
-                        st.bad("no_time", stat_key(r))
+                    st.bad("no_time", stat_key(good[0]))
                     continue
                 finish([(t, (sysid, r)) for r in good])
             else:

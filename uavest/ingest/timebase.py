@@ -144,9 +144,16 @@ class StreamGate:
     stats: IngestStats
     last: dict = field(default_factory=dict)  # key -> (t, content)
 
-    def admit(self, key: tuple, t: float, content: tuple, source: str) -> bool:
+    def admit(self, key: tuple, t: float, content: tuple, source: str, count: bool = True) -> bool:
+        """True if ``t`` (s) is newer than the last admitted time of stream ``key``.
+
+        Otherwise counts a duplicate (same time and content) or time_backwards,
+        unless ``count`` is False (secondary item of a message already counted).
+        """
         prev = self.last.get(key)
         if prev is not None and t <= prev[0]:
+            if not count:
+                return False
             if t == prev[0] and _same(content, prev[1]):
                 self.stats.bad("duplicate", source)
             else:

@@ -1,0 +1,160 @@
+"""Unit and frame conversions of the ingest layer (no files needed)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from pymavlink import mavutil
+from scipy.spatial.transform import Rotation
+
+from uavest.ingest import euler_to_quat
+from uavest.ingest.convert import G0, Raw, check, convert_dataflash, convert_mavlink
+
+ml = mavutil.mavlink
+
+
+def _by_cat(raws):
+    return {r.cat: r for r in raws}
+
+
+@pytest.mark.parametrize(
+    "msg",
+    [
+        ml.MAVLink_scaled_imu_message(5, 1000, -2000, 500, 1000, -500, 250, 1000, 200, -300),
+        ml.MAVLink_scaled_imu2_message(5, 1000, -2000, 500, 1000, -500, 250, 1000, 200, -300),
+        ml.MAVLink_scaled_imu3_message(5, 1000, -2000, 500, 1000, -500, 250, 1000, 200, -300),
+        ml.MAVLink_raw_imu_message(5000, 1000, -2000, 500, 1000, -500, 250, 1000, 200, -300),
+    ],
+)
+def test_milli_units_to_si(msg):
+    r = _by_cat(convert_mavlink(msg))
+    gyro, accel = r["imu"].values
+    np.testing.assert_allclose(accel, [9.80665, -2 * 9.80665, 0.5 * 9.80665], rtol=1e-12)
+    np.testing.assert_allclose(gyro, [1.0, -0.5, 0.25], rtol=1e-12)
+    np.testing.assert_allclose(r["mag"].values[0], [1.0, 0.2, -0.3], rtol=1e-12)
+    assert r["imu"].source == msg.get_type()
+    expected_instance = {"SCALED_IMU2": 1, "SCALED_IMU3": 2}.get(msg.get_type(), 0)
+    assert r["imu"].instance == expected_instance
+
+
+def test_all_zero_imu_is_empty_not_a_measurement():
+    (imu,) = convert_mavlink(ml.MAVLink_scaled_imu3_message(5, 0, 0, 0, 0, 0, 0, 0, 0, 0))
+    assert check(imu) == "empty"
+
+
+def test_highres_imu_is_already_si():
+    msg = ml.MAVLink_highres_imu_message(
+        7, 0.1, 0.2, -9.8, 0.01, 0.02, 0.03, 0.2, 0.0, 0.4, 1013.0, 0.0, 10.0, 20.0, 0x1FF
+    )
+    r = _by_cat(convert_mavlink(msg))
+    np.testing.assert_allclose(r["imu"].values[1], [0.1, 0.2, -9.8], rtol=1e-6)
+    np.testing.assert_allclose(r["imu"].values[0], [0.01, 0.02, 0.03], rtol=1e-6)
+    np.testing.assert_allclose(r["mag"].values[0], [0.2, 0.0, 0.4], rtol=1e-6)
+    # only accel/gyro updated: no magnetometer sample
+    msg2 = ml.MAVLink_highres_imu_message(
+        7, 0.1, 0.2, -9.8, 0.01, 0.02, 0.03, 0.2, 0.0, 0.4, 0.0, 0.0, 0.0, 0.0, 0x3F
+    )
+    assert [r.cat for r in convert_mavlink(msg2)] == ["imu"]
+
+
+def test_attitude_euler_matches_scipy_zyx():
+    (r,) = convert_mavlink(ml.MAVLink_attitude_message(1, 0.1, 0.2, 0.3, 0, 0, 0))
+    q = r.values[0]
+    x, y, z, w = Rotation.from_euler("ZYX", [0.3, 0.2, 0.1]).as_quat()
+    np.testing.assert_allclose(q, [w, x, y, z], atol=1e-12)
+    assert r.kind == "autopilot" and r.source == "ATTITUDE"
+
+
+def test_quaternion_is_body_frd_to_ned():
+    # yaw 90 deg: the body x axis (nose) points east in NED
+    q = euler_to_quat(0.0, 0.0, math.pi / 2)
+    rot = Rotation.from_quat([q[1], q[2], q[3], q[0]])
+    np.testing.assert_allclose(rot.apply([1.0, 0, 0]), [0, 1.0, 0], atol=1e-12)
+    # pitch up 90 deg: nose points up, i.e. -z in NED
+    q = euler_to_quat(0.0, math.pi / 2, 0.0)
+    rot = Rotation.from_quat([q[1], q[2], q[3], q[0]])
+    np.testing.assert_allclose(rot.apply([1.0, 0, 0]), [0, 0, -1.0], atol=1e-12)
+
+
+def test_euler_vectorised_matches_scalar():
+    rng = np.random.default_rng(1)
+    e = rng.uniform([-3, -1.5, -3], [3, 1.5, 3], size=(50, 3))
+    qv = euler_to_quat(e[:, 0], e[:, 1], e[:, 2])
+    for i in range(50):
+        np.testing.assert_allclose(qv[i], euler_to_quat(*e[i]), atol=1e-12)
+        assert qv[i, 0] >= 0
+
+
+def test_reference_kinds():
+    (s,) = convert_mavlink(ml.MAVLink_simstate_message(0.1, 0.2, 0.3, 0, 0, -9.8, 0, 0, 0, 1, 2))
+    (a,) = convert_mavlink(ml.MAVLink_ahrs2_message(0.1, 0.2, 0.3, 0, 0, 0))
+    (q,) = convert_mavlink(ml.MAVLink_attitude_quaternion_message(1, 0.5, 0.5, 0.5, 0.5, 0, 0, 0))
+    assert (s.kind, a.kind, q.kind) == ("truth", "ahrs2", "autopilot")
+    np.testing.assert_allclose(s.values[0], a.values[0])
+    np.testing.assert_allclose(q.values[0], [0.5, 0.5, 0.5, 0.5])
+
+
+def test_bad_values_are_classified():
+    (nan_att,) = convert_mavlink(ml.MAVLink_attitude_message(1, float("nan"), 0, 0, 0, 0, 0))
+    assert check(nan_att) == "nan"
+    (bad_q,) = convert_mavlink(ml.MAVLink_attitude_quaternion_message(1, 0.9, 0, 0, 0, 0, 0, 0))
+    assert check(bad_q) == "out_of_range"
+    (ok_q,) = convert_mavlink(
+        ml.MAVLink_attitude_quaternion_message(1, 1.0 + 5e-4, 0, 0, 0, 0, 0, 0)
+    )
+    assert check(ok_q) is None and abs(np.linalg.norm(ok_q.values[0]) - 1) < 1e-12
+    fast = ml.MAVLink_scaled_imu_message(1, 0, 0, -1000, 30000, 30000, 0, 0, 0, 0)
+    assert check(_by_cat(convert_mavlink(fast))["imu"]) == "out_of_range"
+    hard = ml.MAVLink_scaled_imu_message(1, 0, 0, -1000, 0, 0, 0, 0, 0, 0)
+    assert check(_by_cat(convert_mavlink(hard))["imu"]) is None
+    assert check(Raw("mag", "MAG[0]", 0, (np.array([11.0, 0, 0]),))) == "out_of_range"
+    (bad_e,) = convert_mavlink(ml.MAVLink_attitude_message(1, 0.0, 2.0, 0, 0, 0, 0))
+    assert check(bad_e) == "out_of_range"  # |pitch| > pi/2
+
+
+def test_position_units():
+    gp = ml.MAVLink_global_position_int_message(1, -353629904, 1491649392, 587850, 6750, -188, 6, 0, 0)
+    (r,) = convert_mavlink(gp)
+    ned, vel, lla = r.values
+    assert ned is None
+    np.testing.assert_allclose(lla, [-35.3629904, 149.1649392, 587.85])
+    np.testing.assert_allclose(vel, [-1.88, 0.06, 0.0])
+
+
+class _DF:
+    """Minimal stand-in for a pymavlink DataFlash record."""
+
+    def __init__(self, name, **kw):
+        self._name = name
+        self.__dict__.update(kw)
+
+    def get_type(self):
+        return self._name
+
+
+def test_dataflash_units_and_instances():
+    imu2 = _DF("IMU2", TimeUS=1, GyrX=0.1, GyrY=0.2, GyrZ=0.3, AccX=0, AccY=0, AccZ=-G0)
+    (r,) = convert_dataflash(imu2)
+    assert (r.source, r.instance) == ("IMU[1]", 1)
+    np.testing.assert_allclose(r.values[1], [0, 0, -G0])
+    mag = _DF("MAG", TimeUS=1, I=2, MagX=219, MagY=179, MagZ=-517)
+    (r,) = convert_dataflash(mag)
+    assert (r.source, r.instance) == ("MAG[2]", 2)
+    np.testing.assert_allclose(r.values[0], [0.219, 0.179, -0.517])
+    att = _DF("ATT", TimeUS=1, Roll=-7.18, Pitch=2.58, Yaw=337.1)
+    (r,) = convert_dataflash(att)
+    x, y, z, w = Rotation.from_euler("ZYX", [337.1 - 360, 2.58, -7.18], degrees=True).as_quat()
+    np.testing.assert_allclose(r.values[0], np.sign(w) * np.array([w, x, y, z]), atol=1e-12)
+    sim = _DF("SIM", TimeUS=1, Roll=0.0, Pitch=0.0, Yaw=90.0)
+    (r,) = convert_dataflash(sim)
+    assert r.kind == "truth"
+    np.testing.assert_allclose(r.values[0], euler_to_quat(0, 0, math.pi / 2), atol=1e-12)
+
+
+def test_raw_imu_instance_is_the_field_not_the_message_id():
+    from pymavlink.dialects.v20 import ardupilotmega as mav2
+
+    msg = mav2.MAVLink_raw_imu_message(1, 0, 0, -1000, 0, 0, 0, 0, 0, 0, 2, 0)
+    assert _by_cat(convert_mavlink(msg))["imu"].instance == 2

@@ -1,0 +1,183 @@
+"""Timestamps and bad data on synthetic .tlog files written in tmp_path.
+
+A tlog is a sequence of records: 8-byte big-endian receive time in microseconds
+followed by one packed MAVLink frame.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+
+import numpy as np
+import pytest
+from pymavlink import mavutil
+
+from uavest.ingest import AttitudeRef, ImuSample, IngestError, open_source, read_log
+
+ml = mavutil.mavlink
+T0_UNIX = 1_700_000_000.0
+
+
+class TlogWriter:
+    def __init__(self, path):
+        self.path = path
+        self.f = open(path, "wb")  # noqa: SIM115
+        self.mav = ml.MAVLink(None, srcSystem=1, srcComponent=1)
+
+    def write(self, msg, rx: float) -> None:
+        self.f.write(struct.pack(">Q", int(rx * 1e6)) + msg.pack(self.mav))
+
+    def close(self):
+        self.f.close()
+
+
+def scaled(t_ms: int, gx: float = 100):
+    return ml.MAVLink_scaled_imu_message(t_ms, 0, 0, -1000, int(gx), 0, 0, 200, 0, 400)
+
+
+def attitude(t_ms: int, roll: float = 0.1):
+    return ml.MAVLink_attitude_message(t_ms, roll, 0.0, 0.5, 0, 0, 0)
+
+
+def write_steady(path, n=50, t0_ms=10_000, dt_ms=20):
+    w = TlogWriter(path)
+    for i in range(n):
+        t = t0_ms + i * dt_ms
+        rx = T0_UNIX + t * 1e-3
+        w.write(scaled(t), rx)
+        w.write(attitude(t), rx + 0.001)
+        w.write(ml.MAVLink_simstate_message(0.1, 0, 0.5, 0, 0, -9.8, 0, 0, 0, 0, 0), rx + 0.002)
+    w.close()
+
+
+def test_steady_synthetic_log(tmp_path):
+    p = tmp_path / "steady.tlog"
+    write_steady(p)
+    log = read_log(p)
+    assert log.format == "tlog" and log.imu.source == "SCALED_IMU"
+    assert len(log.imu) == 50
+    np.testing.assert_allclose(log.imu.t, 10.0 + 0.02 * np.arange(50))
+    np.testing.assert_allclose(log.imu.gyro[0], [0.1, 0, 0])
+    np.testing.assert_allclose(log.imu.accel[0], [0, 0, -9.80665])
+    np.testing.assert_allclose(log.mag.field[0], [0.2, 0, 0.4])
+    assert log.imu_rate_hz == pytest.approx(50.0)
+    sim = log.references["SIMSTATE"]
+    assert sim.kind == "truth" and len(sim) == 50
+    # SIMSTATE has no time field: latest vehicle time + 1 ms of receive time since then
+    np.testing.assert_allclose(sim.t, log.references["ATTITUDE"].t + 0.001, atol=1e-6)
+    assert log.stats.bad_total == 0
+
+
+def test_duplicates_backwards_nan_out_of_range_are_counted_and_skipped(tmp_path):
+    p = tmp_path / "bad.tlog"
+    w = TlogWriter(p)
+    for i in range(40):
+        t = 10_000 + 20 * i
+        rx = T0_UNIX + t * 1e-3
+        w.write(scaled(t), rx)
+        if i == 10:
+            w.write(scaled(t), rx + 0.001)  # exact duplicate
+        if i == 20:
+            w.write(scaled(t - 500, gx=7), rx + 0.001)  # half a second back in time
+        if i == 25:
+            w.write(scaled(t, gx=5), rx + 0.001)  # same time, different content
+        w.write(attitude(t, roll=float("nan") if i in (5, 6) else 0.1), rx + 0.002)
+        if i == 30:
+            w.write(
+                ml.MAVLink_scaled_imu_message(t + 1, 0, 0, -1000, 32000, 32000, 0, 0, 0, 0),
+                rx + 0.003,
+            )
+    w.close()
+    log = read_log(p)
+    st = log.stats
+    assert st.duplicate == 1
+    assert st.rejected["time_backwards:SCALED_IMU"] == 2
+    assert st.nan == 2 and st.rejected["nan:ATTITUDE"] == 2
+    assert st.out_of_range == 1
+    assert len(log.imu) == 40 and np.all(np.diff(log.imu.t) > 0)
+    assert not np.any(log.imu.gyro[:, 0] > 0.1 + 1e-9)  # the bad ones did not get in
+    assert len(log.references["ATTITUDE"]) == 38
+
+
+def test_reboot_is_a_reset_not_a_discard(tmp_path):
+    p = tmp_path / "reboot.tlog"
+    w = TlogWriter(p)
+    for i in range(30):  # 100 s .. 100.58 s since boot
+        t = 100_000 + 20 * i
+        w.write(scaled(t), T0_UNIX + i * 0.02)
+    for i in range(30):  # reboot: 0.5 s .. since boot, 5 s later in receive time
+        t = 500 + 20 * i
+        w.write(scaled(t), T0_UNIX + 5.6 + i * 0.02)
+    w.close()
+    log = read_log(p)
+    assert log.stats.time_reset == 1
+    assert len(log.imu) == 60
+    assert np.all(np.diff(log.imu.t) > 0)
+    # the gap across the reboot follows the receive-time gap
+    assert np.diff(log.imu.t)[29] == pytest.approx(5.6 - 0.58, abs=1e-6)
+
+
+def test_single_glitch_backwards_is_not_a_reset(tmp_path):
+    p = tmp_path / "glitch.tlog"
+    w = TlogWriter(p)
+    for i in range(30):
+        t = 100_000 + 20 * i
+        w.write(scaled(t), T0_UNIX + i * 0.02)
+        if i == 10:
+            w.write(scaled(5), T0_UNIX + i * 0.02 + 0.001)
+    w.close()
+    log = read_log(p)
+    assert log.stats.time_reset == 0
+    assert log.stats.time_backwards == 1
+    assert len(log.imu) == 30
+
+
+def test_time_boot_ms_wrap(tmp_path):
+    p = tmp_path / "wrap.tlog"
+    w = TlogWriter(p)
+    start = 2**32 - 200
+    for i in range(20):
+        t = (start + 20 * i) % 2**32
+        w.write(scaled(t), T0_UNIX + i * 0.02)
+    w.close()
+    log = read_log(p)
+    assert log.stats.time_wrap == 1 and log.stats.time_reset == 0
+    assert len(log.imu) == 20
+    np.testing.assert_allclose(np.diff(log.imu.t), 0.02, atol=1e-6)
+
+
+def test_stream_is_time_ordered_and_typed(tmp_path):
+    p = tmp_path / "steady.tlog"
+    write_steady(p, n=20)
+    src = open_source(p)
+    items = list(src)
+    assert src.format == "tlog"
+    ts = [m.t for m in items]
+    assert ts == sorted(ts)
+    assert sum(isinstance(m, ImuSample) for m in items) == 20
+    refs = [m for m in items if isinstance(m, AttitudeRef)]
+    assert {r.kind for r in refs} == {"truth", "autopilot"}
+    assert all(abs(np.linalg.norm(r.q) - 1) < 1e-12 for r in refs)
+    assert src.stats.accepted["SCALED_IMU"] == 20
+
+
+def test_params_and_imu_selection(tmp_path):
+    p = tmp_path / "params.tlog"
+    w = TlogWriter(p)
+    w.write(ml.MAVLink_param_value_message(b"COMPASS_DEC", 0.2074, 9, 2, 0), T0_UNIX)
+    for i in range(10):
+        t = 1000 + 20 * i
+        w.write(scaled(t), T0_UNIX + i * 0.02)
+        w.write(ml.MAVLink_scaled_imu2_message(t, 0, 0, -1000, 0, 0, 0, 0, 0, 0), T0_UNIX)
+    w.close()
+    log = read_log(p, imu="SCALED_IMU2")
+    assert log.params["COMPASS_DEC"] == pytest.approx(0.2074, rel=1e-6)
+    assert log.imu.source == "SCALED_IMU2" and log.imu.instance == 1
+    assert log.imu_sources == {"SCALED_IMU": 10, "SCALED_IMU2": 10}
+    assert read_log(p).imu.source == "SCALED_IMU"  # tie: primary instance
+    with pytest.raises(IngestError, match="not in log"):
+        read_log(p, imu="IMU[3]")
+    clipped = read_log(p, start=1.05, end=1.1)
+    np.testing.assert_allclose(clipped.imu.t, [1.06, 1.08, 1.1])
+    assert math.isclose(clipped.duration, 0.04)
