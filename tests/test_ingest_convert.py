@@ -115,7 +115,9 @@ def test_bad_values_are_classified():
 
 
 def test_position_units():
-    gp = ml.MAVLink_global_position_int_message(1, -353629904, 1491649392, 587850, 6750, -188, 6, 0, 0)
+    gp = ml.MAVLink_global_position_int_message(
+        1, -353629904, 1491649392, 587850, 6750, -188, 6, 0, 0
+    )
     (r,) = convert_mavlink(gp)
     ned, vel, lla = r.values
     assert ned is None

@@ -156,6 +156,7 @@ def _ref_from_quat(source: str, kind: str, w, x, y, z) -> Raw:
 
 # --------------------------------------------------------------------------- MAVLink
 
+
 def _instance_field(m) -> int:
     """The MAVLink2 extension field ``id`` (IMU instance), 0 if absent.
 
