@@ -1,0 +1,270 @@
+"""Attitude models on the rotation manifold: gyro-driven process, accelerometer gravity
+direction and magnetometer heading, for every filter of :mod:`uavest.core`.
+
+State (see :class:`~uavest.models.rotation.AttitudeSpace`): ``x = [q, b]``, ``q`` the
+unit quaternion body FRD -> NED (scalar-first, Hamilton), ``b`` the gyro bias (rad/s,
+body FRD). Tangent error ``[dtheta, db]`` with ``q_true = q * Exp(dtheta)`` (body-frame,
+right-multiplicative error), so the EKF on this space is the multiplicative EKF.
+
+Process (:class:`GyroTransition`), exact for a rate constant over the step:
+    q_k = q_{k-1} * Exp((omega - b) dt),   b_k = b_{k-1}
+    Q = diag(sg^2 dt + sa^2 dt^3 / 3, sb^2 dt)   per axis
+``sg`` gyro angle random walk (rad/s/sqrt(Hz)), ``sb`` bias random walk (rad/s^2/sqrt(Hz)),
+``sa`` (rad/s^1.5) the unknown change of the true rate within a step, which dominates when
+the gyro is sampled slowly (instantaneous rates streamed at a few Hz).
+
+Accelerometer (:class:`GravityDirection`): z = -a / |a| (unit, body FRD), the direction of
+gravity ("down") in the body frame; h(x) = R(q)^T e_down. Noise std
+``accel_noise / g`` per axis, inflated by ``(| |a| - g | / g) * accel_deweight`` and the
+update skipped (gated) when ``| |a| - g | > accel_gate`` (m/s^2).
+
+Magnetometer (:class:`MagHeading`): h(x) = heading (rad, from north, clockwise) of the
+body-measured field rotated into NED by the state, ``atan2(m_E, m_N)``; z = declination
+(rad, east positive), residual wrapped to +-pi. Declination from the log's
+``COMPASS_DEC`` (ArduPilot, rad) or ``ATT_MAG_DECL`` (PX4, deg) unless given.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..core.model import Measurement, Transition
+from .rotation import (
+    AttitudeSpace,
+    euler_to_quat,
+    quat_exp,
+    quat_mul,
+    quat_rotate,
+    quat_to_dcm,
+    right_jacobian,
+    skew,
+    wrap_pi,
+)
+
+Array = np.ndarray
+G0 = 9.80665  # m/s^2, standard gravity
+
+__all__ = [
+    "G0",
+    "SENSOR_DEFAULTS",
+    "AttitudeNoise",
+    "GravityDirection",
+    "GyroTransition",
+    "MagHeading",
+    "declination_from_params",
+    "initial_attitude",
+    "noise_for_source",
+]
+
+SPACE = AttitudeSpace()
+
+
+@dataclass(frozen=True)
+class AttitudeNoise:
+    """Noise parameters of the attitude models (all overridable).
+
+    gyro_noise: gyro angle random walk, rad/s/sqrt(Hz).
+    gyro_bias_walk: gyro bias random walk, rad/s^2/sqrt(Hz).
+    rate_walk: unmodelled change of the true rate within a step, rad/s^1.5 (adds
+        rate_walk^2 dt^3 / 3 to the attitude variance).
+    accel_noise: accelerometer direction noise expressed as m/s^2 std per axis.
+    accel_deweight: factor on | |a| - g | / g added (in quadrature) to the accel std.
+    accel_gate: skip the accel update when | |a| - g | exceeds this (m/s^2).
+    mag_noise: heading noise std (rad).
+    init_tilt: prior std of roll/pitch (rad); init_yaw: prior std of yaw (rad);
+    init_bias: prior std of each gyro bias (rad/s).
+    """
+
+    gyro_noise: float = 0.003
+    gyro_bias_walk: float = 1e-4
+    rate_walk: float = 0.05
+    accel_noise: float = 0.5
+    accel_deweight: float = 1.0
+    accel_gate: float = 3.0
+    mag_noise: float = 0.05
+    init_tilt: float = np.deg2rad(5.0)
+    init_yaw: float = np.deg2rad(15.0)
+    init_bias: float = np.deg2rad(0.5)
+
+    def with_(self, **kw: float) -> AttitudeNoise:
+        """Copy with fields replaced (unknown names raise TypeError)."""
+        return replace(self, **kw)
+
+
+#: Defaults by IMU source (``LogData.imu.source``). Streamed MAVLink IMU messages are
+#: instantaneous samples at a few Hz: a large ``rate_walk`` covers the coarse
+#: integration. DataFlash ``IMU`` and PX4 ``sensor_combined`` are full-rate, integrated.
+SENSOR_DEFAULTS: dict[str, AttitudeNoise] = {
+    "mavlink_stream": AttitudeNoise(
+        gyro_noise=0.01, gyro_bias_walk=1e-4, rate_walk=0.25, accel_noise=0.6,
+        accel_deweight=2.0, accel_gate=4.0, mag_noise=0.06,
+    ),
+    "dataflash": AttitudeNoise(
+        gyro_noise=0.003, gyro_bias_walk=5e-5, rate_walk=0.02, accel_noise=0.8,
+        accel_deweight=2.0, accel_gate=3.0, mag_noise=0.08,
+    ),
+    "px4": AttitudeNoise(
+        gyro_noise=0.004, gyro_bias_walk=5e-5, rate_walk=0.02, accel_noise=0.8,
+        accel_deweight=2.0, accel_gate=3.0, mag_noise=0.08,
+    ),
+}
+
+
+def noise_for_source(source: str) -> AttitudeNoise:
+    """Default :class:`AttitudeNoise` for an IMU source name (see :data:`SENSOR_DEFAULTS`)."""
+    s = source.upper()
+    if s.startswith(("RAW_IMU", "SCALED_IMU", "HIGHRES_IMU")):
+        return SENSOR_DEFAULTS["mavlink_stream"]
+    if s.startswith("IMU"):
+        return SENSOR_DEFAULTS["dataflash"]
+    if "SENSOR" in s:
+        return SENSOR_DEFAULTS["px4"]
+    return AttitudeNoise()
+
+
+def declination_from_params(params: dict[str, float]) -> float | None:
+    """Magnetic declination (rad, east positive) from log parameters, or None.
+
+    ArduPilot ``COMPASS_DEC`` is in radians; PX4 ``ATT_MAG_DECL`` in degrees (PX4 logs
+    usually keep it 0 with auto-declination on, in which case None is returned).
+    """
+    if "COMPASS_DEC" in params:
+        return float(params["COMPASS_DEC"])
+    if "ATT_MAG_DECL" in params and float(params["ATT_MAG_DECL"]) != 0.0:
+        return float(np.deg2rad(params["ATT_MAG_DECL"]))
+    return None
+
+
+class GyroTransition(Transition):
+    """q <- q * Exp((u - b) dt), b <- b. ``u`` gyro rate (rad/s, body FRD, bias not
+    removed). Analytic tangent Jacobian for the right error:
+    F = [[Exp(-phi), -J_r(phi) dt], [0, I]], phi = (u - b) dt."""
+
+    space = SPACE
+
+    def __init__(self, noise: AttitudeNoise | None = None) -> None:
+        self.noise = noise or AttitudeNoise()
+
+    def f(self, X: Array, t: float, dt: float, u: Array | None = None) -> Array:
+        w = np.zeros(3) if u is None else np.asarray(u, float)
+        phi = (w - X[..., 4:]) * dt
+        q = quat_mul(X[..., :4], quat_exp(phi))
+        q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+        return np.concatenate([q, X[..., 4:]], axis=-1)
+
+    def Q(self, t: float, dt: float, u: Array | None = None) -> Array:
+        n = self.noise
+        dt = abs(dt)
+        qa = n.gyro_noise**2 * dt + n.rate_walk**2 * dt**3 / 3.0 + 1e-14
+        qb = n.gyro_bias_walk**2 * dt + 1e-16
+        return np.diag([qa, qa, qa, qb, qb, qb])
+
+    def F(self, x: Array, t: float, dt: float, u: Array | None = None) -> Array:
+        w = np.zeros(3) if u is None else np.asarray(u, float)
+        phi = (w - x[4:]) * dt
+        F = np.eye(6)
+        F[:3, :3] = quat_to_dcm(quat_exp(-phi))
+        F[:3, 3:] = -right_jacobian(phi) * dt
+        return F
+
+
+class GravityDirection(Measurement):
+    """Accelerometer as the gravity direction in body FRD (unit vector, 3 components).
+
+    ``accel`` the specific force (m/s^2, body FRD); ``z = -accel/|accel|``. R is isotropic,
+    std = sqrt(accel_noise^2 + (accel_deweight * | |a| - g |)^2) / g. Use
+    :meth:`from_accel`, which returns None when the sample is gated out.
+    """
+
+    space = SPACE
+
+    def __init__(self, R: Array) -> None:
+        self.R = R
+
+    @staticmethod
+    def from_accel(
+        accel: Array, noise: AttitudeNoise, g: float = G0
+    ) -> tuple[Array, GravityDirection] | None:
+        """(z, model) for one accel sample, or None if gated / degenerate."""
+        a = np.asarray(accel, float)
+        na = float(np.linalg.norm(a))
+        dev = abs(na - g)
+        if not np.isfinite(na) or na < 1e-6 or dev > noise.accel_gate:
+            return None
+        sd = np.hypot(noise.accel_noise, noise.accel_deweight * dev) / g
+        return -a / na, GravityDirection(np.eye(3) * sd * sd)
+
+    def h(self, X: Array) -> Array:
+        w, x, y, z = X[..., 0], X[..., 1], X[..., 2], X[..., 3]
+        return np.stack(
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1
+        )
+
+    def H(self, x: Array) -> Array:
+        gb = self.h(x[None, :])[0]
+        H = np.zeros((3, 6))
+        H[:, :3] = skew(gb)
+        return H
+
+
+class MagHeading(Measurement):
+    """Magnetometer heading: h(x) = atan2(m_E, m_N) of ``R(q) field`` (rad); z is the
+    declination (rad, east positive); residual wrapped to [-pi, pi).
+
+    Only the horizontal projection of the field enters, so its strength and inclination
+    do not matter. Use :meth:`from_field` (None if the horizontal field is degenerate).
+    """
+
+    space = SPACE
+
+    def __init__(self, field: Array, R: Array) -> None:
+        self.field = np.asarray(field, float)
+        self.R = R
+
+    @staticmethod
+    def from_field(
+        field: Array, noise: AttitudeNoise, declination: float = 0.0
+    ) -> tuple[Array, MagHeading] | None:
+        """(z, model) for one magnetometer sample (gauss, body FRD), or None."""
+        f = np.asarray(field, float)
+        if not np.isfinite(f).all() or np.linalg.norm(f) < 1e-6:
+            return None
+        return np.array([declination]), MagHeading(f, np.array([[noise.mag_noise**2]]))
+
+    def h(self, X: Array) -> Array:
+        m = quat_rotate(X[..., :4], self.field)
+        return np.arctan2(m[..., 1], m[..., 0])[..., None]
+
+    def H(self, x: Array) -> Array:
+        Rq = quat_to_dcm(x[:4])
+        m = Rq @ self.field
+        hn2 = m[0] ** 2 + m[1] ** 2
+        if hn2 < 1e-12:
+            return np.zeros((1, 6))
+        dpsi_dm = np.array([-m[1], m[0], 0.0]) / hn2
+        H = np.zeros((1, 6))
+        H[0, :3] = dpsi_dm @ (-Rq @ skew(self.field))
+        return H
+
+    def residual(self, a: Array, b: Array) -> Array:
+        return wrap_pi(a - b)
+
+    def mean(self, Y: Array, w: Array) -> Array:
+        ref = Y[0]
+        return wrap_pi(ref + w @ wrap_pi(Y - ref))
+
+
+def initial_attitude(accel: Array, field: Array | None, declination: float = 0.0) -> Array:
+    """Quaternion (body FRD -> NED) from one accel sample (m/s^2) and, if given, one
+    magnetometer sample: roll/pitch from gravity, yaw from the tilt-compensated field."""
+    a = -np.asarray(accel, float)  # gravity direction in body, "down"
+    roll = float(np.arctan2(a[1], a[2]))
+    pitch = float(np.arctan2(-a[0], np.hypot(a[1], a[2])))
+    yaw = 0.0
+    if field is not None and np.isfinite(field).all():
+        q0 = euler_to_quat(roll, pitch, 0.0)
+        m = quat_rotate(q0, np.asarray(field, float))
+        yaw = float(wrap_pi(declination - np.arctan2(m[1], m[0])))
+    return euler_to_quat(roll, pitch, yaw)
