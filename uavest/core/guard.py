@@ -12,7 +12,7 @@ NaN/inf estimate.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
@@ -79,7 +79,7 @@ class Guarded:
         g, why = self._check(inner)
         if g is None:
             return self._recover(s, model.space, rng, why)
-        return replace(s, inner=inner, reset=False, reason="")
+        return GuardState(inner, s.last_good, s.strikes, s.resets)
 
     def update(self, s: GuardState, z, model, rng=None) -> tuple[GuardState, Innovation | None]:
         try:

@@ -44,7 +44,7 @@ from .ensemble import propagate_members
 from .gaussian import Gaussian
 from .linalg import chol, gain, is_pd, symmetrize
 from .model import Measurement, Transition
-from .particle import ess, log_likelihood, normalise_log, systematic_resample
+from .particle import ess, log_likelihood, systematic_resample
 from .spaces import Space
 
 Array = np.ndarray
@@ -244,6 +244,28 @@ def _check_switches(sampling: str, weights: str) -> None:
 
 # ------------------------------------------------------------------------------ default
 
+_PHI_GRID = np.linspace(0.0, 1.0, 17)
+
+
+def tempered_weights(
+    w: Array, loglik: Array, phi_max: float, min_ess: float
+) -> tuple[Array, float]:
+    """Weights w * p^phi for the largest phi in [0, phi_max] (grid of 17) whose effective
+    sample size stays >= min_ess * M (or, if even phi = 0 is below it, phi = 0).
+
+    Returns (normalised weights, phi). Vectorised over the grid: one (17, M) evaluation.
+    """
+    M = w.shape[0]
+    phis = phi_max * _PHI_GRID
+    L = np.log(np.maximum(w, 1e-300))[None, :] + phis[:, None] * loglik[None, :]
+    L -= L.max(axis=1, keepdims=True)
+    W = np.exp(L)
+    W /= W.sum(axis=1, keepdims=True)
+    ok = 1.0 / np.einsum("gi,gi->g", W, W) >= min_ess * M
+    i = int(np.nonzero(ok)[0][-1]) if ok.any() else 0
+    return W[i], float(phis[i])
+
+
 
 @dataclass(frozen=True)
 class Hybrid:
@@ -258,6 +280,10 @@ class Hybrid:
       spread: cloud std factor s around each sigma point before moment matching (0.5).
       tau: share of the measurement assimilated by the EnKF shift (R / tau); the rest,
         1 - tau, goes into the confidence weights (0 < tau <= 1; ignored for "equal").
+      min_ess: floor on the effective sample size an update may leave, as a fraction of M
+        (0.2). The weighting exponent phi <= 1 - tau is the largest on a grid that keeps
+        ESS >= min_ess * M; the EnKF shift then takes the rest, R / (1 - phi) (adaptive
+        tempering, as in the ensemble Kalman particle filter of Frei & Kunsch 2013).
       regen_ess: regenerate when the effective sample size < regen_ess * M (0.5).
       kernel: bandwidth h of the regeneration kernel; members are shrunk by sqrt(1-h^2)
         towards the mean and jittered with N(0, h^2 P), preserving mean and covariance.
@@ -269,6 +295,7 @@ class Hybrid:
     n_cloud: int = 32
     spread: float = 0.5
     tau: float = 0.3
+    min_ess: float = 0.2
     regen_ess: float = 0.5
     kernel: float = 0.3
     name: str = "hybrid"
@@ -320,9 +347,8 @@ class Hybrid:
         innov = innovation(model.residual(z, ybar), symmetrize((dY0.T * w) @ dY0 + model.R))
         tau = 1.0
         if self.weights == "confidence":
-            tau = self.tau
-            logw = np.log(np.maximum(w, 1e-300)) + (1.0 - tau) * log_likelihood(r, model.R)
-            w = normalise_log(logw)
+            w, phi = tempered_weights(w, log_likelihood(r, model.R), 1.0 - self.tau, self.min_ess)
+            tau = 1.0 - phi
         x = space.mean(E.X, w, E.X[int(np.argmax(w))])
         dX = space.local(x, E.X)
         dX = dX - w @ dX

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .base import Innovation, innovation
+from .base import Innovation
 from .gaussian import Gaussian
-from .linalg import gain, symmetrize
+from .linalg import gain_factor, nis_from_factor, symmetrize
 from .model import Measurement, Transition
 
 Array = np.ndarray
@@ -53,11 +53,11 @@ class EKF:
         nu = model.residual(z, zhat)
         PHt = g.P @ H.T
         S = symmetrize(H @ PHt + model.R)
-        K = gain(PHt, S)
+        K, cS = gain_factor(PHt, S)
         x = model.space.retract(g.x, K @ nu)
         IKH = np.eye(g.P.shape[0]) - K @ H
         P = symmetrize(IKH @ g.P @ IKH.T + K @ model.R @ K.T)
-        return Gaussian(x, P), innovation(nu, S)
+        return Gaussian(x, P), Innovation(nu, S, nis_from_factor(cS, nu))
 
     def estimate(self, g: Gaussian) -> Gaussian:
         return g

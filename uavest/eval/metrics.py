@@ -1,0 +1,38 @@
+"""Estimation metrics for Monte Carlo runs (errors are truth - estimate in the tangent
+space; for the benchmark systems that is plain subtraction).
+
+- RMSE per run: sqrt(mean over time of ||e_k||^2).
+- approximation error (seed 000): mean over time of ||x_pred - x_true|| (before update).
+- estimation error (seed 000): mean over time of ||x_est - x_true|| (after update).
+- NEES per step: e^T P^-1 e; averaged over time and runs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.stats import chi2
+
+Array = np.ndarray
+
+
+def rmse(err: Array) -> float:
+    """err (T, n) -> sqrt(mean_t ||e_t||^2)."""
+    return float(np.sqrt(np.mean(np.sum(err * err, axis=-1))))
+
+
+def mean_abs(err: Array) -> float:
+    """err (T, n) -> mean_t ||e_t|| (Euclidean norm; |e| in 1-D)."""
+    return float(np.mean(np.sqrt(np.sum(err * err, axis=-1))))
+
+
+def nees(err: Array, P: Array) -> Array:
+    """err (T, n), P (T, n, n) -> (T,) normalised estimation error squared."""
+    sol = np.linalg.solve(P, err[..., None])[..., 0]
+    return np.einsum("ti,ti->t", err, sol)
+
+
+def nees_band(n: int, runs: int, prob: float = 0.95) -> tuple[float, float]:
+    """Two-sided ``prob`` chi-square band for the NEES averaged over ``runs`` runs of an
+    ``n``-dimensional state: chi2.ppf([(1-p)/2, (1+p)/2], runs * n) / runs."""
+    lo, hi = chi2.ppf([(1 - prob) / 2, (1 + prob) / 2], runs * n) / runs
+    return float(lo), float(hi)
