@@ -1,0 +1,242 @@
+"""Radar measurement: range, azimuth, elevation and (optionally) range rate.
+
+Frames (all right-handed, metres, radians, seconds):
+
+* **World frame**: ENU, x east, y north, z up. Target states are world-frame
+  ``[p_1..p_d, v_1..v_d, extra...]`` with ``d = ndim`` (2 or 3) axes; extra components
+  (e.g. a turn rate) are ignored by the radar.
+* **Sensor frame** ``s``: origin at the antenna ``position`` (world), axes given by the
+  rotation ``R_ws`` (world-from-sensor; columns are the sensor axes in world
+  coordinates). For a UAV-carried radar ``R_ws`` is the vehicle attitude in FLU
+  convention (x forward, y left, z up); for a ground radar with identity attitude the
+  sensor frame *is* ENU (x east, y north, z up).
+* Line of sight ``d = R_ws^T (p - position)`` (sensor frame), then
+  ``range = |d|``,
+  ``azimuth = atan2(d_y, d_x)``: counter-clockwise from the sensor x axis, in (-pi, pi]
+  (for a ground radar with identity attitude: counter-clockwise from east, the
+  mathematical convention; *not* a compass bearing),
+  ``elevation = atan2(d_z, hypot(d_x, d_y))`` in [-pi/2, pi/2] (3-D only),
+  ``range_rate = d . (R_ws^T (v - velocity)) / range`` (m/s, positive when receding),
+  with ``velocity`` the sensor's world velocity.
+
+In 2-D the sensor frame is a rotation by the yaw ``psi`` in the plane and the
+measurement is ``[range, azimuth(, range_rate)]``.
+
+Angle handling: :meth:`RadarMeasurement.residual` wraps the azimuth component to
+(-pi, pi]; :meth:`RadarMeasurement.mean` takes the circular (weighted resultant) mean of
+the azimuth, so sigma-point and ensemble means are right across +-pi. Elevation lies in
+[-pi/2, pi/2] and never crosses a branch cut, so it is averaged and differenced
+arithmetically.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core.model import Measurement
+from ..core.spaces import VectorSpace
+
+Array = np.ndarray
+
+COMPONENTS = ("range", "azimuth", "elevation", "range_rate")
+
+
+def wrap_angle(a: Array | float) -> Array:
+    """Wrap angle(s) (rad) to [-pi, pi)."""
+    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def rot_z(psi: float) -> Array:
+    """3x3 rotation about z by ``psi`` (rad, counter-clockwise)."""
+    c, s = np.cos(psi), np.sin(psi)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def euler_zyx(yaw: float, pitch: float, roll: float) -> Array:
+    """World-from-body rotation (ENU world, FLU body) from Z-Y-X Euler angles (rad):
+    yaw about z (counter-clockwise from east), then pitch about y, then roll about x."""
+    cy, sy = np.cos(yaw), np.sin(yaw)
+    cp, sp = np.cos(pitch), np.sin(pitch)
+    cr, sr = np.cos(roll), np.sin(roll)
+    Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1.0]])
+    Ry = np.array([[cp, 0, sp], [0, 1.0, 0], [-sp, 0, cp]])
+    Rx = np.array([[1.0, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    return Rz @ Ry @ Rx
+
+
+@dataclass(frozen=True)
+class SensorPose:
+    """Radar pose in the world (ENU) frame: ``position`` (d,) m, ``R_ws`` (d, d)
+    world-from-sensor rotation, ``velocity`` (d,) m/s. ``d`` = 2 or 3."""
+
+    position: Array
+    R_ws: Array
+    velocity: Array
+
+    @staticmethod
+    def fixed(ndim: int, position=None, yaw: float = 0.0) -> SensorPose:
+        """A ground-fixed radar at ``position`` (default origin) with heading ``yaw``."""
+        p = np.zeros(ndim) if position is None else np.asarray(position, float)[:ndim]
+        R = rot_z(yaw)[:ndim, :ndim]
+        return SensorPose(p, R, np.zeros(ndim))
+
+
+class RadarMeasurement(Measurement):
+    """Radar measurement model (see module docstring for frames and conventions).
+
+    Args:
+      ndim: spatial axes of the target state (2 or 3).
+      state_dim: tangent dimension of the target state (>= 2*ndim; e.g. 5 for 2-D CT).
+      sigma_range: range noise std (m).
+      sigma_az: azimuth noise std (rad).
+      sigma_el: elevation noise std (rad; 3-D only).
+      sigma_rr: range-rate noise std (m/s); None = no range-rate component.
+      pose: the sensor pose (default: fixed at the origin, identity attitude).
+
+    ``components`` lists the measurement layout, e.g. ("range", "azimuth", "elevation").
+    """
+
+    def __init__(
+        self,
+        ndim: int = 2,
+        state_dim: int | None = None,
+        sigma_range: float = 10.0,
+        sigma_az: float = np.deg2rad(1.0),
+        sigma_el: float = np.deg2rad(1.0),
+        sigma_rr: float | None = None,
+        pose: SensorPose | None = None,
+    ) -> None:
+        if ndim not in (2, 3):
+            raise ValueError("ndim must be 2 or 3")
+        self.ndim = ndim
+        self.space = VectorSpace(state_dim or 2 * ndim)
+        comps = ["range", "azimuth"] + (["elevation"] if ndim == 3 else [])
+        sig = [sigma_range, sigma_az] + ([sigma_el] if ndim == 3 else [])
+        if sigma_rr is not None:
+            comps.append("range_rate")
+            sig.append(sigma_rr)
+        self.components = tuple(comps)
+        self.sigmas = np.asarray(sig, float)
+        self.R = np.diag(self.sigmas**2)
+        self.pose = pose or SensorPose.fixed(ndim)
+        self._az = 1
+        self._rr = comps.index("range_rate") if sigma_rr is not None else None
+
+    def with_pose(self, pose: SensorPose) -> RadarMeasurement:
+        """Same radar at another pose (a cheap shallow copy)."""
+        m = object.__new__(RadarMeasurement)
+        m.__dict__.update(self.__dict__)
+        m.pose = pose
+        return m
+
+    # -- geometry -------------------------------------------------------------------------
+    def _los(self, X: Array) -> tuple[Array, Array]:
+        d = self.ndim
+        D = (X[:, :d] - self.pose.position) @ self.pose.R_ws  # rows: R^T (p - s)
+        V = (X[:, d : 2 * d] - self.pose.velocity) @ self.pose.R_ws
+        return D, V
+
+    def h(self, X: Array) -> Array:
+        """Noise-free measurements of states ``X`` (M, n) -> (M, m)."""
+        X = np.atleast_2d(X)
+        D, V = self._los(X)
+        r = np.sqrt(np.einsum("ij,ij->i", D, D))
+        cols = [r, np.arctan2(D[:, 1], D[:, 0])]
+        if self.ndim == 3:
+            cols.append(np.arctan2(D[:, 2], np.hypot(D[:, 0], D[:, 1])))
+        if self._rr is not None:
+            cols.append(np.einsum("ij,ij->i", D, V) / np.maximum(r, 1e-9))
+        return np.stack(cols, axis=1)
+
+    def H(self, x: Array) -> Array:
+        """Analytic Jacobian (m, n) w.r.t. the world-frame state."""
+        d = self.ndim
+        D, V = self._los(x[None, :])
+        D, V = D[0], V[0]
+        Rws = self.pose.R_ws
+        r2 = float(D @ D)
+        r = np.sqrt(r2)
+        rows = []
+        dr_dD = D / r
+        rows.append((dr_dD, np.zeros(d)))
+        rho2 = D[0] ** 2 + D[1] ** 2
+        daz = np.zeros(d)
+        daz[0], daz[1] = -D[1] / rho2, D[0] / rho2
+        rows.append((daz, np.zeros(d)))
+        if d == 3:
+            rho = np.sqrt(rho2)
+            de = np.array([-D[0] * D[2] / (r2 * rho), -D[1] * D[2] / (r2 * rho), rho / r2])
+            rows.append((de, np.zeros(d)))
+        if self._rr is not None:
+            rr = float(D @ V) / r
+            drr_dD = (V - rr * D / r) / r
+            rows.append((drr_dD, D / r))
+        Hm = np.zeros((len(rows), self.space.dim))
+        for i, (gD, gV) in enumerate(rows):
+            # d/dp = gD^T R^T (since D = R^T (p - s)); same for v
+            Hm[i, :d] = Rws @ gD
+            Hm[i, d : 2 * d] = Rws @ gV
+        return Hm
+
+    # -- angle-aware arithmetic -----------------------------------------------------------
+    def residual(self, a: Array, b: Array) -> Array:
+        """``a - b`` with the azimuth wrapped to [-pi, pi); broadcasts (M, m) vs (m,)."""
+        r = np.asarray(a, float) - np.asarray(b, float)
+        r[..., self._az] = wrap_angle(r[..., self._az])
+        return r
+
+    def mean(self, Y: Array, w: Array) -> Array:
+        """Weighted mean of measurements ``Y`` (M, m); circular for the azimuth."""
+        m = w @ Y
+        m[self._az] = np.arctan2(w @ np.sin(Y[:, self._az]), w @ np.cos(Y[:, self._az]))
+        return m
+
+    # -- inverse (track initiation) -------------------------------------------------------
+    def to_cartesian(self, z: Array) -> tuple[Array, Array]:
+        """World position (d,) of measurement ``z`` and its linearised covariance (d, d).
+
+        Uses range, azimuth (and elevation; 0 in 2-D). The covariance is J R J^T with J the
+        Jacobian of the polar-to-Cartesian map (converted-measurement initialisation)."""
+        d = self.ndim
+        r, az = float(z[0]), float(z[1])
+        el = float(z[2]) if d == 3 else 0.0
+        ce, se, ca, sa = np.cos(el), np.sin(el), np.cos(az), np.sin(az)
+        if d == 2:
+            ds = np.array([r * ca, r * sa])
+            J = np.array([[ca, -r * sa], [sa, r * ca]])
+            Rz = self.R[:2, :2]
+        else:
+            ds = np.array([r * ce * ca, r * ce * sa, r * se])
+            J = np.array(
+                [
+                    [ce * ca, -r * ce * sa, -r * se * ca],
+                    [ce * sa, r * ce * ca, -r * se * sa],
+                    [se, 0.0, r * ce],
+                ]
+            )
+            Rz = self.R[:3, :3]
+        Rws = self.pose.R_ws
+        p = self.pose.position + Rws @ ds
+        C = Rws @ J @ Rz @ J.T @ Rws.T
+        return p, 0.5 * (C + C.T)
+
+    def sample(self, X: Array, rng: np.random.Generator) -> Array:
+        """Noisy measurements of states ``X`` (M, n); azimuth wrapped."""
+        Z = self.h(X) + rng.standard_normal((np.atleast_2d(X).shape[0], self.dim)) * self.sigmas
+        Z[:, self._az] = wrap_angle(Z[:, self._az])
+        return Z
+
+    def measurement_box(self, r_max: float, rr_max: float = 100.0) -> tuple[Array, Array]:
+        """Lower/upper bounds of the measurement space used for uniform clutter:
+        range [0, r_max], azimuth [-pi, pi), elevation [0, pi/4] (3-D), range rate
+        [-rr_max, rr_max]."""
+        lo, hi = [0.0, -np.pi], [r_max, np.pi]
+        if self.ndim == 3:
+            lo.append(0.0)
+            hi.append(np.pi / 4)
+        if self._rr is not None:
+            lo.append(-rr_max)
+            hi.append(rr_max)
+        return np.asarray(lo), np.asarray(hi)

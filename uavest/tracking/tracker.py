@@ -1,0 +1,218 @@
+"""Multi-target tracker: gating, GNN association, M-of-N initiation, deletion, stable IDs.
+
+Every track runs the same filter (any core filter: ``ekf``, ``ukf``, ``hybrid``...). To
+compare filters side by side on the same detections, run one :class:`Tracker` per filter
+on the same scans (:func:`uavest.tracking.bench.run_tracker_side_by_side`).
+
+Per scan (time t, detections Z (N, m), radar model at the scan's sensor pose):
+
+1. **Predict** every live track to t.
+2. **Gate** (Mahalanobis): for each track the predicted measurement zhat and innovation
+   covariance S = Cov(h(x)) + R are computed by the unscented transform of the track's
+   Gaussian estimate (the same for every filter, so gating does not favour one);
+   detection j is in the gate of track i if d2_ij = nu^T S^-1 nu <= chi2.ppf(gate_prob, m)
+   with nu the angle-wrapped residual.
+3. **Associate** by global nearest neighbour: scipy's ``linear_sum_assignment`` on the
+   cost d2_ij + ln det S_i (negative log-likelihood), out-of-gate pairs forbidden.
+   Confirmed tracks are assigned first, tentative tracks then get the remaining
+   detections.
+4. **Update** assigned tracks with the filter; unassigned tracks coast (predict only).
+5. **Initiate**: each detection left over and outside every confirmed track's gate starts
+   a tentative track by *single-point initiation*: position and covariance from the
+   converted measurement (:meth:`RadarMeasurement.to_cartesian`), velocity 0 with std
+   ``init_vel_std`` per axis (turn rate 0 with std ``init_omega_std`` for CT).
+6. **Confirm / delete** (the documented rule):
+   - a tentative track is *confirmed* as soon as it has ``confirm_m`` hits within its
+     first ``confirm_n`` scans (the initiating detection counts as a hit); it is deleted
+     as soon as that has become impossible;
+   - a confirmed track is *deleted* after ``delete_misses`` consecutive scans without a
+     detection (it coasts meanwhile), or when its position std sqrt(tr P_pos) exceeds
+     ``max_pos_std``.
+
+Track IDs are assigned at initiation (increasing integers) and never reused.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.stats import chi2
+
+from ..core.gaussian import Gaussian
+from ..core.guard import Guarded
+from ..core.linalg import chol
+from ..core.unscented import sigma_offsets, sigma_weights
+from ..models.radar import RadarMeasurement
+
+Array = np.ndarray
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Tracker parameters (scenario table ``[tracker]``)."""
+
+    gate_prob: float = 0.999
+    confirm_m: int = 3
+    confirm_n: int = 4
+    delete_misses: int = 5
+    init_vel_std: float = 100.0  # m/s per axis
+    init_omega_std: float = 0.1  # rad/s (CT only)
+    max_pos_std: float = 5000.0  # m
+
+    @staticmethod
+    def from_scenario(sc: dict) -> TrackerConfig:
+        t = sc.get("tracker", {})
+        known = TrackerConfig.__dataclass_fields__
+        return TrackerConfig(**{k: v for k, v in t.items() if k in known})
+
+
+@dataclass
+class Track:
+    """One track. ``history`` rows: (scan k, predicted Gaussian, posterior Gaussian,
+    detected: bool, confirmed: bool)."""
+
+    id: int
+    state: object
+    born: int
+    status: str = "tentative"  # tentative | confirmed | deleted
+    hits: int = 1
+    scans: int = 1
+    misses: int = 0
+    confirmed_at: int | None = None
+    deleted_at: int | None = None
+    history: list = field(default_factory=list)
+    est: Gaussian | None = None
+    pred: Gaussian | None = None
+
+
+def predicted_measurement(g: Gaussian, meas: RadarMeasurement) -> tuple[Array, Array]:
+    """(zhat, S) of a Gaussian through the radar by the unscented transform
+    (alpha=1, beta=2, kappa=0), S including R."""
+    n = g.P.shape[0]
+    c, Wm, Wc = sigma_weights(n, 1.0, 2.0, 0.0, "merwe")
+    X = g.x + sigma_offsets(chol(g.P), c, "merwe")
+    Z = meas.h(X)
+    zhat = meas.mean(Z, Wm)
+    E = meas.residual(Z, zhat)
+    S = (E.T * Wc) @ E + meas.R
+    return zhat, 0.5 * (S + S.T)
+
+
+class Tracker:
+    """GNN multi-target tracker around one filter (see module docstring)."""
+
+    def __init__(self, filt, motion, cfg: TrackerConfig, rng: np.random.Generator) -> None:
+        self.filter = Guarded(filt, strikes=10**9)  # numerical failures only; no NIS resets
+        self.motion = motion
+        self.cfg = cfg
+        self.rng = rng
+        self.tracks: list[Track] = []
+        self.all_tracks: list[Track] = []
+        self._next_id = 1
+        self.seconds = 0.0
+        self.n_scans = 0
+
+    # -- helpers --------------------------------------------------------------------------
+    def _init_state(self, z: Array, meas: RadarMeasurement) -> Gaussian:
+        d = meas.ndim
+        n = self.motion.space.dim
+        p, C = meas.to_cartesian(z)
+        x = np.zeros(n)
+        x[:d] = p
+        P = np.zeros((n, n))
+        P[:d, :d] = C
+        P[d : 2 * d, d : 2 * d] = np.eye(d) * self.cfg.init_vel_std**2
+        if n > 2 * d:
+            P[2 * d :, 2 * d :] = np.eye(n - 2 * d) * self.cfg.init_omega_std**2
+        return Gaussian(x, P)
+
+    def _gate(self, tracks: list[Track], Z: Array, meas) -> tuple[Array, Array]:
+        """(d2 (T, N), cost (T, N)) with inf outside the gate."""
+        T, N = len(tracks), len(Z)
+        d2 = np.full((T, N), np.inf)
+        cost = np.full((T, N), np.inf)
+        g = chi2.ppf(self.cfg.gate_prob, meas.dim)
+        for i, tr in enumerate(tracks):
+            zhat, S = predicted_measurement(tr.pred, meas)
+            L = chol(S)
+            nu = meas.residual(Z, zhat)
+            u = np.linalg.solve(L, nu.T)
+            di = np.einsum("ij,ij->j", u, u)
+            ok = di <= g
+            d2[i, ok] = di[ok]
+            cost[i, ok] = di[ok] + 2.0 * np.log(np.diag(L)).sum()
+        return d2, cost
+
+    @staticmethod
+    def _assign(cost: Array) -> list[tuple[int, int]]:
+        if cost.size == 0 or not np.isfinite(cost).any():
+            return []
+        big = 1e12
+        C = np.where(np.isfinite(cost), cost, big)
+        r, c = linear_sum_assignment(C)
+        return [(int(i), int(j)) for i, j in zip(r, c, strict=True) if C[i, j] < big]
+
+    # -- one scan -------------------------------------------------------------------------
+    def step(self, k: int, t: float, dt: float, Z: Array, meas: RadarMeasurement) -> None:
+        """Process scan ``k`` at time ``t`` (s) with detections ``Z`` (N, m)."""
+        t0 = time.perf_counter()
+        f, rng = self.filter, self.rng
+        for tr in self.tracks:
+            tr.state = f.predict(tr.state, self.motion, t, dt, None, rng)
+            tr.pred = f.estimate(tr.state)
+        used = np.zeros(len(Z), bool)
+        in_conf_gate = np.zeros(len(Z), bool)
+        assigned: dict[int, int] = {}
+        for status in ("confirmed", "tentative"):
+            group = [tr for tr in self.tracks if tr.status == status]
+            if not group or len(Z) == 0:
+                continue
+            free = np.flatnonzero(~used)
+            d2, cost = self._gate(group, Z[free], meas)
+            if status == "confirmed":
+                in_conf_gate[free] |= np.isfinite(d2).any(axis=0)
+            for i, j in self._assign(cost):
+                assigned[group[i].id] = int(free[j])
+                used[free[j]] = True
+        for tr in self.tracks:
+            j = assigned.get(tr.id)
+            if j is not None:
+                tr.state, _ = f.update(tr.state, Z[j], meas, rng)
+            tr.est = f.estimate(tr.state)
+            self._bookkeep(tr, k, j is not None)
+            tr.history.append((k, tr.pred, tr.est, j is not None, tr.status == "confirmed"))
+        self.tracks = [tr for tr in self.tracks if tr.status != "deleted"]
+        for j in np.flatnonzero(~used & ~in_conf_gate):
+            g = self._init_state(Z[j], meas)
+            tr = Track(self._next_id, f.init(g, self.motion.space, rng), born=k)
+            tr.pred = tr.est = g
+            self._next_id += 1
+            tr.history.append((k, g, g, True, False))
+            self.tracks.append(tr)
+            self.all_tracks.append(tr)
+            if self.cfg.confirm_m <= 1:
+                tr.status, tr.confirmed_at = "confirmed", k
+        self.seconds += time.perf_counter() - t0
+        self.n_scans += 1
+
+    def _bookkeep(self, tr: Track, k: int, hit: bool) -> None:
+        c = self.cfg
+        pos_std = float(np.sqrt(np.trace(tr.est.P[: self.motion.ndim, : self.motion.ndim])))
+        if tr.status == "tentative":
+            tr.scans += 1
+            tr.hits += int(hit)
+            if tr.hits >= c.confirm_m and tr.scans <= c.confirm_n:
+                tr.status, tr.confirmed_at = "confirmed", k
+            elif tr.hits + (c.confirm_n - tr.scans) < c.confirm_m:
+                tr.status, tr.deleted_at = "deleted", k
+        elif tr.status == "confirmed":
+            tr.misses = 0 if hit else tr.misses + 1
+            if tr.misses >= c.delete_misses or pos_std > c.max_pos_std:
+                tr.status, tr.deleted_at = "deleted", k
+
+    def confirmed(self) -> dict[int, Gaussian]:
+        """{track id: posterior Gaussian} of the currently confirmed tracks."""
+        return {tr.id: tr.est for tr in self.tracks if tr.status == "confirmed"}
