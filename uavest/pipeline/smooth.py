@@ -1,0 +1,67 @@
+"""Forward-backward (Rauch-Tung-Striebel) smoothing on a manifold state space.
+
+One backward recursion serves every filter; the filters differ only in how the
+cross-covariance ``C_k = Cov(e_{k-1}, e_k)`` between consecutive tangent errors is
+obtained during the forward pass:
+
+* EKF (RTS):            C_k = P_{k-1|k-1} F_k^T     (F_k the tangent Jacobian of f)
+* UKF (unscented RTS):  C_k = sum_j Wc_j D_j dY_j^T (sigma offsets D, propagated
+                        deviations dY; :meth:`uavest.core.UKF.predict_cross`)
+* hybrid (ensemble RTS): C_k = weighted cross-covariance of the filtered members and the
+                        same members after propagation (members persist through a
+                        predict unless regenerated; then the sigma-point C is used).
+
+Backward pass, k = N-1 .. 0 (G the smoother gain):
+    G   = C_{k+1} P_{k+1|k}^-1                       (solve, not inverse)
+    x_s = retract(x_{k|k}, G local(x_{k+1|k}, x_{k+1|N}))
+    P_s = P_{k|k} + G (P_{k+1|N} - P_{k+1|k}) G^T
+Tangent spaces at different base points are identified (no parallel transport), as
+usual for multiplicative-error smoothers on SO(3) at these step sizes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.base import Ensemble
+from ..core.linalg import symmetrize
+
+Array = np.ndarray
+
+__all__ = ["ensemble_cross", "rts_backward"]
+
+
+def rts_backward(
+    space, x_f: Array, P_f: Array, x_p: Array, P_p: Array, C: Array
+) -> tuple[Array, Array]:
+    """Smoothed states/covariances from a forward pass.
+
+    ``x_f`` (N+1, size) / ``P_f`` (N+1, n, n): filtered estimates at steps 0..N;
+    ``x_p``, ``P_p`` (N+1, ...): predictions to step k from k-1 (row 0 unused);
+    ``C`` (N+1, n, n): cross-covariance Cov(e_{k-1}, e_k) (row 0 unused).
+    Returns ``(x_s, P_s)`` shaped like ``x_f``, ``P_f``.
+    """
+    x_s = x_f.copy()
+    P_s = P_f.copy()
+    N = x_f.shape[0] - 1
+    for k in range(N - 1, -1, -1):
+        try:
+            G = np.linalg.solve(P_p[k + 1], C[k + 1].T).T
+        except np.linalg.LinAlgError:
+            continue  # keep the filtered estimate at this step
+        d = space.local(x_p[k + 1], x_s[k + 1])
+        x_s[k] = space.retract(x_f[k], G @ d)
+        P_s[k] = symmetrize(P_f[k] + G @ (P_s[k + 1] - P_p[k + 1]) @ G.T)
+    return x_s, P_s
+
+
+def ensemble_cross(E_f: Ensemble, E_p: Ensemble, x_f: Array, x_p: Array) -> Array:
+    """Weighted cross-covariance (n, n) of member deviations before (``E_f`` about
+    ``x_f``) and after (``E_p`` about ``x_p``) one predict; members must correspond."""
+    M = E_f.M
+    w = np.full(M, 1.0 / M) if E_f.w is None else E_f.w
+    dA = E_f.space.local(x_f, E_f.X)
+    dB = E_p.space.local(x_p, E_p.X)
+    dA = dA - w @ dA
+    dB = dB - w @ dB
+    return (dA.T * w) @ dB / max(1.0 - float(w @ w), 1e-12)
