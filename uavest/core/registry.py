@@ -30,7 +30,7 @@ _BASE = {
 }
 FILTER_NAMES = tuple(_BASE) + ("<name>_sh",)
 
-_SPEC = re.compile(r"^\s*([a-z_]+)\s*(?:\((.*)\))?\s*$")
+_SPEC = re.compile(r"^\s*([a-z_][a-z0-9_]*)\s*(?:\((.*)\))?\s*$")
 
 
 def _value(v: str):
