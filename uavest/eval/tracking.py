@@ -101,8 +101,8 @@ def track_quality(
     first_assigned: dict[int, int] = {}
     for k, (tr, tk) in enumerate(zip(truth_steps, track_steps, strict=True)):
         tids, kids = list(tr), list(tk)
-        X = np.array([tr[i] for i in tids]).reshape(len(tids), -1)
-        Y = np.array([tk[j] for j in kids]).reshape(len(kids), -1)
+        X = np.array([tr[i] for i in tids]) if tids else np.zeros((0, 1))
+        Y = np.array([tk[j] for j in kids]) if kids else np.zeros((0, 1))
         g, pairs, _, _, _ = gospa(X, Y, c, p)
         g_sum += g
         amap = {tids[i]: kids[j] for i, j in pairs}

@@ -44,7 +44,6 @@ from scipy.stats import chi2
 from ..core.gaussian import Gaussian
 from ..core.guard import Guarded
 from ..core.linalg import chol
-from ..core.unscented import sigma_offsets, sigma_weights
 from ..models.radar import RadarMeasurement
 
 Array = np.ndarray
@@ -55,8 +54,8 @@ class TrackerConfig:
     """Tracker parameters (scenario table ``[tracker]``)."""
 
     gate_prob: float = 0.999
-    confirm_m: int = 3
-    confirm_n: int = 4
+    confirm_m: int = 4
+    confirm_n: int = 5
     delete_misses: int = 5
     init_vel_std: float = 100.0  # m/s per axis
     init_omega_std: float = 0.1  # rad/s (CT only)
@@ -92,8 +91,13 @@ def predicted_measurement(g: Gaussian, meas: RadarMeasurement) -> tuple[Array, A
     """(zhat, S) of a Gaussian through the radar by the unscented transform
     (alpha=1, beta=2, kappa=0), S including R."""
     n = g.P.shape[0]
-    c, Wm, Wc = sigma_weights(n, 1.0, 2.0, 0.0, "merwe")
-    X = g.x + sigma_offsets(chol(g.P), c, "merwe")
+    # Van der Merwe points with alpha=1, beta=2, kappa=0: lambda = 0, c = sqrt(n)
+    Wm = np.full(2 * n + 1, 1.0 / (2 * n))
+    Wm[0] = 0.0
+    Wc = Wm.copy()
+    Wc[0] = 2.0
+    cL = np.sqrt(n) * chol(g.P).T
+    X = g.x + np.vstack([np.zeros((1, n)), cL, -cL])
     Z = meas.h(X)
     zhat = meas.mean(Z, Wm)
     E = meas.residual(Z, zhat)
