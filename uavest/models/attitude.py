@@ -37,6 +37,7 @@ from .rotation import (
     quat_exp,
     quat_mul,
     quat_rotate,
+    quat_rotate_inv,
     quat_to_dcm,
     right_jacobian,
     skew,
@@ -173,6 +174,9 @@ class GyroTransition(Transition):
 class GravityDirection(Measurement):
     """Accelerometer as the gravity direction in body FRD (unit vector, 3 components).
 
+    h(x) = R(q)^T r with r the unit "apparent down" in NED: (0, 0, 1), or
+    (g_ned - a_ned)/|.| when the vehicle's acceleration a_ned is supplied.
+
     ``accel`` the specific force (m/s^2, body FRD); ``z = -accel/|accel|``. R is isotropic,
     std = sqrt(accel_noise^2 + (accel_deweight * | |a| - g |)^2) / g. Use
     :meth:`from_accel`, which returns None when the sample is gated out.
@@ -180,23 +184,37 @@ class GravityDirection(Measurement):
 
     space = SPACE
 
-    def __init__(self, R: Array) -> None:
+    def __init__(self, R: Array, ref: Array | None = None) -> None:
         self.R = R
+        self.ref = None if ref is None else np.asarray(ref, float)
+        if self.ref is not None and np.allclose(self.ref, [0.0, 0.0, 1.0]):
+            self.ref = None
 
     @staticmethod
     def from_accel(
-        accel: Array, noise: AttitudeNoise, g: float = G0
+        accel: Array, noise: AttitudeNoise, g: float = G0, accel_ned: Array | None = None
     ) -> tuple[Array, GravityDirection] | None:
-        """(z, model) for one accel sample, or None if gated / degenerate."""
+        """(z, model) for one accel sample, or None if gated / degenerate.
+
+        ``accel_ned`` (m/s^2, NED), the vehicle's own acceleration if known (e.g. from
+        differentiated GPS/EKF velocity): the reference direction becomes the apparent
+        gravity ``g_ned - accel_ned`` and the gate / de-weighting use its norm.
+        """
         a = np.asarray(accel, float)
         na = float(np.linalg.norm(a))
-        dev = abs(na - g)
-        if not np.isfinite(na) or na < 1e-6 or dev > noise.accel_gate:
+        ref = np.array([0.0, 0.0, g])
+        if accel_ned is not None and np.isfinite(accel_ned).all():
+            ref = ref - np.asarray(accel_ned, float)
+        nr = float(np.linalg.norm(ref))
+        dev = abs(na - nr)
+        if not np.isfinite(na) or na < 1e-6 or nr < 1e-6 or dev > noise.accel_gate:
             return None
-        sd = np.hypot(noise.accel_noise, noise.accel_deweight * dev) / g
-        return -a / na, GravityDirection(np.eye(3) * sd * sd)
+        sd = np.hypot(noise.accel_noise, noise.accel_deweight * dev) / nr
+        return -a / na, GravityDirection(np.eye(3) * sd * sd, ref / nr)
 
     def h(self, X: Array) -> Array:
+        if self.ref is not None:
+            return quat_rotate_inv(X[..., :4], self.ref)
         w, x, y, z = X[..., 0], X[..., 1], X[..., 2], X[..., 3]
         return np.stack(
             [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1

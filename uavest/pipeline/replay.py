@@ -29,12 +29,12 @@ import json
 import math
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from ..core import Ensemble, Gaussian, Guarded, UKF, make_filter
+from ..core import UKF, Ensemble, Gaussian, Guarded, make_filter
 from ..core.particle import ess
 from ..eval.attitude import interp_reference, nees_attitude, rmse_deg, select_reference
 from ..models.attitude import (
@@ -86,6 +86,27 @@ class Steps:
     mag0: Array | None
     integration: str
     factor: int
+    accel_ned: Array | None = None  # (J, 3) m/s^2 NED vehicle acceleration or NaN
+
+
+def velocity_acceleration(
+    t_v: Array, vel_ned: Array, t: Array, max_gap: float = 1.0
+) -> Array:
+    """Causal vehicle acceleration (m/s^2, NED) at times ``t`` from a velocity series:
+    backward difference of the last two velocity samples at or before each time
+    (NaN where there are none, or they are more than ``max_gap`` s apart)."""
+    out = np.full((t.shape[0], 3), np.nan)
+    ok_v = np.isfinite(vel_ned).all(axis=1)
+    t_v, vel_ned = t_v[ok_v], vel_ned[ok_v]
+    if t_v.shape[0] < 2:
+        return out
+    i = np.searchsorted(t_v, t, side="right") - 1
+    ok = i >= 1
+    i1 = np.where(ok, i, 1)
+    dtv = t_v[i1] - t_v[i1 - 1]
+    ok &= (dtv > 1e-3) & (dtv <= max_gap) & (t - t_v[i1] <= max_gap)
+    out[ok] = (vel_ned[i1[ok]] - vel_ned[i1[ok] - 1]) / dtv[ok, None]
+    return out
 
 
 @dataclass
@@ -103,6 +124,7 @@ class ReplayConfig:
     noise: dict = field(default_factory=dict)  # AttitudeNoise overrides
     imu: str | None = None
     use_mag: bool = True
+    accel_comp: str = "auto"  # "auto": velocity-based if the log has velocity; "none"
 
 
 def _preintegrate(t: Array, gyro: Array, edges: Array) -> Array:
@@ -281,12 +303,15 @@ def run_filters(
         for spec, ss in zip(specs, root.spawn(len(specs)), strict=True)
     ]
     model = GyroTransition(noise)
+    acc_ned = steps.accel_ned
     every = max(1, J // 200)
     wall0 = time.perf_counter()
     smooth_time = 0.0
     for k in range(1, J + 1):
         meas = []
-        a = GravityDirection.from_accel(steps.accel[k - 1], noise)
+        a = GravityDirection.from_accel(
+            steps.accel[k - 1], noise, accel_ned=None if acc_ned is None else acc_ned[k - 1]
+        )
         if a is not None:
             meas.append(a)
         if use_mag and np.isfinite(steps.mag[k - 1, 0]):
@@ -331,6 +356,17 @@ def replay(path: str | Path, cfg: ReplayConfig | None = None, progress: bool = F
         None if mag is None else mag.t, None if mag is None else mag.field,
         cfg.rate_hz, cfg.integration,
     )
+    comp_src = None
+    if cfg.accel_comp not in ("auto", "none"):
+        raise ValueError(f"accel_comp must be auto or none, not {cfg.accel_comp!r}")
+    if cfg.accel_comp == "auto":
+        for name, pos in data.positions.items():
+            if len(pos) >= 2 and np.isfinite(pos.vel_ned).all(axis=1).sum() >= 2:
+                steps = replace(
+                    steps, accel_ned=velocity_acceleration(pos.t, pos.vel_ned, steps.t[1:])
+                )
+                comp_src = name
+                break
     runs, wall = run_filters(
         steps, cfg.filters, noise, decl, cfg.seed, cfg.smooth, mag is not None, progress
     )
@@ -350,6 +386,7 @@ def replay(path: str | Path, cfg: ReplayConfig | None = None, progress: bool = F
         "steps": int(len(steps.dt)),
         "declination_rad": decl,
         "declination_source": decl_src,
+        "accel_compensation": comp_src,
         "seed": cfg.seed,
         "noise": {k: float(v) for k, v in vars(noise).items()} if hasattr(noise, "__dict__")
         else {k: float(getattr(noise, k)) for k in noise.__dataclass_fields__},
@@ -454,6 +491,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             rate_hz=args.rate, integration=args.integration,
             declination=None if args.declination is None else math.radians(args.declination),
             noise=_parse_noise(args.noise), imu=args.imu, use_mag=not args.no_mag,
+            accel_comp=args.accel_comp,
         )
         if not Path(args.log).is_file():
             raise ValueError(f"no such log file: {args.log}")
@@ -525,6 +563,10 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--noise", action="append", default=[], metavar="KEY=VALUE",
                    help="override a noise parameter (repeatable), e.g. --noise mag_noise=0.1")
     p.add_argument("--imu", help="IMU source name (default: the ingest's choice)")
+    p.add_argument("--accel-comp", default="auto", choices=("auto", "none"),
+                   help="remove the vehicle's own acceleration (causal difference of the "
+                   "log's velocity) from the accelerometer before using it as gravity "
+                   "(default auto: when the log has velocity)")
     p.add_argument("--no-mag", action="store_true", help="do not use the magnetometer")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_replay)
