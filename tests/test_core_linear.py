@@ -4,7 +4,17 @@ import numpy as np
 import pytest
 
 from uavest.core import (
-    EKF, ETKF, KF, PF, SRUKF, UKF, EnKF, Gaussian, Hybrid, HybridLiteral, LinearMeasurement,
+    EKF,
+    ETKF,
+    KF,
+    PF,
+    SRUKF,
+    UKF,
+    EnKF,
+    Gaussian,
+    Hybrid,
+    HybridLiteral,
+    LinearMeasurement,
     LinearTransition,
 )
 from uavest.models.motion import NearlyConstantVelocity

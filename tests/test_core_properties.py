@@ -8,7 +8,10 @@ from uavest.core.hybrid import confidence_weights, tempered_weights
 from uavest.core.model import Measurement, Transition, fd_jacobian
 from uavest.core.spaces import VectorSpace
 from uavest.models.benchmarks import (
-    Nonlinear2DMeasurement, Nonlinear2DTransition, UNGMMeasurement, UNGMTransition,
+    Nonlinear2DMeasurement,
+    Nonlinear2DTransition,
+    UNGMMeasurement,
+    UNGMTransition,
 )
 
 
@@ -180,3 +183,18 @@ def test_registry_rejects_unknown_and_bad_params():
     with pytest.raises(ValueError, match="bad parameters"):
         make_filter("ukf(nope=1)")
     assert make_filter("ukf(alpha=0.001)").alpha == 0.001
+
+
+def test_exploding_covariance_is_detected_as_divergence():
+    """UKF with alpha=1e-3 on the UNGM loses the state with an exploding covariance (its
+    NIS stays small); the guard must report it instead of returning a 1e6 estimate."""
+    from uavest.bench.montecarlo import evaluate
+    from uavest.bench.scenario import load_scenario
+    from uavest.bench.systems import build_system
+
+    sysm = build_system(load_scenario("ungm", ["steps=60"]))
+    r = evaluate(sysm, ["ukf(alpha=0.001)", "ukf"], 5, seed=0)
+    assert r["ukf(alpha=0.001)"]["resets"] > 0
+    assert r["ukf(alpha=0.001)"]["diverged_fraction"] == 1.0
+    assert r["ukf(alpha=0.001)"]["rmse_mean"] < 1e3
+    assert r["ukf"]["resets"] == 0

@@ -2,7 +2,9 @@
 
 A :class:`Guarded` filter has the same interface as the filter it wraps. After every
 predict and update it checks the estimate: non-finite values, a covariance that is not
-positive definite, an exception from the linear algebra (e.g. a failed downdate), or an
+positive definite, an exception from the linear algebra (e.g. a failed downdate), a
+covariance that has exploded (a variance above ``max_growth`` times the largest prior
+variance: the filter has lost the state while its NIS stays small), or an
 NIS above the gate (chi-square ``gate_prob`` quantile for the measurement dimension) for
 ``strikes`` consecutive updates. On divergence it re-initialises the inner filter from the
 last good estimate with its covariance multiplied by ``inflate`` and reports it: the
@@ -36,6 +38,7 @@ class GuardState:
     resets: int = 0
     reset: bool = False  # True if this step re-initialised
     reason: str = ""
+    var_limit: float = np.inf  # largest variance tolerated before declaring divergence
 
 
 @dataclass(frozen=True)
@@ -46,21 +49,26 @@ class Guarded:
     gate_prob: float = 0.9999
     strikes: int = 5
     inflate: float = 10.0
+    max_growth: float = 1e8
 
     @property
     def name(self) -> str:
         return self.filter.name
 
     def init(self, prior: Gaussian, space, rng=None) -> GuardState:
-        return GuardState(self.filter.init(prior, space, rng), prior)
+        limit = self.max_growth * float(np.max(np.diag(prior.P)))
+        return GuardState(self.filter.init(prior, space, rng), prior, var_limit=limit)
 
     def _recover(self, s: GuardState, space, rng, reason: str) -> GuardState:
         g = s.last_good
-        prior = Gaussian(g.x.copy(), g.P * self.inflate)
-        inner = self.filter.init(prior, space, rng)
-        return GuardState(inner, g, 0, s.resets + 1, True, reason)
+        P = g.P * self.inflate
+        top = float(np.max(np.diag(P)))
+        if top > s.var_limit / self.inflate:  # never restart at the explosion's edge
+            P = P * (s.var_limit / self.inflate / top)
+        inner = self.filter.init(Gaussian(g.x.copy(), P), space, rng)
+        return GuardState(inner, g, 0, s.resets + 1, True, reason, s.var_limit)
 
-    def _check(self, inner) -> tuple[Gaussian | None, str]:
+    def _check(self, inner, var_limit: float = np.inf) -> tuple[Gaussian | None, str]:
         try:
             g = self.filter.estimate(inner)
         except (np.linalg.LinAlgError, ValueError, FloatingPointError) as e:
@@ -69,6 +77,8 @@ class Guarded:
             return None, "non-finite estimate"
         if not is_pd(g.P):
             return None, "covariance not positive definite"
+        if float(np.max(np.diag(g.P))) > var_limit:
+            return None, "covariance exploded"
         return g, ""
 
     def predict(self, s: GuardState, model, t, dt, u=None, rng=None) -> GuardState:
@@ -76,23 +86,23 @@ class Guarded:
             inner = self.filter.predict(s.inner, model, t, dt, u, rng)
         except (np.linalg.LinAlgError, ValueError, FloatingPointError) as e:
             return self._recover(s, model.space, rng, f"predict failed: {e}")
-        g, why = self._check(inner)
+        g, why = self._check(inner, s.var_limit)
         if g is None:
             return self._recover(s, model.space, rng, why)
-        return GuardState(inner, s.last_good, s.strikes, s.resets)
+        return GuardState(inner, s.last_good, s.strikes, s.resets, var_limit=s.var_limit)
 
     def update(self, s: GuardState, z, model, rng=None) -> tuple[GuardState, Innovation | None]:
         try:
             inner, inn = self.filter.update(s.inner, z, model, rng)
         except (np.linalg.LinAlgError, ValueError, FloatingPointError) as e:
             return self._recover(s, model.space, rng, f"update failed: {e}"), None
-        g, why = self._check(inner)
+        g, why = self._check(inner, s.var_limit)
         if g is None or not np.isfinite(inn.nis):
             return self._recover(s, model.space, rng, why or "non-finite NIS"), inn
         strikes = s.strikes + 1 if inn.nis > nis_gate(len(inn.nu), self.gate_prob) else 0
         if strikes >= self.strikes:
             return self._recover(s, model.space, rng, f"NIS above gate {strikes} times"), inn
-        return GuardState(inner, g, strikes, s.resets, False, ""), inn
+        return GuardState(inner, g, strikes, s.resets, False, "", s.var_limit), inn
 
     def estimate(self, s: GuardState) -> Gaussian:
         g, _ = self._check(s.inner)
