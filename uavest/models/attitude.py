@@ -53,7 +53,10 @@ __all__ = [
     "AttitudeNoise",
     "GravityDirection",
     "GyroTransition",
+    "MagField",
     "MagHeading",
+    "inclination_from_samples",
+    "mag_reference",
     "declination_from_params",
     "initial_attitude",
     "noise_for_source",
@@ -272,6 +275,59 @@ class MagHeading(Measurement):
     def mean(self, Y: Array, w: Array) -> Array:
         ref = Y[0]
         return wrap_pi(ref + w @ wrap_pi(Y - ref))
+
+
+class MagField(Measurement):
+    """Magnetometer as a 3-D field direction: z = field/|field| (unit, body FRD),
+    h(x) = R(q)^T m_ref with m_ref the unit Earth field in NED (declination east
+    positive, inclination positive down, see :func:`mag_reference`). Unlike the heading,
+    this also constrains tilt (strongly where the field is steep), which helps when the
+    accelerometer is corrupted by manoeuvres. Std ``mag_noise`` (rad) per axis."""
+
+    space = SPACE
+
+    def __init__(self, ref: Array, R: Array) -> None:
+        self.ref = np.asarray(ref, float)
+        self.R = R
+
+    @staticmethod
+    def from_field(
+        field: Array, noise: AttitudeNoise, ref: Array
+    ) -> tuple[Array, MagField] | None:
+        """(z, model) for one magnetometer sample (gauss, body FRD), or None."""
+        f = np.asarray(field, float)
+        nf = float(np.linalg.norm(f))
+        if not np.isfinite(nf) or nf < 1e-6:
+            return None
+        return f / nf, MagField(ref, np.eye(3) * noise.mag_noise**2)
+
+    def h(self, X: Array) -> Array:
+        return quat_rotate_inv(X[..., :4], self.ref)
+
+    def H(self, x: Array) -> Array:
+        H = np.zeros((3, 6))
+        H[:, :3] = skew(self.h(x[None, :])[0])
+        return H
+
+
+def mag_reference(declination: float, inclination: float) -> Array:
+    """Unit Earth field in NED from declination (rad, east positive) and inclination
+    (rad, positive when the field points down: northern hemisphere)."""
+    ci = np.cos(inclination)
+    return np.array([ci * np.cos(declination), ci * np.sin(declination), np.sin(inclination)])
+
+
+def inclination_from_samples(accel: Array, field: Array) -> float:
+    """Magnetic inclination (rad, positive down) from accel (m/s^2) and field samples
+    (N, 3) taken together, via the mean angle between the field and gravity."""
+    a = -np.atleast_2d(accel)
+    f = np.atleast_2d(field)
+    ok = np.isfinite(a).all(axis=1) & np.isfinite(f).all(axis=1)
+    a = a[ok] / np.linalg.norm(a[ok], axis=1, keepdims=True)
+    f = f[ok] / np.linalg.norm(f[ok], axis=1, keepdims=True)
+    if a.shape[0] == 0:
+        return 0.0
+    return float(np.arcsin(np.clip(np.median(np.sum(a * f, axis=1)), -1.0, 1.0)))
 
 
 def initial_attitude(accel: Array, field: Array | None, declination: float = 0.0) -> Array:

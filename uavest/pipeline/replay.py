@@ -41,9 +41,12 @@ from ..models.attitude import (
     AttitudeNoise,
     GravityDirection,
     GyroTransition,
+    MagField,
     MagHeading,
     declination_from_params,
+    inclination_from_samples,
     initial_attitude,
+    mag_reference,
     noise_for_source,
 )
 from ..models.rotation import AttitudeSpace, quat_exp, quat_log, quat_mul
@@ -125,6 +128,7 @@ class ReplayConfig:
     imu: str | None = None
     use_mag: bool = True
     accel_comp: str = "auto"  # "auto": velocity-based if the log has velocity; "none"
+    mag_mode: str = "field"  # "field" (3-D direction) or "heading" (horizontal only)
 
 
 def _preintegrate(t: Array, gyro: Array, edges: Array) -> Array:
@@ -284,13 +288,27 @@ def run_filters(
     smooth: bool = False,
     use_mag: bool = True,
     progress: bool = False,
+    mag_mode: str = "field",
 ) -> tuple[list[_Run], float]:
     """Run the filters side by side over ``steps``; returns (runs, wall seconds).
 
     All filters see the same measurement models. The prior: roll/pitch from the first
     accel sample, yaw from the first magnetometer sample (declination applied), zero
-    bias, covariance from ``noise.init_*``.
+    bias, covariance from ``noise.init_*``. ``mag_mode`` "field" uses the 3-D field
+    direction with the inclination estimated from the first second of accel+mag samples
+    (no reference used), "heading" only its horizontal projection.
     """
+    if mag_mode not in ("field", "heading"):
+        raise ValueError(f"mag_mode must be field or heading, not {mag_mode!r}")
+    mref = None
+    if use_mag and mag_mode == "field":
+        first = (steps.t[1:] <= steps.t[0] + 1.0) & np.isfinite(steps.mag[:, 0])
+        if steps.mag0 is not None:
+            acc = np.vstack([steps.accel0, steps.accel[first]])
+            fld = np.vstack([steps.mag0, steps.mag[first]])
+        else:
+            acc, fld = steps.accel[first], steps.mag[first]
+        mref = mag_reference(declination, inclination_from_samples(acc, fld))
     q0 = initial_attitude(steps.accel0, steps.mag0 if use_mag else None, declination)
     P0 = np.diag(
         [noise.init_tilt**2, noise.init_tilt**2, noise.init_yaw**2] + [noise.init_bias**2] * 3
@@ -315,7 +333,11 @@ def run_filters(
         if a is not None:
             meas.append(a)
         if use_mag and np.isfinite(steps.mag[k - 1, 0]):
-            m = MagHeading.from_field(steps.mag[k - 1], noise, declination)
+            m = (
+                MagField.from_field(steps.mag[k - 1], noise, mref)
+                if mref is not None
+                else MagHeading.from_field(steps.mag[k - 1], noise, declination)
+            )
             if m is not None:
                 meas.append(m)
         t, dt, u = float(steps.t[k]), float(steps.dt[k - 1]), steps.gyro[k - 1]
@@ -368,7 +390,8 @@ def replay(path: str | Path, cfg: ReplayConfig | None = None, progress: bool = F
                 comp_src = name
                 break
     runs, wall = run_filters(
-        steps, cfg.filters, noise, decl, cfg.seed, cfg.smooth, mag is not None, progress
+        steps, cfg.filters, noise, decl, cfg.seed, cfg.smooth, mag is not None, progress,
+        cfg.mag_mode,
     )
     ref_name, ap_name = select_reference(data.references)
     doc: dict = {
@@ -387,6 +410,7 @@ def replay(path: str | Path, cfg: ReplayConfig | None = None, progress: bool = F
         "declination_rad": decl,
         "declination_source": decl_src,
         "accel_compensation": comp_src,
+        "mag_mode": cfg.mag_mode if mag is not None else None,
         "seed": cfg.seed,
         "noise": {k: float(v) for k, v in vars(noise).items()} if hasattr(noise, "__dict__")
         else {k: float(getattr(noise, k)) for k in noise.__dataclass_fields__},
@@ -491,7 +515,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             rate_hz=args.rate, integration=args.integration,
             declination=None if args.declination is None else math.radians(args.declination),
             noise=_parse_noise(args.noise), imu=args.imu, use_mag=not args.no_mag,
-            accel_comp=args.accel_comp,
+            accel_comp=args.accel_comp, mag_mode=args.mag_mode,
         )
         if not Path(args.log).is_file():
             raise ValueError(f"no such log file: {args.log}")
@@ -567,6 +591,8 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
                    help="remove the vehicle's own acceleration (causal difference of the "
                    "log's velocity) from the accelerometer before using it as gravity "
                    "(default auto: when the log has velocity)")
+    p.add_argument("--mag-mode", default="field", choices=("field", "heading"),
+                   help="magnetometer as 3-D field direction (default) or heading only")
     p.add_argument("--no-mag", action="store_true", help="do not use the magnetometer")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_replay)
