@@ -69,7 +69,7 @@ def test_space_retract_local_roundtrip_and_double_cover():
     X[::2, :4] *= -1.0
     w = np.full(30, 1 / 30)
     m = S.mean(X, w, X[1])
-    np.testing.assert_allclose(w @ S.local(m, X), 0.0, atol=1e-9)
+    np.testing.assert_allclose(w @ S.local(m, X), 0.0, atol=1e-8)  # one Karcher step
 
 
 def test_exp_log_and_slerp():

@@ -103,7 +103,7 @@ class AttitudeNoise:
 SENSOR_DEFAULTS: dict[str, AttitudeNoise] = {
     "mavlink_stream": AttitudeNoise(
         gyro_noise=0.01, gyro_bias_walk=1e-4, rate_walk=0.25, accel_noise=0.6,
-        accel_deweight=2.0, accel_gate=4.0, mag_noise=0.06,
+        accel_deweight=1.0, accel_gate=8.0, mag_noise=0.12,
     ),
     "dataflash": AttitudeNoise(
         gyro_noise=0.003, gyro_bias_walk=5e-5, rate_walk=0.02, accel_noise=0.8,

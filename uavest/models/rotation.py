@@ -53,15 +53,12 @@ def quat_mul(p: Array, q: Array) -> Array:
     """Hamilton product ``p * q`` (scalar-first), broadcast over leading axes."""
     pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
     qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack(
-        [
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ],
-        axis=-1,
-    )
+    out = np.empty(np.broadcast_shapes(p.shape, q.shape))
+    out[..., 0] = pw * qw - px * qx - py * qy - pz * qz
+    out[..., 1] = pw * qx + px * qw + py * qz - pz * qy
+    out[..., 2] = pw * qy - px * qz + py * qw + pz * qx
+    out[..., 3] = pw * qz + px * qy - py * qx + pz * qw
+    return out
 
 
 def quat_conj(q: Array) -> Array:
@@ -75,18 +72,17 @@ def quat_canonical(q: Array) -> Array:
 
 
 def quat_exp(v: Array) -> Array:
-    """Unit quaternion of rotation vector(s) ``v`` (rad): ``[cos(|v|/2), sin(|v|/2) v/|v|]``.
-
-    Uses the Taylor series below 1e-4 rad so that it is smooth at zero.
-    """
+    """Unit quaternion of rotation vector(s) ``v`` (rad): ``[cos(|v|/2), sin(|v|/2) v/|v|]``
+    (Taylor series below 1e-5 rad, so smooth at zero)."""
     v = np.asarray(v, dtype=float)
-    th2 = np.sum(v * v, axis=-1, keepdims=True)
-    th = np.sqrt(th2)
-    small = th < 1e-4
-    safe = np.where(small, 1.0, th)
-    s = np.where(small, 0.5 - th2 / 48.0, np.sin(0.5 * safe) / safe)
-    c = np.where(small, 1.0 - th2 / 8.0, np.cos(0.5 * th))
-    return np.concatenate([c, s * v], axis=-1)
+    th = np.sqrt(np.einsum("...i,...i->...", v, v))
+    out = np.empty(v.shape[:-1] + (4,))
+    h = 0.5 * th
+    out[..., 0] = np.cos(h)
+    small = th < 1e-5
+    s = np.where(small, 0.5 - th * th / 48.0, np.sin(h) / np.where(small, 1.0, th))
+    out[..., 1:] = s[..., None] * v
+    return out
 
 
 def quat_log(q: Array) -> Array:
@@ -94,14 +90,16 @@ def quat_log(q: Array) -> Array:
 
     ``q`` and ``-q`` give the same result (double cover handled here).
     """
-    q = quat_canonical(q)
-    w = np.clip(q[..., :1], -1.0, 1.0)
-    xyz = q[..., 1:]
-    n = np.sqrt(np.sum(xyz * xyz, axis=-1, keepdims=True))
+    w = q[..., 0]
+    sgn = np.where(w < 0.0, -1.0, 1.0)
+    w = np.abs(w)
+    xyz = q[..., 1:] * sgn[..., None]
+    n = np.sqrt(np.einsum("...i,...i->...", xyz, xyz))
     small = n < 1e-8
-    ang = 2.0 * np.arctan2(n, w)
-    k = np.where(small, 2.0 / np.where(w == 0, 1.0, w), ang / np.where(small, 1.0, n))
-    return k * xyz
+    k = np.where(
+        small, 2.0 / np.maximum(w, 1e-300), 2.0 * np.arctan2(n, w) / np.where(small, 1.0, n)
+    )
+    return k[..., None] * xyz
 
 
 def quat_to_dcm(q: Array) -> Array:
@@ -225,7 +223,7 @@ class AttitudeSpace:
 
     def retract(self, x: Array, dx: Array) -> Array:
         q = quat_mul(x[..., :4], quat_exp(dx[..., :3]))
-        q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+        q /= np.sqrt(np.einsum("...i,...i->...", q, q))[..., None]
         b = x[..., 4:] + dx[..., 3:]
         lead = np.broadcast_shapes(q.shape[:-1], b.shape[:-1])
         return np.concatenate(
@@ -245,7 +243,9 @@ class AttitudeSpace:
         qm = (w * sgn) @ q
         nq = np.linalg.norm(qm)
         start = np.concatenate([qm / nq if nq > 1e-9 else ref[:4], w @ X[:, 4:]])
-        return manifold_mean(self, X, w, start, iters=4, tol=1e-14)
+        # one Gauss-Newton (Karcher) step after the chordal start: its error is third
+        # order in the spread, far below sensor noise at filter spreads (tested)
+        return manifold_mean(self, X, w, start, iters=1)
 
     def __repr__(self) -> str:
         return "AttitudeSpace(q*Exp(dtheta), b+db)"

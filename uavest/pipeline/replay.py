@@ -49,7 +49,7 @@ from ..models.attitude import (
     mag_reference,
     noise_for_source,
 )
-from ..models.rotation import AttitudeSpace, quat_exp, quat_log, quat_mul
+from ..models.rotation import AttitudeSpace, quat_exp, quat_log, quat_mul, quat_rotate
 from .smooth import ensemble_cross, rts_backward
 
 Array = np.ndarray
@@ -129,6 +129,7 @@ class ReplayConfig:
     use_mag: bool = True
     accel_comp: str = "auto"  # "auto": velocity-based if the log has velocity; "none"
     mag_mode: str = "field"  # "field" (3-D direction) or "heading" (horizontal only)
+    mag_delay: float = 0.0  # s, magnetometer sample age (see run_filters)
 
 
 def _preintegrate(t: Array, gyro: Array, edges: Array) -> Array:
@@ -228,7 +229,8 @@ class _Run:
             c0 += time.perf_counter() - c1
         for z, m in meas:
             self.s, _ = self.f.update(self.s, z, m, self.rng)
-        g = self.f.estimate(self.s)
+        # after an update the guard has just checked (and stored) this very estimate
+        g = self.s.last_good if meas and not self.s.reset else self.f.estimate(self.s)
         self.x[k], self.P[k] = g.x, g.P
         self.seconds += time.perf_counter() - c0
 
@@ -289,6 +291,7 @@ def run_filters(
     use_mag: bool = True,
     progress: bool = False,
     mag_mode: str = "field",
+    mag_delay: float = 0.0,
 ) -> tuple[list[_Run], float]:
     """Run the filters side by side over ``steps``; returns (runs, wall seconds).
 
@@ -296,7 +299,9 @@ def run_filters(
     accel sample, yaw from the first magnetometer sample (declination applied), zero
     bias, covariance from ``noise.init_*``. ``mag_mode`` "field" uses the 3-D field
     direction with the inclination estimated from the first second of accel+mag samples
-    (no reference used), "heading" only its horizontal projection.
+    (no reference used), "heading" only its horizontal projection. ``mag_delay`` (s):
+    the magnetometer sample is taken as that much older than its time stamp and rotated
+    forward by the step's gyro rate, ``m_now = Exp(-omega * delay) m`` (body frame).
     """
     if mag_mode not in ("field", "heading"):
         raise ValueError(f"mag_mode must be field or heading, not {mag_mode!r}")
@@ -333,10 +338,13 @@ def run_filters(
         if a is not None:
             meas.append(a)
         if use_mag and np.isfinite(steps.mag[k - 1, 0]):
+            fld = steps.mag[k - 1]
+            if mag_delay:
+                fld = quat_rotate(quat_exp(-mag_delay * steps.gyro[k - 1]), fld)
             m = (
-                MagField.from_field(steps.mag[k - 1], noise, mref)
+                MagField.from_field(fld, noise, mref)
                 if mref is not None
-                else MagHeading.from_field(steps.mag[k - 1], noise, declination)
+                else MagHeading.from_field(fld, noise, declination)
             )
             if m is not None:
                 meas.append(m)
@@ -391,7 +399,7 @@ def replay(path: str | Path, cfg: ReplayConfig | None = None, progress: bool = F
                 break
     runs, wall = run_filters(
         steps, cfg.filters, noise, decl, cfg.seed, cfg.smooth, mag is not None, progress,
-        cfg.mag_mode,
+        cfg.mag_mode, cfg.mag_delay,
     )
     ref_name, ap_name = select_reference(data.references)
     doc: dict = {
@@ -411,6 +419,7 @@ def replay(path: str | Path, cfg: ReplayConfig | None = None, progress: bool = F
         "declination_source": decl_src,
         "accel_compensation": comp_src,
         "mag_mode": cfg.mag_mode if mag is not None else None,
+        "mag_delay_s": cfg.mag_delay,
         "seed": cfg.seed,
         "noise": {k: float(v) for k, v in vars(noise).items()} if hasattr(noise, "__dict__")
         else {k: float(getattr(noise, k)) for k in noise.__dataclass_fields__},
@@ -515,7 +524,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             rate_hz=args.rate, integration=args.integration,
             declination=None if args.declination is None else math.radians(args.declination),
             noise=_parse_noise(args.noise), imu=args.imu, use_mag=not args.no_mag,
-            accel_comp=args.accel_comp, mag_mode=args.mag_mode,
+            accel_comp=args.accel_comp, mag_mode=args.mag_mode, mag_delay=args.mag_delay,
         )
         if not Path(args.log).is_file():
             raise ValueError(f"no such log file: {args.log}")
@@ -593,6 +602,8 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
                    "(default auto: when the log has velocity)")
     p.add_argument("--mag-mode", default="field", choices=("field", "heading"),
                    help="magnetometer as 3-D field direction (default) or heading only")
+    p.add_argument("--mag-delay", type=float, default=0.0,
+                   help="magnetometer sample age in s, compensated with the gyro (default 0)")
     p.add_argument("--no-mag", action="store_true", help="do not use the magnetometer")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_replay)
