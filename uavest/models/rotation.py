@@ -50,7 +50,18 @@ def wrap_pi(a: Array | float) -> Array:
 
 
 def quat_mul(p: Array, q: Array) -> Array:
-    """Hamilton product ``p * q`` (scalar-first), broadcast over leading axes."""
+    """Hamilton product ``p * q`` (scalar-first), broadcast over leading axes.
+
+    When one side is a single quaternion the product is one (M, 4) @ (4, 4) matmul.
+    """
+    if p.ndim == 1 and q.ndim > 1:
+        w, x, y, z = p
+        L = np.array([[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]])
+        return q @ L.T
+    if q.ndim == 1 and p.ndim > 1:
+        w, x, y, z = q
+        Rm = np.array([[w, -x, -y, -z], [x, w, z, -y], [y, -z, w, x], [z, y, -x, w]])
+        return p @ Rm.T
     pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
     qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     out = np.empty(np.broadcast_shapes(p.shape, q.shape))
