@@ -284,6 +284,12 @@ class Hybrid:
         (0.2). The weighting exponent phi <= 1 - tau is the largest on a grid that keeps
         ESS >= min_ess * M; the EnKF shift then takes the rest, R / (1 - phi) (adaptive
         tempering, as in the ensemble Kalman particle filter of Frei & Kunsch 2013).
+      stages: at most this many tempering stages per update (1). When the ESS floor stops
+        the weighting short of 1 - tau (a measurement much sharper than the ensemble, e.g.
+        a 10 m range against a 1 km prior), the members are regenerated around the
+        credible ones and weighted again with the rest (progressive correction); the
+        EnKF shift takes what is left. 6 stages with n_cloud=64 help the far radar case
+        (PCRLB ratio 1.53 -> 1.31) but cost on the bimodal UNGM (docs/filters.md).
       regen_ess: regenerate when the effective sample size < regen_ess * M (0.5).
       kernel: bandwidth h of the regeneration kernel; members are shrunk by sqrt(1-h^2)
         towards the mean and jittered with N(0, h^2 P), preserving mean and covariance.
@@ -296,6 +302,7 @@ class Hybrid:
     spread: float = 0.5
     tau: float = 0.3
     min_ess: float = 0.2
+    stages: int = 1
     regen_ess: float = 0.5
     kernel: float = 0.3
     name: str = "hybrid"
@@ -347,8 +354,17 @@ class Hybrid:
         innov = innovation(model.residual(z, ybar), symmetrize((dY0.T * w) @ dY0 + model.R))
         tau = 1.0
         if self.weights == "confidence":
-            w, phi = tempered_weights(w, log_likelihood(r, model.R), 1.0 - self.tau, self.min_ess)
-            tau = 1.0 - phi
+            left = 1.0 - self.tau  # share of the likelihood still to go into the weights
+            for stage in range(self.stages):
+                w, phi = tempered_weights(w, log_likelihood(r, model.R), left, self.min_ess)
+                left -= phi
+                if left <= 1e-9 or stage == self.stages - 1:
+                    break
+                E = self._regenerate(Ensemble(E.X, E.space, w), rng)
+                w = np.full(M, 1.0 / M)
+                Y = model.h(E.X)
+                r = model.residual(z, Y)
+            tau = self.tau + left
         x = space.mean(E.X, w, E.X[int(np.argmax(w))])
         dX = space.local(x, E.X)
         dX = dX - w @ dX
