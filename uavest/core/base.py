@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .gaussian import Gaussian
-from .spaces import Space
+from .spaces import Space, VectorSpace
 
 Array = np.ndarray
 
@@ -46,12 +46,20 @@ def ensemble_moments(E: Ensemble) -> tuple[Array, Array, Array, Array]:
     """
     M = E.M
     w = np.full(M, 1.0 / M) if E.w is None else E.w
-    x = E.space.mean(E.X, w, E.X[int(np.argmax(w))])
+    x = E.space.mean(E.X, w, mean_start(E.space, E.X, w))
     dX = E.space.local(x, E.X)
     dX = dX - w @ dX  # centre exactly (tangent linearisation on manifolds)
     denom = 1.0 - float(w @ w)
     P = (dX.T * w) @ dX / max(denom, 1e-12)
     return x, dX, w, P
+
+
+def mean_start(space: Space, X: Array, w: Array) -> Array | None:
+    """Starting point for an iterated manifold mean: the heaviest member (None, i.e.
+    unused, on vector spaces, where the mean is a plain weighted sum)."""
+    if isinstance(space, VectorSpace):
+        return None
+    return X[int(np.argmax(w))]
 
 
 def ensemble_estimate(E: Ensemble) -> Gaussian:
@@ -68,6 +76,7 @@ def sample_gaussian(g: Gaussian, space: Space, M: int, rng: np.random.Generator)
 
 
 def innovation(nu: Array, S: Array) -> Innovation:
-    from .linalg import mahalanobis2
+    """Innovation record with its NIS (Cholesky solve through LAPACK)."""
+    from .linalg import chol, nis_from_factor
 
-    return Innovation(nu, S, float(mahalanobis2(nu, S)))
+    return Innovation(nu, S, nis_from_factor(chol(S), nu))

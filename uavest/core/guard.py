@@ -39,6 +39,7 @@ class GuardState:
     reset: bool = False  # True if this step re-initialised
     reason: str = ""
     var_limit: float = np.inf  # largest variance tolerated before declaring divergence
+    est: Gaussian | None = None  # the checked estimate of ``inner`` (saves recomputing it)
 
 
 @dataclass(frozen=True)
@@ -89,7 +90,7 @@ class Guarded:
         g, why = self._check(inner, s.var_limit)
         if g is None:
             return self._recover(s, model.space, rng, why)
-        return GuardState(inner, s.last_good, s.strikes, s.resets, var_limit=s.var_limit)
+        return GuardState(inner, s.last_good, s.strikes, s.resets, var_limit=s.var_limit, est=g)
 
     def update(self, s: GuardState, z, model, rng=None) -> tuple[GuardState, Innovation | None]:
         try:
@@ -102,8 +103,10 @@ class Guarded:
         strikes = s.strikes + 1 if inn.nis > nis_gate(len(inn.nu), self.gate_prob) else 0
         if strikes >= self.strikes:
             return self._recover(s, model.space, rng, f"NIS above gate {strikes} times"), inn
-        return GuardState(inner, g, strikes, s.resets, False, "", s.var_limit), inn
+        return GuardState(inner, g, strikes, s.resets, False, "", s.var_limit, g), inn
 
     def estimate(self, s: GuardState) -> Gaussian:
+        if s.est is not None:
+            return s.est
         g, _ = self._check(s.inner)
         return s.last_good if g is None else g

@@ -39,6 +39,7 @@ from .base import (
     ensemble_estimate,
     ensemble_moments,
     innovation,
+    mean_start,
 )
 from .ensemble import propagate_members
 from .gaussian import Gaussian
@@ -256,8 +257,14 @@ def tempered_weights(
     Returns (normalised weights, phi). Vectorised over the grid: one (17, M) evaluation.
     """
     M = w.shape[0]
+    logw0 = np.log(np.maximum(w, 1e-300))
+    L1 = logw0 + phi_max * loglik  # common case first: the full share keeps the ESS floor
+    W1 = np.exp(L1 - L1.max())
+    W1 /= W1.sum()
+    if 1.0 / (W1 @ W1) >= min_ess * M:
+        return W1, float(phi_max)
     phis = phi_max * _PHI_GRID
-    L = np.log(np.maximum(w, 1e-300))[None, :] + phis[:, None] * loglik[None, :]
+    L = logw0[None, :] + phis[:, None] * loglik[None, :]
     L -= L.max(axis=1, keepdims=True)
     W = np.exp(L)
     W /= W.sum(axis=1, keepdims=True)
@@ -365,7 +372,7 @@ class Hybrid:
                 Y = model.h(E.X)
                 r = model.residual(z, Y)
             tau = self.tau + left
-        x = space.mean(E.X, w, E.X[int(np.argmax(w))])
+        x = space.mean(E.X, w, mean_start(space, E.X, w))
         dX = space.local(x, E.X)
         dX = dX - w @ dX
         ybar = model.mean(Y, w)

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg.lapack import dtrtrs
 
 from .base import Ensemble, Innovation, ensemble_estimate, innovation, sample_gaussian
 from .ensemble import propagate_members
@@ -37,9 +38,8 @@ def ess(w: Array) -> float:
 
 def log_likelihood(r: Array, R: Array) -> Array:
     """Gaussian log-likelihood (up to a constant) of residuals ``r`` (M, m) under ``R``."""
-    L = chol(R)
-    u = np.linalg.solve(L, r.T)
-    return -0.5 * np.einsum("ij,ij->j", u, u)
+    u = dtrtrs(chol(R), r.T, lower=1)[0]
+    return -0.5 * (u * u).sum(axis=0)
 
 
 def normalise_log(logw: Array) -> Array:

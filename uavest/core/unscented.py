@@ -24,7 +24,7 @@ import numpy as np
 
 from .base import Innovation, innovation
 from .gaussian import Gaussian
-from .linalg import chol, gain_factor, nis_from_factor, symmetrize
+from .linalg import chol, gain_factor, nis_from_factor
 from .model import Measurement, Transition
 
 Array = np.ndarray
@@ -112,14 +112,17 @@ class UKF:
         D = U @ chol(g.P).T
         Z = model.h(space.retract(g.x, D))
         zhat = model.mean(Z, Wm)
-        E = model.residual(Z, zhat)
-        Ew = E.T * Wc
-        S = Ew @ E + model.R
-        Pxz = (D.T * Wc) @ E
+        A = np.concatenate((D, model.residual(Z, zhat)), axis=1)  # joint [state, meas.] devs
+        C = (A.T * Wc) @ A
+        n = D.shape[1]
+        S = C[n:, n:] + model.R
+        Pxz = C[:n, n:]
         K, cS = gain_factor(Pxz, S)
         nu = model.residual(z, zhat)
         x = space.retract(g.x, K @ nu)
-        P = symmetrize(g.P - K @ Pxz.T)  # K S K^T = K Pxz^T
+        # P - K Pxz^T (= P - K S K^T) is symmetric up to rounding; every consumer reads the
+        # lower triangle (Cholesky), so no explicit symmetrising is needed here
+        P = g.P - K @ Pxz.T
         return Gaussian(x, P), Innovation(nu, S, nis_from_factor(cS, nu))
 
     def estimate(self, g: Gaussian) -> Gaussian:
