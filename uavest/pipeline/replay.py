@@ -69,11 +69,11 @@ __all__ = [
 DEFAULT_FILTERS = ("ekf", "ukf", "hybrid")
 DEFAULT_MAX_RATE_HZ = 25.0
 #: Attitude defaults for the hybrid (spec parameters override them): cloud size
-#: M = 13 * (n_cloud + 1) = 117 members, and tau = 0.7 (70 % of each measurement by the
-#: EnKF shift, 30 % by the confidence weights). Measured on vtol.tlog over 4 seeds
+#: M = 13 * (n_cloud + 1) = 117 members, and tau = 0.9 (90 % of each measurement by the
+#: EnKF shift, 10 % by the confidence weights). Measured on vtol.tlog over 4 seeds
 #: (docs/attitude.md): n_cloud 16 is no better, 4 is noisier; the core's tau = 0.3
-#: collapses the weights of this 6-D state (NEES 12 instead of 4.6).
-HYBRID_ATTITUDE_DEFAULTS = {"n_cloud": 8, "tau": 0.7}
+#: collapses the weights of this 6-D state (NEES 12 instead of 4).
+HYBRID_ATTITUDE_DEFAULTS = {"n_cloud": 8, "tau": 0.9}
 
 
 @dataclass(frozen=True)
