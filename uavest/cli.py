@@ -11,7 +11,7 @@ import sys
 
 from .bench.report import Progress, table, write_json
 from .bench.scenario import ScenarioError, list_scenarios, load_scenario
-from .core.registry import FILTER_NAMES
+from .core.registry import FILTER_NAMES, split_filter_list
 
 
 def _bench_parser(sub) -> None:
@@ -39,30 +39,12 @@ def _bench_parser(sub) -> None:
     p.set_defaults(func=cmd_bench)
 
 
-def _split_filters(s: str) -> list[str]:
-    """Split 'a,b(x=1,y=2),c' on top-level commas only."""
-    out, depth, cur = [], 0, ""
-    for ch in s:
-        if ch == "(":
-            depth += 1
-        elif ch == ")":
-            depth -= 1
-        if ch == "," and depth == 0:
-            out.append(cur.strip())
-            cur = ""
-        else:
-            cur += ch
-    if cur.strip():
-        out.append(cur.strip())
-    return out
-
-
 def cmd_bench(args) -> int:
     sc = load_scenario(args.scenario, args.sets)
     if args.steps is not None:
         sc["steps"] = args.steps
     runs = args.runs if args.runs is not None else int(sc.get("runs", 100))
-    specs = _split_filters(args.filters) if args.filters else list(sc.get("filters", []))
+    specs = split_filter_list(args.filters) if args.filters else list(sc.get("filters", []))
     progress = Progress(False if args.no_progress else None)
     doc = {"scenario": sc["name"], "source": sc.get("source"), "runs": runs, "seed": args.seed,
            "steps": sc.get("steps"), "overrides": args.sets}

@@ -54,20 +54,31 @@ def _equal_moments(E: Ensemble, model: Measurement):
     return x, dX, Y, ybar, dY
 
 
-@dataclass(frozen=True)
-class EnKF:
-    """Stochastic EnKF with perturbed observations. ``members`` M (default 100),
-    multiplicative ``inflation`` of the forecast anomalies (default 1.0: none)."""
+class _PersistentEnsemble:
+    """Shared by EnKF and ETKF: iid Gaussian start, members propagated with process noise
+    and multiplicative ``inflation``, the estimate from the ensemble's moments."""
 
-    members: int = 100
-    inflation: float = 1.0
-    name: str = "enkf"
+    members: int
+    inflation: float
 
     def init(self, prior: Gaussian, space, rng: np.random.Generator) -> Ensemble:
         return Ensemble(sample_gaussian(prior, space, self.members, rng), space)
 
     def predict(self, E: Ensemble, model: Transition, t, dt, u=None, rng=None) -> Ensemble:
         return propagate_members(E, model, t, dt, u, rng, self.inflation)
+
+    def estimate(self, E: Ensemble) -> Gaussian:
+        return ensemble_estimate(E)
+
+
+@dataclass(frozen=True)
+class EnKF(_PersistentEnsemble):
+    """Stochastic EnKF with perturbed observations. ``members`` M (default 100),
+    multiplicative ``inflation`` of the forecast anomalies (default 1.0: none)."""
+
+    members: int = 100
+    inflation: float = 1.0
+    name: str = "enkf"
 
     def update(self, E: Ensemble, z, model: Measurement, rng=None) -> tuple[Ensemble, Innovation]:
         M = E.M
@@ -79,12 +90,9 @@ class EnKF:
         X = model.space.retract(E.X, (model.residual(z, Y) + V) @ K.T)
         return Ensemble(X, E.space), innovation(model.residual(z, ybar), S)
 
-    def estimate(self, E: Ensemble) -> Gaussian:
-        return ensemble_estimate(E)
-
 
 @dataclass(frozen=True)
-class ETKF:
+class ETKF(_PersistentEnsemble):
     """Ensemble transform Kalman filter: deterministic square-root EnKF (no perturbed
     observations); the analysis ensemble has exactly the Kalman posterior covariance in
     the ensemble subspace. Symmetric square root keeps the mean unbiased."""
@@ -92,12 +100,6 @@ class ETKF:
     members: int = 100
     inflation: float = 1.0
     name: str = "etkf"
-
-    def init(self, prior: Gaussian, space, rng: np.random.Generator) -> Ensemble:
-        return Ensemble(sample_gaussian(prior, space, self.members, rng), space)
-
-    def predict(self, E: Ensemble, model: Transition, t, dt, u=None, rng=None) -> Ensemble:
-        return propagate_members(E, model, t, dt, u, rng, self.inflation)
 
     def update(self, E: Ensemble, z, model: Measurement, rng=None) -> tuple[Ensemble, Innovation]:
         M = E.M
@@ -113,6 +115,3 @@ class ETKF:
         wbar = Pa @ (C @ nu)
         dXa = (W + wbar[:, None]).T @ dX
         return Ensemble(model.space.retract(x, dXa), E.space), innovation(nu, S)
-
-    def estimate(self, E: Ensemble) -> Gaussian:
-        return ensemble_estimate(E)

@@ -77,3 +77,18 @@ def make_filter(spec: str, **defaults):
     except TypeError as e:
         raise ValueError(f"bad parameters for {base!r}: {e}") from None
     return SageHusa(f, **sh) if adaptive else f
+
+
+def split_filter_list(s: str) -> list[str]:
+    """Split a --filters value on top-level commas only: 'a,b(x=1,y=2),c' -> 3 specs."""
+    out, depth, cur = [], 0, ""
+    for ch in s:
+        depth += (ch == "(") - (ch == ")")
+        if ch == "," and depth == 0:
+            out.append(cur.strip())
+            cur = ""
+        else:
+            cur += ch
+    if cur.strip():
+        out.append(cur.strip())
+    return out
