@@ -11,6 +11,7 @@ import json
 import numpy as np
 
 from ..bench.scenario import load_scenario
+from ..core.registry import split_filter_list
 from .bench import data_rng, run_trackers, tracker_errors
 from .scenario import generate_run
 from .tracker import Tracker, TrackerConfig
@@ -114,7 +115,7 @@ def cmd_track(args: argparse.Namespace) -> int:
     sc = load_scenario(args.scenario, args.set or [])
     if sc.get("kind") != "radar":
         raise SystemExit(f"uavest track: scenario {args.scenario!r} is not a radar scenario")
-    filters = [f for f in (args.filters or ",".join(sc.get("filters", []))).split(",") if f]
+    filters = split_filter_list(args.filters) if args.filters else list(sc.get("filters", []))
     res = track_table(sc, filters or ["ekf", "ukf", "hybrid"], args.seed)
     print_table(res)
     if args.json:
