@@ -552,9 +552,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
         print(f"reference: {ref} ({what}); RMSE in degrees, Euler ZYX, wrapped")
     print(format_table(doc))
     bad = doc["bad_data"]
-    print(f"bad data: {bad['bad_total']} ("
-          + ", ".join(f"{k} {bad[k]}" for k in bad if isinstance(bad[k], int)
-                      and bad[k] and k not in ("bad_total",)) + ")")
+    parts = [f"{k} {bad[k]}" for k in bad
+             if isinstance(bad[k], int) and bad[k] and k != "bad_total"]
+    print(f"bad data: {bad['bad_total']}" + (f" ({', '.join(parts)})" if parts else ""))
     print(f"replay speed: {doc['realtime_factor']:.1f}x real time "
           f"({len(doc['guard_resets'])} filters together, {doc['wall_s']:.2f} s)")
     if args.json:
