@@ -36,6 +36,7 @@ import numpy as np
 
 from ..core import UKF, Ensemble, Gaussian, Guarded, make_filter
 from ..core.particle import ess
+from ..core.registry import split_filter_list
 from ..eval.attitude import interp_reference, nees_attitude, rmse_deg, select_reference
 from ..models.attitude import (
     AttitudeNoise,
@@ -489,20 +490,6 @@ def format_table(doc: dict) -> str:
     return "\n".join(lines)
 
 
-def _split_specs(s: str) -> list[str]:
-    out, depth, cur = [], 0, ""
-    for ch in s:
-        depth += (ch == "(") - (ch == ")")
-        if ch == "," and depth == 0:
-            out.append(cur.strip())
-            cur = ""
-        else:
-            cur += ch
-    if cur.strip():
-        out.append(cur.strip())
-    return out
-
-
 def _parse_noise(items: list[str]) -> dict:
     known = set(AttitudeNoise.__dataclass_fields__)
     out = {}
@@ -519,7 +506,7 @@ def _parse_noise(items: list[str]) -> dict:
 def cmd_replay(args: argparse.Namespace) -> int:
     """Entry point of ``uavest replay``; errors -> one line on stderr, exit code 2."""
     try:
-        specs = tuple(_split_specs(args.filters)) if args.filters else DEFAULT_FILTERS
+        specs = tuple(split_filter_list(args.filters)) if args.filters else DEFAULT_FILTERS
         if not specs:
             raise ValueError("--filters is empty")
         for s in specs:
