@@ -264,11 +264,10 @@ def tempered_weights(
     if 1.0 / (W1 @ W1) >= min_ess * M:
         return W1, float(phi_max)
     phis = phi_max * _PHI_GRID
-    L = logw0[None, :] + phis[:, None] * loglik[None, :]
-    L -= L.max(axis=1, keepdims=True)
-    W = np.exp(L)
+    L = logw0 + phis[:, None] * loglik
+    W = np.exp(L - L.max(axis=1, keepdims=True))
     W /= W.sum(axis=1, keepdims=True)
-    ok = 1.0 / np.einsum("gi,gi->g", W, W) >= min_ess * M
+    ok = (W * W).sum(axis=1) * (min_ess * M) <= 1.0  # ESS = 1 / sum w^2 >= min_ess M
     i = int(np.nonzero(ok)[0][-1]) if ok.any() else 0
     return W[i], float(phis[i])
 
@@ -358,7 +357,7 @@ class Hybrid:
         r = model.residual(z, Y)
         ybar = model.mean(Y, w)
         dY0 = model.residual(Y, ybar)
-        innov = innovation(model.residual(z, ybar), symmetrize((dY0.T * w) @ dY0 + model.R))
+        innov = innovation(model.residual(z, ybar), (dY0.T * w) @ dY0 + model.R)
         tau = 1.0
         if self.weights == "confidence":
             left = 1.0 - self.tau  # share of the likelihood still to go into the weights
@@ -380,8 +379,9 @@ class Hybrid:
         dY = dY - w @ dY
         c = 1.0 / max(1.0 - float(w @ w), 1e-12)
         Rt = model.R / tau
-        S = symmetrize(c * (dY.T * w) @ dY + Rt)
-        K = gain(c * (dX.T * w) @ dY, S)
+        # weighted sums of outer products: symmetric by construction (Cholesky reads the
+        # lower triangle), so no symmetrising on this hot path
+        K = gain(c * (dX.T * w) @ dY, c * (dY.T * w) @ dY + Rt)
         V = rng.standard_normal((M, model.dim)) @ chol(Rt).T
         X = space.retract(E.X, (r + V) @ K.T)
         return Ensemble(X, E.space, None if self.weights == "equal" else w), innov

@@ -25,10 +25,9 @@ Array = np.ndarray
 def systematic_resample(w: Array, rng: np.random.Generator) -> Array:
     """Indices (N,) drawn by systematic resampling from normalised weights ``w``."""
     N = w.shape[0]
-    positions = (rng.random() + np.arange(N)) / N
-    cs = np.cumsum(w)
+    cs = w.cumsum()
     cs[-1] = 1.0
-    return np.searchsorted(cs, positions)
+    return cs.searchsorted((rng.random() + np.arange(N)) * (1.0 / N))
 
 
 def ess(w: Array) -> float:
