@@ -13,6 +13,7 @@ import argparse
 import json
 
 from uavest.bench.scenario import load_scenario
+from uavest.core.registry import split_filter_list
 from uavest.tracking.bench import run_bench
 
 
@@ -24,7 +25,7 @@ def main() -> None:
     ap.add_argument("--cases", default="radar_far:1,radar_far:5,radar_crossing:1,radar_crossing:5")
     ap.add_argument("--json", default=None)
     a = ap.parse_args()
-    filters = a.filters.split(";") if ";" in a.filters else a.filters.split(",")
+    filters = split_filter_list(a.filters)
     out = {}
     hdr = (f"{'case':<20}{'filter':<28}{'pos_rmse':>9}{'vel_rmse':>9}{'pcrlb_p':>9}"
            f"{'ratio':>7}{'vratio':>7}{'nees':>8}{'band':>14}{'us/step':>9}")
