@@ -55,7 +55,8 @@ def cmd_bench(args) -> int:
             raise ScenarioError(f"radar scenarios need uavest.tracking: {e}") from None
         doc["filters"] = run_bench(sc, specs, runs, args.seed, args.steps)
         cols = ["pos_rmse", "vel_rmse", "pcrlb_pos", "pcrlb_ratio", "nees_mean", "nees_band",
-                "gospa", "id_swaps", "false_tracks", "diverged_fraction", "us_per_step"]
+                "gospa", "id_swaps", "false_tracks", "track_breaks", "diverged_fraction",
+                "us_per_step"]
     else:
         from .bench.montecarlo import METRICS, ablation, evaluate
         from .bench.systems import build_system
