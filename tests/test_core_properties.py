@@ -200,16 +200,16 @@ def test_exploding_covariance_is_detected_as_divergence():
     assert r["ukf"]["resets"] == 0
 
 
-def test_staged_hybrid_update_keeps_weights_valid_with_sharp_measurement():
-    """A 0.01-std measurement against a unit prior forces the ESS floor to bind; the staged
-    update must regenerate, keep positive normalised weights and land near the truth."""
+def test_staged_and_split_hybrid_updates_stay_valid_with_sharp_measurement():
+    """A 0.01-std measurement against a unit prior forces the ESS floor to bind; staged
+    weighting and split shifts must keep positive normalised weights and land near z."""
     from uavest.core import LinearMeasurement, LinearTransition
 
     tr = LinearTransition(np.eye(2), 1e-6 * np.eye(2))
     me = LinearMeasurement(np.eye(2), 1e-4 * np.eye(2))
     z = np.array([0.3, -0.2])
-    for stages in (1, 6):
-        f = Hybrid(stages=stages)
+    for kw in ({}, {"stages": 6}, {"shifts": 4}, {"stages": 3, "shifts": 3}):
+        f = Hybrid(**kw)
         rng = np.random.default_rng(0)
         s = f.init(Gaussian(np.zeros(2), np.eye(2)), tr.space, rng)
         s = f.predict(s, tr, 1, 1.0, None, rng)

@@ -296,6 +296,10 @@ class Hybrid:
         credible ones and weighted again with the rest (progressive correction); the
         EnKF shift takes what is left. 6 stages with n_cloud=64 help the far radar case
         (PCRLB ratio 1.53 -> 1.31) but cost on the bimodal UNGM (docs/filters.md).
+      shifts: split the EnKF shift into this many smaller ones, each with R * shifts / share
+        and a gain recomputed from the moved members (multiple data assimilation, Emerick
+        and Reynolds 2013), for measurements much more nonlinear than one linear
+        regression across the ensemble can follow (1).
       regen_ess: regenerate when the effective sample size < regen_ess * M (0.5).
       kernel: bandwidth h of the regeneration kernel; members are shrunk by sqrt(1-h^2)
         towards the mean and jittered with N(0, h^2 P), preserving mean and covariance.
@@ -309,6 +313,7 @@ class Hybrid:
     tau: float = 0.3
     min_ess: float = 0.2
     stages: int = 1
+    shifts: int = 1
     regen_ess: float = 0.5
     kernel: float = 0.3
     name: str = "hybrid"
@@ -371,19 +376,24 @@ class Hybrid:
                 Y = model.h(E.X)
                 r = model.residual(z, Y)
             tau = self.tau + left
-        x = space.mean(E.X, w, mean_start(space, E.X, w))
-        dX = space.local(x, E.X)
-        dX = dX - w @ dX
-        ybar = model.mean(Y, w)
-        dY = model.residual(Y, ybar)
-        dY = dY - w @ dY
+        X = E.X
         c = 1.0 / max(1.0 - float(w @ w), 1e-12)
-        Rt = model.R / tau
-        # weighted sums of outer products: symmetric by construction (Cholesky reads the
-        # lower triangle), so no symmetrising on this hot path
-        K = gain(c * (dX.T * w) @ dY, c * (dY.T * w) @ dY + Rt)
-        V = rng.standard_normal((M, model.dim)) @ chol(Rt).T
-        X = space.retract(E.X, (r + V) @ K.T)
+        Rt = model.R * (self.shifts / tau)
+        Lr = chol(Rt)
+        for i in range(self.shifts):
+            if i:
+                Y = model.h(X)
+                r = model.residual(z, Y)
+            x = space.mean(X, w, mean_start(space, X, w))
+            dX = space.local(x, X)
+            dX = dX - w @ dX
+            dY = model.residual(Y, model.mean(Y, w))
+            dY = dY - w @ dY
+            # weighted sums of outer products: symmetric by construction (Cholesky reads
+            # the lower triangle), so no symmetrising on this hot path
+            K = gain(c * (dX.T * w) @ dY, c * (dY.T * w) @ dY + Rt)
+            V = rng.standard_normal((M, model.dim)) @ Lr.T
+            X = space.retract(X, (r + V) @ K.T)
         return Ensemble(X, E.space, None if self.weights == "equal" else w), innov
 
     def estimate(self, E: Ensemble) -> Gaussian:
