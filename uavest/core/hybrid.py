@@ -347,10 +347,18 @@ class Hybrid:
         J = rng.standard_normal((E.M, E.space.dim)) @ (h * chol(P)).T
         return Ensemble(E.space.retract(x, a * dX[idx] + J), E.space)
 
+    def keeps_members(self, E: Ensemble) -> bool:
+        """True if ``predict(E)`` will propagate these very members (row j stays member j),
+        so that member-wise cross-covariances (ensemble RTS smoothing) are meaningful;
+        False if it will redraw (``sampling="random"``) or regenerate them."""
+        if self.sampling == "random":
+            return False
+        return E.w is None or ess(E.w) >= self.regen_ess * E.M
+
     def predict(self, E: Ensemble, model: Transition, t, dt, u=None, rng=None) -> Ensemble:
         if self.sampling == "random":
             E = Ensemble(self._draw(ensemble_estimate(E), E.space, rng), E.space)
-        elif E.w is not None and ess(E.w) < self.regen_ess * E.M:
+        elif not self.keeps_members(E):
             E = self._regenerate(E, rng)
         return propagate_members(E, model, t, dt, u, rng)
 
