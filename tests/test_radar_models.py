@@ -132,3 +132,32 @@ def test_ukf_with_coordinated_turn_runs():
         s = f.predict(s, ct, k, 1.0)
         s, _ = f.update(s, meas.sample(x[None], rng)[0], meas)
     assert abs(s.x[4] - 0.05) < 0.01
+
+
+@pytest.mark.parametrize("w0", [0.0, 5e-7, 1e-6, 2e-6, 1e-5, 1e-3])
+def test_coordinated_turn_F_omega_column_near_zero(w0):
+    """d/d omega of the CT step near omega = 0 (where the finite differences straddle the
+    series cut-off or evaluate (1 - cos wT)/w at tiny wT) against a 50-digit mpmath
+    derivative. The cancelling form 1 - cos(wT) was off by ~1e-4 relative here."""
+    mp = pytest.importorskip("mpmath")
+    mp.mp.dps = 50
+    T = 1.0
+    x = np.array([100.0, 200.0, 30.0, -40.0, w0])
+    vx, vy = mp.mpf(x[2]), mp.mpf(x[3])
+
+    def a(w):
+        return mp.sin(w * T) / w if w != 0 else mp.mpf(T)
+
+    def b(w):
+        return (1 - mp.cos(w * T)) / w if w != 0 else mp.mpf(0)
+
+    comps = [
+        lambda w: a(w) * vx - b(w) * vy,
+        lambda w: b(w) * vx + a(w) * vy,
+        lambda w: mp.cos(w * T) * vx - mp.sin(w * T) * vy,
+        lambda w: mp.sin(w * T) * vx + mp.cos(w * T) * vy,
+    ]
+    w = mp.mpf(w0) if w0 else mp.mpf("1e-40")
+    expect = np.array([float(mp.diff(f, w)) for f in comps])
+    F = CoordinatedTurn(2, q=0.1).F(x, 1.0, T)
+    np.testing.assert_allclose(F[:4, -1], expect, rtol=1e-7, atol=0)

@@ -14,7 +14,8 @@ step ``T`` (Bar-Shalom, Li, Kirubarajan 2001, sec. 11.7):
     y' = y + (1 - cos wT)/w vx + sin(wT)/w vy      vy' = sin(wT) vx + cos(wT) vy
     omega' = omega
 
-with the w -> 0 limit taken smoothly (series for |wT| < 1e-6). Process noise: continuous
+with the w -> 0 limit taken smoothly (series for |wT| < 1e-6) and (1 - cos wT)/w computed
+as 2 sin^2(wT/2)/w (no cancellation for small wT). Process noise: continuous
 white-noise acceleration of intensity ``q`` (m^2/s^3) on every axis, discretised exactly
 for the step as in the NCV model (``q [[T^3/3, T^2/2], [T^2/2, T]]`` per axis), plus a
 turn-rate random walk of intensity ``q_omega`` (rad^2/s^3): variance ``q_omega T``.
@@ -34,12 +35,16 @@ Array = np.ndarray
 
 
 def _ct_coeffs(w: Array, T: float) -> tuple[Array, Array, Array, Array]:
-    """sin(wT)/w, (1-cos wT)/w, cos wT, sin wT, smooth at w = 0."""
+    """sin(wT)/w, (1-cos wT)/w, cos wT, sin wT, smooth at w = 0.
+
+    (1 - cos wT)/w is evaluated as 2 sin^2(wT/2)/w: the direct form cancels
+    catastrophically for small wT (relative error ~1e-16/(wT)^2, i.e. 1e-4 just above the
+    series cut-off), which corrupted the finite-difference d/d omega of ``F``."""
     wT = w * T
     small = np.abs(wT) < 1e-6
     ws = np.where(small, 1.0, w)
     a = np.where(small, T * (1.0 - wT**2 / 6.0), np.sin(wT) / ws)
-    b = np.where(small, T * wT / 2.0, (1.0 - np.cos(wT)) / ws)
+    b = np.where(small, T * wT / 2.0, 2.0 * np.sin(wT / 2.0) ** 2 / ws)
     return a, b, np.cos(wT), np.sin(wT)
 
 
