@@ -161,3 +161,17 @@ def test_coordinated_turn_F_omega_column_near_zero(w0):
     expect = np.array([float(mp.diff(f, w)) for f in comps])
     F = CoordinatedTurn(2, q=0.1).F(x, 1.0, T)
     np.testing.assert_allclose(F[:4, -1], expect, rtol=1e-7, atol=0)
+
+
+@pytest.mark.parametrize("rr", [None, 1.0])
+def test_jacobian_finite_for_target_straight_above_sensor(rr):
+    """A target directly above a UAV radar (zero horizontal range) or at the antenna: the
+    azimuth/elevation Jacobian has 0/0 there; H must stay finite (as h does)."""
+    pose = SensorPose(np.array([100.0, -50.0, 500.0]), np.eye(3), np.array([30.0, 0, 0]))
+    m = RadarMeasurement(3, sigma_rr=rr, pose=pose)
+    for p in ([100.0, -50.0, 900.0], [100.0, -50.0, 500.0]):
+        x = np.array([*p, -20.0, 10.0, 0.0])
+        assert np.all(np.isfinite(m.h(x[None])))
+        assert np.all(np.isfinite(m.H(x)))
+    m2 = RadarMeasurement(2, sigma_rr=rr)
+    assert np.all(np.isfinite(m2.H(np.array([0.0, 0.0, 5.0, 1.0]))))

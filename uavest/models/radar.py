@@ -41,6 +41,7 @@ from ..core.spaces import VectorSpace
 Array = np.ndarray
 
 COMPONENTS = ("range", "azimuth", "elevation", "range_rate")
+_EPS = 1e-9  # m, floor of range / horizontal range in divisions
 
 
 def wrap_angle(a: Array | float) -> Array:
@@ -147,7 +148,7 @@ class RadarMeasurement(Measurement):
         if self.ndim == 3:
             cols.append(np.arctan2(D[:, 2], np.hypot(D[:, 0], D[:, 1])))
         if self._rr is not None:
-            cols.append(np.einsum("ij,ij->i", D, V) / np.maximum(r, 1e-9))
+            cols.append(np.einsum("ij,ij->i", D, V) / np.maximum(r, _EPS))
         return np.stack(cols, axis=1)
 
     def H(self, x: Array) -> Array:
@@ -156,12 +157,14 @@ class RadarMeasurement(Measurement):
         D, V = self._los(x[None, :])
         D, V = D[0], V[0]
         Rws = self.pose.R_ws
-        r2 = float(D @ D)
+        # floors as in h(): a target at the sensor (r = 0) or straight above / below it
+        # (rho = 0, e.g. under a UAV radar) gives a finite (zero) gradient, not inf/NaN
+        r2 = max(float(D @ D), _EPS**2)
         r = np.sqrt(r2)
         rows = []
         dr_dD = D / r
         rows.append((dr_dD, np.zeros(d)))
-        rho2 = D[0] ** 2 + D[1] ** 2
+        rho2 = max(float(D[0] ** 2 + D[1] ** 2), _EPS**2)
         daz = np.zeros(d)
         daz[0], daz[1] = -D[1] / rho2, D[0] / rho2
         rows.append((daz, np.zeros(d)))
