@@ -12,7 +12,8 @@ Frames (all right-handed, metres, radians, seconds):
   sensor frame *is* ENU (x east, y north, z up).
 * Line of sight ``d = R_ws^T (p - position)`` (sensor frame), then
   ``range = |d|``,
-  ``azimuth = atan2(d_y, d_x)``: counter-clockwise from the sensor x axis, in (-pi, pi]
+  ``azimuth = atan2(d_y, d_x)``: counter-clockwise from the sensor x axis, in [-pi, pi)
+  (sampled measurements and residuals are wrapped there by :func:`wrap_angle`)
   (for a ground radar with identity attitude: counter-clockwise from east, the
   mathematical convention; *not* a compass bearing),
   ``elevation = atan2(d_z, hypot(d_x, d_y))`` in [-pi/2, pi/2] (3-D only),
@@ -23,7 +24,7 @@ In 2-D the sensor frame is a rotation by the yaw ``psi`` in the plane and the
 measurement is ``[range, azimuth(, range_rate)]``.
 
 Angle handling: :meth:`RadarMeasurement.residual` wraps the azimuth component to
-(-pi, pi]; :meth:`RadarMeasurement.mean` takes the circular (weighted resultant) mean of
+[-pi, pi); :meth:`RadarMeasurement.mean` takes the circular (weighted resultant) mean of
 the azimuth, so sigma-point and ensemble means are right across +-pi. Elevation lies in
 [-pi/2, pi/2] and never crosses a branch cut, so it is averaged and differenced
 arithmetically.
