@@ -175,3 +175,28 @@ def test_jacobian_finite_for_target_straight_above_sensor(rr):
         assert np.all(np.isfinite(m.H(x)))
     m2 = RadarMeasurement(2, sigma_rr=rr)
     assert np.all(np.isfinite(m2.H(np.array([0.0, 0.0, 5.0, 1.0]))))
+
+
+def test_sensor_pose_from_ned_frd_matches_enu_flu():
+    """The attitude pipeline's q (body FRD -> NED) gives the same ENU/FLU pose as the
+    scenario's Euler construction: ENU yaw = pi/2 - NED heading, FLU pitch = -FRD pitch,
+    same roll; position and velocity swap north/east and flip down."""
+    from uavest.models.rotation import euler_to_quat
+
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        roll, pitch, yaw = rng.uniform(-1.0, 1.0, 3)
+        pose = SensorPose.from_ned_frd(
+            euler_to_quat(roll, pitch, yaw), [100.0, 200.0, -500.0], [3.0, 4.0, 1.0]
+        )
+        np.testing.assert_allclose(
+            pose.R_ws, euler_zyx(np.pi / 2 - yaw, -pitch, roll), atol=1e-12
+        )
+        np.testing.assert_allclose(pose.position, [200.0, 100.0, 500.0])
+        np.testing.assert_allclose(pose.velocity, [4.0, 3.0, -1.0])
+    # level, heading east (NED yaw 90 deg): a target 1 km east at the same height is
+    # straight ahead (azimuth 0, elevation 0); one 1 km north is to the left (+90 deg)
+    pose = SensorPose.from_ned_frd(euler_to_quat(0.0, 0.0, np.pi / 2), [0.0, 0.0, -500.0])
+    m = RadarMeasurement(3, pose=pose)
+    z = m.h(np.array([[1000.0, 0, 500, 0, 0, 0], [0, 1000.0, 500, 0, 0, 0]]))
+    np.testing.assert_allclose(z[:, 1:], [[0.0, 0.0], [np.pi / 2, 0.0]], atol=1e-12)

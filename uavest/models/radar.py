@@ -8,7 +8,8 @@ Frames (all right-handed, metres, radians, seconds):
 * **Sensor frame** ``s``: origin at the antenna ``position`` (world), axes given by the
   rotation ``R_ws`` (world-from-sensor; columns are the sensor axes in world
   coordinates). For a UAV-carried radar ``R_ws`` is the vehicle attitude in FLU
-  convention (x forward, y left, z up); for a ground radar with identity attitude the
+  convention (x forward, y left, z up; from the attitude pipeline's FRD -> NED
+  quaternion use :meth:`SensorPose.from_ned_frd`); for a ground radar with identity attitude the
   sensor frame *is* ENU (x east, y north, z up).
 * Line of sight ``d = R_ws^T (p - position)`` (sensor frame), then
   ``range = |d|``,
@@ -68,6 +69,10 @@ def euler_zyx(yaw: float, pitch: float, roll: float) -> Array:
     return Rz @ Ry @ Rx
 
 
+_T_ENU_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # own inverse
+_T_FRD_FLU = np.diag([1.0, -1.0, -1.0])  # own inverse
+
+
 @dataclass(frozen=True)
 class SensorPose:
     """Radar pose in the world (ENU) frame: ``position`` (d,) m, ``R_ws`` (d, d)
@@ -83,6 +88,24 @@ class SensorPose:
         p = np.zeros(ndim) if position is None else np.asarray(position, float)[:ndim]
         R = rot_z(yaw)[:ndim, :ndim]
         return SensorPose(p, R, np.zeros(ndim))
+
+    @staticmethod
+    def from_ned_frd(q, position_ned, velocity_ned=None) -> SensorPose:
+        """3-D pose from the attitude pipeline's conventions: unit quaternion ``q``
+        (scalar-first, rotates body FRD into NED, :mod:`uavest.models.rotation`) and the
+        antenna position / velocity in NED (m, m/s; velocity default 0).
+
+        ``R_ws = T_enu_ned R(q) T_frd_flu`` with ``T_enu_ned`` = ``T_ned_enu`` = [[0, 1, 0],
+        [1, 0, 0], [0, 0, -1]] (swap north/east, flip down) and ``T_frd_flu`` = diag(1, -1,
+        -1); position and velocity are mapped by ``T_enu_ned``. (The NED origin must be the
+        world origin of the targets.)"""
+        from .rotation import quat_to_dcm
+
+        R_nb = quat_to_dcm(np.asarray(q, float))
+        R = _T_ENU_NED @ R_nb @ _T_FRD_FLU
+        p = _T_ENU_NED @ np.asarray(position_ned, float)
+        v = np.zeros(3) if velocity_ned is None else _T_ENU_NED @ np.asarray(velocity_ned, float)
+        return SensorPose(p, R, v)
 
 
 class RadarMeasurement(Measurement):
