@@ -14,7 +14,7 @@ from ..bench.scenario import load_scenario
 from ..core.registry import split_filter_list
 from .bench import data_rng, run_trackers, tracker_errors
 from .scenario import generate_run
-from .tracker import Tracker, TrackerConfig
+from .tracker import Tracker
 
 
 def track_table(sc: dict, filters: list[str], seed: int) -> dict:
@@ -156,4 +156,4 @@ if __name__ == "__main__":
     raise SystemExit(main())
 
 
-__all__ = ["TrackerConfig", "add_track_parser", "cmd_track", "track_table"]
+__all__ = ["add_track_parser", "cmd_track", "track_table"]

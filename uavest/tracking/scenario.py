@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..models.motion import NearlyConstantVelocity, ncv_matrices
-from ..models.radar import RadarMeasurement, SensorPose, euler_zyx, rot_z, wrap_angle
+from ..models.radar import RadarMeasurement, SensorPose, euler_zyx, wrap_angle
 from ..models.turn import CoordinatedTurn, ct_step
 
 Array = np.ndarray
@@ -234,5 +234,5 @@ def generate_run(sc: dict, rng: np.random.Generator, steps: int | None = None) -
 
 __all__ = [
     "RunData", "build_models", "generate_run", "motion_model", "prior", "radar_model",
-    "rot_z", "state_dim",
+    "state_dim",
 ]

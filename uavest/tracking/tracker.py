@@ -44,6 +44,7 @@ from scipy.stats import chi2
 from ..core.gaussian import Gaussian
 from ..core.guard import Guarded
 from ..core.linalg import chol
+from ..core.unscented import sigma_weights
 from ..models.radar import RadarMeasurement
 
 Array = np.ndarray
@@ -88,16 +89,10 @@ class Track:
 
 
 def predicted_measurement(g: Gaussian, meas: RadarMeasurement) -> tuple[Array, Array]:
-    """(zhat, S) of a Gaussian through the radar by the unscented transform
-    (alpha=1, beta=2, kappa=0), S including R."""
-    n = g.P.shape[0]
-    # Van der Merwe points with alpha=1, beta=2, kappa=0: lambda = 0, c = sqrt(n)
-    Wm = np.full(2 * n + 1, 1.0 / (2 * n))
-    Wm[0] = 0.0
-    Wc = Wm.copy()
-    Wc[0] = 2.0
-    cL = np.sqrt(n) * chol(g.P).T
-    X = g.x + np.vstack([np.zeros((1, n)), cL, -cL])
+    """(zhat, S) of a Gaussian through the radar by the unscented transform (the core's
+    Van der Merwe points, alpha=1, beta=2, kappa=0), S including R."""
+    _, Wm, Wc, U = sigma_weights(g.P.shape[0], 1.0, 2.0, 0.0, "merwe")
+    X = g.x + U @ chol(g.P).T
     Z = meas.h(X)
     zhat = meas.mean(Z, Wm)
     E = meas.residual(Z, zhat)
