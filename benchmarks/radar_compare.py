@@ -1,7 +1,7 @@
 """Our EKF/UKF against FilterPy's and Stone Soup's on the same truths and detections.
 
     python benchmarks/radar_compare.py [--runs 100] [--seed 0]
-        [--cases radar_far:5,radar_crossing:5] [--json out.json]
+        [--cases radar_far:5,radar_crossing:5] [--set KEY=VALUE ...] [--json out.json]
 
 Benchmark-only dependencies: ``filterpy``, ``stonesoup`` (``pip install -e .[bench]``).
 All implementations use the same model: 2-D NCV with q from the scenario, range/bearing
@@ -46,7 +46,8 @@ def ours(name, motion, radar, x0, P0, Z, dt, guarded=False):
     t0 = time.perf_counter()
     for k in range(K):
         s = f.predict(s, motion, (k + 1) * dt, dt, None, rng)
-        s, _ = f.update(s, Z[k], radar, rng)
+        if Z[k] is not None:  # missed detection: predict only
+            s, _ = f.update(s, Z[k], radar, rng)
         g = f.estimate(s)
         X[k], P[k] = g.x, g.P
     return X, P, time.perf_counter() - t0
@@ -74,7 +75,9 @@ def filterpy_run(kind, motion, radar, x0, P0, Z, dt):
     if kind == "ekf":
         f = ExtendedKalmanFilter(dim_x=4, dim_z=2)
         f.x, f.P, f.F, f.Q, f.R = x0.copy(), P0.copy(), F, Q, R
-        step = lambda z: (f.predict(), f.update(z, hjac, hx, residual=resid))  # noqa: E731
+        step = lambda z: (  # noqa: E731
+            f.predict(), None if z is None else f.update(z, hjac, hx, residual=resid)
+        )
     else:
         def fx(x, dt_):
             return F @ x
@@ -88,7 +91,7 @@ def filterpy_run(kind, motion, radar, x0, P0, Z, dt):
         f = FUKF(dim_x=4, dim_z=2, dt=dt, hx=hx, fx=fx, points=pts, z_mean_fn=zmean,
                  residual_z=resid)
         f.x, f.P, f.Q, f.R = x0.copy(), P0.copy(), Q, R
-        step = lambda z: (f.predict(), f.update(z))  # noqa: E731
+        step = lambda z: (f.predict(), None if z is None else f.update(z))  # noqa: E731
     K = len(Z)
     X, P = np.empty((K, 4)), np.empty((K, 4, 4))
     t0 = time.perf_counter()
@@ -130,9 +133,12 @@ def stonesoup_run(kind, q, radar, x0, P0, Z, dt):
     for k in range(K):
         ts = t_start + timedelta(seconds=(k + 1) * dt)
         p = pred.predict(st, timestamp=ts)
-        det = Detection(StateVector([Bearing(Z[k][1]), Z[k][0]]), timestamp=ts,
-                        measurement_model=mm)
-        st = upd.update(SingleHypothesis(p, det))
+        if Z[k] is None:  # missed detection: predict only
+            st = p
+        else:
+            det = Detection(StateVector([Bearing(Z[k][1]), Z[k][0]]), timestamp=ts,
+                            measurement_model=mm)
+            st = upd.update(SingleHypothesis(p, det))
         X[k] = np.asarray(st.state_vector, float).ravel()[PERM]
         P[k] = np.asarray(st.covar, float)[np.ix_(PERM, PERM)]
     return X, P, time.perf_counter() - t0
@@ -143,6 +149,8 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=100)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--cases", default="radar_far:5,radar_crossing:5")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="scenario override for every case, repeatable (e.g. radar.pd=0.9)")
     ap.add_argument("--json", default=None)
     a = ap.parse_args()
     impls = ["ours_ekf", "ours_ukf", "ours_ukf_guarded", "filterpy_ekf", "filterpy_ukf",
@@ -150,7 +158,7 @@ def main() -> None:
     out = {}
     for case in a.cases.split(","):
         name, deg = case.split(":")
-        sc = load_scenario(name, [f"radar.sigma_az_deg={deg}"])
+        sc = load_scenario(name, [f"radar.sigma_az_deg={deg}", *a.set])
         motion, radar = build_models(sc)
         dt = float(sc.get("dt", 1.0))
         q = float(sc["motion"]["q"])
@@ -158,12 +166,17 @@ def main() -> None:
         runs = [generate_run(sc, data_rng(a.seed, r)) for r in range(a.runs)]
         truths = np.stack([rd.truths[0] for rd in runs])
         K = truths.shape[1] - 1
-        bpos = position_bound(pcrlb(np.linalg.inv(P0), truths, motion, radar, dt), 2).mean()
+        detected = np.array([[np.any(o == 0) for o in rd.origins] for rd in runs], float)
+        bpos = position_bound(
+            pcrlb(np.linalg.inv(P0), truths, motion, radar, dt, detected=detected), 2
+        ).mean()
         err = {i: np.empty((a.runs, K, 4)) for i in impls}
         ne = {i: np.empty((a.runs, K)) for i in impls}
         sec = dict.fromkeys(impls, 0.0)
         for r, rd in enumerate(runs):
-            Z = [s[o == 0][0] for s, o in zip(rd.scans, rd.origins, strict=True)]
+            # the target's detection per scan, None when missed (Pd < 1): predict only
+            Z = [s[o == 0][0] if np.any(o == 0) else None
+                 for s, o in zip(rd.scans, rd.origins, strict=True)]
             for i in impls:
                 lib, kind = i.split("_")[0], i.split("_")[1]
                 if lib == "ours":
