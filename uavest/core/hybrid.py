@@ -74,6 +74,20 @@ def expanded_offsets(
     return (sig[:, None, :] + cloud).reshape(-1, n)
 
 
+def sample_offsets(
+    sampling: str, L: Array, gamma: float | None, n_cloud: int, spread: float, rng
+) -> Array:
+    """Tangent offsets of M = (2n+1)(N+1) members around the mean for a covariance with
+    lower factor ``L``: ``expanded`` (sigma points + clouds, first row the centre) or
+    ``random`` (iid N(0, L L^T) draws, first row set to the centre so a centroid exists)."""
+    n = L.shape[0]
+    if sampling == "expanded":
+        return expanded_offsets(L, gamma or default_gamma(n), n_cloud, spread, rng)
+    D = rng.standard_normal(((2 * n + 1) * (n_cloud + 1), n)) @ L.T
+    D[0] = 0.0
+    return D
+
+
 def match_moments(D: Array, L: Array) -> Array:
     """Affine map of offsets ``D`` (M, n) so that their equal-weight mean is 0 and their
     1/(M-1) covariance is exactly L L^T (statistically constrained sampling)."""
@@ -172,14 +186,7 @@ class HybridLiteral:
     def predict(self, s, model: Transition, t, dt, u=None, rng=None) -> HybridPrior:
         g = s.g if isinstance(s, HybridPrior) else s
         space = model.space
-        n = space.dim
-        L = chol(g.P)
-        if self.sampling == "expanded":
-            gamma = self.gamma or default_gamma(n)
-            D = expanded_offsets(L, gamma, self.n_cloud, self.spread, rng)
-        else:
-            D = rng.standard_normal((self.members(n), n)) @ L.T
-            D[0] = 0.0
+        D = sample_offsets(self.sampling, chol(g.P), self.gamma, self.n_cloud, self.spread, rng)
         X = model.f(space.retract(g.x, D), t, dt, u)
         Q = model.Q(t, dt, u)
         if self.process_noise == "members":
@@ -225,13 +232,7 @@ class HybridLiteral:
 
 
 def _prior_from_gaussian(f: HybridLiteral, g: Gaussian, space: Space, rng) -> HybridPrior:
-    n = space.dim
-    L = chol(g.P)
-    if f.sampling == "expanded":
-        D = expanded_offsets(L, f.gamma or default_gamma(n), f.n_cloud, f.spread, rng)
-    else:
-        D = rng.standard_normal((f.members(n), n)) @ L.T
-        D[0] = 0.0
+    D = sample_offsets(f.sampling, chol(g.P), f.gamma, f.n_cloud, f.spread, rng)
     X = space.retract(g.x, D)
     return HybridPrior(g, X, f._weights(D))
 
@@ -327,13 +328,12 @@ class Hybrid:
         return (2 * n + 1) * (self.n_cloud + 1)
 
     def _draw(self, g: Gaussian, space: Space, rng) -> Array:
-        n = space.dim
         L = chol(g.P)
         if self.sampling == "expanded":
-            D = expanded_offsets(L, self.gamma or default_gamma(n), self.n_cloud, self.spread, rng)
-            D = match_moments(D, L)
-        else:
-            D = rng.standard_normal((self.members(n), n)) @ L.T
+            D = match_moments(expanded_offsets(
+                L, self.gamma or default_gamma(L.shape[0]), self.n_cloud, self.spread, rng), L)
+        else:  # iid draws; no centre member is needed (no centroid weights here)
+            D = rng.standard_normal((self.members(L.shape[0]), L.shape[0])) @ L.T
         return space.retract(g.x, D)
 
     def init(self, prior: Gaussian, space, rng) -> Ensemble:
