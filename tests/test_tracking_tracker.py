@@ -106,3 +106,63 @@ def test_gospa_values():
     assert pairs == [(0, 0)] and miss == 1 and false == 0
     assert g == np.sqrt(25.0 + 100.0 / 2)
     assert gospa(X, X, c=10.0)[0] == 0.0
+
+
+# -- track_quality on hand-built cases: the counters must be able to count ------------------
+P0, P1, FAR = np.array([0.0, 0.0]), np.array([1000.0, 0.0]), np.array([5000.0, 5000.0])
+
+
+def _q(track_steps, truth_steps=None, n=10):
+    truth_steps = truth_steps or [{0: P0, 1: P1} for _ in range(n)]
+    return track_quality(truth_steps, track_steps, c=100.0)
+
+
+def test_track_quality_exchange_of_two_tracks_is_one_swap():
+    """Tracks 7 and 8 exchange their truths at scan 5: one swap event (not one per truth),
+    no break, no false track."""
+    tracks = [{7: P0 + 1, 8: P1 + 1} if k < 5 else {7: P1 + 1, 8: P0 + 1} for k in range(10)]
+    q = _q(tracks)
+    assert (q.id_swaps, q.track_breaks, q.false_tracks, q.confirmed_tracks) == (1, 0, 0, 2)
+    # the two halves of the exchange at different scans (truth 1 unassigned in between)
+    tracks = [{7: P0 + 1, 8: P1 + 1}] * 5 + [{8: P0 + 1}] + [{7: P1 + 1, 8: P0 + 1}] * 4
+    q = _q(tracks)
+    assert (q.id_swaps, q.track_breaks) == (1, 1)
+    # exchanged and exchanged back: two swaps
+    tracks = [{7: P0 + 1, 8: P1 + 1}] * 3 + [{7: P1 + 1, 8: P0 + 1}] * 3
+    tracks += [{7: P0 + 1, 8: P1 + 1}] * 4
+    assert _q(tracks).id_swaps == 2
+
+
+def test_track_quality_take_over_is_one_swap_reacquisition_none():
+    # truth 0 takes truth 1's track 8; truth 1 gets a new track 9: one swap
+    tracks = [{7: P0 + 1, 8: P1 + 1}] * 5 + [{8: P0 + 1, 9: P1 + 1}] * 5
+    q = _q(tracks)
+    assert (q.id_swaps, q.track_breaks, q.false_tracks) == (1, 0, 0)
+    # a truth's track replaced by a never-assigned track: re-acquisition, not a swap
+    tracks = [{7: P0 + 1, 8: P1 + 1}] * 5 + [{9: P0 + 1, 8: P1 + 1}] * 5
+    q = _q(tracks)
+    assert (q.id_swaps, q.track_breaks, q.false_tracks) == (0, 0, 0)
+
+
+def test_track_quality_one_scan_gap_is_one_break():
+    tracks = [{7: P0 + 1, 8: P1 + 1}] * 10
+    tracks[4] = {8: P1 + 1}  # truth 0 unassigned for one scan, then track 7 again
+    q = _q(tracks)
+    assert (q.track_breaks, q.id_swaps, q.false_tracks, q.confirmed_tracks) == (1, 0, 0, 2)
+    # a truth ending is not a break
+    truths = [{0: P0, 1: P1}] * 5 + [{0: P0}] * 5
+    q = _q([{7: P0 + 1, 8: P1 + 1}] * 5 + [{7: P0 + 1}] * 5, truths)
+    assert q.track_breaks == 0
+
+
+def test_track_quality_one_false_track():
+    """A confirmed track far from every truth for 4 scans: one false track; a track
+    assigned in at least half of its confirmed scans is not false."""
+    tracks = [{7: P0 + 1, 8: P1 + 1} for _ in range(10)]
+    for k in range(3, 7):
+        tracks[k][9] = FAR
+    q = _q(tracks)
+    assert (q.false_tracks, q.confirmed_tracks, q.id_swaps, q.track_breaks) == (1, 3, 0, 0)
+    tracks = [{7: P0 + 1}] * 5 + [{7: FAR}] * 5  # assigned in 5 of 10 scans: not false
+    q = _q(tracks, [{0: P0}] * 10)
+    assert (q.false_tracks, q.track_breaks) == (0, 1)

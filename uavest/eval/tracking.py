@@ -13,9 +13,12 @@ Conventions (documented in docs/tracking.md):
   (pairs closer than c):
   - *track break*: a truth that had an assigned track becomes unassigned while it still
     exists (track lost / fragmented);
-  - *ID swap*: a truth's assigned track id changes from a to b (ignoring unassigned gaps)
-    and track b had earlier been assigned to another truth (tracks exchanged targets);
-    a change to a track never assigned before counts as a *re-acquisition* (not a swap);
+  - *ID swap* (counted per swap event, not per truth): a truth's assigned track id
+    changes from a to b (ignoring unassigned gaps) and track b had earlier been assigned
+    to another truth (tracks exchanged targets). Two tracks exchanged between two truths
+    (truth i: a -> b and truth j: b -> a, at the same scan or not) are **one** swap; a
+    one-sided take-over (truth j does not get a back) is one swap too. A change to a
+    track never assigned before counts as a *re-acquisition* (not a swap);
   - *false track*: a confirmed track assigned to some truth in fewer than half of the
     steps it was confirmed;
   - *time to confirm*: first step with an assigned confirmed track minus the truth's
@@ -94,6 +97,7 @@ def track_quality(
     g_sum = 0.0
     prev: dict[int, int | None] = {}
     last: dict[int, int] = {}
+    pending: dict[tuple[int, int], int] = {}  # (old, new track) of a counted swap -> truth
     track_truths: dict[int, set[int]] = {}
     track_conf_steps: dict[int, int] = {}
     track_hit_steps: dict[int, int] = {}
@@ -120,7 +124,14 @@ def track_quality(
                 rep.assigned.setdefault(tid, []).append((k, a))
                 if tid in last and last[tid] != a:
                     if any(o != tid for o in track_truths.get(a, ())):
-                        rep.id_swaps += 1
+                        # the other half of an exchange already counted (b -> a by
+                        # another truth) completes that swap; otherwise a new swap
+                        other = pending.get((a, last[tid]))
+                        if other is not None and other != tid:
+                            del pending[(a, last[tid])]
+                        else:
+                            rep.id_swaps += 1
+                            pending[(last[tid], a)] = tid
                 last[tid] = a
                 track_truths.setdefault(a, set()).add(tid)
             prev[tid] = a
