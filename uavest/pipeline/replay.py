@@ -35,8 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core import UKF, Ensemble, Gaussian, Guarded, make_filter
-from ..core.particle import ess
+from ..core import EKF, ETKF, KF, UKF, EnKF, Ensemble, Gaussian, Guarded, make_filter
 from ..core.registry import split_filter_list
 from ..eval.attitude import interp_reference, nees_attitude, rmse_deg, select_reference
 from ..models.attitude import (
@@ -242,24 +241,21 @@ class _Run:
     def _record_cross(self, k: int, s0, model, t, dt, u) -> None:
         c1 = time.perf_counter()
         gf = Gaussian(self.x[k - 1], self.P[k - 1])
-        inner0, inner1 = s0.inner, self.s.inner
+        core, inner0 = _unwrap(self.f, s0)
+        _, inner1 = _unwrap(self.f, self.s)
         gp = self.f.estimate(self.s)
-        if self.kind in ("ekf", "kf") and not self.s.reset:
+        if isinstance(core, (EKF, KF)) and not self.s.reset:
             C = gf.P @ model.F(gf.x, t, dt, u).T
         elif (
             isinstance(inner0, Ensemble)
             and isinstance(inner1, Ensemble)
             and not self.s.reset
             and inner0.M == inner1.M
-            and not (
-                self.kind == "hybrid"
-                and inner0.w is not None
-                and ess(inner0.w) < self.f.filter.regen_ess * inner0.M
-            )
+            and _keeps_members(core, inner0)
         ):
             C = ensemble_cross(inner0, inner1, gf.x, gp.x)
         else:  # sigma-point cross-covariance (UKF, and fallback for the others)
-            ukf = self.f.filter if isinstance(self.f.filter, UKF) else UKF()
+            ukf = core if isinstance(core, UKF) else UKF()
             gp, C = ukf.predict_cross(gf, model, t, dt, u)
         self.xp[k], self.Pp[k], self.C[k] = gp.x, gp.P, C
         self.smooth_seconds += time.perf_counter() - c1
@@ -273,6 +269,24 @@ class _Run:
     @property
     def resets(self) -> int:
         return int(self.s.resets)
+
+
+def _unwrap(f, s):
+    """The innermost filter of wrappers (Guarded, SageHusa: ``.filter``) and its state."""
+    while hasattr(f, "filter"):
+        f, s = f.filter, s.inner
+    return f, s
+
+
+def _keeps_members(f, E: Ensemble) -> bool:
+    """True if ``f.predict(E)`` propagates these very members (row j stays member j), so
+    the member-wise cross-covariance is meaningful. Filters that know ask themselves
+    (:meth:`uavest.core.Hybrid.keeps_members`); EnKF/ETKF always propagate every member;
+    any other (e.g. a resampling PF) is not trusted and gets the sigma-point fallback."""
+    keeps = getattr(f, "keeps_members", None)
+    if keeps is not None:
+        return bool(keeps(E))
+    return isinstance(f, (EnKF, ETKF))
 
 
 def _progress(enabled: bool, i: int, n: int) -> None:
