@@ -48,3 +48,58 @@ def test_tracker_scenarios_run(name):
     assert KEYS <= set(v)
     assert v["pcrlb_pos"] is None and np.isfinite(v["gospa"])
     assert v["pos_rmse"] < 100.0
+
+
+@pytest.mark.parametrize(
+    "sets,msg",
+    [
+        (["motion.truth_q=0.1"], "truth process noise"),
+        (["motion.model=ct"], "motion.model"),
+        (["targets=[{turns=[[10, 20, 3.0]]}]"], "scripted turn"),
+        (["targets=[{start=[0.0, 0.0, 1.0, 1.0]}]"], "prior mean"),
+    ],
+)
+def test_filter_mode_refuses_a_truth_off_the_filters_model(sets, msg):
+    """The PCRLB of filter mode assumes the truth follows the filters' model; a scenario
+    that breaks that must fail loudly, not print a wrong bound."""
+    sc = load_scenario("radar_far", sets)
+    with pytest.raises(ValueError, match=msg):
+        run_bench(sc, ["ekf"], 2, 0, 5)
+
+
+def test_filter_mode_error_is_a_one_line_cli_error(capsys):
+    from uavest.cli import main
+
+    rc = main(["bench", "radar_far", "--runs", "2", "--steps", "5", "--no-progress",
+               "--set", "motion.truth_q=0.1"])
+    assert rc == 2
+    assert "truth process noise" in capsys.readouterr().err
+
+
+def test_filter_mode_uav_bound_uses_the_true_poses():
+    """Radar on a moving UAV in filter mode: the bound is computed with each scan's true
+    sensor pose (not the origin)."""
+    from uavest.eval.pcrlb import pcrlb, position_bound
+    from uavest.tracking.bench import data_rng
+    from uavest.tracking.scenario import build_models, generate_run, prior
+
+    mean = [3000.0, 2000.0, 800.0, -20.0, 10.0, 0.0]
+    sc = load_scenario("radar_uav", ["mode=filter", "motion.truth_q=1.0",
+                                     f"prior.mean={mean}", "prior.std=[100, 100, 100, 5, 5, 5]"])
+    sc["targets"] = [{"start": mean}]
+    r = run_bench(sc, ["ukf"], 4, 0, 30)
+    motion, radar = build_models(sc)
+    m0, P0 = prior(sc)
+    runs = [generate_run(sc, data_rng(0, i), 30) for i in range(4)]
+    truths = np.stack([rd.truths[0] for rd in runs])
+    det = np.array([[np.any(o == 0) for o in rd.origins] for rd in runs], float)
+    models = [radar.with_pose(p) for p in runs[0].poses_true]
+    want = position_bound(
+        pcrlb(np.linalg.inv(P0), truths, motion, lambda k: models[k - 1], 1.0, detected=det), 3
+    ).mean()
+    at_origin = position_bound(
+        pcrlb(np.linalg.inv(P0), truths, motion, radar, 1.0, detected=det), 3
+    ).mean()
+    assert r["ukf"]["pcrlb_pos"] == pytest.approx(want, rel=1e-12)
+    assert abs(want - at_origin) > 1e-3 * want
+    assert r["ukf"]["pos_rmse"] > 0.6 * r["ukf"]["pcrlb_pos"]

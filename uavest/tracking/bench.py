@@ -7,7 +7,10 @@ Two modes (scenario key ``mode``):
     each scan, none when missed), truth started at the prior mean ``m0``, each run's filter
     started from a draw x0 ~ N(m0, P0) (the same draw for every filter), PCRLB from
     J0 = P0^-1 by the Tichavsky recursion with Monte Carlo expectations over the runs'
-    truths (:mod:`uavest.eval.pcrlb`).
+    truths (:mod:`uavest.eval.pcrlb`). The bound assumes the truth follows the filters'
+    model, so settings that break that (``truth_q != q``, target turns, ``model = "ct"``,
+    a target start off the prior mean) raise ValueError; a moving (UAV) radar is bounded
+    with each scan's true sensor pose.
 ``tracker``
     The full tracker (:mod:`uavest.tracking.tracker`) per filter on the same detections;
     errors are taken over the per-scan GOSPA assignment of confirmed tracks to truths.
@@ -85,7 +88,51 @@ def run_filter(filt, motion, radar, run, P0: Array, dt: float, rng) -> dict:
     return {"pred": pred, "post": post, "P": Ps, "seconds": sec, "resets": s.resets}
 
 
+def check_filter_mode(sc: dict) -> None:
+    """Raise ValueError for filter-mode settings under which the PCRLB would silently be
+    the bound of another problem: the bound assumes the truth follows the filters' own
+    model (NCV with the filters' ``q``) from x0 ~ N(m0, P0)."""
+    m = sc.get("motion", {})
+    q = float(m.get("q", 0.5))
+    tgt = (sc.get("targets") or [{}])[0]
+    truth_q = float(tgt.get("q", m.get("truth_q", q)))
+    bad = []
+    if m.get("model", "ncv") != "ncv":
+        bad.append(f"motion.model = {m.get('model')!r} (the truth is NCV with omega = 0, "
+                   "not a coordinated turn with a random turn rate)")
+    if truth_q != q:
+        bad.append(f"truth process noise {truth_q} != the filters' motion.q {q}")
+    if tgt.get("turns"):
+        bad.append("a scripted turn in the target (the filters' NCV model has none)")
+    if "start" in tgt:
+        m0, _ = prior(sc)
+        if not np.allclose(np.asarray(tgt["start"], float), m0[: len(tgt["start"])]):
+            bad.append("a target start other than the prior mean")
+    if bad:
+        raise ValueError(
+            f"scenario {sc.get('name')!r}: mode = \"filter\" computes the PCRLB for a truth "
+            "that follows the filters' model; unsupported here: " + "; ".join(bad)
+            + ' (use mode = "tracker", or drop these settings)'
+        )
+
+
+def _bound_measurement(radar, rundata):
+    """The radar model the truths were measured with: fixed, or per scan the true pose of
+    a moving (UAV) sensor (the same in every run)."""
+    poses = rundata[0].poses_true
+    if all(p is radar.pose for p in poses):
+        return radar
+    for rd in rundata[1:]:
+        for a, b in zip(poses, rd.poses_true, strict=True):
+            if not (np.array_equal(a.position, b.position) and np.array_equal(a.R_ws, b.R_ws)):
+                raise ValueError("filter mode: the true sensor poses differ between runs; "
+                                 "the PCRLB needs one pose per scan")
+    models = [radar.with_pose(p) for p in poses]
+    return lambda k: models[k - 1]
+
+
 def bench_filter_mode(sc: dict, filters: list[str], runs: int, seed: int, steps: int | None):
+    check_filter_mode(sc)
     motion, radar = build_models(sc)
     ndim = radar.ndim
     dt = float(sc.get("dt", 1.0))
@@ -97,10 +144,9 @@ def bench_filter_mode(sc: dict, filters: list[str], runs: int, seed: int, steps:
     K = len(rundata[0].scans)
     n = motion.space.dim
     truths = np.stack([rd.truths[0] for rd in rundata])  # (runs, K+1, 2 ndim)
-    if n > truths.shape[2]:  # CT filter state: pad truth with a zero turn rate
-        truths = np.concatenate([truths, np.zeros((*truths.shape[:2], n - truths.shape[2]))], 2)
     detected = np.stack([[np.any(o == 0) for o in rd.origins] for rd in rundata]).astype(float)
-    bound = pcrlb(np.linalg.inv(P0), truths, motion, radar, dt, detected=detected)
+    meas = _bound_measurement(radar, rundata)
+    bound = pcrlb(np.linalg.inv(P0), truths, motion, meas, dt, detected=detected)
     bpos, bvel = position_bound(bound, ndim), velocity_bound(bound, ndim)
     out = {}
     for label in filters:
