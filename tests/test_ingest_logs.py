@@ -136,6 +136,8 @@ def test_garbage_files_fail_clearly_and_fast(tmp_path):
         assert time.perf_counter() - t0 < 2.0
     with pytest.raises(IngestError, match="no such file"):
         open_source(tmp_path / "missing.tlog")
+    with pytest.raises(IngestError, match="is a directory, not a log file"):
+        read_log(tmp_path)
     assert issubclass(IngestError, ValueError)
 
 

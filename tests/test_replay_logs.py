@@ -117,13 +117,17 @@ def test_cli_errors_exit_2_without_traceback(tmp_path):
         "ap=argparse.ArgumentParser();add_replay_parser(ap.add_subparsers());"
         "a=ap.parse_args(sys.argv[1:]);sys.exit(a.func(a))"
     )
-    for argv in (["replay", str(tmp_path / "nope.tlog")],
-                 ["replay", str(tmp_path), "--filters", "nosuch"]):
+    junk = tmp_path / "junk.tlog"
+    junk.write_bytes(b"\x00" * 10)
+    for argv, says in (
+        (["replay", str(tmp_path / "nope.tlog")], "no such log file"),
+        (["replay", str(tmp_path)], "is a directory, not a log file"),
+        (["replay", str(junk), "--filters", "nosuch"], "nosuch"),
+    ):
         r = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True)
         assert r.returncode == 2
         assert "Traceback" not in r.stderr and r.stderr.count("\n") == 1
-    junk = tmp_path / "junk.tlog"
-    junk.write_bytes(b"\x00" * 10)
+        assert says in r.stderr, (argv, r.stderr)
     r = subprocess.run([sys.executable, "-c", code, "replay", str(junk)], capture_output=True,
                        text=True)
     assert r.returncode == 2 and "Traceback" not in r.stderr

@@ -36,6 +36,8 @@ def detect_format(path: str | Path) -> str:
     Raises :class:`IngestError` if the file is missing, empty or none of these.
     """
     p = Path(path)
+    if p.is_dir():
+        raise IngestError(f"{p}: is a directory, not a log file (expected a .tlog, .bin or .ulg)")
     if not p.is_file():
         raise IngestError(f"{p}: no such file (expected a .tlog, .bin or .ulg log)")
     with open(p, "rb") as f:

@@ -534,6 +534,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
             noise=_parse_noise(args.noise), imu=args.imu, use_mag=not args.no_mag,
             accel_comp=args.accel_comp, mag_mode=args.mag_mode, mag_delay=args.mag_delay,
         )
+        if Path(args.log).is_dir():
+            raise ValueError(f"{args.log} is a directory, not a log file")
         if not Path(args.log).is_file():
             raise ValueError(f"no such log file: {args.log}")
         doc = replay(args.log, cfg, progress=not args.no_progress and sys.stderr.isatty())
