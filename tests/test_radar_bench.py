@@ -4,12 +4,13 @@ import numpy as np
 import pytest
 
 from uavest.bench.scenario import load_scenario
+from uavest.eval.tracking import nees_band
 from uavest.tracking.bench import run_bench
 
 KEYS = {
     "rmse_mean", "rmse_median", "approx_error", "est_error", "nees_mean", "diverged_fraction",
     "us_per_step", "pos_rmse", "vel_rmse", "pcrlb_pos", "nees_band", "gospa", "id_swaps",
-    "false_tracks", "track_breaks",
+    "false_tracks", "track_breaks", "nees_in_band_fraction",
 }
 
 
@@ -24,6 +25,10 @@ def test_far_bench_keys_and_bound():
         assert r[lab]["gospa"] is None
     # the EKF is over-confident on the far case (its inconsistency is shown)
     assert r["ekf"]["nees_mean"] > r["ukf"]["nees_mean"]
+    # the band is per scan (8 runs); the fraction of scans inside it shows it too
+    assert r["ekf"]["nees_band"] == pytest.approx(list(nees_band(4, 8)))
+    assert r["ukf"]["nees_in_band_fraction"] > 0.9
+    assert r["ekf"]["nees_in_band_fraction"] < r["ukf"]["nees_in_band_fraction"]
 
 
 def test_bench_is_deterministic_and_filter_independent():
@@ -48,6 +53,13 @@ def test_tracker_scenarios_run(name):
     assert KEYS <= set(v)
     assert v["pcrlb_pos"] is None and np.isfinite(v["gospa"])
     assert v["pos_rmse"] < 100.0
+    # the per-scan NEES averages every assigned truth, not one sample per run: the band
+    # is for the mean per-scan sample count (> runs = 1 with several targets)
+    n_k = v["nees_samples_per_scan"]
+    assert n_k > 1.5
+    ndim = 2 if name == "radar_multitarget" else 3
+    assert v["nees_band"] == pytest.approx(list(nees_band(2 * ndim, n_k)))
+    assert 0.0 <= v["nees_in_band_fraction"] <= 1.0
 
 
 @pytest.mark.parametrize(

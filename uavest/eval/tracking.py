@@ -36,8 +36,9 @@ from scipy.stats import chi2
 Array = np.ndarray
 
 
-def nees_band(n: int, runs: int, p: float = 0.95) -> tuple[float, float]:
-    """Two-sided ``p`` band of the run-averaged NEES of an ``n``-dim state over ``runs``."""
+def nees_band(n: int, runs: float, p: float = 0.95) -> tuple[float, float]:
+    """Two-sided ``p`` band of the average NEES of an ``n``-dim state over ``runs``
+    samples (one scan; a non-integer mean sample count is allowed)."""
     a = (1.0 - p) / 2.0
     lo, hi = chi2.ppf([a, 1.0 - a], runs * n) / runs
     return float(lo), float(hi)

@@ -22,8 +22,13 @@ randomness, so a filter's numbers do not depend on which other filters run.
 Averaging (see :mod:`uavest.eval.tracking`): ``pos_rmse``/``vel_rmse`` and
 ``pcrlb_pos``/``pcrlb_vel`` are per-scan RMSE over runs (resp. per-scan bound) averaged
 over the scans; ``rmse_mean``/``rmse_median`` the mean/median over runs of each run's
-position RMSE over its scans; ``nees_mean`` the scan-average of the run-averaged NEES
-(band ``nees_band``); ``us_per_step`` the wall time of one predict+update (filter mode)
+position RMSE over its scans; ``nees_mean`` the scan-average of the per-scan averaged NEES.
+``nees_band`` is the 95% band of *one scan's* average (chi2.ppf(., N n) / N with N the
+samples averaged per scan: the runs in filter mode; in tracker mode every assigned
+(run, truth) pair, N = their mean count per scan, ``nees_samples_per_scan``), not of the
+additional average over scans; ``nees_in_band_fraction`` is the fraction of scans whose
+averaged NEES lies in its scan's band (tracker mode: the band for that scan's count);
+``us_per_step`` the wall time of one predict+update (filter mode)
 or of one whole tracker scan (tracker mode), in microseconds.
 """
 
@@ -170,13 +175,16 @@ def bench_filter_mode(sc: dict, filters: list[str], runs: int, seed: int, steps:
         vel_k = np.sqrt(np.mean(np.sum(E[:, :, ndim:] ** 2, axis=2), axis=0))
         per_run = np.sqrt(np.mean(np.sum(E[:, :, :ndim] ** 2, axis=2), axis=1))
         pos_rmse, vel_rmse = float(pos_k.mean()), float(vel_k.mean())
+        band = nees_band(n, runs)  # per scan: the run average of one scan's NEES
+        nees_k = NE.mean(axis=0)
         out[label] = {
             "rmse_mean": float(per_run.mean()),
             "rmse_median": float(np.median(per_run)),
             "approx_error": float(np.linalg.norm(E_pre, axis=2).mean()),
             "est_error": float(np.linalg.norm(E[:, :, :ndim], axis=2).mean()),
-            "nees_mean": float(NE.mean(axis=0).mean()),
-            "nees_band": list(nees_band(n, runs)),
+            "nees_mean": float(nees_k.mean()),
+            "nees_band": list(band),
+            "nees_in_band_fraction": float(np.mean((nees_k >= band[0]) & (nees_k <= band[1]))),
             "diverged_fraction": diverged / runs,
             "us_per_step": 1e6 * sec / (runs * K),
             "pos_rmse": pos_rmse,
@@ -276,12 +284,20 @@ def bench_tracker_mode(sc: dict, filters: list[str], runs: int, seed: int, steps
             pos_k = np.array([np.sqrt(pe[ks == k].mean()) for k in uk])
             vel_k = np.array([np.sqrt(ve[ks == k].mean()) for k in uk])
             nees_k = np.array([ne[ks == k].mean() for k in uk])
+            # a scan's NEES averages every assigned (run, truth) pair at that scan, so the
+            # band is for that many samples (~ runs x targets), not for `runs`
+            cnt_k = np.array([np.count_nonzero(ks == k) for k in uk])
+            band = nees_band(2 * ndim, float(cnt_k.mean()))
+            bands = np.array([nees_band(2 * ndim, int(c)) for c in cnt_k])
+            in_band = float(np.mean((nees_k >= bands[:, 0]) & (nees_k <= bands[:, 1])))
+            samples = float(cnt_k.mean())
             pos_rmse, vel_rmse = float(pos_k.mean()), float(vel_k.mean())
             nees_m = float(nees_k.mean())
             approx = float(np.mean([np.linalg.norm(x[2]) for x in e]))
             est = float(np.mean([np.linalg.norm(x[3][:ndim]) for x in e]))
         else:
-            pos_rmse = vel_rmse = nees_m = approx = est = float("nan")
+            pos_rmse = vel_rmse = nees_m = approx = est = in_band = samples = float("nan")
+            band = (float("nan"), float("nan"))
         rr = np.array(a["runrmse"]) if a["runrmse"] else np.array([np.nan])
         ttc = [q.time_to_confirm for q in qs if q.time_to_confirm is not None]
         out[lab] = {
@@ -290,7 +306,9 @@ def bench_tracker_mode(sc: dict, filters: list[str], runs: int, seed: int, steps
             "approx_error": approx,
             "est_error": est,
             "nees_mean": nees_m,
-            "nees_band": list(nees_band(2 * ndim, runs)),
+            "nees_band": list(band),
+            "nees_in_band_fraction": in_band,
+            "nees_samples_per_scan": samples,
             "diverged_fraction": float(np.mean([q.track_breaks > 0 for q in qs])),
             "us_per_step": 1e6 * a["sec"] / max(a["scans"], 1),
             "pos_rmse": pos_rmse,
