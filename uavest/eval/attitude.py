@@ -59,9 +59,10 @@ def select_reference(refs: dict) -> tuple[str | None, str | None]:
     return None, ap
 
 
-def interp_reference(t_ref: Array, q_ref: Array, t: Array) -> tuple[Array, Array]:
-    """Reference quaternions at times ``t`` (slerp) and the mask of times it covers."""
-    return quat_slerp_interp(t_ref, q_ref, t)
+#: Deprecated alias of :func:`uavest.models.rotation.quat_slerp_interp` (reference
+#: quaternions at times ``t`` and the mask of covered times), kept only for
+#: ``benchmarks/ahrs_compare.py``; new code calls ``quat_slerp_interp`` directly.
+interp_reference = quat_slerp_interp
 
 
 def euler_errors_deg(q_est: Array, q_ref: Array) -> Array:

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-G0 = 9.80665  # m/s^2 per g (standard gravity, as used by MAVLink "milli-g")
+from ..models.rotation import G0, euler_to_quat, quat_canonical
+
 MG_TO_MS2 = G0 * 1e-3  # milli-g -> m/s^2
 MRAD_TO_RAD = 1e-3  # milli-rad/s -> rad/s
 MGAUSS_TO_GAUSS = 1e-3  # milli-gauss -> gauss
@@ -51,44 +52,11 @@ def stat_key(raw: Raw) -> str:
     return raw.source
 
 
-def euler_to_quat(roll, pitch, yaw) -> np.ndarray:
-    """Aerospace 3-2-1 Euler angles (rad) -> quaternion [w, x, y, z], body FRD -> NED.
-
-    Equals ``Rotation.from_euler('ZYX', [yaw, pitch, roll])`` (scalar-first).
-    Vectorised: array inputs of shape (N,) give (N, 4).
-    """
-    r = np.asarray(roll, dtype=float) * 0.5
-    p = np.asarray(pitch, dtype=float) * 0.5
-    y = np.asarray(yaw, dtype=float) * 0.5
-    cr, sr = np.cos(r), np.sin(r)
-    cp, sp = np.cos(p), np.sin(p)
-    cy, sy = np.cos(y), np.sin(y)
-    q = np.stack(
-        [
-            cr * cp * cy + sr * sp * sy,
-            sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy,
-        ],
-        axis=-1,
-    )
-    return _canonical(q)
-
-
-def _canonical(q: np.ndarray) -> np.ndarray:
-    """Return q with non-negative scalar part (q and -q are the same rotation)."""
-    q = np.array(q, dtype=float)
-    if q.ndim == 1:
-        return -q if q[0] < 0 else q
-    q[q[:, 0] < 0] *= -1.0
-    return q
-
-
 def normalize_quat(q) -> np.ndarray:
     """Normalise (and make w >= 0); caller must have checked the norm is close to 1."""
     q = np.asarray(q, dtype=float)
     n = np.linalg.norm(q, axis=-1, keepdims=True)
-    return _canonical(q / n)
+    return quat_canonical(q / n)
 
 
 # --------------------------------------------------------------------------- checks

@@ -11,7 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .convert import MAX_ACCEL, MAX_GYRO, MAX_MAG, MAX_POS, MAX_VEL, QUAT_NORM_TOL, _canonical
+from ..models.rotation import quat_canonical
+from .convert import MAX_ACCEL, MAX_GYRO, MAX_MAG, MAX_POS, MAX_VEL, QUAT_NORM_TOL
 from .types import (
     AttitudeRef,
     ImuSample,
@@ -169,7 +170,7 @@ class ULogData:
             q = self._vec(data, "q[{}]", 4)
             nrm = np.linalg.norm(q, axis=1)
             k = self._filter(src, t, [q], {"q": np.abs(nrm - 1.0) > QUAT_NORM_TOL})
-            q = _canonical(q[k] / nrm[k, None])
+            q = quat_canonical(q[k] / nrm[k, None])
             self.refs[src] = (t[k], q, _REF_TOPICS[name])
         elif name == "vehicle_local_position":
             t = self._time(data)

@@ -32,6 +32,7 @@ import numpy as np
 
 from ..core.model import Measurement, Transition
 from .rotation import (
+    G0,
     AttitudeSpace,
     euler_to_quat,
     quat_exp,
@@ -45,7 +46,6 @@ from .rotation import (
 )
 
 Array = np.ndarray
-G0 = 9.80665  # m/s^2, standard gravity
 
 __all__ = [
     "G0",

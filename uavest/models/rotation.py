@@ -24,7 +24,11 @@ from ..core.spaces import manifold_mean
 
 Array = np.ndarray
 
+#: Standard gravity (m/s^2 per g), also MAVLink's "milli-g" unit.
+G0 = 9.80665
+
 __all__ = [
+    "G0",
     "AttitudeSpace",
     "dcm_to_quat",
     "euler_to_quat",
@@ -158,11 +162,13 @@ def quat_to_euler(q: Array) -> Array:
 
 
 def euler_to_quat(roll: Array, pitch: Array, yaw: Array) -> Array:
-    """Quaternion(s) of ZYX Euler angles (radians): ``q = qz(yaw) qy(pitch) qx(roll)``."""
+    """Quaternion(s) of ZYX Euler angles (radians): ``q = qz(yaw) qy(pitch) qx(roll)``,
+    canonical (scalar part >= 0); equals ``Rotation.from_euler('ZYX', [yaw, pitch, roll])``
+    (scalar-first). Array inputs of shape (N,) give (N, 4)."""
     cr, sr = np.cos(np.multiply(roll, 0.5)), np.sin(np.multiply(roll, 0.5))
     cp, sp = np.cos(np.multiply(pitch, 0.5)), np.sin(np.multiply(pitch, 0.5))
     cy, sy = np.cos(np.multiply(yaw, 0.5)), np.sin(np.multiply(yaw, 0.5))
-    return np.stack(
+    q = np.stack(
         [
             cr * cp * cy + sr * sp * sy,
             sr * cp * cy - cr * sp * sy,
@@ -171,6 +177,7 @@ def euler_to_quat(roll: Array, pitch: Array, yaw: Array) -> Array:
         ],
         axis=-1,
     )
+    return quat_canonical(q)
 
 
 def skew(v: Array) -> Array:

@@ -37,7 +37,7 @@ import numpy as np
 
 from ..core import EKF, ETKF, KF, UKF, EnKF, Ensemble, Gaussian, Guarded, make_filter
 from ..core.registry import split_filter_list
-from ..eval.attitude import interp_reference, nees_attitude, rmse_deg, select_reference
+from ..eval.attitude import nees_attitude, rmse_deg, select_reference
 from ..models.attitude import (
     AttitudeNoise,
     GravityDirection,
@@ -51,7 +51,14 @@ from ..models.attitude import (
     mag_reference,
     noise_for_source,
 )
-from ..models.rotation import AttitudeSpace, quat_exp, quat_log, quat_mul, quat_rotate
+from ..models.rotation import (
+    AttitudeSpace,
+    quat_exp,
+    quat_log,
+    quat_mul,
+    quat_rotate,
+    quat_slerp_interp,
+)
 from .smooth import ensemble_cross, rts_backward
 
 Array = np.ndarray
@@ -451,7 +458,7 @@ def replay(path: str | Path, cfg: ReplayConfig | None = None, progress: bool = F
     truth = ref_name is not None and data.references[ref_name].kind == "truth"
     if ref_name is not None:
         ref = data.references[ref_name]
-        ref_q, mask = interp_reference(ref.t, ref.q, tk)
+        ref_q, mask = quat_slerp_interp(ref.t, ref.q, tk)
     for r in runs:
         row: dict = {}
         if ref_name is not None:
@@ -469,7 +476,7 @@ def replay(path: str | Path, cfg: ReplayConfig | None = None, progress: bool = F
             if name is None or name == ref_name or name not in data.references:
                 continue
             o = data.references[name]
-            q_o, m_o = interp_reference(o.t, o.q, tk)
+            q_o, m_o = quat_slerp_interp(o.t, o.q, tk)
             row = rmse_deg(q_o, ref_q, mask & m_o)
             row["source"] = name
             doc["filters"].setdefault(label, row)
