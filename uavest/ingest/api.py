@@ -48,7 +48,7 @@ def detect_format(path: str | Path) -> str:
         return "ulog"
     if head.startswith(_DF_MAGIC):
         return "dataflash"
-    if head.startswith(b"FMT,") or head.startswith(b"FMT, "):
+    if head.startswith(b"FMT,"):
         return "dataflash-text"
     if _looks_like_tlog(head):
         return "tlog"

@@ -40,7 +40,6 @@ class VehicleClock:
     offset: float = 0.0
     max_raw: float | None = None
     rx_at_max: float | None = None
-    last_rx: float | None = None
     last_out: float | None = None
     last_out_rx: float | None = None
     _ms_last: float | None = None
@@ -100,8 +99,6 @@ class VehicleClock:
         return [(self._accept(p.raw, p.rx), p.payload) for p in pend]
 
     def push(self, raw: float, rx: float | None, payload: object) -> list[tuple[float, object]]:
-        if rx is not None:
-            self.last_rx = rx
         if self.max_raw is None:
             return [(self._accept(raw, rx), payload)]
         back = raw < self.max_raw - RESET_JUMP

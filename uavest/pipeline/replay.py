@@ -296,9 +296,7 @@ def _keeps_members(f, E: Ensemble) -> bool:
     return isinstance(f, (EnKF, ETKF))
 
 
-def _progress(enabled: bool, i: int, n: int) -> None:
-    if not enabled:
-        return
+def _progress(i: int, n: int) -> None:
     w = 30
     done = int(w * i / max(n, 1))
     sys.stderr.write(f"\rreplay [{'#' * done}{'.' * (w - done)}] {i}/{n}")
@@ -356,7 +354,6 @@ def run_filters(
     acc_ned = steps.accel_ned
     every = max(1, J // 200)
     wall0 = time.perf_counter()
-    smooth_time = 0.0
     for k in range(1, J + 1):
         meas = []
         a = GravityDirection.from_accel(
@@ -381,7 +378,7 @@ def run_filters(
         for r in runs:
             r.step(k, model, t, dt, u, meas)
         if progress and (k % every == 0 or k == J):
-            _progress(True, k, J)
+            _progress(k, J)
     smooth_time = sum(r.smooth_seconds for r in runs)
     return runs, time.perf_counter() - wall0 - smooth_time
 
@@ -450,8 +447,7 @@ def replay(path: str | Path, cfg: ReplayConfig | None = None, progress: bool = F
         "mag_mode": cfg.mag_mode if mag is not None else None,
         "mag_delay_s": cfg.mag_delay,
         "seed": cfg.seed,
-        "noise": {k: float(v) for k, v in vars(noise).items()} if hasattr(noise, "__dict__")
-        else {k: float(getattr(noise, k)) for k in noise.__dataclass_fields__},
+        "noise": {k: float(getattr(noise, k)) for k in noise.__dataclass_fields__},
         "filters": {},
     }
     tk = steps.t[1:]
