@@ -185,3 +185,24 @@ def test_params_and_imu_selection(tmp_path):
     clipped = read_log(p, start=1.05, end=1.1)
     np.testing.assert_allclose(clipped.imu.t, [1.06, 1.08, 1.1])
     assert math.isclose(clipped.duration, 0.04)
+
+
+def test_two_messages_back_in_time_are_not_a_reboot(tmp_path):
+    # a reboot needs CONFIRM = 3 consistent messages; the IMU and mag parts of one
+    # SCALED_IMU message must count once, not twice
+    p = tmp_path / "two_back.tlog"
+    w = TlogWriter(p)
+    for i in range(30):
+        t = 100_000 + 20 * i
+        w.write(scaled(t), T0_UNIX + i * 0.02)
+    for i in range(2):  # two messages "since boot 0.5 s", then the old clock goes on
+        w.write(scaled(500 + 20 * i, gx=7), T0_UNIX + 0.6 + i * 0.02)
+    for i in range(30):
+        t = 100_640 + 20 * i
+        w.write(scaled(t), T0_UNIX + 0.64 + i * 0.02)
+    w.close()
+    log = read_log(p)
+    assert log.stats.time_reset == 0
+    assert log.stats.rejected["time_backwards:SCALED_IMU"] == 2
+    assert len(log.imu) == 60 and len(log.mag) == 60
+    np.testing.assert_allclose(log.imu.gyro[:, 0], 0.1)

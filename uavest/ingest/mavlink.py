@@ -217,18 +217,22 @@ class MavlinkSource:
         reorder = _Reorder(self.reorder_window, st)
         systime: dict[int, float] = {}  # sysid -> unix_us - boot_us offset (s)
 
+        # clock payloads are (sysid, the converted items of one message): one message is
+        # one push, so the IMU and mag parts of a message do not confirm a reset twice
         def finish(items) -> None:
-            for t, (sysid, raw) in items:
-                key = (sysid, raw.cat, raw.source, raw.instance)
-                if not gate.admit(key, t, raw.values, stat_key(raw), count=raw.primary):
-                    continue
-                st.accepted[stat_key(raw)] += 1
-                reorder.push(build(raw, t))
+            for t, (sysid, raws) in items:
+                for raw in raws:
+                    key = (sysid, raw.cat, raw.source, raw.instance)
+                    if not gate.admit(key, t, raw.values, stat_key(raw), count=raw.primary):
+                        continue
+                    st.accepted[stat_key(raw)] += 1
+                    reorder.push(build(raw, t))
 
         def drain(clock: VehicleClock) -> None:
-            for kind, (_sysid, raw) in clock.take_rejected():
-                if raw.primary:  # time faults are counted once per message
-                    st.bad(kind, stat_key(raw))
+            for kind, (_sysid, raws) in clock.take_rejected():
+                for raw in raws:
+                    if raw.primary:  # time faults are counted once per message
+                        st.bad(kind, stat_key(raw))
 
         for msg, rx in self._messages():
             name = msg.get_type()
@@ -269,11 +273,9 @@ class MavlinkSource:
                 if t is None:
                     st.bad("no_time", stat_key(good[0]))
                     continue
-                finish([(t, (sysid, r)) for r in good])
+                finish([(t, (sysid, good))])
             else:
-                accepted: list = []
-                for r in good:
-                    accepted.extend(clock.push(raw_t, rx, (sysid, r)))
+                accepted = clock.push(raw_t, rx, (sysid, good))
                 drain(clock)
                 finish(accepted)
             yield from reorder.pop_ready()
