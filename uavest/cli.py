@@ -64,6 +64,7 @@ def cmd_bench(args) -> int:
             raise ScenarioError(f"radar scenarios need uavest.tracking: {e}") from None
         doc["filters"] = run_bench(sc, specs, runs, args.seed, args.steps)
         cols = ["pos_rmse", "vel_rmse", "pcrlb_pos", "pcrlb_ratio", "nees_mean", "nees_band",
+                "nees_in_band_fraction",
                 "gospa", "id_swaps", "false_tracks", "track_breaks", "diverged_fraction",
                 "us_per_step"]
     else:
