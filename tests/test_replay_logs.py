@@ -152,6 +152,7 @@ def test_cli_errors_exit_2_without_traceback(tmp_path):
         (["replay", str(tmp_path / "nope.tlog")], "no such log file"),
         (["replay", str(tmp_path)], "is a directory, not a log file"),
         (["replay", str(junk), "--filters", "nosuch"], "nosuch"),
+        (["replay", str(junk), "--filters", "ekf,ukf,ekf"], "ekf more than once"),
     ):
         r = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True)
         assert r.returncode == 2

@@ -528,6 +528,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
         specs = tuple(split_filter_list(args.filters)) if args.filters else DEFAULT_FILTERS
         if not specs:
             raise ValueError("--filters is empty")
+        dup = sorted({s for s in specs if specs.count(s) > 1})
+        if dup:  # results are keyed by label: a repeat would overwrite the first
+            raise ValueError(f"--filters lists {', '.join(dup)} more than once")
         for s in specs:
             make_filter(s)  # validate early
         cfg = ReplayConfig(
