@@ -27,10 +27,10 @@ import warnings
 
 import numpy as np
 
-from uavest.eval.attitude import interp_reference, rmse_deg, select_reference
+from uavest.eval.attitude import rmse_deg, select_reference
 from uavest.ingest import read_log
 from uavest.models.attitude import declination_from_params, initial_attitude
-from uavest.models.rotation import euler_to_quat, quat_conj, quat_mul
+from uavest.models.rotation import euler_to_quat, quat_conj, quat_mul, quat_slerp_interp
 from uavest.pipeline.replay import ReplayConfig, format_table, replay
 
 
@@ -86,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     decl = declination_from_params(data.params) or 0.0
     ref_name, _ = select_reference(data.references)
     ref = data.references[ref_name]
-    ref_q, mask = interp_reference(ref.t, ref.q, t)
+    ref_q, mask = quat_slerp_interp(ref.t, ref.q, t)
     mask[0] = False
     rows: dict = {}
     for name in ("madgwick", "mahony", "ekf"):

@@ -18,7 +18,6 @@ from ..models.rotation import (
     quat_conj,
     quat_log,
     quat_mul,
-    quat_slerp_interp,
     quat_to_euler,
     wrap_pi,
 )
@@ -28,7 +27,6 @@ Array = np.ndarray
 __all__ = [
     "AUTOPILOT_SOURCES",
     "euler_errors_deg",
-    "interp_reference",
     "nees_attitude",
     "rmse_deg",
     "select_reference",
@@ -58,11 +56,6 @@ def select_reference(refs: dict) -> tuple[str | None, str | None]:
             return usable[0], ap
     return None, ap
 
-
-#: Deprecated alias of :func:`uavest.models.rotation.quat_slerp_interp` (reference
-#: quaternions at times ``t`` and the mask of covered times), kept only for
-#: ``benchmarks/ahrs_compare.py``; new code calls ``quat_slerp_interp`` directly.
-interp_reference = quat_slerp_interp
 
 
 def euler_errors_deg(q_est: Array, q_ref: Array) -> Array:
