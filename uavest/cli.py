@@ -58,10 +58,8 @@ def cmd_bench(args) -> int:
     doc = {"scenario": sc["name"], "source": sc.get("source"), "runs": runs, "seed": args.seed,
            "steps": sc.get("steps"), "overrides": args.sets}
     if sc["kind"] == "radar":
-        try:
-            from .tracking.bench import run_bench
-        except ImportError as e:  # pragma: no cover - tracking layer missing
-            raise ScenarioError(f"radar scenarios need uavest.tracking: {e}") from None
+        from .tracking.bench import run_bench
+
         doc["filters"] = run_bench(sc, specs, runs, args.seed, args.steps)
         cols = ["pos_rmse", "vel_rmse", "pcrlb_pos", "pcrlb_ratio", "nees_mean", "nees_band",
                 "nees_in_band_fraction",
@@ -125,18 +123,11 @@ def build_parser() -> argparse.ArgumentParser:
     _bench_parser(sub)
     pl = sub.add_parser("list", help="list scenarios and filters")
     pl.set_defaults(func=cmd_list)
-    try:
-        from .tracking.cli import add_track_parser
-    except ImportError:
-        pass
-    else:
-        add_track_parser(sub)
-    try:
-        from .pipeline.replay import add_replay_parser
-    except ImportError:
-        pass
-    else:
-        add_replay_parser(sub)
+    from .pipeline.replay import add_replay_parser
+    from .tracking.cli import add_track_parser
+
+    add_track_parser(sub)
+    add_replay_parser(sub)
     return ap
 
 

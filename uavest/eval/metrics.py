@@ -26,13 +26,13 @@ def mean_abs(err: Array) -> float:
 
 
 def nees(err: Array, P: Array) -> Array:
-    """err (T, n), P (T, n, n) -> (T,) normalised estimation error squared."""
-    sol = np.linalg.solve(P, err[..., None])[..., 0]
-    return np.einsum("ti,ti->t", err, sol)
+    """e^T P^-1 e for errors ``err`` (..., n) and covariances ``P`` (..., n, n)."""
+    return np.einsum("...i,...i->...", err, np.linalg.solve(P, err[..., None])[..., 0])
 
 
-def nees_band(n: int, runs: int, prob: float = 0.95) -> tuple[float, float]:
-    """Two-sided ``prob`` chi-square band for the NEES averaged over ``runs`` runs of an
-    ``n``-dimensional state: chi2.ppf([(1-p)/2, (1+p)/2], runs * n) / runs."""
+def nees_band(n: int, runs: float, prob: float = 0.95) -> tuple[float, float]:
+    """Two-sided ``prob`` chi-square band for the NEES of an ``n``-dimensional state
+    averaged over ``runs`` samples (a non-integer mean sample count is allowed):
+    chi2.ppf([(1-p)/2, (1+p)/2], runs * n) / runs."""
     lo, hi = chi2.ppf([(1 - prob) / 2, (1 + prob) / 2], runs * n) / runs
     return float(lo), float(hi)

@@ -31,22 +31,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
-from scipy.stats import chi2
+
+from .metrics import nees, nees_band  # noqa: F401  (re-exported for tracking callers)
 
 Array = np.ndarray
-
-
-def nees_band(n: int, runs: float, p: float = 0.95) -> tuple[float, float]:
-    """Two-sided ``p`` band of the average NEES of an ``n``-dim state over ``runs``
-    samples (one scan; a non-integer mean sample count is allowed)."""
-    a = (1.0 - p) / 2.0
-    lo, hi = chi2.ppf([a, 1.0 - a], runs * n) / runs
-    return float(lo), float(hi)
-
-
-def nees(e: Array, P: Array) -> Array:
-    """e^T P^-1 e for errors ``e`` (..., n) and covariances ``P`` (..., n, n)."""
-    return np.einsum("...i,...i->...", e, np.linalg.solve(P, e[..., None])[..., 0])
 
 
 def gospa(
