@@ -76,16 +76,6 @@ def nis_from_factor(c: Array, nu: Array) -> float:
     return float(nu @ dpotrs(c, nu, lower=1)[0])
 
 
-def mahalanobis2(r: Array, S: Array) -> Array:
-    """Squared Mahalanobis norm of residual(s) ``r`` ((m,) or (M, m)) under ``S``."""
-    L = chol(S)
-    if r.ndim == 1:
-        u = np.linalg.solve(L, r)
-        return float(u @ u)
-    u = np.linalg.solve(L, r.T)
-    return np.einsum("ij,ij->j", u, u)
-
-
 def nearest_pd(P: Array, floor: float = 1e-12) -> Array:
     """Symmetric matrix with eigenvalues clipped below at ``floor * max(|eig|, 1)``."""
     P = symmetrize(P)
