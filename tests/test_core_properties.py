@@ -56,7 +56,7 @@ def test_default_hybrid_weights_stay_positive_normalised_over_ungm_run():
 
 @pytest.mark.parametrize(
     "spec", ["ekf", "ukf", "ckf", "srukf", "enkf", "etkf", "hybrid", "hybrid_literal", "pf",
-             "ukf_sh", "hybrid_sh"]
+             "ukf_sh", "hybrid_sh", "hybrid(update_mode=local)"]
 )
 def test_covariance_symmetric_pd_over_long_random_run(spec):
     tr, me = Nonlinear2DTransition(nl=0.5), Nonlinear2DMeasurement(nl=0.5)
@@ -114,7 +114,8 @@ class _Direct(Measurement):
 
 
 @pytest.mark.parametrize("spec", ["ekf", "ukf", "srukf", "enkf", "etkf", "hybrid",
-                                  "hybrid_literal", "pf", "ukf_sh"])
+                                  "hybrid_literal", "pf", "ukf_sh",
+                                  "hybrid(update_mode=local)"])
 def test_divergence_reported_and_recovered_never_nan(spec):
     tr, me = _Exploding(), _Direct()
     f = Guarded(make_filter(spec, **({"members": 50} if spec in ("enkf", "etkf") else {})))
@@ -208,12 +209,14 @@ def test_staged_and_split_hybrid_updates_stay_valid_with_sharp_measurement():
     tr = LinearTransition(np.eye(2), 1e-6 * np.eye(2))
     me = LinearMeasurement(np.eye(2), 1e-4 * np.eye(2))
     z = np.array([0.3, -0.2])
-    for kw in ({}, {"stages": 6}, {"shifts": 4}, {"stages": 3, "shifts": 3}):
+    for kw in ({}, {"stages": 6}, {"shifts": 4}, {"stages": 3, "shifts": 3},
+               {"update_mode": "local"}):
         f = Hybrid(**kw)
         rng = np.random.default_rng(0)
         s = f.init(Gaussian(np.zeros(2), np.eye(2)), tr.space, rng)
         s = f.predict(s, tr, 1, 1.0, None, rng)
         s, _ = f.update(s, z, me, rng)
-        assert np.all(s.w > 0) and s.w.sum() == pytest.approx(1.0)
+        w = np.full(s.M, 1.0 / s.M) if s.w is None else s.w
+        assert np.all(w > 0) and w.sum() == pytest.approx(1.0)
         g = f.estimate(s)
         assert np.linalg.norm(g.x - z) < 0.05

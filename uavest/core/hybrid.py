@@ -51,6 +51,7 @@ from .spaces import Space
 Array = np.ndarray
 
 SAMPLINGS = ("expanded", "random")
+UPDATE_MODES = ("shift", "local")
 WEIGHTINGS = ("confidence", "equal")
 
 
@@ -317,10 +318,16 @@ class Hybrid:
     shifts: int = 1
     regen_ess: float = 0.5
     kernel: float = 0.3
+    update_mode: str = "shift"
+    bandwidth: float | None = None
     name: str = "hybrid"
 
     def __post_init__(self) -> None:
         _check_switches(self.sampling, self.weights)
+        if self.update_mode not in UPDATE_MODES:
+            raise ValueError(f"update_mode must be one of {UPDATE_MODES}")
+        if self.bandwidth is not None and not 0.0 < self.bandwidth < 1.0:
+            raise ValueError("bandwidth must be in (0, 1)")
         if not 0.0 < self.tau <= 1.0:
             raise ValueError("tau must be in (0, 1]")
 
@@ -363,6 +370,8 @@ class Hybrid:
         return propagate_members(E, model, t, dt, u, rng)
 
     def update(self, E: Ensemble, z, model: Measurement, rng=None) -> tuple[Ensemble, Innovation]:
+        if self.update_mode == "local":
+            return self._update_local(E, z, model, rng)
         space = model.space
         M = E.M
         w = np.full(M, 1.0 / M) if E.w is None else E.w
@@ -404,5 +413,70 @@ class Hybrid:
             X = space.retract(X, (r + V) @ K.T)
         return Ensemble(X, E.space, None if self.weights == "equal" else w), innov
 
+    def _update_local(self, E: Ensemble, z, model: Measurement, rng) -> tuple[Ensemble, Innovation]:
+        """Kernel (Gaussian-mixture) update with a local gain per member.
+
+        The weighted members are read as a mixture sum_j w_j N(C_j, B): centres shrunk
+        towards the mean, C_j = x + a (X_j - x), kernel B = h^2 P, a = sqrt(1 - h^2), so
+        the mixture keeps the ensemble's mean and covariance. Each component gets its own
+        Kalman update with the Jacobian H_j at its centre (exact for a component small
+        enough that h is linear across it), and its confidence weight is its predictive
+        likelihood: w_j <- w_j N(z; h(C_j), H_j B H_j^T + R). New members are drawn from
+        the posterior mixture (systematic selection first if ESS < regen_ess M).
+        """
+        space = E.space
+        x, dX, w, P = ensemble_moments(E)
+        M, n = dX.shape
+        h = self.bandwidth or silverman_bandwidth(M, n)
+        C = space.retract(x, np.sqrt(1.0 - h * h) * dX)
+        B = (h * h) * P
+        Hs = model.H_rows(C)  # (M, m, n)
+        Y = model.h(C)
+        nu = model.residual(z, Y)
+        HB = Hs @ B
+        S = HB @ Hs.transpose(0, 2, 1) + model.R
+        Ls = np.linalg.cholesky(S)
+        # one batched solve for the innovation and the gain: S^-1 [nu, H B]
+        G = np.linalg.solve(S, np.concatenate([nu[:, :, None], HB], axis=2))
+        u, SiHB = G[:, :, 0], G[:, :, 1:]
+        dx = np.einsum("jmn,jm->jn", HB, u)
+        ybar = model.mean(Y, w)
+        dY = model.residual(Y, ybar)
+        innov = innovation(model.residual(z, ybar),
+                           (dY.T * w) @ dY + np.einsum("j,jab->ab", w, S))
+        if self.weights == "confidence":
+            loglik = -0.5 * np.einsum("jm,jm->j", nu, u) - np.log(
+                np.diagonal(Ls, axis1=1, axis2=2)).sum(axis=1)
+            logw = np.log(np.maximum(w, 1e-300)) + loglik
+            w = np.exp(logw - logw.max())
+            w /= w.sum()
+        Cp = space.retract(C, dx)
+        Bp = B - HB.transpose(0, 2, 1) @ SiHB
+        Bp = 0.5 * (Bp + Bp.transpose(0, 2, 1))
+        if ess(w) < self.regen_ess * M:
+            idx = systematic_resample(w, rng)
+            Cp, Bp, wn = Cp[idx], Bp[idx], None
+        else:
+            wn = None if self.weights == "equal" or E.w is None and np.ptp(w) == 0 else w
+        Lb = _batch_chol(Bp)
+        X = space.retract(Cp, np.einsum("jab,jb->ja", Lb, rng.standard_normal((M, n))))
+        return Ensemble(X, space, wn), innov
+
     def estimate(self, E: Ensemble) -> Gaussian:
         return ensemble_estimate(E)
+
+
+def silverman_bandwidth(M: int, n: int) -> float:
+    """Silverman's rule for a Gaussian kernel, (4 / (M (n + 2)))^(1 / (n + 4)), as a
+    fraction of the ensemble's standard deviation (clipped to [0.05, 0.95])."""
+    return float(np.clip((4.0 / (M * (n + 2))) ** (1.0 / (n + 4)), 0.05, 0.95))
+
+
+def _batch_chol(P: Array) -> Array:
+    """Lower Cholesky factors of a stack of symmetric PSD matrices (M, n, n); rows that
+    are not numerically PD fall back to an eigenvalue-clipped square root."""
+    try:
+        return np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        lam, V = np.linalg.eigh(P)
+        return V * np.sqrt(np.maximum(lam, 0.0))[:, None, :]

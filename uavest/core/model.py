@@ -57,6 +57,11 @@ class Measurement:
         """Jacobian of ``h`` w.r.t. the tangent-space state error at ``x`` (m x n)."""
         return fd_jacobian(self.h, self.space, None, x)
 
+    def H_rows(self, X: Array) -> Array:
+        """Jacobians at every row of ``X`` (M, size) -> (M, m, n), tangent-space; batched
+        central finite differences through ``retract`` and ``residual`` by default."""
+        return fd_jacobians(self.h, self.residual, self.space, X)
+
     def residual(self, a: Array, b: Array) -> Array:
         return a - b
 
@@ -87,6 +92,22 @@ def fd_jacobian(fun, space: Space, out_space: Space | None, x: Array, eps: float
         y0 = fun(x[None, :])[0]
         dY = out_space.local(y0, Y[:n]) - out_space.local(y0, Y[n:])
     return (dY / (2.0 * scale[:, None])).T
+
+
+def fd_jacobians(fun, residual, space: Space, X: Array, eps: float = 1e-6) -> Array:
+    """Central finite-difference Jacobians of the vectorised ``fun`` at every row of ``X``
+    (M, size) -> (M, m, n), differences read through ``residual`` (e.g. wrapped angles).
+    One batched call of ``fun`` on 2 n M rows; no Python loop over rows."""
+    M, n = X.shape[0], space.dim
+    if isinstance(space, VectorSpace):
+        scale = eps * np.maximum(1.0, np.abs(X[:, :n]))
+    else:
+        scale = np.full((M, n), eps)
+    D = (scale[:, :, None] * np.eye(n)).reshape(M * n, n)  # row (i, j): scale_ij e_j
+    Xr = np.repeat(X, n, axis=0)
+    Y = fun(np.vstack([space.retract(Xr, D), space.retract(Xr, -D)]))
+    dY = residual(Y[: M * n], Y[M * n :]).reshape(M, n, -1)
+    return (dY / (2.0 * scale[:, :, None])).transpose(0, 2, 1)
 
 
 class LinearTransition(Transition):
@@ -128,3 +149,6 @@ class LinearMeasurement(Measurement):
 
     def H(self, x):
         return self._H
+
+    def H_rows(self, X):
+        return np.broadcast_to(self._H, (X.shape[0], *self._H.shape))
