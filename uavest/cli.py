@@ -61,7 +61,8 @@ def cmd_bench(args) -> int:
         from .tracking.bench import run_bench
 
         doc["filters"] = run_bench(sc, specs, runs, args.seed, args.steps)
-        cols = ["pos_rmse", "vel_rmse", "pcrlb_pos", "pcrlb_ratio", "nees_mean", "nees_band",
+        cols = ["pos_rmse", "vel_rmse", "pcrlb_pos", "pcrlb_ratio", "pcrlb_ratio_rms",
+                "cond_ratio", "nees_mean", "nees_band",
                 "nees_in_band_fraction",
                 "gospa", "id_swaps", "false_tracks", "track_breaks", "diverged_fraction",
                 "us_per_step"]

@@ -75,6 +75,48 @@ def pcrlb(
     return out
 
 
+def conditional_bounds(
+    J0: Array,
+    truths: Array,
+    transition: Transition,
+    measurement: Measurement | Callable[[int], Measurement],
+    dt: float,
+    t0: float = 0.0,
+    detected: Array | None = None,
+) -> Array:
+    """The same recursion run separately on each truth trajectory: (runs, K, n, n).
+
+    Run r's matrix is the covariance of a Kalman filter linearised at that run's own
+    truth (an oracle), i.e. the information the run's measurements carry along its own
+    path. It is **not** a lower bound (the posterior mean can beat it), but it shows how
+    loose the unconditional bound :func:`pcrlb` is: averaging the information E[H^T R^-1 H]
+    over runs whose measurement geometries differ gives inv(E[J]) <= E[inv(J)] (Jensen),
+    so a tight range measurement seen from slightly different directions in different
+    runs adds cross-range information that no single run has. Same arguments as
+    :func:`pcrlb`.
+    """
+    R_, K1, n = truths.shape
+    J = np.broadcast_to(np.asarray(J0, float), (R_, n, n)).copy()
+    out = np.empty((R_, K1 - 1, n, n))
+    for k in range(1, K1):
+        t = t0 + k * dt
+        Qi = np.linalg.inv(transition.Q(t, dt))
+        Fs = np.stack([transition.F(truths[i, k - 1], t, dt) for i in range(R_)])
+        D11 = np.einsum("rji,jk,rkl->ril", Fs, Qi, Fs)
+        D12 = -np.einsum("rji,jk->rik", Fs, Qi)
+        meas = measurement(k) if callable(measurement) and not isinstance(
+            measurement, Measurement
+        ) else measurement
+        Hs = np.stack([meas.H(truths[i, k]) for i in range(R_)])
+        if detected is not None:
+            Hs = Hs * detected[:, k - 1, None, None]
+        D22 = Qi + np.einsum("rji,jk,rkl->ril", Hs, np.linalg.inv(meas.R), Hs)
+        J = D22 - D12.transpose(0, 2, 1) @ np.linalg.solve(J + D11, D12)
+        J = 0.5 * (J + J.transpose(0, 2, 1))
+        out[:, k - 1] = np.linalg.inv(J)
+    return out
+
+
 def position_bound(B: Array, ndim: int) -> Array:
     """sqrt(trace of the position block) of bounds ``B`` (K, n, n) -> (K,) metres."""
     return np.sqrt(np.einsum("kii->k", B[:, :ndim, :ndim]))

@@ -42,7 +42,7 @@ import numpy as np
 from ..core.gaussian import Gaussian
 from ..core.guard import Guarded
 from ..core.registry import make_filter
-from ..eval.pcrlb import pcrlb, position_bound, velocity_bound
+from ..eval.pcrlb import conditional_bounds, pcrlb, position_bound, velocity_bound
 from ..eval.tracking import nees, nees_band, track_quality
 from .scenario import build_models, generate_run, prior
 from .tracker import Tracker, TrackerConfig
@@ -153,6 +153,8 @@ def bench_filter_mode(sc: dict, filters: list[str], runs: int, seed: int, steps:
     meas = _bound_measurement(radar, rundata)
     bound = pcrlb(np.linalg.inv(P0), truths, motion, meas, dt, detected=detected)
     bpos, bvel = position_bound(bound, ndim), velocity_bound(bound, ndim)
+    cond = conditional_bounds(np.linalg.inv(P0), truths, motion, meas, dt, detected=detected)
+    bcond = np.sqrt(np.einsum("rkii->k", cond[:, :, :ndim, :ndim]) / runs)  # RMS over runs
     out = {}
     for label in filters:
         filt = make_filter(label)
@@ -175,6 +177,7 @@ def bench_filter_mode(sc: dict, filters: list[str], runs: int, seed: int, steps:
         vel_k = np.sqrt(np.mean(np.sum(E[:, :, ndim:] ** 2, axis=2), axis=0))
         per_run = np.sqrt(np.mean(np.sum(E[:, :, :ndim] ** 2, axis=2), axis=1))
         pos_rmse, vel_rmse = float(pos_k.mean()), float(vel_k.mean())
+        rms_ratio = float(np.sqrt(np.mean(pos_k**2) / np.mean(bpos**2)))
         band = nees_band(n, runs)  # per scan: the run average of one scan's NEES
         nees_k = NE.mean(axis=0)
         out[label] = {
@@ -193,6 +196,9 @@ def bench_filter_mode(sc: dict, filters: list[str], runs: int, seed: int, steps:
             "pcrlb_vel": float(bvel.mean()),
             "pcrlb_ratio": pos_rmse / float(bpos.mean()),
             "pcrlb_vel_ratio": vel_rmse / float(bvel.mean()),
+            "pcrlb_ratio_rms": rms_ratio,
+            "cond_bound_pos": float(bcond.mean()),
+            "cond_ratio": pos_rmse / float(bcond.mean()),
             "gospa": None,
             "id_swaps": None,
             "false_tracks": None,
@@ -315,6 +321,8 @@ def bench_tracker_mode(sc: dict, filters: list[str], runs: int, seed: int, steps
             "vel_rmse": vel_rmse,
             "pcrlb_pos": None,
             "pcrlb_ratio": None,
+            "pcrlb_ratio_rms": None,
+            "cond_ratio": None,
             "gospa": float(np.mean([q.gospa for q in qs])),
             "id_swaps": float(np.mean([q.id_swaps for q in qs])),
             "false_tracks": float(np.mean([q.false_tracks for q in qs])),
