@@ -177,34 +177,36 @@ class RadarMeasurement(Measurement):
 
     def H(self, x: Array) -> Array:
         """Analytic Jacobian (m, n) w.r.t. the world-frame state."""
+        return self.H_rows(np.asarray(x, float)[None, :])[0]
+
+    def H_rows(self, X: Array) -> Array:
+        """Analytic Jacobians at every row of ``X`` (M, n) -> (M, m, n), vectorised."""
         d = self.ndim
-        D, V = self._los(x[None, :])
-        D, V = D[0], V[0]
-        Rws = self.pose.R_ws
+        D, V = self._los(X)
+        M = D.shape[0]
         # floors as in h(): a target at the sensor (r = 0) or straight above / below it
         # (rho = 0, e.g. under a UAV radar) gives a finite (zero) gradient, not inf/NaN
-        r2 = max(float(D @ D), _EPS**2)
+        r2 = np.maximum(np.einsum("ij,ij->i", D, D), _EPS**2)
         r = np.sqrt(r2)
-        rows = []
-        dr_dD = D / r
-        rows.append((dr_dD, np.zeros(d)))
-        rho2 = max(float(D[0] ** 2 + D[1] ** 2), _EPS**2)
-        daz = np.zeros(d)
-        daz[0], daz[1] = -D[1] / rho2, D[0] / rho2
-        rows.append((daz, np.zeros(d)))
+        rho2 = np.maximum(D[:, 0] ** 2 + D[:, 1] ** 2, _EPS**2)
+        zero = np.zeros((M, d))
+        daz = np.zeros((M, d))
+        daz[:, 0], daz[:, 1] = -D[:, 1] / rho2, D[:, 0] / rho2
+        rows = [(D / r[:, None], zero), (daz, zero)]
         if d == 3:
             rho = np.sqrt(rho2)
-            de = np.array([-D[0] * D[2] / (r2 * rho), -D[1] * D[2] / (r2 * rho), rho / r2])
-            rows.append((de, np.zeros(d)))
+            de = np.stack([-D[:, 0] * D[:, 2] / (r2 * rho), -D[:, 1] * D[:, 2] / (r2 * rho),
+                           rho / r2], axis=1)
+            rows.append((de, zero))
         if self._rr is not None:
-            rr = float(D @ V) / r
-            drr_dD = (V - rr * D / r) / r
-            rows.append((drr_dD, D / r))
-        Hm = np.zeros((len(rows), self.space.dim))
+            rr = np.einsum("ij,ij->i", D, V) / r
+            rows.append(((V - (rr / r)[:, None] * D) / r[:, None], D / r[:, None]))
+        Hm = np.zeros((M, len(rows), self.space.dim))
+        Rt = self.pose.R_ws.T
         for i, (gD, gV) in enumerate(rows):
-            # d/dp = gD^T R^T (since D = R^T (p - s)); same for v
-            Hm[i, :d] = Rws @ gD
-            Hm[i, d : 2 * d] = Rws @ gV
+            # d/dp = R gD (since D = R^T (p - s)); same for v; row-wise gD @ R^T
+            Hm[:, i, :d] = gD @ Rt
+            Hm[:, i, d : 2 * d] = gV @ Rt
         return Hm
 
     # -- angle-aware arithmetic -----------------------------------------------------------
