@@ -79,6 +79,13 @@ def make_filter(spec: str, **defaults):
     return SageHusa(f, **sh) if adaptive else f
 
 
+def make_filter_in_context(spec: str, hybrid_defaults: dict) -> object:
+    """``make_filter`` with an application's defaults for the ``hybrid`` family (plain and
+    ``_sh``); parameters written in the spec still win, other filters are unaffected."""
+    base = parse_filter_spec(spec)[0].removesuffix("_sh")
+    return make_filter(spec, **(dict(hybrid_defaults) if base == "hybrid" else {}))
+
+
 def split_filter_list(s: str) -> list[str]:
     """Split a --filters value on top-level commas only: 'a,b(x=1,y=2),c' -> 3 specs."""
     out, depth, cur = [], 0, ""

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core import EKF, ETKF, KF, UKF, EnKF, Ensemble, Gaussian, Guarded, make_filter
-from ..core.registry import split_filter_list
+from ..core.registry import make_filter_in_context, split_filter_list
 from ..eval.attitude import nees_attitude, rmse_deg, select_reference
 from ..models.attitude import (
     AttitudeNoise,
@@ -212,11 +212,9 @@ class _Run:
     """One filter's forward pass with the records the smoother needs."""
 
     def __init__(self, spec: str, prior: Gaussian, J: int, rng, smooth: bool) -> None:
-        name = spec.split("(")[0].strip()
-        defaults = dict(HYBRID_ATTITUDE_DEFAULTS) if name in ("hybrid", "hybrid_sh") else {}
         self.label = spec
-        self.kind = name
-        self.f = Guarded(make_filter(spec, **defaults))
+        self.kind = spec.split("(")[0].strip()
+        self.f = Guarded(make_filter_in_context(spec, HYBRID_ATTITUDE_DEFAULTS))
         self.space = AttitudeSpace()
         self.rng = rng
         self.s = self.f.init(prior, self.space, rng)

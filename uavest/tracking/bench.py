@@ -41,13 +41,28 @@ import numpy as np
 
 from ..core.gaussian import Gaussian
 from ..core.guard import Guarded
-from ..core.registry import make_filter
+from ..core.registry import make_filter_in_context
 from ..eval.pcrlb import conditional_bounds, pcrlb, position_bound, velocity_bound
 from ..eval.tracking import nees, nees_band, track_quality
 from .scenario import build_models, generate_run, prior
 from .tracker import Tracker, TrackerConfig
 
 Array = np.ndarray
+
+
+#: What ``hybrid`` means for radar tracking (any parameter in the spec still wins; write
+#: ``hybrid(update_mode=shift, n_cloud=32)`` for the core default). The local-gain
+#: (Gaussian-mixture) update keeps the information of a 10 m range that the core
+#: default's single EnKF shift loses against a wide prior: radar_far 5 deg PCRLB ratio
+#: 1.54 -> 1.32 (NEES 12.2 -> 5.1), radar_multitarget GOSPA 116.9 -> 104.7 m and false
+#: tracks 1.3 -> 0 per run (docs/tracking.md). n_cloud = 64 (M = 585 members) gains
+#: 0.05 in the ratio over 32 for twice the time.
+HYBRID_RADAR_DEFAULTS = {"update_mode": "local", "n_cloud": 64}
+
+
+def make_radar_filter(spec: str):
+    """A core filter from its spec, ``hybrid`` with :data:`HYBRID_RADAR_DEFAULTS`."""
+    return make_filter_in_context(spec, HYBRID_RADAR_DEFAULTS)
 
 
 def data_rng(seed: int, run: int) -> np.random.Generator:
@@ -157,7 +172,7 @@ def bench_filter_mode(sc: dict, filters: list[str], runs: int, seed: int, steps:
     bcond = np.sqrt(np.einsum("rkii->k", cond[:, :, :ndim, :ndim]) / runs)  # RMS over runs
     out = {}
     for label in filters:
-        filt = make_filter(label)
+        filt = make_radar_filter(label)
         E_pre = np.empty((runs, K, ndim))
         E = np.empty((runs, K, 2 * ndim))
         NE = np.empty((runs, K))
@@ -218,7 +233,7 @@ def run_trackers(sc: dict, filters: list[str], run, seed: int, r: int) -> dict[s
     models = _scan_models(radar, run)
     out = {}
     for label in filters:
-        tr = Tracker(make_filter(label), motion, cfg, filter_rng(seed, r, label))
+        tr = Tracker(make_radar_filter(label), motion, cfg, filter_rng(seed, r, label))
         for k in range(1, len(run.scans) + 1):
             tr.step(k, k * dt, dt, run.scans[k - 1], models[k - 1])
         out[label] = tr
