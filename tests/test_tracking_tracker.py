@@ -1,6 +1,7 @@
 """Tracker behaviour: association, coasting and deletion, clutter-only false tracks."""
 
 import numpy as np
+import pytest
 
 from uavest.core import make_filter
 from uavest.eval.tracking import gospa, track_quality
@@ -166,3 +167,89 @@ def test_track_quality_one_false_track():
     tracks = [{7: P0 + 1}] * 5 + [{7: FAR}] * 5  # assigned in 5 of 10 scans: not false
     q = _q(tracks, [{0: P0}] * 10)
     assert (q.false_tracks, q.track_breaks) == (0, 1)
+
+
+# -- JPDA ------------------------------------------------------------------------------------
+
+
+def _brute_force_betas(lik, miss):
+    """Every joint assignment (track -> detection or none, detections used once), summed
+    directly: the reference for jpda_betas."""
+    import itertools
+
+    T, N = lik.shape
+    acc = np.zeros((T, N + 1))
+    for pick in itertools.product(range(N + 1), repeat=T):
+        used = [j for j in pick if j < N]
+        if len(used) != len(set(used)) or any(j < N and lik[i, j] == 0 for i, j in enumerate(pick)):
+            continue
+        w = np.prod([lik[i, j] if j < N else miss[i] for i, j in enumerate(pick)])
+        acc[np.arange(T), list(pick)] += w
+    return acc / acc.sum(axis=1, keepdims=True)
+
+
+def test_jpda_betas_match_brute_force_on_constructed_clusters():
+    """Tracks 0 and 1 share detection 1 (one cluster), track 2 is alone with detection 3,
+    track 3 gates nothing. The shared detection lowers both tracks' beta for it compared
+    with independent PDA; rows sum to 1; a lone track is plain PDA."""
+    from uavest.tracking.tracker import jpda_betas
+
+    lik = np.array([[5.0, 3.0, 0.0, 0.0],
+                    [0.0, 4.0, 2.0, 0.0],
+                    [0.0, 0.0, 0.0, 7.0],
+                    [0.0, 0.0, 0.0, 0.0]])
+    miss = np.full(4, 0.1)
+    b = jpda_betas(lik, miss)
+    np.testing.assert_allclose(b, _brute_force_betas(lik, miss), rtol=1e-12)
+    np.testing.assert_allclose(b.sum(axis=1), 1.0)
+    np.testing.assert_allclose(b[2], np.r_[lik[2], miss[2]] / (lik[2].sum() + miss[2]))
+    np.testing.assert_allclose(b[3], [0, 0, 0, 0, 1.0])
+    pda0 = lik[0, 1] / (lik[0].sum() + miss[0])
+    assert b[0, 1] < pda0
+    # above max_cluster tracks the cluster falls back to per-track PDA
+    b1 = jpda_betas(lik, miss, max_cluster=1)
+    assert b1[0, 1] == pytest.approx(pda0)
+
+
+def test_jpda_tracker_keeps_crossing_targets_and_mixes_states():
+    """JPDA with EKF and with the hybrid on two crossing targets in clutter: both targets
+    tracked to the end without swaps; an ensemble keeps its size through the mixture."""
+    for spec in ("ekf", "hybrid(n_cloud=8)"):
+        rng = np.random.default_rng(4)
+        cfg = TrackerConfig(init_vel_std=30.0, association="jpda", pd=1.0,
+                            clutter_density=2.0 / (12000.0 * 2 * np.pi))
+        tr = Tracker(make_filter(spec), MOT, cfg, rng)
+        a, b = _line([3000, -600], [0, 10]), _line([3600, 600], [-5, -10])
+        _run(tr, [a, b], 100, rng, clutter=2.0)
+        truth_steps = [{0: a(k)[:2], 1: b(k)[:2]} for k in range(1, 101)]
+        track_steps = [dict() for _ in range(100)]
+        for t in tr.all_tracks:
+            for k, _, g, _, conf in t.history:
+                if conf:
+                    track_steps[k - 1][t.id] = g.x[:2]
+        q = track_quality(truth_steps, track_steps, c=200.0)
+        assert q.id_swaps == 0 and q.track_breaks == 0, spec
+        assert q.confirmed_tracks == 2, spec
+        if spec.startswith("hybrid"):
+            assert tr.tracks and all(t.state.inner.M == 9 * 9 for t in tr.tracks)  # (2n+1)(N+1)
+
+
+def test_mix_states_gaussian_is_moment_matched():
+    from uavest.core import Gaussian, Guarded
+    from uavest.tracking.tracker import mix_states
+
+    f = Guarded(make_filter("ukf"))
+    g1 = Gaussian(np.array([0.0, 0, 0, 0]), np.eye(4))
+    g2 = Gaussian(np.array([2.0, 0, 0, 0]), 2 * np.eye(4))
+    s = mix_states(f, [f.init(g1, MOT.space), f.init(g2, MOT.space)], np.array([0.75, 0.25]),
+                   MOT.space, np.random.default_rng(0))
+    g = f.estimate(s)
+    np.testing.assert_allclose(g.x, [0.5, 0, 0, 0])
+    P = 0.75 * np.eye(4) + 0.25 * 2 * np.eye(4)
+    P[0, 0] += 0.75 * 0.5**2 + 0.25 * 1.5**2
+    np.testing.assert_allclose(g.P, P)
+
+
+def test_tracker_config_rejects_unknown_association():
+    with pytest.raises(ValueError, match="association"):
+        TrackerConfig(association="mht")

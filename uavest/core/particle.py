@@ -22,9 +22,10 @@ from .linalg import chol, symmetrize
 Array = np.ndarray
 
 
-def systematic_resample(w: Array, rng: np.random.Generator) -> Array:
-    """Indices (N,) drawn by systematic resampling from normalised weights ``w``."""
-    N = w.shape[0]
+def systematic_resample(w: Array, rng: np.random.Generator, n: int | None = None) -> Array:
+    """Indices (n,) drawn by systematic resampling from normalised weights ``w`` (N,);
+    n defaults to N."""
+    N = w.shape[0] if n is None else n
     cs = w.cumsum()
     cs[-1] = 1.0
     return cs.searchsorted((rng.random() + np.arange(N)) * (1.0 / N))

@@ -229,7 +229,10 @@ def run_trackers(sc: dict, filters: list[str], run, seed: int, r: int) -> dict[s
     """All filters' trackers on the same run (same detections), one tracker per filter."""
     motion, radar = build_models(sc)
     dt = float(sc.get("dt", 1.0))
-    cfg = TrackerConfig.from_scenario(sc)
+    rad = sc.get("radar", {})
+    lo, hi = radar.measurement_box(float(rad.get("r_max", 20000.0)),
+                                   float(rad.get("rr_max", 100.0)))
+    cfg = TrackerConfig.from_scenario(sc, clutter_volume=float(np.prod(hi - lo)))
     models = _scan_models(radar, run)
     out = {}
     for label in filters:

@@ -12,11 +12,25 @@ Per scan (time t, detections Z (N, m), radar model at the scan's sensor pose):
    Gaussian estimate (the same for every filter, so gating does not favour one);
    detection j is in the gate of track i if d2_ij = nu^T S^-1 nu <= chi2.ppf(gate_prob, m)
    with nu the angle-wrapped residual.
-3. **Associate** by global nearest neighbour: scipy's ``linear_sum_assignment`` on the
-   cost d2_ij + ln det S_i (negative log-likelihood), out-of-gate pairs forbidden.
+3. **Associate** (``association``):
+   ``"gnn"`` (default): global nearest neighbour, scipy's ``linear_sum_assignment`` on
+   the cost d2_ij + ln det S_i (negative log-likelihood), out-of-gate pairs forbidden.
    Confirmed tracks are assigned first, tentative tracks then get the remaining
    detections.
+   ``"jpda"``: joint probabilistic data association for the confirmed tracks. Tracks that
+   share gated detections form a cluster; every joint event of a cluster (each track
+   takes at most one of its gated detections, each detection at most one track) has the
+   weight prod over assigned pairs of Pd N(nu_ij; 0, S_i) / lambda times prod over
+   unassigned tracks of (1 - Pd Pg), lambda the clutter density per unit measurement
+   volume and Pg = ``gate_prob``; the association probabilities beta_ij are the
+   normalised sums over the events (exact enumeration; clusters of more than
+   ``jpda_max_cluster`` tracks fall back to per-track PDA). Tentative tracks use GNN on
+   the detections outside every confirmed gate.
 4. **Update** assigned tracks with the filter; unassigned tracks coast (predict only).
+   Under JPDA a confirmed track is updated with each gated detection separately and the
+   hypotheses (plus "none", the prediction) are mixed with weights beta: a Gaussian
+   state by moment matching, an ensemble state by pooling the members with weights
+   beta_j w_j and drawing M of them (systematic), so any filter works unchanged.
 5. **Initiate**: each detection left over and outside every confirmed track's gate starts
    a tentative track by *single-point initiation*: position and covariance from the
    converted measurement (:meth:`RadarMeasurement.to_cartesian`), velocity 0 with std
@@ -35,15 +49,17 @@ Track IDs are assigned at initiation (increasing integers) and never reused.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.stats import chi2
 
+from ..core.base import Ensemble
 from ..core.gaussian import Gaussian
 from ..core.guard import Guarded
 from ..core.linalg import chol
+from ..core.particle import systematic_resample
 from ..core.unscented import sigma_weights
 from ..models.radar import RadarMeasurement
 
@@ -61,10 +77,26 @@ class TrackerConfig:
     init_vel_std: float = 100.0  # m/s per axis
     init_omega_std: float = 0.1  # rad/s (CT only)
     max_pos_std: float = 5000.0  # m
+    association: str = "gnn"  # gnn | jpda
+    pd: float = 0.9  # detection probability assumed by JPDA
+    clutter_density: float = 1e-6  # false alarms per scan per unit measurement volume (JPDA)
+    jpda_max_cluster: int = 8  # larger clusters: per-track PDA instead of enumeration
+
+    def __post_init__(self) -> None:
+        if self.association not in ("gnn", "jpda"):
+            raise ValueError(f"tracker.association must be gnn or jpda, not {self.association!r}")
 
     @staticmethod
-    def from_scenario(sc: dict) -> TrackerConfig:
-        t = sc.get("tracker", {})
+    def from_scenario(sc: dict, clutter_volume: float | None = None) -> TrackerConfig:
+        """From the ``[tracker]`` table; JPDA's ``pd`` and ``clutter_density`` default to
+        the scenario's ``radar.pd`` and ``radar.clutter_rate / clutter_volume`` (the
+        measurement-space volume clutter is drawn in) unless the table sets them."""
+        t = dict(sc.get("tracker", {}))
+        r = sc.get("radar", {})
+        t.setdefault("pd", float(r.get("pd", 1.0)))
+        if clutter_volume and "clutter_density" not in t:
+            t["clutter_density"] = max(float(r.get("clutter_rate", 0.0)) / clutter_volume,
+                                       1e-12)
         known = TrackerConfig.__dataclass_fields__
         return TrackerConfig(**{k: v for k, v in t.items() if k in known})
 
@@ -100,8 +132,107 @@ def predicted_measurement(g: Gaussian, meas: RadarMeasurement) -> tuple[Array, A
     return zhat, 0.5 * (S + S.T)
 
 
+def jpda_betas(lik: Array, miss: Array, max_cluster: int = 8) -> Array:
+    """JPDA association probabilities.
+
+    Args:
+      lik: (T, N) likelihood ratios Pd N(nu_ij; 0, S_i) / lambda, 0 outside the gate.
+      miss: (T,) weight of "track i detected nothing", 1 - Pd Pg.
+      max_cluster: clusters with more tracks use per-track PDA (no joint enumeration).
+
+    Returns beta (T, N + 1): beta[i, j] = P(detection j is track i's), beta[i, N] =
+    P(none is); rows sum to 1.
+    """
+    T, N = lik.shape
+    beta = np.zeros((T, N + 1))
+    gated = lik > 0
+    # clusters: connected components of tracks linked through shared gated detections
+    label = list(range(T))
+
+    def root(i: int) -> int:
+        while label[i] != i:
+            label[i] = label[label[i]]
+            i = label[i]
+        return i
+
+    for j in range(N):
+        ts = np.flatnonzero(gated[:, j])
+        for a in ts[1:]:
+            label[root(int(a))] = root(int(ts[0]))
+    clusters: dict[int, list[int]] = {}
+    for i in range(T):
+        clusters.setdefault(root(i), []).append(i)
+    for tracks in clusters.values():
+        if len(tracks) == 1 or len(tracks) > max_cluster:
+            for i in tracks:
+                row = np.append(lik[i], miss[i])
+                beta[i] = row / row.sum()
+            continue
+        acc = _joint_events(tracks, gated, lik, miss)
+        beta[tracks] = acc / acc.sum(axis=1, keepdims=True)
+    return beta
+
+
+def _joint_events(tracks: list[int], gated: Array, lik: Array, miss: Array) -> Array:
+    """Sum of joint-event weights per (track of the cluster, detection or none): (T_c, N+1).
+    Depth-first over the cluster's tracks; a detection is used by at most one track."""
+    N = gated.shape[1]
+    options = [np.flatnonzero(gated[i]) for i in tracks]
+    acc = np.zeros((len(tracks), N + 1))
+    pick = [N] * len(tracks)
+
+    def enum(k: int, used: frozenset, w: float) -> None:
+        if k == len(tracks):
+            acc[np.arange(len(tracks)), pick] += w
+            return
+        i = tracks[k]
+        pick[k] = N
+        enum(k + 1, used, w * miss[i])
+        for j in options[k]:
+            if int(j) not in used:
+                pick[k] = int(j)
+                enum(k + 1, used | {int(j)}, w * lik[i, j])
+        pick[k] = N
+
+    enum(0, frozenset(), 1.0)
+    return acc
+
+
+def mix_states(f: Guarded, states: list, w: Array, space, rng) -> object:
+    """Mixture of ``f``'s states with weights ``w`` (summing to 1), as one state of ``f``.
+
+    Ensembles (same size M) pool their members with weights w_h * w_hj and draw M of them
+    systematically; any other state is moment-matched to one Gaussian (posterior mean and
+    covariance of the mixture, spread of the means included) and re-initialised through
+    the filter unless it already is a Gaussian. The guard keeps the largest reset count.
+    """
+    inner = [s.inner for s in states]
+    resets = max(s.resets for s in states)
+    if all(isinstance(e, Ensemble) for e in inner) and len({e.M for e in inner}) == 1:
+        M = inner[0].M
+        X = np.concatenate([e.X for e in inner])
+        wx = np.concatenate([wh * (np.full(M, 1.0 / M) if e.w is None else e.w)
+                             for wh, e in zip(w, inner, strict=True)])
+        idx = systematic_resample(wx / wx.sum(), rng, M)
+        new = Ensemble(X[idx], inner[0].space)
+        g = f.filter.estimate(new)
+        return replace(states[0], inner=new, last_good=g, est=g, resets=resets,
+                       strikes=0, reset=False)
+    gs = [f.estimate(s) for s in states]
+    x = space.mean(np.stack([g.x for g in gs]), w, gs[int(np.argmax(w))].x)
+    P = np.zeros_like(gs[0].P)
+    for wh, g in zip(w, gs, strict=True):
+        d = space.local(x, g.x[None, :])[0]
+        P += wh * (g.P + np.outer(d, d))
+    g = Gaussian(x, 0.5 * (P + P.T))
+    if isinstance(inner[0], Gaussian):
+        return replace(states[0], inner=g, last_good=g, est=g, resets=resets, strikes=0,
+                       reset=False)
+    return replace(f.init(g, space, rng), resets=resets)
+
+
 class Tracker:
-    """GNN multi-target tracker around one filter (see module docstring)."""
+    """Multi-target tracker around one filter, GNN or JPDA (see module docstring)."""
 
     def __init__(self, filt, motion, cfg: TrackerConfig, rng: np.random.Generator) -> None:
         self.filter = Guarded(filt, strikes=10**9)  # numerical failures only; no NIS resets
@@ -145,6 +276,31 @@ class Tracker:
             cost[i, ok] = di[ok] + 2.0 * np.log(np.diag(L)).sum()
         return d2, cost
 
+    def _jpda(self, group: list[Track], d2: Array, cost: Array, free: Array, m: int):
+        """{track id: [(detection index, beta), ..., (-1, beta_none)]} for tracks with at
+        least one gated detection (hypotheses with beta < 1e-6 dropped)."""
+        c = self.cfg
+        # cost = d2 + ln det S, so N(nu; 0, S) = exp(-cost / 2) / (2 pi)^(m/2)
+        ok = np.isfinite(cost)
+        lik = np.where(ok, c.pd * np.exp(-0.5 * np.where(ok, cost, 0.0))
+                       / (2 * np.pi) ** (m / 2) / c.clutter_density, 0.0)
+        miss = np.full(len(group), 1.0 - c.pd * c.gate_prob)
+        beta = jpda_betas(lik, miss, c.jpda_max_cluster)
+        out = {}
+        for i, tr in enumerate(group):
+            keep = [(int(free[j]), float(beta[i, j])) for j in np.flatnonzero(ok[i])
+                    if beta[i, j] > 1e-6]
+            if keep:
+                out[tr.id] = keep + [(-1, float(beta[i, -1]))]
+        return out
+
+    def _mix(self, state, hyps: list[tuple[int, float]], Z: Array, meas):
+        """The PDA update: one filter update per hypothesis, mixed with weights beta."""
+        f, rng = self.filter, self.rng
+        states = [state if j < 0 else f.update(state, Z[j], meas, rng)[0] for j, _ in hyps]
+        w = np.array([b for _, b in hyps])
+        return mix_states(f, states, w / w.sum(), self.motion.space, rng)
+
     @staticmethod
     def _assign(cost: Array) -> list[tuple[int, int]]:
         if cost.size == 0 or not np.isfinite(cost).any():
@@ -165,6 +321,7 @@ class Tracker:
         used = np.zeros(len(Z), bool)
         in_conf_gate = np.zeros(len(Z), bool)
         assigned: dict[int, int] = {}
+        mixed: dict[int, list[tuple[int, float]]] = {}  # JPDA: track id -> [(j, beta)]
         for status in ("confirmed", "tentative"):
             group = [tr for tr in self.tracks if tr.status == status]
             if not group or len(Z) == 0:
@@ -173,12 +330,20 @@ class Tracker:
             d2, cost = self._gate(group, Z[free], meas)
             if status == "confirmed":
                 in_conf_gate[free] |= np.isfinite(d2).any(axis=0)
+                if self.cfg.association == "jpda":
+                    mixed = self._jpda(group, d2, cost, free, meas.dim)
+                    used |= in_conf_gate
+                    continue
             for i, j in self._assign(cost):
                 assigned[group[i].id] = int(free[j])
                 used[free[j]] = True
         for tr in self.tracks:
             j = assigned.get(tr.id)
-            if j is not None:
+            hyps = mixed.get(tr.id)
+            if hyps:
+                tr.state = self._mix(tr.state, hyps, Z, meas)
+                j = hyps[0][0]  # a detection was in the gate: a hit
+            elif j is not None:
                 tr.state, _ = f.update(tr.state, Z[j], meas, rng)
             tr.est = f.estimate(tr.state)
             self._bookkeep(tr, k, j is not None)
