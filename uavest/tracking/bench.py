@@ -54,9 +54,9 @@ Array = np.ndarray
 #: ``hybrid(update_mode=shift, n_cloud=32)`` for the core default). The local-gain
 #: (Gaussian-mixture) update keeps the information of a 10 m range that the core
 #: default's single EnKF shift loses against a wide prior: radar_far 5 deg PCRLB ratio
-#: 1.54 -> 1.32 (NEES 12.2 -> 5.1), radar_multitarget GOSPA 116.9 -> 104.7 m and false
+#: 1.556 -> 1.322 (NEES 10.2 -> 5.1), radar_multitarget GOSPA 119.6 -> 105.2 m and false
 #: tracks 1.3 -> 0 per run (docs/tracking.md). n_cloud = 64 (M = 585 members) gains
-#: 0.05 in the ratio over 32 for twice the time.
+#: 0.01-0.05 in the ratio over 32 for about 1.6x the time.
 HYBRID_RADAR_DEFAULTS = {"update_mode": "local", "n_cloud": 64}
 
 
