@@ -23,6 +23,17 @@ def _run(tracker, truths, K, rng, pd_fn=lambda i, k: True, clutter=0.0):
         tracker.step(k, float(k), 1.0, Z[rng.permutation(len(Z))], MEAS)
 
 
+def _quality(tracker, truths, K):
+    """track_quality of the tracker's confirmed tracks against the truth functions."""
+    truth_steps = [{i: tr(k)[:2] for i, tr in enumerate(truths)} for k in range(1, K + 1)]
+    track_steps = [dict() for _ in range(K)]
+    for t in tracker.all_tracks:
+        for k, _, g, _, conf in t.history:
+            if conf:
+                track_steps[k - 1][t.id] = g.x[:2]
+    return track_quality(truth_steps, track_steps, c=200.0)
+
+
 def _line(p0, v):
     p0, v = np.asarray(p0, float), np.asarray(v, float)
     return lambda k: np.concatenate([p0 + k * v, v])
@@ -54,13 +65,7 @@ def test_two_crossing_targets_keep_ids():
     tr = Tracker(make_filter("ekf"), MOT, TrackerConfig(init_vel_std=30.0), rng)
     a, b = _line([3000, -600], [0, 10]), _line([3600, 600], [-5, -10])
     _run(tr, [a, b], 100, rng)
-    truth_steps = [{0: a(k)[:2], 1: b(k)[:2]} for k in range(1, 101)]
-    track_steps = [dict() for _ in range(100)]
-    for t in tr.all_tracks:
-        for k, _, g, _, conf in t.history:
-            if conf:
-                track_steps[k - 1][t.id] = g.x[:2]
-    q = track_quality(truth_steps, track_steps, c=200.0)
+    q = _quality(tr, [a, b], 100)
     assert q.id_swaps == 0 and q.false_tracks == 0 and q.track_breaks == 0
     assert q.confirmed_tracks == 2
 
@@ -221,13 +226,7 @@ def test_jpda_tracker_keeps_crossing_targets_and_mixes_states():
         tr = Tracker(make_filter(spec), MOT, cfg, rng)
         a, b = _line([3000, -600], [0, 10]), _line([3600, 600], [-5, -10])
         _run(tr, [a, b], 100, rng, clutter=2.0)
-        truth_steps = [{0: a(k)[:2], 1: b(k)[:2]} for k in range(1, 101)]
-        track_steps = [dict() for _ in range(100)]
-        for t in tr.all_tracks:
-            for k, _, g, _, conf in t.history:
-                if conf:
-                    track_steps[k - 1][t.id] = g.x[:2]
-        q = track_quality(truth_steps, track_steps, c=200.0)
+        q = _quality(tr, [a, b], 100)
         assert q.id_swaps == 0 and q.track_breaks == 0, spec
         assert q.confirmed_tracks == 2, spec
         if spec.startswith("hybrid"):

@@ -45,34 +45,7 @@ def pcrlb(
       detected: optional (runs, K) 0/1 array; a missed detection contributes no
         measurement information for that run (information-reduction factor by Monte Carlo).
     """
-    R_, K1, n = truths.shape
-    J = np.asarray(J0, float)
-    out = np.empty((K1 - 1, n, n))
-    linear = getattr(transition, "linear", False)
-    for k in range(1, K1):
-        t = t0 + k * dt
-        Q = transition.Q(t, dt)
-        Qi = np.linalg.inv(Q)
-        if linear:
-            F = transition.F(truths[0, k - 1], t, dt)
-            D11 = F.T @ Qi @ F
-            D12 = -F.T @ Qi
-        else:
-            Fs = np.stack([transition.F(truths[i, k - 1], t, dt) for i in range(R_)])
-            D11 = np.einsum("rji,jk,rkl->il", Fs, Qi, Fs) / R_
-            D12 = -Fs.mean(axis=0).T @ Qi
-        meas = measurement(k) if callable(measurement) and not isinstance(
-            measurement, Measurement
-        ) else measurement
-        Ri = np.linalg.inv(meas.R)
-        Hs = np.stack([meas.H(truths[i, k]) for i in range(R_)])
-        if detected is not None:
-            Hs = Hs * detected[:, k - 1, None, None]
-        D22 = Qi + np.einsum("rji,jk,rkl->il", Hs, Ri, Hs) / R_
-        J = D22 - D12.T @ np.linalg.solve(J + D11, D12)
-        J = 0.5 * (J + J.T)
-        out[k - 1] = np.linalg.inv(J)
-    return out
+    return _tichavsky(J0, truths, transition, measurement, dt, t0, detected, per_run=False)
 
 
 def conditional_bounds(
@@ -95,25 +68,40 @@ def conditional_bounds(
     runs adds cross-range information that no single run has. Same arguments as
     :func:`pcrlb`.
     """
+    return _tichavsky(J0, truths, transition, measurement, dt, t0, detected, per_run=True)
+
+
+def _tichavsky(J0, truths, transition, measurement, dt, t0, detected, per_run: bool) -> Array:
+    """The recursion with run-averaged expectations (J (n, n)) or per run (J (R, n, n))."""
     R_, K1, n = truths.shape
-    J = np.broadcast_to(np.asarray(J0, float), (R_, n, n)).copy()
-    out = np.empty((R_, K1 - 1, n, n))
+    J = np.broadcast_to(np.asarray(J0, float), (R_, n, n)).copy() if per_run else (
+        np.asarray(J0, float))
+    out = np.empty((R_, K1 - 1, n, n) if per_run else (K1 - 1, n, n))
+    linear = getattr(transition, "linear", False)
     for k in range(1, K1):
         t = t0 + k * dt
         Qi = np.linalg.inv(transition.Q(t, dt))
-        Fs = np.stack([transition.F(truths[i, k - 1], t, dt) for i in range(R_)])
-        D11 = np.einsum("rji,jk,rkl->ril", Fs, Qi, Fs)
-        D12 = -np.einsum("rji,jk->rik", Fs, Qi)
+        if linear:
+            Fs = np.broadcast_to(transition.F(truths[0, k - 1], t, dt), (R_, n, n))
+        else:
+            Fs = np.stack([transition.F(truths[i, k - 1], t, dt) for i in range(R_)])
         meas = measurement(k) if callable(measurement) and not isinstance(
             measurement, Measurement
         ) else measurement
         Hs = np.stack([meas.H(truths[i, k]) for i in range(R_)])
         if detected is not None:
             Hs = Hs * detected[:, k - 1, None, None]
+        D11 = np.einsum("rji,jk,rkl->ril", Fs, Qi, Fs)
+        D12 = -np.einsum("rji,jk->rik", Fs, Qi)
         D22 = Qi + np.einsum("rji,jk,rkl->ril", Hs, np.linalg.inv(meas.R), Hs)
-        J = D22 - D12.transpose(0, 2, 1) @ np.linalg.solve(J + D11, D12)
-        J = 0.5 * (J + J.transpose(0, 2, 1))
-        out[:, k - 1] = np.linalg.inv(J)
+        if not per_run:  # expectations over the truths (D12 is linear in F)
+            D11, D12, D22 = D11.mean(axis=0), D12.mean(axis=0), D22.mean(axis=0)
+        J = D22 - np.swapaxes(D12, -1, -2) @ np.linalg.solve(J + D11, D12)
+        J = 0.5 * (J + np.swapaxes(J, -1, -2))
+        if per_run:
+            out[:, k - 1] = np.linalg.inv(J)
+        else:
+            out[k - 1] = np.linalg.inv(J)
     return out
 
 
