@@ -44,7 +44,7 @@ from ..core.guard import Guarded
 from ..core.registry import make_filter_in_context
 from ..eval.pcrlb import conditional_bounds, pcrlb, position_bound, velocity_bound
 from ..eval.tracking import nees, nees_band, track_quality
-from .scenario import build_models, generate_run, prior
+from .scenario import build_models, clutter_box, generate_run, prior
 from .tracker import Tracker, TrackerConfig
 
 Array = np.ndarray
@@ -229,9 +229,7 @@ def run_trackers(sc: dict, filters: list[str], run, seed: int, r: int) -> dict[s
     """All filters' trackers on the same run (same detections), one tracker per filter."""
     motion, radar = build_models(sc)
     dt = float(sc.get("dt", 1.0))
-    rad = sc.get("radar", {})
-    lo, hi = radar.measurement_box(float(rad.get("r_max", 20000.0)),
-                                   float(rad.get("rr_max", 100.0)))
+    lo, hi = clutter_box(sc, radar)
     cfg = TrackerConfig.from_scenario(sc, clutter_volume=float(np.prod(hi - lo)))
     models = _scan_models(radar, run)
     out = {}

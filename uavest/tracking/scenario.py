@@ -85,6 +85,18 @@ def build_models(sc: dict):
     return motion_model(sc), radar_model(sc)
 
 
+def detection_range(sc: dict) -> float:
+    """``radar.r_max`` (m): targets beyond it are not detected, clutter is drawn within."""
+    return float(sc.get("radar", {}).get("r_max", 20000.0))
+
+
+def clutter_box(sc: dict, radar: RadarMeasurement) -> tuple[Array, Array]:
+    """(lo, hi) of the measurement-space box clutter is drawn uniformly in (range up to
+    ``r_max``, full azimuth, elevation; range rate within +-``rr_max`` m/s)."""
+    rr_max = float(sc.get("radar", {}).get("rr_max", 100.0))
+    return radar.measurement_box(detection_range(sc), rr_max)
+
+
 def prior(sc: dict) -> tuple[Array, Array]:
     """Filter-mode prior (m0, P0) in the filter's state space (``[prior] mean, std``)."""
     p = sc.get("prior", {})
@@ -203,8 +215,8 @@ def generate_run(sc: dict, rng: np.random.Generator, steps: int | None = None) -
         poses_true = poses_est = [radar.pose] * steps
     pd = float(r.get("pd", 1.0))
     lam = float(r.get("clutter_rate", 0.0))
-    r_max = float(r.get("r_max", 20000.0))
-    lo, hi = radar.measurement_box(r_max, float(r.get("rr_max", 100.0)))
+    r_max = detection_range(sc)
+    lo, hi = clutter_box(sc, radar)
     missed = sc.get("missed", [])  # [[target, k_start, k_end]]: forced Pd = 0
     scans, origins = [], []
     for k in range(1, steps + 1):
