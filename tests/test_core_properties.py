@@ -220,3 +220,20 @@ def test_staged_and_split_hybrid_updates_stay_valid_with_sharp_measurement():
         assert np.all(w > 0) and w.sum() == pytest.approx(1.0)
         g = f.estimate(s)
         assert np.linalg.norm(g.x - z) < 0.05
+
+
+def test_guard_adopt_checks_a_replaced_state():
+    """A state handed to the guard from outside (the tracker's JPDA mixture) is checked
+    like an update: a good one becomes the last good estimate, a non-finite one is
+    reported and recovered from the last good estimate."""
+    from uavest.core import Guarded, VectorSpace
+
+    f = Guarded(make_filter("ukf"))
+    sp = VectorSpace(2)
+    s = f.init(Gaussian(np.zeros(2), np.eye(2)), sp)
+    good = f.adopt(s, Gaussian(np.ones(2), 0.5 * np.eye(2)), sp, resets=2)
+    assert good.resets == 2 and not good.reset
+    np.testing.assert_allclose(f.estimate(good).x, [1.0, 1.0])
+    bad = f.adopt(good, Gaussian(np.array([np.nan, 0.0]), np.eye(2)), sp)
+    assert bad.reset and bad.resets == 3
+    assert np.all(np.isfinite(f.estimate(bad).x))

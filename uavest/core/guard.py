@@ -14,7 +14,7 @@ NaN/inf estimate.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -104,6 +104,16 @@ class Guarded:
         if strikes >= self.strikes:
             return self._recover(s, model.space, rng, f"NIS above gate {strikes} times"), inn
         return GuardState(inner, g, strikes, s.resets, False, "", s.var_limit, g), inn
+
+    def adopt(self, s: GuardState, inner, space, rng=None, resets: int | None = None
+              ) -> GuardState:
+        """``s`` with its inner state replaced by ``inner`` (e.g. a mixture of hypothesis
+        updates), checked like any update; ``resets`` overrides the reset count."""
+        resets = s.resets if resets is None else resets
+        g, why = self._check(inner, s.var_limit)
+        if g is None:
+            return self._recover(replace(s, resets=resets), space, rng, why)
+        return GuardState(inner, g, 0, resets, False, "", s.var_limit, g)
 
     def estimate(self, s: GuardState) -> Gaussian:
         if s.est is not None:

@@ -49,7 +49,7 @@ Track IDs are assigned at initiation (increasing integers) and never reused.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -204,7 +204,8 @@ def mix_states(f: Guarded, states: list, w: Array, space, rng) -> object:
     Ensembles (same size M) pool their members with weights w_h * w_hj and draw M of them
     systematically; any other state is moment-matched to one Gaussian (posterior mean and
     covariance of the mixture, spread of the means included) and re-initialised through
-    the filter unless it already is a Gaussian. The guard keeps the largest reset count.
+    the filter unless it already is a Gaussian. The guard checks the result and keeps the
+    largest reset count of the hypotheses.
     """
     inner = [s.inner for s in states]
     resets = max(s.resets for s in states)
@@ -214,10 +215,7 @@ def mix_states(f: Guarded, states: list, w: Array, space, rng) -> object:
         wx = np.concatenate([wh * (np.full(M, 1.0 / M) if e.w is None else e.w)
                              for wh, e in zip(w, inner, strict=True)])
         idx = systematic_resample(wx / wx.sum(), rng, M)
-        new = Ensemble(X[idx], inner[0].space)
-        g = f.filter.estimate(new)
-        return replace(states[0], inner=new, last_good=g, est=g, resets=resets,
-                       strikes=0, reset=False)
+        return f.adopt(states[0], Ensemble(X[idx], inner[0].space), space, rng, resets)
     gs = [f.estimate(s) for s in states]
     x = space.mean(np.stack([g.x for g in gs]), w, gs[int(np.argmax(w))].x)
     P = np.zeros_like(gs[0].P)
@@ -225,10 +223,8 @@ def mix_states(f: Guarded, states: list, w: Array, space, rng) -> object:
         d = space.local(x, g.x[None, :])[0]
         P += wh * (g.P + np.outer(d, d))
     g = Gaussian(x, 0.5 * (P + P.T))
-    if isinstance(inner[0], Gaussian):
-        return replace(states[0], inner=g, last_good=g, est=g, resets=resets, strikes=0,
-                       reset=False)
-    return replace(f.init(g, space, rng), resets=resets)
+    new = g if isinstance(inner[0], Gaussian) else f.filter.init(g, space, rng)
+    return f.adopt(states[0], new, space, rng, resets)
 
 
 class Tracker:
