@@ -457,7 +457,7 @@ class Hybrid:
             idx = systematic_resample(w, rng)
             Cp, Bp, wn = Cp[idx], Bp[idx], None
         else:
-            wn = None if self.weights == "equal" or E.w is None and np.ptp(w) == 0 else w
+            wn = w if self.weights == "confidence" else None
         Lb = _batch_chol(Bp)
         X = space.retract(Cp, np.einsum("jab,jb->ja", Lb, rng.standard_normal((M, n))))
         return Ensemble(X, space, wn), innov

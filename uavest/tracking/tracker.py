@@ -272,7 +272,7 @@ class Tracker:
             cost[i, ok] = di[ok] + 2.0 * np.log(np.diag(L)).sum()
         return d2, cost
 
-    def _jpda(self, group: list[Track], d2: Array, cost: Array, free: Array, m: int):
+    def _jpda(self, group: list[Track], cost: Array, free: Array, m: int):
         """{track id: [(detection index, beta), ..., (-1, beta_none)]} for tracks with at
         least one gated detection (hypotheses with beta < 1e-6 dropped)."""
         c = self.cfg
@@ -327,7 +327,7 @@ class Tracker:
             if status == "confirmed":
                 in_conf_gate[free] |= np.isfinite(d2).any(axis=0)
                 if self.cfg.association == "jpda":
-                    mixed = self._jpda(group, d2, cost, free, meas.dim)
+                    mixed = self._jpda(group, cost, free, meas.dim)
                     used |= in_conf_gate
                     continue
             for i, j in self._assign(cost):
@@ -335,15 +335,15 @@ class Tracker:
                 used[free[j]] = True
         for tr in self.tracks:
             j = assigned.get(tr.id)
-            hyps = mixed.get(tr.id)
+            hyps = mixed.get(tr.id)  # JPDA: a detection in the gate is a hit
             if hyps:
                 tr.state = self._mix(tr.state, hyps, Z, meas)
-                j = hyps[0][0]  # a detection was in the gate: a hit
             elif j is not None:
                 tr.state, _ = f.update(tr.state, Z[j], meas, rng)
+            hit = bool(hyps) or j is not None
             tr.est = f.estimate(tr.state)
-            self._bookkeep(tr, k, j is not None)
-            tr.history.append((k, tr.pred, tr.est, j is not None, tr.status == "confirmed"))
+            self._bookkeep(tr, k, hit)
+            tr.history.append((k, tr.pred, tr.est, hit, tr.status == "confirmed"))
         self.tracks = [tr for tr in self.tracks if tr.status != "deleted"]
         for j in np.flatnonzero(~used & ~in_conf_gate):
             g = self._init_state(Z[j], meas)
