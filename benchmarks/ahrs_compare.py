@@ -28,9 +28,9 @@ import warnings
 import numpy as np
 
 from uavest.eval.attitude import rmse_deg, select_reference
+from uavest.geometry.rotation import euler_to_quat, quat_conj, quat_mul, quat_slerp_interp
 from uavest.ingest import read_log
 from uavest.models.attitude import declination_from_params, initial_attitude
-from uavest.models.rotation import euler_to_quat, quat_conj, quat_mul, quat_slerp_interp
 from uavest.pipeline.replay import ReplayConfig, format_table, replay
 
 

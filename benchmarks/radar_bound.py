@@ -20,10 +20,10 @@ import json
 
 import numpy as np
 
-from uavest.bench.scenario import load_scenario
 from uavest.core.registry import split_filter_list
 from uavest.eval.pcrlb import conditional_bounds, pcrlb, position_bound
-from uavest.tracking.bench import _bound_measurement, data_rng, run_bench
+from uavest.experiments.radar import _bound_measurement, data_rng, run_bench
+from uavest.scenarios import load_scenario
 from uavest.tracking.scenario import build_models, generate_run, prior
 
 

@@ -20,13 +20,13 @@ from datetime import datetime, timedelta
 
 import numpy as np
 
-from uavest.bench.scenario import load_scenario
 from uavest.core import make_filter
 from uavest.core.gaussian import Gaussian
 from uavest.eval.pcrlb import pcrlb, position_bound
 from uavest.eval.tracking import nees, nees_band
+from uavest.experiments.radar import data_rng
 from uavest.models.radar import wrap_angle
-from uavest.tracking.bench import data_rng
+from uavest.scenarios import load_scenario
 from uavest.tracking.scenario import build_models, generate_run, prior
 
 # state permutation: ours [x, y, vx, vy] <-> Stone Soup [x, vx, y, vy]

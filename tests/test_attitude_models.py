@@ -9,14 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from uavest.core.model import fd_jacobian
 from uavest.eval.attitude import euler_errors_deg, rmse_deg
-from uavest.models.attitude import (
-    AttitudeNoise,
-    GravityDirection,
-    GyroTransition,
-    MagHeading,
-    initial_attitude,
-)
-from uavest.models.rotation import (
+from uavest.geometry.rotation import (
     AttitudeSpace,
     euler_to_quat,
     quat_exp,
@@ -27,6 +20,13 @@ from uavest.models.rotation import (
     quat_slerp_interp,
     quat_to_dcm,
     quat_to_euler,
+)
+from uavest.models.attitude import (
+    AttitudeNoise,
+    GravityDirection,
+    GyroTransition,
+    MagHeading,
+    initial_attitude,
 )
 from uavest.pipeline.replay import build_steps, run_filters
 

@@ -4,10 +4,10 @@ import json
 
 import pytest
 
-from uavest.bench.montecarlo import evaluate
-from uavest.bench.scenario import ScenarioError, load_scenario
-from uavest.bench.systems import build_system
 from uavest.cli import main
+from uavest.experiments.montecarlo import evaluate
+from uavest.experiments.systems import build_system
+from uavest.scenarios import ScenarioError, load_scenario
 
 COMMON = {"rmse_mean", "rmse_median", "approx_error", "est_error", "nees_mean",
           "diverged_fraction", "us_per_step"}
@@ -85,9 +85,9 @@ def test_other_builtin_scenarios_run(name):
 def test_scenario_files_match_builtin_defaults(name):
     from pathlib import Path
 
-    from uavest.bench.scenario import BUILTIN
+    from uavest.scenarios import BUILTIN
 
-    f = Path(__file__).resolve().parents[1] / "scenarios" / f"{name}.toml"
+    f = Path(__file__).resolve().parents[1] / "uavest" / "scenarios" / f"{name}.toml"
     sc = load_scenario(str(f))
     for k, v in BUILTIN[name].items():
         if k != "name":

@@ -6,7 +6,7 @@ import pytest
 from uavest.core import Gaussian, Guarded, Hybrid, make_filter
 from uavest.core.hybrid import confidence_weights, tempered_weights
 from uavest.core.model import Measurement, Transition, fd_jacobian
-from uavest.core.spaces import VectorSpace
+from uavest.geometry.spaces import VectorSpace
 from uavest.models.benchmarks import (
     Nonlinear2DMeasurement,
     Nonlinear2DTransition,
@@ -75,9 +75,9 @@ def test_covariance_symmetric_pd_over_long_random_run(spec):
 
 
 def test_same_seed_same_numbers_and_other_seed_differs():
-    from uavest.bench.montecarlo import evaluate
-    from uavest.bench.scenario import load_scenario
-    from uavest.bench.systems import build_system
+    from uavest.experiments.montecarlo import evaluate
+    from uavest.experiments.systems import build_system
+    from uavest.scenarios import load_scenario
 
     sysm = build_system(load_scenario("ungm", ["steps=30"]))
     a = evaluate(sysm, ["ukf", "hybrid", "pf(particles=200)"], 4, seed=11)
@@ -189,9 +189,9 @@ def test_registry_rejects_unknown_and_bad_params():
 def test_exploding_covariance_is_detected_as_divergence():
     """UKF with alpha=1e-3 on the UNGM loses the state with an exploding covariance (its
     NIS stays small); the guard must report it instead of returning a 1e6 estimate."""
-    from uavest.bench.montecarlo import evaluate
-    from uavest.bench.scenario import load_scenario
-    from uavest.bench.systems import build_system
+    from uavest.experiments.montecarlo import evaluate
+    from uavest.experiments.systems import build_system
+    from uavest.scenarios import load_scenario
 
     sysm = build_system(load_scenario("ungm", ["steps=60"]))
     r = evaluate(sysm, ["ukf(alpha=0.001)", "ukf"], 5, seed=0)

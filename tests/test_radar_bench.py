@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from uavest.bench.scenario import load_scenario
 from uavest.eval.tracking import nees_band
-from uavest.tracking.bench import run_bench
+from uavest.experiments.radar import run_bench
+from uavest.scenarios import load_scenario
 
 KEYS = {
     "rmse_mean", "rmse_median", "approx_error", "est_error", "nees_mean", "diverged_fraction",
@@ -92,7 +92,7 @@ def test_filter_mode_uav_bound_uses_the_true_poses():
     """Radar on a moving UAV in filter mode: the bound is computed with each scan's true
     sensor pose (not the origin)."""
     from uavest.eval.pcrlb import pcrlb, position_bound
-    from uavest.tracking.bench import data_rng
+    from uavest.experiments.radar import data_rng
     from uavest.tracking.scenario import build_models, generate_run, prior
 
     mean = [3000.0, 2000.0, 800.0, -20.0, 10.0, 0.0]
@@ -121,7 +121,7 @@ def test_radar_hybrid_defaults_local_update_and_beats_core_default_same_data():
     """``hybrid`` in radar tracking is the local-gain hybrid (n_cloud 64); a spec's own
     parameters win. On the far 5-degree case (same seeded truths and detections) it is
     more accurate and more consistent than the core default's single EnKF shift."""
-    from uavest.tracking.bench import make_radar_filter
+    from uavest.experiments.radar import make_radar_filter
 
     f = make_radar_filter("hybrid")
     assert (f.update_mode, f.n_cloud) == ("local", 64)

@@ -181,7 +181,7 @@ def test_sensor_pose_from_ned_frd_matches_enu_flu():
     """The attitude pipeline's q (body FRD -> NED) gives the same ENU/FLU pose as the
     scenario's Euler construction: ENU yaw = pi/2 - NED heading, FLU pitch = -FRD pitch,
     same roll; position and velocity swap north/east and flip down."""
-    from uavest.models.rotation import euler_to_quat
+    from uavest.geometry.rotation import euler_to_quat
 
     rng = np.random.default_rng(5)
     for _ in range(5):

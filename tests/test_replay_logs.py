@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from uavest.eval.attitude import rmse_deg
+from uavest.geometry.rotation import quat_slerp_interp
 from uavest.ingest import read_log
 from uavest.models.attitude import (
     GyroTransition,
@@ -20,7 +21,6 @@ from uavest.models.attitude import (
     initial_attitude,
     noise_for_source,
 )
-from uavest.models.rotation import quat_slerp_interp
 from uavest.pipeline.replay import ReplayConfig, add_replay_parser, build_steps, replay
 
 LOGS = Path(__file__).resolve().parents[1].parent / "shared" / "logs"

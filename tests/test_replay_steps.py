@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from uavest.core import EKF, Gaussian
+from uavest.geometry.rotation import euler_to_quat, quat_exp, quat_log, quat_mul
 from uavest.models.attitude import AttitudeNoise, GravityDirection, MagField, Stacked
-from uavest.models.rotation import euler_to_quat, quat_exp, quat_log, quat_mul
 from uavest.pipeline.replay import build_steps, velocity_acceleration
 
 

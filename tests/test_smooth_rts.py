@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from uavest.core.spaces import VectorSpace
 from uavest.eval.attitude import rmse_deg
+from uavest.geometry.spaces import VectorSpace
 from uavest.models.attitude import AttitudeNoise
 from uavest.pipeline.replay import build_steps, run_filters
 from uavest.pipeline.smooth import rts_backward

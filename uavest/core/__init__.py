@@ -11,6 +11,7 @@ Filter states are immutable (``Gaussian``, ``SqrtGaussian``, ``Ensemble``...). R
 draws only through the ``numpy.random.Generator`` passed in.
 """
 
+from ..geometry.spaces import Space, VectorSpace, manifold_mean
 from .adaptive import SageHusa
 from .base import Ensemble, Innovation, ensemble_estimate
 from .ensemble import ETKF, EnKF
@@ -21,7 +22,6 @@ from .kalman import EKF, KF
 from .model import LinearMeasurement, LinearTransition, Measurement, Transition, fd_jacobian
 from .particle import PF
 from .registry import FILTER_NAMES, make_filter, parse_filter_spec
-from .spaces import Space, VectorSpace, manifold_mean
 from .unscented import SRUKF, UKF, SqrtGaussian
 
 __all__ = [

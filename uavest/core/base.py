@@ -6,8 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry.spaces import Space, VectorSpace
 from .gaussian import Gaussian
-from .spaces import Space, VectorSpace
 
 Array = np.ndarray
 

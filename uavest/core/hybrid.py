@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry.spaces import Space
 from .base import (
     Ensemble,
     Innovation,
@@ -46,7 +47,6 @@ from .gaussian import Gaussian
 from .linalg import chol, gain, is_pd, symmetrize
 from .model import Measurement, Transition
 from .particle import ess, log_likelihood, systematic_resample
-from .spaces import Space
 
 Array = np.ndarray
 

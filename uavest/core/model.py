@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .spaces import Space, VectorSpace
+from ..geometry.spaces import Space, VectorSpace
 
 Array = np.ndarray
 

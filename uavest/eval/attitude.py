@@ -1,7 +1,7 @@
 """Scoring attitude estimates against a reference: Euler-angle RMSE and NEES.
 
 Errors are taken between ZYX Euler angles (roll, pitch, yaw; see
-:mod:`uavest.models.rotation`) as wrapped differences in degrees (yaw modulo 360, so 359
+:mod:`uavest.geometry.rotation`) as wrapped differences in degrees (yaw modulo 360, so 359
 vs 1 is a 2 degree error). The reference is interpolated (slerp) at the estimate's times;
 estimate times outside the reference's span are not scored.
 
@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..models.rotation import (
+from ..geometry.rotation import (
     quat_conj,
     quat_log,
     quat_mul,

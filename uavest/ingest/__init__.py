@@ -7,7 +7,7 @@ Knows nothing about filters.  See ``docs/ingest.md``.
 >>> log.imu.t, log.imu.gyro, log.references["vehicle_attitude"].q   # doctest: +SKIP
 """
 
-from ..models.rotation import euler_to_quat
+from ..geometry.rotation import euler_to_quat
 from .api import Source, detect_format, open_source, read_log
 from .types import (
     BAD_KINDS,

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..models.rotation import G0, euler_to_quat, quat_canonical
+from ..geometry.rotation import G0, euler_to_quat, quat_canonical
 
 MG_TO_MS2 = G0 * 1e-3  # milli-g -> m/s^2
 MRAD_TO_RAD = 1e-3  # milli-rad/s -> rad/s

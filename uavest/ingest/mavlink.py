@@ -22,8 +22,8 @@ from .types import (
     IngestError,
     IngestStats,
     MagSample,
-    Measurement,
     PositionSample,
+    Sample,
 )
 
 # Messages without a time field: timed from receive time (see docs/ingest.md).
@@ -32,7 +32,7 @@ _MAX_STALL = 1000  # reads without file progress before giving up (hang guard)
 _SKIPPED_RE = re.compile(r"Skipped (\d+) bad bytes")
 
 
-def build(raw: Raw, t: float) -> Measurement:
+def build(raw: Raw, t: float) -> Sample:
     """Attach time ``t`` (s, vehicle clock) to a converted item."""
     v = raw.values
     if raw.cat == "imu":
@@ -55,7 +55,7 @@ class _Reorder:
         self.newest = -math.inf
         self.last_out = -math.inf
 
-    def push(self, m: Measurement) -> None:
+    def push(self, m: Sample) -> None:
         if m.t < self.last_out:
             self.stats.bad("late", m.source + (".mag" if isinstance(m, MagSample) else ""))
             return
@@ -63,7 +63,7 @@ class _Reorder:
         self.seq += 1
         self.newest = max(self.newest, m.t)
 
-    def pop_ready(self, flush: bool = False) -> Iterator[Measurement]:
+    def pop_ready(self, flush: bool = False) -> Iterator[Sample]:
         limit = math.inf if flush else self.newest - self.window
         while self.heap and self.heap[0][0] <= limit:
             t, _, m = heapq.heappop(self.heap)
@@ -209,7 +209,7 @@ class MavlinkSource:
             self.stats.bad("truncated")
 
     # ----------------------------------------------------------------- main loop
-    def __iter__(self) -> Iterator[Measurement]:
+    def __iter__(self) -> Iterator[Sample]:
         st = self.stats
         is_df = self.format.startswith("dataflash")
         clocks: dict[int, VehicleClock] = {}

@@ -34,6 +34,7 @@ __all__ = [
     "LogData",
     "BAD_KINDS",
     "REF_KINDS",
+    "Sample",
 ]
 
 
@@ -116,7 +117,8 @@ class PositionSample:
     source: str
 
 
-Measurement = ImuSample | MagSample | AttitudeRef | PositionSample
+#: One typed, timestamped sample from a source (data, not a measurement *model*).
+Sample = ImuSample | MagSample | AttitudeRef | PositionSample
 
 
 @dataclass(slots=True)

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..models.rotation import quat_canonical
+from ..geometry.rotation import quat_canonical
 from .convert import MAX_ACCEL, MAX_GYRO, MAX_MAG, MAX_POS, MAX_VEL, QUAT_NORM_TOL
 from .types import (
     AttitudeRef,
@@ -19,8 +19,8 @@ from .types import (
     IngestError,
     IngestStats,
     MagSample,
-    Measurement,
     PositionSample,
+    Sample,
 )
 
 ULOG_MAGIC = b"ULog\x01\x12\x35"
@@ -205,7 +205,7 @@ class ULogSource:
         self._data = ULogData(path, self.stats)
         self.params = self._data.params
 
-    def __iter__(self) -> Iterator[Measurement]:
+    def __iter__(self) -> Iterator[Sample]:
         d = self._data
         gens = []
         for s, (t, g, a, i) in d.imu.items():

@@ -1,7 +1,7 @@
 """Attitude models on the rotation manifold: gyro-driven process, accelerometer gravity
 direction and magnetometer heading, for every filter of :mod:`uavest.core`.
 
-State (see :class:`~uavest.models.rotation.AttitudeSpace`): ``x = [q, b]``, ``q`` the
+State (see :class:`~uavest.geometry.rotation.AttitudeSpace`): ``x = [q, b]``, ``q`` the
 unit quaternion body FRD -> NED (scalar-first, Hamilton), ``b`` the gyro bias (rad/s,
 body FRD). Tangent error ``[dtheta, db]`` with ``q_true = q * Exp(dtheta)`` (body-frame,
 right-multiplicative error), so the EKF on this space is the multiplicative EKF.
@@ -31,7 +31,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..core.model import Measurement, Transition
-from .rotation import (
+from ..geometry.rotation import (
     G0,
     AttitudeSpace,
     euler_to_quat,

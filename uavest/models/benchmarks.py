@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from ..core.model import Measurement, Transition
-from ..core.spaces import VectorSpace
+from ..geometry.spaces import VectorSpace
 
 
 class UNGMTransition(Transition):

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.model import Transition
-from ..core.spaces import VectorSpace
+from ..geometry.spaces import VectorSpace
 
 
 def ncv_matrices(ndim: int, dt: float, q: float) -> tuple[np.ndarray, np.ndarray]:

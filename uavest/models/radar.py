@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.model import Measurement
-from ..core.spaces import VectorSpace
+from ..geometry.spaces import VectorSpace
 
 Array = np.ndarray
 
@@ -92,14 +92,14 @@ class SensorPose:
     @staticmethod
     def from_ned_frd(q, position_ned, velocity_ned=None) -> SensorPose:
         """3-D pose from the attitude pipeline's conventions: unit quaternion ``q``
-        (scalar-first, rotates body FRD into NED, :mod:`uavest.models.rotation`) and the
+        (scalar-first, rotates body FRD into NED, :mod:`uavest.geometry.rotation`) and the
         antenna position / velocity in NED (m, m/s; velocity default 0).
 
         ``R_ws = T_enu_ned R(q) T_frd_flu`` with ``T_enu_ned`` = ``T_ned_enu`` = [[0, 1, 0],
         [1, 0, 0], [0, 0, -1]] (swap north/east, flip down) and ``T_frd_flu`` = diag(1, -1,
         -1); position and velocity are mapped by ``T_enu_ned``. (The NED origin must be the
         world origin of the targets.)"""
-        from .rotation import quat_to_dcm
+        from ..geometry.rotation import quat_to_dcm
 
         R_nb = quat_to_dcm(np.asarray(q, float))
         R = _T_ENU_NED @ R_nb @ _T_FRD_FLU

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.model import Transition
-from ..core.spaces import VectorSpace
+from ..geometry.spaces import VectorSpace
 from .motion import ncv_matrices
 
 Array = np.ndarray

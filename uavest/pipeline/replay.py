@@ -38,6 +38,14 @@ import numpy as np
 from ..core import EKF, ETKF, KF, UKF, EnKF, Ensemble, Gaussian, Guarded, make_filter
 from ..core.registry import make_filter_in_context, split_filter_list
 from ..eval.attitude import nees_attitude, rmse_deg, select_reference
+from ..geometry.rotation import (
+    AttitudeSpace,
+    quat_exp,
+    quat_log,
+    quat_mul,
+    quat_rotate,
+    quat_slerp_interp,
+)
 from ..models.attitude import (
     AttitudeNoise,
     GravityDirection,
@@ -50,14 +58,6 @@ from ..models.attitude import (
     initial_attitude,
     mag_reference,
     noise_for_source,
-)
-from ..models.rotation import (
-    AttitudeSpace,
-    quat_exp,
-    quat_log,
-    quat_mul,
-    quat_rotate,
-    quat_slerp_interp,
 )
 from .smooth import ensemble_cross, rts_backward
 

@@ -2,7 +2,7 @@
 
 Every track runs the same filter (any core filter: ``ekf``, ``ukf``, ``hybrid``...). To
 compare filters side by side on the same detections, run one :class:`Tracker` per filter
-on the same scans (:func:`uavest.tracking.bench.run_tracker_side_by_side`).
+on the same scans (:func:`uavest.experiments.radar.run_tracker_side_by_side`).
 
 Per scan (time t, detections Z (N, m), radar model at the scan's sensor pose):
 

@@ -44,8 +44,8 @@ from ..core.guard import Guarded
 from ..core.registry import make_filter_in_context
 from ..eval.pcrlb import conditional_bounds, pcrlb, position_bound, velocity_bound
 from ..eval.tracking import nees, nees_band, track_quality
-from .scenario import build_models, clutter_box, generate_run, prior
-from .tracker import Tracker, TrackerConfig
+from ..tracking.scenario import build_models, clutter_box, generate_run, prior
+from ..tracking.tracker import Tracker, TrackerConfig
 
 Array = np.ndarray
 

@@ -15,7 +15,7 @@ from ..models.benchmarks import (
     UNGMTransition,
 )
 from ..models.motion import NearlyConstantVelocity
-from .scenario import ScenarioError
+from ..scenarios import ScenarioError
 
 Array = np.ndarray
 

@@ -18,9 +18,9 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse  # noqa: E402
 import sys  # noqa: E402
 
-from .bench.report import Progress, table, write_json  # noqa: E402
-from .bench.scenario import ScenarioError, list_scenarios, load_scenario  # noqa: E402
-from .core.registry import FILTER_NAMES, split_filter_list  # noqa: E402
+from ..core.registry import FILTER_NAMES, split_filter_list  # noqa: E402
+from ..scenarios import ScenarioError, list_scenarios, load_scenario  # noqa: E402
+from .report import Progress, table, write_json  # noqa: E402
 
 
 def _bench_parser(sub) -> None:
@@ -58,7 +58,7 @@ def cmd_bench(args) -> int:
     doc = {"scenario": sc["name"], "source": sc.get("source"), "runs": runs, "seed": args.seed,
            "steps": sc.get("steps"), "overrides": args.sets}
     if sc["kind"] == "radar":
-        from .tracking.bench import run_bench
+        from ..experiments.radar import run_bench
 
         doc["filters"] = run_bench(sc, specs, runs, args.seed, args.steps)
         cols = ["pos_rmse", "vel_rmse", "pcrlb_pos", "pcrlb_ratio", "pcrlb_ratio_rms",
@@ -67,12 +67,12 @@ def cmd_bench(args) -> int:
                 "gospa", "id_swaps", "false_tracks", "track_breaks", "diverged_fraction",
                 "us_per_step"]
     else:
-        from .bench.montecarlo import METRICS, ablation, evaluate
-        from .bench.systems import build_system
+        from ..experiments.montecarlo import METRICS, ablation, evaluate
+        from ..experiments.systems import build_system
 
         sysm = build_system(sc)
         if args.speed:
-            from .bench.speed import speed
+            from ..experiments.speed import speed
 
             res = speed(sysm, runs=min(runs, 20), seed=args.seed)
             doc["speed"] = res
@@ -124,8 +124,8 @@ def build_parser() -> argparse.ArgumentParser:
     _bench_parser(sub)
     pl = sub.add_parser("list", help="list scenarios and filters")
     pl.set_defaults(func=cmd_list)
-    from .pipeline.replay import add_replay_parser
-    from .tracking.cli import add_track_parser
+    from ..pipeline.replay import add_replay_parser
+    from .track import add_track_parser
 
     add_track_parser(sub)
     add_replay_parser(sub)

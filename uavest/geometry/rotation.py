@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.spaces import manifold_mean
+from .spaces import manifold_mean
 
 Array = np.ndarray
 

@@ -60,7 +60,7 @@ class ScenarioError(ValueError):
 
 
 def scenario_dirs() -> list[Path]:
-    here = Path(__file__).resolve().parents[2] / "scenarios"
+    here = Path(__file__).resolve().parent
     return [Path.cwd() / "scenarios", here]
 
 

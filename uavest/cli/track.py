@@ -10,11 +10,11 @@ import json
 
 import numpy as np
 
-from ..bench.scenario import load_scenario
 from ..core.registry import split_filter_list
-from .bench import data_rng, run_trackers, tracker_errors
-from .scenario import generate_run
-from .tracker import Tracker
+from ..experiments.radar import data_rng, run_trackers, tracker_errors
+from ..scenarios import load_scenario
+from ..tracking.scenario import generate_run
+from ..tracking.tracker import Tracker
 
 
 def track_table(sc: dict, filters: list[str], seed: int) -> dict:

@@ -1,1 +1,0 @@
-"""Monte Carlo harness, scenarios and the ``uavest bench`` command."""
