@@ -208,22 +208,41 @@ class ULogSource:
     def __iter__(self) -> Iterator[Sample]:
         d = self._data
         gens = []
+        # one generator function per topic: a generator expression would bind the loop
+        # variable late and give every topic the last topic's name
         for s, (t, g, a, i) in d.imu.items():
             if self.imu is None or self.imu == s:
-                gens.append(ImuSample(*r, s, i) for r in zip(t.tolist(), g, a, strict=True))
+                gens.append(_imu_gen(s, t, g, a, i))
         for s, (t, f, i) in d.mag.items():
-            gens.append(MagSample(*r, s, i) for r in zip(t.tolist(), f, strict=True))
+            gens.append(_mag_gen(s, t, f, i))
         for s, (t, q, kind) in d.refs.items():
-            gens.append(AttitudeRef(tt, qq, kind, s) for tt, qq in zip(t.tolist(), q, strict=True))
+            gens.append(_ref_gen(s, t, q, kind))
         for s, (t, n, v, lla) in d.pos.items():
-            gens.append(
-                PositionSample(
-                    tt,
-                    None if np.isnan(nn[0]) else nn,
-                    None if np.isnan(vv[0]) else vv,
-                    None if np.isnan(ll[0]) else ll,
-                    s,
-                )
-                for tt, nn, vv, ll in zip(t.tolist(), n, v, lla, strict=True)
-            )
+            gens.append(_pos_gen(s, t, n, v, lla))
         yield from heapq.merge(*gens, key=lambda m: m.t)
+
+
+def _imu_gen(s, t, g, a, i) -> Iterator[ImuSample]:
+    for r in zip(t.tolist(), g, a, strict=True):
+        yield ImuSample(*r, s, i)
+
+
+def _mag_gen(s, t, f, i) -> Iterator[MagSample]:
+    for r in zip(t.tolist(), f, strict=True):
+        yield MagSample(*r, s, i)
+
+
+def _ref_gen(s, t, q, kind) -> Iterator[AttitudeRef]:
+    for tt, qq in zip(t.tolist(), q, strict=True):
+        yield AttitudeRef(tt, qq, kind, s)
+
+
+def _pos_gen(s, t, n, v, lla) -> Iterator[PositionSample]:
+    for tt, nn, vv, ll in zip(t.tolist(), n, v, lla, strict=True):
+        yield PositionSample(
+            tt,
+            None if np.isnan(nn[0]) else nn,
+            None if np.isnan(vv[0]) else vv,
+            None if np.isnan(ll[0]) else ll,
+            s,
+        )
