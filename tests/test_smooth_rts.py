@@ -9,12 +9,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from uavest.pipeline.smooth import rts_backward
 
 from uavest.eval.attitude import rmse_deg
 from uavest.geometry.spaces import VectorSpace
 from uavest.models.attitude import AttitudeNoise
 from uavest.pipeline.replay import build_steps, run_filters
-from uavest.pipeline.smooth import rts_backward
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_attitude_models import synthetic_constant_rate  # noqa: E402

@@ -12,10 +12,13 @@ convention) and ``nees = e^T P[:3, :3]^-1 e``; a consistent filter averages 3.
 
 from __future__ import annotations
 
+from bisect import bisect_right
+
 import numpy as np
 
 from ..geometry.rotation import (
     quat_conj,
+    quat_exp,
     quat_log,
     quat_mul,
     quat_to_euler,
@@ -26,6 +29,7 @@ Array = np.ndarray
 
 __all__ = [
     "AUTOPILOT_SOURCES",
+    "AttitudeScorer",
     "euler_errors_deg",
     "nees_attitude",
     "rmse_deg",
@@ -87,3 +91,186 @@ def nees_attitude(q_est: Array, P: Array, q_true: Array) -> Array:
     Pa = P[:, :3, :3]
     sol = np.linalg.solve(Pa, e[..., None])[..., 0]
     return np.einsum("ij,ij->i", e, sol)
+
+
+_WAIT = object()  # a reference has not reached that time yet
+
+
+class _RefTrack:
+    """What the scorer keeps of one reference source: its kind, its sample count, and its
+    samples from just before the oldest step still waiting (times ``t``, quaternions
+    ``q``)."""
+
+    __slots__ = ("kind", "n", "t", "q")
+
+    def __init__(self, kind: str) -> None:
+        self.kind = kind
+        self.n = 0
+        self.t: list[float] = []
+        self.q: list[Array] = []
+
+    def __len__(self) -> int:
+        return self.n
+
+    def at(self, t: float, final: bool = False):
+        """The reference at ``t`` (slerp), None outside its span, ``_WAIT`` if it may
+        still reach ``t`` (never when ``final``)."""
+        ts = self.t
+        if not ts or ts[-1] < t:
+            return None if final else _WAIT
+        if t < ts[0]:
+            return None
+        if len(ts) == 1:
+            return self.q[0]
+        i = min(bisect_right(ts, t) - 1, len(ts) - 2)
+        s = min(max((t - ts[i]) / (ts[i + 1] - ts[i]), 0.0), 1.0)
+        q0 = self.q[i]
+        d = quat_log(quat_mul(quat_conj(q0), self.q[i + 1]))
+        return quat_mul(q0, quat_exp(s * d))
+
+    def trim(self, t: float) -> None:
+        """Forget samples not needed for steps at or after ``t``."""
+        i = bisect_right(self.t, t) - 1
+        if i > 0:
+            del self.t[:i], self.q[:i]
+
+
+class AttitudeScorer:
+    """Streaming :func:`rmse_deg` / :func:`nees_attitude` of estimators against every
+    reference source at once, with memory bounded by the references' lag.
+
+    Feed, in any interleaving, each estimator's estimate per step (:meth:`add_estimate`,
+    steps in time order) and every reference sample (:meth:`add_reference`, each source in
+    time order). A step is scored against a reference once a reference sample at or after
+    it has arrived (slerp between the two samples around it, as
+    :func:`~uavest.geometry.rotation.quat_slerp_interp`); steps outside a reference's span
+    are not scored against it. :meth:`scores` then gives per-estimator rows against any
+    reference, and rows for the other references scored against it. Equal, up to
+    rounding, to the batch functions over whole arrays; at most ``max_pending`` steps wait
+    for a late reference (older ones are scored without it, counted in ``unscored``)."""
+
+    def __init__(self, max_pending: int = 50_000) -> None:
+        self.refs: dict[str, _RefTrack] = {}
+        self.pending: list = []  # [t, {label: (q, P3)}, {ref: q or None}]
+        self.head = 0  # index of the first unfinished pending entry
+        self.max_pending = max_pending
+        self.acc: dict[tuple[str, str], list] = {}
+        self.unscored = 0
+        self.t_new: float | None = None
+        self._done: list = []
+
+    def add_estimate(self, t: float, label: str, q: Array, P: Array) -> None:
+        """One estimator's attitude ``q`` (4,) and tangent covariance ``P`` at step
+        time ``t``; estimators of the same step share ``t``."""
+        p = self.pending
+        self.t_new = t
+        if len(p) > self.head and p[-1][0] == t:
+            p[-1][1][label] = (q, P[:3, :3])
+            return
+        e = [t, {label: (q, P[:3, :3])}, {}]
+        p.append(e)
+        for name, r in self.refs.items():
+            v = r.at(t)
+            if v is not _WAIT:
+                e[2][name] = v
+        self._advance()
+        if len(p) - self.head > self.max_pending:
+            self._finalise_one(force=True)
+
+    def add_reference(self, name: str, kind: str, t: float, q: Array) -> None:
+        r = self.refs.get(name)
+        if r is None:
+            r = self.refs[name] = _RefTrack(kind)
+        if r.t and t <= r.t[-1]:
+            return  # not after the previous sample: dropped, as read_log de-duplicates
+        r.t.append(t)
+        r.q.append(q)
+        r.n += 1
+        for e in self.pending[self.head:]:
+            if name in e[2]:
+                continue
+            v = r.at(e[0])
+            if v is _WAIT:
+                break
+            e[2][name] = v
+        self._advance()
+        if self.head < len(self.pending):
+            r.trim(self.pending[self.head][0])
+        elif self.t_new is not None:  # later steps come at or after the newest one seen
+            r.trim(self.t_new)
+
+    def _advance(self) -> None:
+        while self.head < len(self.pending) and self._ready(self.pending[self.head]):
+            self._finalise_one()
+
+    def _ready(self, e) -> bool:
+        return all(name in e[2] for name in self.refs)
+
+    def _finalise_one(self, force: bool = False) -> None:
+        e = self.pending[self.head]
+        if force and not self._ready(e):
+            self.unscored += 1
+        self.head += 1
+        self._done.append(e)
+        if len(self._done) >= 256:
+            self._flush()
+        if self.head > 4096:  # drop finished entries
+            del self.pending[: self.head]
+            self.head = 0
+    def _flush(self) -> None:
+        done, self._done = self._done, []
+        if not done:
+            return
+        refs = list(self.refs)
+        labels = sorted({lab for e in done for lab in e[1]})
+        for rname in refs:
+            rows = [i for i, e in enumerate(done) if e[2].get(rname) is not None]
+            if not rows:
+                continue
+            qr = np.array([done[i][2][rname] for i in rows])
+            cands = [(lab, 1) for lab in labels] + [(o, 2) for o in refs if o != rname]
+            for name, where in cands:
+                sel = [(j, done[i][where].get(name)) for j, i in enumerate(rows)]
+                sel = [(j, v) for j, v in sel if v is not None]
+                if not sel:
+                    continue
+                idx = np.array([j for j, _ in sel])
+                if where == 1:
+                    q = np.array([v[0] for _, v in sel])
+                    P3 = np.array([v[1] for _, v in sel])
+                else:
+                    q, P3 = np.array([v for _, v in sel]), None
+                err = euler_errors_deg(q, qr[idx])
+                a = self.acc.setdefault((name, rname), [np.zeros(3), 0, 0.0, 0])
+                a[0] += np.sum(err * err, axis=0)
+                a[1] += err.shape[0]
+                if P3 is not None:
+                    P = np.zeros((len(idx), 6, 6))
+                    P[:, :3, :3] = P3
+                    ne = nees_attitude(q, P, qr[idx])
+                    a[2] += float(np.sum(ne))
+                    a[3] += ne.shape[0]
+
+    def finish(self) -> None:
+        """Score what is still waiting (no later reference sample will come)."""
+        while self.head < len(self.pending):
+            e = self.pending[self.head]
+            for name, r in self.refs.items():
+                if name not in e[2]:
+                    e[2][name] = r.at(e[0], final=True)
+            self._finalise_one()
+        self._flush()
+
+    def scores(self, name: str, ref: str, truth: bool) -> dict:
+        """Roll/pitch/yaw RMSE (deg), count ``n`` and, against truth, ``nees_mean``, of
+        estimator or reference ``name`` against reference ``ref``."""
+        a = self.acc.get((name, ref))
+        if a is None or a[1] == 0:
+            nan = float("nan")
+            return {"roll_rmse_deg": nan, "pitch_rmse_deg": nan, "yaw_rmse_deg": nan, "n": 0}
+        r = np.sqrt(a[0] / a[1])
+        d = {"roll_rmse_deg": float(r[0]), "pitch_rmse_deg": float(r[1]),
+             "yaw_rmse_deg": float(r[2]), "n": int(a[1])}
+        if truth and a[3]:
+            d["nees_mean"] = a[2] / a[3]
+        return d

@@ -1,0 +1,391 @@
+"""Attitude from an IMU stream: typed samples in, filter steps out, one sample at a time.
+
+:class:`AttitudeStream` turns a time-ordered stream of :mod:`uavest.ingest` samples (from
+a log file or a live link) into a :class:`~uavest.engine.records.Start` and then
+:class:`~uavest.engine.records.Step` s for the attitude filters of
+:mod:`uavest.models.attitude`. Everything is incremental; memory is bounded by the
+alignment window.
+
+**Alignment** (the first ``align_s`` = 1 s of IMU data, as an autopilot aligns before it
+flies): the samples of that window are held to choose the IMU source (most samples; within
+2 % of the best the primary source by preference, as :func:`uavest.ingest.read_log`
+does), the IMU rate and so the integration and the pre-integration factor, the
+magnetometer source, the velocity source for accelerometer compensation, the magnetic
+inclination (median angle between field and gravity over the window) and the prior
+(roll/pitch from the first accelerometer sample, yaw from the magnetometer sample at or
+before it, else the first one of the window). The held samples are then replayed through
+the step builder, so no sample is lost.
+
+**Steps.** A step k covers (t_{k-1}, t_k]; it predicts with the gyro over that interval
+and updates with the accelerometer (mean specific force of the step, as gravity
+direction, compensated by the vehicle's acceleration when a velocity source exists) and
+the latest magnetometer sample of the step, stacked in one update. Two ways of turning
+gyro samples into the step's rate, chosen by ``integration``:
+
+* ``"hold"``: each sample is the mean rate over the interval ending at it (integrated /
+  filtered full-rate IMUs: PX4 ``sensor_combined``, DataFlash ``IMU``); consecutive
+  samples are pre-integrated exactly (product of their rotations) when the filter runs
+  slower than the IMU (``rate_hz``).
+* ``"trapezoid"``: samples are instantaneous rates (MAVLink ``RAW_IMU`` streamed at a
+  few Hz): the step uses the mean of the rates at both ends.
+
+``"auto"`` picks trapezoid below 20 Hz, else hold. ``rate_hz`` (default
+:data:`DEFAULT_MAX_RATE_HZ`) caps the filter rate; ``rate_hz = 0`` runs at the IMU rate.
+A step is closed when the first sample later than its end arrives (a magnetometer sample
+with the same time stamp as the step's last IMU sample still belongs to it).
+
+Vehicle acceleration (NED, m/s^2) at a step's end is the backward difference of the last
+two velocity samples at or before it (none when they are more than 1 s apart or old):
+causal, so a live link computes it exactly as a replay does.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..core.gaussian import Gaussian
+from ..geometry.rotation import AttitudeSpace, quat_exp, quat_log, quat_mul, quat_rotate
+from ..ingest.types import ImuSample, MagSample, PositionSample
+from ..models.attitude import (
+    AttitudeNoise,
+    GravityDirection,
+    GyroTransition,
+    MagField,
+    MagHeading,
+    Stacked,
+    declination_from_params,
+    inclination_from_samples,
+    initial_attitude,
+    mag_reference,
+    noise_for_source,
+)
+from .records import Start, Step
+
+Array = np.ndarray
+
+__all__ = ["DEFAULT_MAX_RATE_HZ", "AttitudeOptions", "AttitudeStream"]
+
+DEFAULT_MAX_RATE_HZ = 25.0
+_IMU_PREF = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "IMU[0]", "sensor_combined")
+
+
+def _rank(name: str, count: int, best: int) -> tuple:
+    # most samples wins; within 2 % (or one sample, for the short alignment window) of the
+    # best, prefer the primary (instance 0) sources
+    near = count >= 0.98 * best - 1
+    pref = _IMU_PREF.index(name) if name in _IMU_PREF else len(_IMU_PREF)
+    return (not near, pref, -count, name)
+
+
+def choose_source(counts: dict[str, int]) -> str | None:
+    """The IMU (or magnetometer) source to use among ``counts`` (name -> samples)."""
+    if not counts:
+        return None
+    best = max(counts.values())
+    return min(counts, key=lambda s: _rank(s, counts[s], best))
+
+
+@dataclass(frozen=True)
+class AttitudeOptions:
+    """How samples become steps (see the module docstring and ``uavest replay --help``).
+
+    ``start``/``end`` s (vehicle clock) clip the stream; ``rate_hz`` None -> the
+    :data:`DEFAULT_MAX_RATE_HZ` cap, 0 -> every IMU sample; ``declination`` rad east
+    positive, None -> the source's parameters at the end of the alignment
+    (``COMPASS_DEC``, ``ATT_MAG_DECL``), else 0; ``noise`` overrides of :class:`~uavest.models.attitude.AttitudeNoise`;
+    ``imu`` an IMU source name or None (the stream's choice); ``mag_mode`` "field" (3-D
+    direction) or "heading"; ``mag_delay`` s, the magnetometer sample's age, compensated
+    with the step's gyro rate; ``accel_comp`` "auto" (use a velocity source when there is
+    one) or "none"."""
+
+    start: float | None = None
+    end: float | None = None
+    rate_hz: float | None = None
+    integration: str = "auto"
+    declination: float | None = None
+    noise: dict = field(default_factory=dict)
+    imu: str | None = None
+    use_mag: bool = True
+    accel_comp: str = "auto"
+    mag_mode: str = "field"
+    mag_delay: float = 0.0
+    align_s: float = 1.0
+
+    def in_window(self, t: float) -> bool:
+        """True if ``t`` (s) lies in [start, end]."""
+        return (self.start is None or t >= self.start) and (self.end is None or t <= self.end)
+
+    def __post_init__(self) -> None:
+        if self.integration not in ("auto", "hold", "trapezoid"):
+            raise ValueError(
+                f"integration must be auto, hold or trapezoid, not {self.integration!r}")
+        if self.mag_mode not in ("field", "heading"):
+            raise ValueError(f"mag_mode must be field or heading, not {self.mag_mode!r}")
+        if self.accel_comp not in ("auto", "none"):
+            raise ValueError(f"accel_comp must be auto or none, not {self.accel_comp!r}")
+
+
+@dataclass
+class _Raw:
+    """A closed step before its measurement models: end time ``t``, start ``t0``, rate
+    ``w`` rad/s, mean specific force ``a``, the samples it holds (``n``)."""
+
+    t: float
+    t0: float
+    w: Array
+    a: Array
+    n: int
+    mag: Array | None = None
+    accel_ned: Array | None = None
+
+
+class _StepBuilder:
+    """Streaming pre-integration and grouping (see the module docstring)."""
+
+    def __init__(self, integration: str, factor: int, use_pos: bool) -> None:
+        self.integration = integration
+        self.factor = factor
+        self.use_pos = use_pos
+        self.t_edge: float | None = None  # end of the last closed step (t_{k-1})
+        self.g_edge: Array | None = None  # gyro at that edge (trapezoid)
+        self.t_last: float | None = None  # last accepted IMU sample time
+        self.block: list[ImuSample] = []
+        self.pending: _Raw | None = None
+        self.mag_last: tuple[float, Array] | None = None
+        self.vel: list[tuple[float, Array]] = []  # the last two finite velocities
+        self.dropped = 0  # IMU samples not after the previous one
+
+    def _finish(self, r: _Raw) -> _Raw:
+        if self.mag_last is not None and r.t0 < self.mag_last[0] <= r.t:
+            r.mag = self.mag_last[1]
+        if self.use_pos:
+            acc = np.full(3, np.nan)
+            if len(self.vel) == 2:
+                (t1, v1), (t2, v2) = self.vel
+                dtv = t2 - t1
+                if dtv > 1e-3 and dtv <= 1.0 and r.t - t2 <= 1.0:
+                    acc = (v2 - v1) / dtv
+            r.accel_ned = acc
+        return r
+
+    def push(self, s) -> Iterator[_Raw]:
+        """Feed one sample (of the chosen IMU / mag / position source); yields closed
+        steps."""
+        if self.pending is not None and s.t > self.pending.t:
+            yield self._finish(self.pending)
+            self.pending = None
+        if isinstance(s, MagSample):
+            self.mag_last = (s.t, s.field)
+        elif isinstance(s, PositionSample):
+            if s.vel_ned is not None and np.isfinite(s.vel_ned).all():
+                self.vel = (self.vel + [(s.t, s.vel_ned)])[-2:]
+        elif isinstance(s, ImuSample):
+            if self.t_last is not None and s.t <= self.t_last:
+                self.dropped += 1
+                return
+            if self.t_edge is None:  # the first sample: t_0 of the first step
+                self.t_edge, self.g_edge, self.t_last = s.t, s.gyro, s.t
+                return
+            self.block.append(s)
+            self.t_last = s.t
+            if len(self.block) >= self.factor:
+                self.pending = self._close()
+
+    def flush(self) -> Iterator[_Raw]:
+        if self.block:
+            if self.pending is not None:
+                yield self._finish(self.pending)
+            self.pending = self._close()
+        if self.pending is not None:
+            yield self._finish(self.pending)
+            self.pending = None
+
+    def _close(self) -> _Raw:
+        b, t0 = self.block, self.t_edge
+        t1 = b[-1].t
+        if self.integration == "trapezoid":
+            w = 0.5 * (self.g_edge + b[-1].gyro)
+            a = b[-1].accel
+        else:
+            t = np.array([t0] + [s.t for s in b])
+            g = np.array([s.gyro for s in b])
+            dq = quat_exp(g * np.diff(t)[:, None])
+            q = np.array([1.0, 0.0, 0.0, 0.0])
+            for d in dq:
+                q = quat_mul(q, d)
+            w = quat_log(q) / max(t1 - t0, 1e-12)
+            a = np.sum([s.accel for s in b], axis=0) / len(b)
+        self.t_edge, self.g_edge = t1, b[-1].gyro
+        self.block = []
+        return _Raw(t1, t0, w, a, len(b))
+
+
+class AttitudeStream:
+    """Iterable of one :class:`Start` then :class:`Step` s from a sample stream (see the
+    module docstring). After (or during) the iteration, :attr:`summary` describes what
+    was chosen and counted (sources, rates, integration, steps, inclination...)."""
+
+    def __init__(
+        self, samples: Iterable, opts: AttitudeOptions | None = None,
+        params: dict | None = None,
+    ) -> None:
+        self.samples = samples
+        self.opts = opts or AttitudeOptions()
+        self.params = {} if params is None else params  # filled by the source as it reads
+        self.declination = 0.0
+        self.space = AttitudeSpace()
+        self.summary: dict = {}
+        self.noise: AttitudeNoise | None = None
+
+    def __iter__(self) -> Iterator[Start | Step]:
+        o = self.opts
+        it = iter(self.samples)
+        held: list = []
+        imu_t0: float | None = None
+        for s in it:
+            if not o.in_window(s.t):
+                continue
+            held.append(s)
+            if isinstance(s, ImuSample):
+                if imu_t0 is None:
+                    imu_t0 = s.t
+                elif s.t > imu_t0 + 2.0 * o.align_s:
+                    break
+        imu_counts: dict[str, int] = {}
+        mag_counts: dict[str, int] = {}
+        for s in held:
+            if isinstance(s, ImuSample):
+                imu_counts[s.source] = imu_counts.get(s.source, 0) + 1
+            elif isinstance(s, MagSample):
+                mag_counts[s.source] = mag_counts.get(s.source, 0) + 1
+        imu = o.imu if o.imu is not None else choose_source(imu_counts)
+        if imu is None or imu not in imu_counts:
+            have = ", ".join(sorted(imu_counts)) or "none"
+            what = f"IMU source {imu!r} not in the stream" if imu else "no IMU samples"
+            raise ValueError(f"{what} (IMU sources seen: {have})")
+        mag = None
+        if o.use_mag and mag_counts:
+            mag = imu if imu in mag_counts else choose_source(mag_counts)
+        pos = None
+        if o.accel_comp == "auto":
+            for s in held:
+                if (isinstance(s, PositionSample) and s.vel_ned is not None
+                        and np.isfinite(s.vel_ned).all()):
+                    pos = s.source
+                    break
+        ti = [s.t for s in held if isinstance(s, ImuSample) and s.source == imu]
+        rate = (len(ti) - 1) / max(ti[-1] - ti[0], 1e-9) if len(ti) > 1 else 0.0
+        integ = o.integration
+        if integ == "auto":
+            integ = "trapezoid" if rate < 20.0 else "hold"
+        cap = DEFAULT_MAX_RATE_HZ if o.rate_hz is None else float(o.rate_hz)
+        factor = 1 if cap <= 0 or integ == "trapezoid" else max(1, round(rate / cap))
+        self.noise = noise = noise_for_source(imu).with_(**o.noise)
+        self.summary.update(
+            imu_source=imu, imu_sources=imu_counts, mag_source=mag, accel_compensation=pos,
+            integration=integ, preintegrated_samples_per_step=factor, align_rate_hz=rate,
+        )
+        builder = _StepBuilder(integ, factor, pos is not None)
+
+        def mine(s) -> bool:
+            if isinstance(s, ImuSample):
+                return s.source == imu
+            if isinstance(s, MagSample):
+                return s.source == mag
+            return isinstance(s, PositionSample) and s.source == pos
+
+        # the first IMU sample, the magnetometer at/before it (else the first one held)
+        first = next(s for s in held if isinstance(s, ImuSample) and s.source == imu)
+        mag0 = None
+        for s in held:
+            if isinstance(s, MagSample) and s.source == mag:
+                if mag0 is None or s.t <= first.t:
+                    mag0 = s.field
+                if s.t > first.t:
+                    break
+        imu_n = [0, first.t, first.t]  # samples, first and last time
+
+        def raws() -> Iterator[_Raw]:
+            def feed(s):
+                if isinstance(s, ImuSample) and s.source == imu:
+                    imu_n[0] += 1
+                    imu_n[2] = s.t
+                yield from builder.push(s)
+
+            for s in held:
+                if mine(s):
+                    yield from feed(s)
+            for s in it:
+                if o.in_window(s.t) and mine(s):
+                    yield from feed(s)
+            yield from builder.flush()
+
+        rs = raws()
+        align: list[_Raw] = []
+        for r in rs:
+            align.append(r)
+            if r.t > first.t + o.align_s:
+                break
+        decl, src = o.declination, "option"
+        if decl is None:
+            decl = declination_from_params(self.params)
+            src = "log parameters" if decl is not None else "none (0)"
+            decl = decl or 0.0
+        self.declination = decl
+        self.summary.update(declination_rad=decl, declination_source=src)
+        mref = None
+        if mag is not None and o.mag_mode == "field":
+            win = [r for r in align if r.t <= first.t + o.align_s and r.mag is not None]
+            acc = [r.a for r in win]
+            fld = [r.mag for r in win]
+            if mag0 is not None:
+                acc, fld = [first.accel] + acc, [mag0] + fld
+            mref = mag_reference(
+                decl,
+                inclination_from_samples(np.array(acc).reshape(-1, 3),
+                                         np.array(fld).reshape(-1, 3)),
+            )
+            self.summary["inclination_rad"] = float(np.arcsin(mref[2]))
+        q0 = initial_attitude(first.accel, mag0 if mag is not None else None, decl)
+        P0 = np.diag([noise.init_tilt**2, noise.init_tilt**2, noise.init_yaw**2]
+                     + [noise.init_bias**2] * 3)
+        yield Start(first.t, Gaussian(np.concatenate([q0, np.zeros(3)]), P0), self.space)
+        model = GyroTransition(noise)
+        k = 0
+        for r in _chain(align, rs):
+            k += 1
+            yield Step(k, r.t, r.t - r.t0, model, self._updates(r, mref), r.w)
+        self.summary.update(
+            steps=k, imu_samples=imu_n[0], t_first=imu_n[1], t_last=imu_n[2],
+            imu_dropped=builder.dropped,
+        )
+        span = imu_n[2] - imu_n[1]
+        self.summary["duration_s"] = span
+        self.summary["imu_rate_hz"] = (imu_n[0] - 1) / span if span > 0 else 0.0
+        self.summary["filter_rate_hz"] = k / span if span > 0 else 0.0
+
+    def _updates(self, r: _Raw, mref: Array | None) -> tuple:
+        o, noise = self.opts, self.noise
+        meas = []
+        a = GravityDirection.from_accel(r.a, noise, accel_ned=r.accel_ned)
+        if a is not None:
+            meas.append(a)
+        if r.mag is not None:
+            fld = r.mag
+            if o.mag_delay:
+                fld = quat_rotate(quat_exp(-o.mag_delay * r.w), fld)
+            m = (MagField.from_field(fld, noise, mref) if mref is not None
+                 else MagHeading.from_field(fld, noise, self.declination))
+            if m is not None:
+                meas.append(m)
+        if len(meas) > 1:
+            meas = [Stacked.of(meas)]
+        return tuple(meas)
+
+
+def _chain(first: list, rest: Iterator) -> Iterator:
+    yield from first
+    yield from rest

@@ -1,0 +1,163 @@
+"""The one result model: typed per-step records made by the engine and handed to sinks.
+
+Every estimator the engine runs turns one :class:`Step` into one record:
+
+* :class:`StepRecord` for a single-state filter (attitude, a Monte Carlo trial, one radar
+  target with known association): time, posterior mean and covariance, the innovations
+  of the step's updates with their NIS, the reset/divergence event of the step, wall time;
+* :class:`ScanRecord` for a multi-target tracker: one :class:`TrackEstimate` per live
+  track after the scan.
+
+Metrics (:mod:`uavest.eval`) are pure functions of records and truth; sinks
+(:mod:`uavest.sinks`) receive every record as it is made. Conventions: ``t`` in seconds
+(the source's clock: vehicle time since boot for logs and live links, k dt for
+simulations); ``x`` the state in ambient coordinates (attitude: quaternion [w, x, y, z]
+body FRD -> NED, then gyro bias rad/s FRD; radar: NED/ENU position m, velocity m/s as the
+scenario defines); ``P`` the covariance in the tangent space of ``x`` (attitude: 3
+body-frame rotation errors rad, 3 bias errors rad/s).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+Array = np.ndarray
+
+__all__ = [
+    "RunInfo", "ScanRecord", "Start", "Step", "StepRecord", "TrackEstimate", "Update",
+    "package_versions",
+]
+
+
+@dataclass(frozen=True, slots=True)
+class Start:
+    """(Re)start every estimator at time ``t0`` (s) from ``prior`` (a Gaussian on
+    ``space``). A stream begins with one; a live link sends another after a gap it cannot
+    bridge. ``reason`` says why (``"start"``, ``"link gap 3.2 s"``...)."""
+
+    t0: float
+    prior: Any
+    space: Any
+    reason: str = "start"
+
+
+@dataclass(frozen=True, slots=True)
+class Step:
+    """One filter step: predict from the previous step's time to ``t`` over ``dt`` s with
+    input ``u`` through ``transition``, then update with each ``(z, model)`` of
+    ``updates`` in order. ``k`` counts steps from 1. ``info`` carries what the step was
+    built from (e.g. the raw samples), for sinks; filters never read it."""
+
+    k: int
+    t: float
+    dt: float
+    transition: Any
+    updates: tuple[tuple[Array, Any], ...] = ()
+    u: Array | None = None
+    info: dict | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Update:
+    """One measurement update of a step: its kind (the model's class name), residual
+    ``nu`` = z - zhat (m,), innovation covariance ``S`` (m, m) and NIS nu^T S^-1 nu."""
+
+    kind: str
+    nu: Array
+    S: Array
+    nis: float
+
+
+@dataclass(frozen=True, slots=True)
+class StepRecord:
+    """A single-state estimator's result for one step.
+
+    ``x``/``P``: posterior mean (size,) and tangent covariance (n, n) after the step's
+    updates; ``x_pred``/``P_pred``: the prediction before the updates (only when the
+    runner was asked to record it); ``C``: the cross-covariance Cov(e_{k-1}, e_k) for RTS
+    smoothing (only when asked). ``reset`` is True when the divergence guard
+    re-initialised the filter in this step, ``reason`` says why. ``wall_s`` is the wall
+    time of the step (predict + updates + estimate)."""
+
+    estimator: str
+    k: int
+    t: float
+    x: Array
+    P: Array
+    updates: tuple[Update, ...] = ()
+    reset: bool = False
+    reason: str = ""
+    resets: int = 0
+    wall_s: float = 0.0
+    x_pred: Array | None = None
+    P_pred: Array | None = None
+    C: Array | None = None
+
+    @property
+    def nis(self) -> float | None:
+        """Total NIS of the step's updates (None without updates)."""
+        return float(sum(u.nis for u in self.updates)) if self.updates else None
+
+
+@dataclass(frozen=True, slots=True)
+class TrackEstimate:
+    """One track after a scan: stable ``id``, state ``x``/``P`` (see module doc),
+    ``confirmed`` status, ``hit`` (a detection updated it in this scan), the prediction
+    ``x_pred`` before the update (None for a track born in this scan)."""
+
+    id: int
+    x: Array
+    P: Array
+    confirmed: bool
+    hit: bool
+    x_pred: Array | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class ScanRecord:
+    """A multi-target tracker's result for one scan: the live tracks after it, the ids
+    deleted in it, resets of track filters, and the scan's wall time."""
+
+    estimator: str
+    k: int
+    t: float
+    tracks: tuple[TrackEstimate, ...]
+    deleted: tuple[int, ...] = ()
+    resets: int = 0
+    wall_s: float = 0.0
+
+
+@dataclass
+class RunInfo:
+    """What a run is: the command line, the source, the resolved configuration of every
+    estimator (``filters``: label -> resolved spec dict), the seed, package versions.
+    Written at the head of every result (JSON, recordings)."""
+
+    command: str
+    source: str
+    seed: int
+    filters: dict[str, dict] = field(default_factory=dict)
+    config: dict = field(default_factory=dict)
+    versions: dict[str, str] = field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        return {
+            "command": self.command, "source": self.source, "seed": self.seed,
+            "filters": self.filters, "config": self.config, "versions": self.versions,
+        }
+
+
+def package_versions() -> dict[str, str]:
+    """Versions of uavest and the packages its results depend on."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {}
+    for name in ("uavest", "numpy", "scipy", "pymavlink", "pyulog"):
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            out[name] = "not installed"
+    return out

@@ -1,0 +1,249 @@
+"""Attitude replay of a flight log, and of any sample stream, through the streaming engine.
+
+source (:func:`uavest.ingest.open_source`: tlog, DataFlash, ULog, live link) ->
+:class:`~uavest.engine.attitude.AttitudeStream` (alignment, pre-integration, grouping)
+-> one :class:`~uavest.engine.runner.FilterRunner` per filter -> sinks: the streaming
+scorer (:class:`uavest.eval.attitude.AttitudeScorer`, every reference at once), the
+caller's sinks (JSON, MCAP, progress...), and with ``smooth`` a collector for the RTS
+smoother (:mod:`uavest.engine.smooth`; the only part that holds the whole run).
+
+Every filter's randomness comes from ``uavest.seeding.rng(seed, 0, "filter:<label>")``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+
+from ..eval.attitude import AttitudeScorer, nees_attitude, rmse_deg, select_reference
+from ..geometry.rotation import quat_slerp_interp
+from ..ingest.types import AttitudeRef, ImuSample, MagSample
+from ..seeding import filter_stream, rng
+from ..sinks.base import Collector, Sink
+from .attitude import AttitudeOptions, AttitudeStream
+from .build import build_filters
+from .loop import run
+from .records import RunInfo, StepRecord, package_versions
+from .runner import FilterRunner
+from .smooth import rts_backward
+
+Array = np.ndarray
+
+__all__ = ["DEFAULT_FILTERS", "ReplayConfig", "replay", "replay_samples", "samples_from_arrays"]
+
+DEFAULT_FILTERS = ("ekf", "ukf", "hybrid")
+
+
+@dataclass
+class ReplayConfig:
+    """Options of :func:`replay` (see ``uavest replay --help`` for their meanings): the
+    filters (spec strings, resolved with the ``attitude`` preset), smoothing, the seed,
+    and the :class:`~uavest.engine.attitude.AttitudeOptions` fields."""
+
+    filters: tuple[str, ...] = DEFAULT_FILTERS
+    start: float | None = None
+    end: float | None = None
+    smooth: bool = False
+    seed: int = 0
+    rate_hz: float | None = None
+    integration: str = "auto"
+    declination: float | None = None  # rad; None -> log params, else 0
+    noise: dict = field(default_factory=dict)
+    imu: str | None = None
+    use_mag: bool = True
+    accel_comp: str = "auto"
+    mag_mode: str = "field"
+    mag_delay: float = 0.0
+
+    def attitude_options(self) -> AttitudeOptions:
+        names = {f.name for f in fields(AttitudeOptions)}
+        return AttitudeOptions(**{k: v for k, v in vars(self).items() if k in names})
+
+
+class _Score(Sink):
+    """Feeds the streaming scorer: references from the samples, attitudes from records."""
+
+    def __init__(self, scorer: AttitudeScorer) -> None:
+        self.scorer = scorer
+
+    def sample(self, s) -> None:
+        if isinstance(s, AttitudeRef):
+            self.scorer.add_reference(s.source, s.kind, s.t, s.q)
+
+    def record(self, rec: StepRecord) -> None:
+        self.scorer.add_estimate(rec.t, rec.estimator, rec.x[:4], rec.P)
+
+
+class _Refs(Sink):
+    """Keeps the reference series (smoothing scores the whole smoothed run at the end)."""
+
+    def __init__(self) -> None:
+        self.t: dict[str, list] = {}
+        self.q: dict[str, list] = {}
+
+    def sample(self, s) -> None:
+        if isinstance(s, AttitudeRef):
+            ts = self.t.setdefault(s.source, [])
+            if not ts or s.t > ts[-1]:
+                ts.append(s.t)
+                self.q.setdefault(s.source, []).append(s.q)
+
+
+def _tap(samples: Iterable, sinks: list, window: Callable[[float], bool]) -> Iterator:
+    """The samples, each shown first to every sink (recorders, the scorer)."""
+    for s in samples:
+        if window(s.t):
+            for k in sinks:
+                k.sample(s)
+        yield s
+
+
+def samples_from_arrays(
+    t: Array, gyro: Array, accel: Array, mag_t: Array | None = None,
+    mag_field: Array | None = None, source: str = "IMU[0]",
+) -> Iterator:
+    """A time-ordered sample stream from IMU arrays (t s, gyro rad/s, accel m/s^2, body
+    FRD) and optional magnetometer arrays (t s, field gauss, body FRD): the batch form of
+    a source, run through the same streaming code."""
+    imu = (ImuSample(float(a), g, c, source) for a, g, c in zip(t, gyro, accel, strict=True))
+    if mag_t is None or mag_field is None:
+        yield from imu
+        return
+    import heapq
+
+    mag = (MagSample(float(a), f, source) for a, f in zip(mag_t, mag_field, strict=True))
+    yield from heapq.merge(mag, imu, key=lambda s: s.t)
+
+
+def replay_samples(
+    samples: Iterable,
+    cfg: ReplayConfig,
+    *,
+    params: dict | None = None,
+    sinks: tuple | list = (),
+    info: RunInfo | None = None,
+    rng_for: Callable[[str], np.random.Generator] | None = None,
+) -> tuple[dict, AttitudeStream, list[FilterRunner], AttitudeScorer, Collector | None]:
+    """Run ``cfg.filters`` over a sample stream. Returns the per-filter result rows (and
+    the stream, runners, scorer and collector for callers that report more)."""
+    opts = cfg.attitude_options()
+    specs = build_filters(cfg.filters, "attitude", dim=6)
+    rng_for = rng_for or (lambda label: rng(cfg.seed, 0, filter_stream(label)))
+    runners = [
+        FilterRunner(sp.label, flt, rng_for(sp.label), smooth=cfg.smooth) for sp, flt in specs
+    ]
+    scorer = AttitudeScorer()
+    score = _Score(scorer)
+    coll = Collector() if cfg.smooth else None
+    refs = _Refs() if cfg.smooth else None
+    taps = [score] + ([refs] if refs else []) + [s for s in sinks]
+    stream = AttitudeStream(_tap(samples, taps, opts.in_window), opts, params=params)
+    info = info or RunInfo("", "", cfg.seed)
+    info.filters = {sp.label: sp.as_dict() for sp, _ in specs}
+    all_sinks = [score] + ([coll] if coll else []) + list(sinks)
+    wall0 = time.perf_counter()
+    run(stream, runners, all_sinks, info)
+    wall = time.perf_counter() - wall0 - sum(r.smooth_seconds for r in runners)
+    scorer.finish()
+    return {"wall_s": wall, "refs": refs}, stream, runners, scorer, coll
+
+
+def _score_smoothed(coll: Collector, refs: _Refs, label: str, ref: str, truth: bool,
+                    space) -> dict:
+    a = coll.arrays(label)
+    t0, x0, P0 = coll.starts[label]
+    x = np.vstack([x0, a["x"]])
+    P = np.concatenate([P0[None], a["P"]])
+    xp = np.vstack([x0, a["x_pred"]])
+    Pp = np.concatenate([P0[None], a["P_pred"]])
+    C = np.concatenate([np.zeros_like(P0)[None], a["C"]])
+    xs, Ps = rts_backward(space, x, P, xp, Pp, C)
+    q_ref, mask = quat_slerp_interp(np.array(refs.t[ref]), np.array(refs.q[ref]), a["t"])
+    row = rmse_deg(xs[1:, :4], q_ref, mask)
+    if truth and mask.any():
+        row["nees_mean"] = float(np.mean(nees_attitude(xs[1:, :4][mask], Ps[1:][mask],
+                                                        q_ref[mask])))
+    return row
+
+
+def replay(
+    path: str | Path,
+    cfg: ReplayConfig | None = None,
+    *,
+    sinks: tuple | list = (),
+    command: str = "",
+    rng_for: Callable[[str], np.random.Generator] | None = None,
+) -> dict:
+    """Replay the log at ``path`` with ``cfg``; returns the JSON-ready result document
+    (strict JSON through :func:`uavest.sinks.jsonout.dumps`)."""
+    from ..ingest import open_source
+
+    cfg = cfg or ReplayConfig()
+    src = open_source(path)
+    info = RunInfo(command, str(path), cfg.seed, config=_config_dict(cfg),
+                   versions=package_versions())
+    out, stream, runners, scorer, coll = replay_samples(
+        src, cfg, params=src.params, sinks=sinks, info=info, rng_for=rng_for)
+    sm = stream.summary
+    refs = scorer.refs
+    ref_name, ap_name = select_reference(refs)
+    truth = ref_name is not None and refs[ref_name].kind == "truth"
+    wall = out["wall_s"]
+    doc: dict = {
+        "run": info.as_dict(),
+        "log": str(path),
+        "format": "dataflash" if src.format == "dataflash-text" else src.format,
+        "imu_source": sm.get("imu_source"),
+        "mag_source": sm.get("mag_source"),
+        "reference": ref_name,
+        "reference_kind": None if ref_name is None else refs[ref_name].kind,
+        "imu_rate_hz": sm.get("imu_rate_hz"),
+        "filter_rate_hz": sm.get("filter_rate_hz"),
+        "integration": sm.get("integration"),
+        "preintegrated_samples_per_step": sm.get("preintegrated_samples_per_step"),
+        "duration_s": sm.get("duration_s"),
+        "steps": sm.get("steps"),
+        "declination_rad": sm.get("declination_rad"),
+        "declination_source": sm.get("declination_source"),
+        "accel_compensation": sm.get("accel_compensation"),
+        "mag_mode": cfg.mag_mode if sm.get("mag_source") else None,
+        "mag_delay_s": cfg.mag_delay,
+        "seed": cfg.seed,
+        "noise": {k: float(getattr(stream.noise, k)) for k in stream.noise.__dataclass_fields__},
+        "filters": {},
+    }
+    steps = max(int(sm.get("steps") or 0), 1)
+    for r in runners:
+        row: dict = scorer.scores(r.label, ref_name, truth) if ref_name else {}
+        row["us_per_step"] = 1e6 * r.seconds / steps
+        row["resets"] = r.resets
+        if cfg.smooth and coll is not None:
+            srow = (_score_smoothed(coll, out["refs"], r.label, ref_name, truth, stream.space)
+                    if ref_name else {})
+            srow["us_per_step"] = 1e6 * r.smooth_seconds / steps
+            row["smoothed"] = srow
+        doc["filters"][r.label] = row
+    if ref_name is not None:
+        for name, label in ((ap_name, "autopilot"), ("AHRS2", "ahrs2"), ("AHR2", "ahrs2")):
+            if name is None or name == ref_name or name not in refs:
+                continue
+            row = scorer.scores(name, ref_name, False)
+            row["source"] = name
+            doc["filters"].setdefault(label, row)
+    bad = src.stats.as_dict()
+    doc["bad_data"] = bad
+    doc["guard_resets"] = {r.label: r.resets for r in runners}
+    doc["wall_s"] = wall
+    dur = float(sm.get("duration_s") or 0.0)
+    doc["realtime_factor"] = dur / wall if wall > 0 else None
+    return doc
+
+
+def _config_dict(cfg: ReplayConfig) -> dict:
+    d = {k: v for k, v in vars(cfg).items() if k != "filters"}
+    d["filters"] = list(cfg.filters)
+    return d
