@@ -12,16 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from uavest.engine.attitude import AttitudeOptions, AttitudeStream
+from uavest.engine.records import Start, Step
+from uavest.engine.replay import ReplayConfig, replay
 from uavest.eval.attitude import rmse_deg
 from uavest.geometry.rotation import quat_slerp_interp
-from uavest.ingest import read_log
-from uavest.models.attitude import (
-    GyroTransition,
-    declination_from_params,
-    initial_attitude,
-    noise_for_source,
-)
-from uavest.pipeline.replay import ReplayConfig, add_replay_parser, build_steps, replay
+from uavest.ingest import open_source, read_log
 
 LOGS = Path(__file__).resolve().parents[1].parent / "shared" / "logs"
 VTOL = LOGS / "vtol.tlog"
@@ -67,16 +63,18 @@ def _gyro_only_rmse(path: Path, end: float) -> dict:
     """The model's f with zero bias over the replay's steps, from the same initial attitude
     as the filters, no measurement updates; RMSE against SIMSTATE."""
     data = read_log(path, end=end)
-    st = build_steps(data.imu.t, data.imu.gyro, data.imu.accel, data.mag.t, data.mag.field)
-    decl = declination_from_params(data.params) or 0.0
-    x = np.concatenate([initial_attitude(st.accel0, st.mag0, decl), np.zeros(3)])
-    model = GyroTransition(noise_for_source(data.imu.source))
-    q = np.empty((len(st.dt), 4))
-    for k in range(len(st.dt)):
-        x = model.f(x, float(st.t[k + 1]), float(st.dt[k]), st.gyro[k])
+    src = open_source(path)
+    items = list(AttitudeStream(src, AttitudeOptions(end=end), params=src.params))
+    start, steps = items[0], [s for s in items if isinstance(s, Step)]
+    assert isinstance(start, Start)
+    x = start.prior.x.copy()  # the filters' initial attitude, zero bias
+    model = steps[0].transition
+    q = np.empty((len(steps), 4))
+    for k, st in enumerate(steps):
+        x = model.f(x, st.t, st.dt, st.u)
         q[k] = x[:4]
     ref = data.references["SIMSTATE"]
-    ref_q, mask = quat_slerp_interp(ref.t, ref.q, st.t[1:])
+    ref_q, mask = quat_slerp_interp(ref.t, ref.q, np.array([st.t for st in steps]))
     return rmse_deg(q, ref_q, mask)
 
 
@@ -119,12 +117,9 @@ def test_short_dataflash_log_reads_replays_and_reports():
 
 
 def _cli(*argv: str):
-    import argparse
+    from uavest.cli import main
 
-    ap = argparse.ArgumentParser()
-    add_replay_parser(ap.add_subparsers())
-    a = ap.parse_args(["replay", *argv])
-    return a.func(a)
+    return main(["replay", *argv])
 
 
 def test_cli_json_shape(tmp_path, capsys):
@@ -142,9 +137,7 @@ def test_cli_json_shape(tmp_path, capsys):
 
 def test_cli_errors_exit_2_without_traceback(tmp_path):
     code = (
-        "import argparse,sys;from uavest.pipeline.replay import add_replay_parser;"
-        "ap=argparse.ArgumentParser();add_replay_parser(ap.add_subparsers());"
-        "a=ap.parse_args(sys.argv[1:]);sys.exit(a.func(a))"
+        "import sys;from uavest.cli import main;sys.exit(main(sys.argv[1:]))"
     )
     junk = tmp_path / "junk.tlog"
     junk.write_bytes(b"\x00" * 10)

@@ -6,23 +6,32 @@ from __future__ import annotations
 import numpy as np
 
 from uavest.core import EKF, Gaussian
+from uavest.engine.attitude import AttitudeOptions, AttitudeStream, _StepBuilder
+from uavest.engine.records import Step
+from uavest.engine.replay import samples_from_arrays
 from uavest.geometry.rotation import euler_to_quat, quat_exp, quat_log, quat_mul
+from uavest.ingest.types import ImuSample, PositionSample
 from uavest.models.attitude import AttitudeNoise, GravityDirection, MagField, Stacked
-from uavest.pipeline.replay import build_steps, velocity_acceleration
+
+
+def _steps(t, gyro, accel, **opts) -> tuple[list[Step], dict]:
+    s = AttitudeStream(samples_from_arrays(t, gyro, accel), AttitudeOptions(**opts))
+    steps = [x for x in s if isinstance(x, Step)]
+    return steps, s.summary
 
 
 def test_preintegration_is_exact_product_of_rotations():
     rng = np.random.default_rng(0)
     t = np.cumsum(rng.uniform(0.003, 0.005, 401))
     gyro = rng.normal(0, 1.5, (401, 3))
-    steps = build_steps(t, gyro, np.tile([0, 0, -9.8], (401, 1)), rate_hz=25.0)
-    assert steps.integration == "hold" and steps.factor > 1
+    steps, sm = _steps(t, gyro, np.tile([0, 0, -9.8], (401, 1)), rate_hz=25.0)
+    assert sm["integration"] == "hold" and sm["preintegrated_samples_per_step"] > 1
     q = np.array([1.0, 0, 0, 0])  # reference: sample by sample
     for i in range(1, 401):
         q = quat_mul(q, quat_exp(gyro[i] * (t[i] - t[i - 1])))
     q2 = np.array([1.0, 0, 0, 0])  # the steps
-    for w, dt in zip(steps.gyro, steps.dt, strict=True):
-        q2 = quat_mul(q2, quat_exp(w * dt))
+    for st in steps:
+        q2 = quat_mul(q2, quat_exp(st.u * st.dt))
     np.testing.assert_allclose(quat_log(quat_mul(np.array([1.0, 0, 0, 0]) * [1, -1, -1, -1],
                                                  q)), quat_log(q2), atol=1e-9)
 
@@ -30,15 +39,27 @@ def test_preintegration_is_exact_product_of_rotations():
 def test_slow_stream_uses_trapezoid():
     t = np.arange(0, 5, 0.26)
     gyro = np.outer(t, [0.1, 0.0, 0.0])
-    s = build_steps(t, gyro, np.tile([0, 0, -9.8], (t.size, 1)))
-    assert s.integration == "trapezoid"
-    np.testing.assert_allclose(s.gyro[:, 0], 0.1 * 0.5 * (t[1:] + t[:-1]))
+    steps, sm = _steps(t, gyro, np.tile([0, 0, -9.8], (t.size, 1)))
+    assert sm["integration"] == "trapezoid"
+    np.testing.assert_allclose([st.u[0] for st in steps], 0.1 * 0.5 * (t[1:] + t[:-1]))
 
 
 def test_velocity_acceleration_is_causal():
+    """Each step's vehicle acceleration uses the last two velocities at or before its end,
+    nothing later (the builder sees samples in time order, one at a time)."""
+    import heapq
+
     tv = np.arange(0.0, 10.0, 0.25)
-    v = np.stack([tv**2, 0 * tv, 0 * tv], axis=1)  # a = 2 t
-    a = velocity_acceleration(tv, v, np.array([0.1, 5.0, 5.2]))
+    pos = [PositionSample(float(a), None, np.array([a * a, 0.0, 0.0]), None, "P")
+           for a in tv]
+    ti = np.array([0.0, 0.1, 5.0, 5.2])
+    imu = [ImuSample(float(a), np.zeros(3), np.array([0, 0, -9.8]), "I") for a in ti]
+    b = _StepBuilder("trapezoid", 1, use_pos=True)
+    raws = []
+    for smp in heapq.merge(imu, pos, key=lambda x: x.t):
+        raws.extend(b.push(smp))
+    raws.extend(b.flush())
+    a = np.array([r.accel_ned for r in raws])  # steps ending at 0.1, 5.0, 5.2
     assert np.isnan(a[0]).all()  # fewer than two samples before t = 0.1
     assert a[1, 0] == (25.0 - 4.75**2) / 0.25  # uses 4.75 and 5.0, nothing later
     assert a[2, 0] == a[1, 0]

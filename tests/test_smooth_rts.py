@@ -9,12 +9,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from uavest.pipeline.smooth import rts_backward
 
+from uavest.engine.replay import replay_arrays
+from uavest.engine.smooth import rts_backward
 from uavest.eval.attitude import rmse_deg
 from uavest.geometry.spaces import VectorSpace
 from uavest.models.attitude import AttitudeNoise
-from uavest.pipeline.replay import build_steps, run_filters
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_attitude_models import synthetic_constant_rate  # noqa: E402
@@ -57,16 +57,15 @@ def test_smoothing_beats_filtering_on_the_manifold(spec):
     rng = np.random.default_rng(5)
     gyro = d["gyro"] + 0.05 * rng.standard_normal(d["gyro"].shape)
     accel = d["accel"] + 0.3 * rng.standard_normal(d["accel"].shape)
-    steps = build_steps(d["t"], gyro, accel, d["t"], d["mag"], rate_hz=0)
     noise = AttitudeNoise(gyro_noise=0.012, rate_walk=0.01, accel_noise=0.4, mag_noise=0.05)
-    runs, _ = run_filters(steps, [spec], noise, d["decl"], seed=2, smooth=True)
-    r = runs[0]
-    xs, Ps = r.smoothed()
-    late = steps.t[1:] > 2.0
-    f = rmse_deg(r.x[1:, :4], d["q"][1:], late)
-    s = rmse_deg(xs[1:, :4], d["q"][1:], late)
+    r = replay_arrays(d["t"], gyro, accel, d["t"], d["mag"], filters=[spec], noise=noise,
+                      declination=d["decl"], seed=2, smooth=True, rate_hz=0)
+    xs, Ps = r.xs[spec], r.Ps[spec]
+    late = r.t > 2.0
+    f = rmse_deg(r.x[spec][:, :4], d["q"][1:], late)
+    s = rmse_deg(xs[:, :4], d["q"][1:], late)
     tot_f = np.hypot(np.hypot(f["roll_rmse_deg"], f["pitch_rmse_deg"]), f["yaw_rmse_deg"])
     tot_s = np.hypot(np.hypot(s["roll_rmse_deg"], s["pitch_rmse_deg"]), s["yaw_rmse_deg"])
     assert tot_s < 0.8 * tot_f, (spec, f, s)
     # smoothed covariance is no larger than filtered (attitude block trace)
-    assert np.trace(Ps[10:-10, :3, :3].mean(0)) < np.trace(r.P[10:-10, :3, :3].mean(0))
+    assert np.trace(Ps[10:-10, :3, :3].mean(0)) < np.trace(r.P[spec][10:-10, :3, :3].mean(0))

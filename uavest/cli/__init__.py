@@ -1,7 +1,8 @@
-"""Command line: ``uavest bench``, ``uavest track``, ``uavest replay``, ``uavest list``.
+"""The command line: a thin layer that parses, builds a configuration and calls.
 
-``uavest`` with no arguments runs the main job on its embedded default: the UNGM
-benchmark of all filters (a built-in simulated scenario; no hardware, no SITL).
+``uavest`` with no command prints the help and the quick-start line. Every command exits
+with 2 and one line on stderr for bad usage or bad input (never a traceback), 130 on
+Ctrl-C; ``-v`` shows warnings and resets as they happen (``logging``), ``-q`` only errors.
 """
 
 from __future__ import annotations
@@ -16,115 +17,81 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import logging  # noqa: E402
 import sys  # noqa: E402
 
-from ..core.registry import FILTER_NAMES, split_filter_list  # noqa: E402
-from ..scenarios import ScenarioError, list_scenarios, load_scenario  # noqa: E402
-from .report import Progress, table, write_json  # noqa: E402
+from .. import __version__  # noqa: E402
+
+QUICK_START = "quick start: uavest bench ungm   (a Monte Carlo of every filter, no hardware)"
+
+log = logging.getLogger("uavest")
 
 
 def _bench_parser(sub) -> None:
     p = sub.add_parser(
         "bench",
         help="Monte Carlo benchmark of filters on a scenario",
-        description="Run filters side by side on the same seeded truths and measurements.",
+        description="Run filters side by side on the same seeded truths and measurements. "
+        "Trial r draws from (seed, r, stream), so it is the same whatever --runs is.",
     )
     p.add_argument("scenario", nargs="?", default="ungm",
-                   help="scenario name (ungm, nonlinear2d, linear_cv, radar_*) or a .toml path")
+                   help="scenario name (see 'uavest list') or a .toml path")
     p.add_argument("--filters", help="comma-separated filter specs, e.g. "
-                   "'ukf,ukf(alpha=0.001),hybrid' (default: the scenario's list); known: "
-                   + ", ".join(FILTER_NAMES))
+                   "'ukf,ukf(alpha=0.001),hybrid' (default: the scenario's list)")
     p.add_argument("--runs", type=int, help="Monte Carlo runs (default: scenario's)")
     p.add_argument("--steps", type=int, help="time steps per run (default: scenario's)")
     p.add_argument("--seed", type=int, default=0, help="master seed (default 0)")
     p.add_argument("--json", help="write results as JSON to this path")
     p.add_argument("--ablation", action="store_true",
-                   help="also run seed 000's 2x2 ablation (sampling x weights)")
+                   help="also run the hybrid paper's 2x2 ablation (sampling x weights; "
+                   "Cui, Sun and Wen, Sensors 2022)")
     p.add_argument("--speed", action="store_true",
                    help="speed benchmark instead: our UKF vs FilterPy's, hybrid vs UKF")
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scenario parameter (repeatable), e.g. --set model.Q=5")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_bench)
+    p.set_defaults(func=_lazy("bench", "cmd_bench"), filters_preset="bench")
 
 
-def cmd_bench(args) -> int:
-    sc = load_scenario(args.scenario, args.sets)
-    if args.steps is not None:
-        sc["steps"] = args.steps
-    runs = args.runs if args.runs is not None else int(sc.get("runs", 100))
-    specs = split_filter_list(args.filters) if args.filters else list(sc.get("filters", []))
-    progress = Progress(False if args.no_progress else None)
-    doc = {"scenario": sc["name"], "source": sc.get("source"), "runs": runs, "seed": args.seed,
-           "steps": sc.get("steps"), "overrides": args.sets}
-    if sc["kind"] == "radar":
-        from ..experiments.radar import run_bench
+def _lazy(module: str, name: str):
+    """A command's entry point, imported only when that command runs (fast --help)."""
 
-        doc["filters"] = run_bench(sc, specs, runs, args.seed, args.steps)
-        cols = ["pos_rmse", "vel_rmse", "pcrlb_pos", "pcrlb_ratio", "pcrlb_ratio_rms",
-                "cond_ratio", "nees_mean", "nees_band",
-                "nees_in_band_fraction",
-                "gospa", "id_swaps", "false_tracks", "track_breaks", "diverged_fraction",
-                "us_per_step"]
-    else:
-        from ..experiments.montecarlo import METRICS, ablation, evaluate
-        from ..experiments.systems import build_system
+    def call(args):
+        import importlib
 
-        sysm = build_system(sc)
-        if args.speed:
-            from ..experiments.speed import speed
+        return getattr(importlib.import_module(f"uavest.cli.{module}"), name)(args)
 
-            res = speed(sysm, runs=min(runs, 20), seed=args.seed)
-            doc["speed"] = res
-            us = res["us_per_step"]
-            print(f"speed on {sc['name']} ({res['runs']} runs x {res['steps']} steps, "
-                  f"best of {res['repeats']}), microseconds per predict+update:")
-            for k, v in us.items():
-                print(f"  {k:18s} {v:8.1f}" if v is not None else f"  {k:18s}        -")
-            if res["ukf_over_filterpy"] is not None:
-                print(f"  our UKF / FilterPy UKF = {res['ukf_over_filterpy']:.3f}")
-            else:
-                print("  " + res["note"])
-            print(f"  hybrid (M={res['hybrid_members']}) / our UKF = "
-                  f"{res['hybrid_over_ukf']:.3f}")
-            if args.json:
-                write_json(args.json, doc)
-            return 0
-        doc["filters"] = evaluate(sysm, specs, runs, args.seed, progress)
-        cols = list(METRICS) + ["resets"]
-        if args.ablation:
-            doc["ablation"] = ablation(sysm, runs, args.seed, progress)
-    print(f"scenario {sc['name']} ({sc.get('source')}), {runs} runs x {sc.get('steps')} steps, "
-          f"seed {args.seed}")
-    print(table(doc["filters"], cols))
-    if "ablation" in doc:
-        for fam, cells in doc["ablation"].items():
-            print(f"\nablation ({fam}): sampling x weights")
-            print(table(cells, ["approx_error", "est_error", "rmse_mean", "nees_mean",
-                                "diverged_fraction"], first="cell"))
-    if args.json:
-        write_json(args.json, doc)
-        print(f"\nwrote {args.json}")
-    return 0
+    return call
 
 
 def cmd_list(args) -> int:
+    from ..core.registry import FILTER_NAMES
+    from ..engine.build import describe_presets
+    from ..scenarios import list_scenarios
+
     print("scenarios:", ", ".join(list_scenarios()))
     print("filters:  ", ", ".join(FILTER_NAMES))
+    print(describe_presets())
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="uavest",
-        description="UAV state estimation: EKF, UKF, EnKF, hybrid and particle filters side "
-        "by side. With no command: the UNGM benchmark of all filters.",
+        description="UAV state estimation: attitude from the IMU and radar target tracks, "
+        "with EKF, UKF, EnKF, a hybrid UKF/EnKF and a particle filter side by side.",
+        epilog=QUICK_START,
     )
+    ap.add_argument("--version", action="version", version=f"uavest {__version__}")
+    ap.add_argument("-v", "--verbose", action="count", default=0,
+                    help="show warnings and filter resets as they happen (-vv: debug)")
+    ap.add_argument("-q", "--quiet", action="store_true", help="only errors on stderr")
     sub = ap.add_subparsers(dest="command")
     _bench_parser(sub)
-    pl = sub.add_parser("list", help="list scenarios and filters")
+    pl = sub.add_parser("list", help="list scenarios, filters and what each filter "
+                        "name resolves to in each command")
     pl.set_defaults(func=cmd_list)
-    from ..pipeline.replay import add_replay_parser
+    from .replay import add_replay_parser
     from .track import add_track_parser
 
     add_track_parser(sub)
@@ -132,19 +99,61 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+class _OneLine(logging.Formatter):
+    def format(self, record: logging.LogRecord) -> str:
+        return f"uavest: {record.levelname.lower()}: {record.getMessage()}"
+
+
+def _setup_logging(verbose: int, quiet: bool) -> None:
+    level = logging.ERROR if quiet else (logging.WARNING if verbose == 0 else
+                                         logging.INFO if verbose == 1 else logging.DEBUG)
+    h = logging.StreamHandler(sys.stderr)
+    h.setFormatter(_OneLine())
+    root = logging.getLogger("uavest")
+    root.handlers[:] = [h]
+    root.setLevel(level)
+    root.propagate = False
+
+
+def _check_filters(args) -> None:
+    """Parse ``--filters`` once into ``args.filter_specs``; bad specs fail here."""
+    if not hasattr(args, "filters_preset"):
+        return
+    text = getattr(args, "filters", None)
+    if text is None:
+        args.filter_specs = None
+        return
+    from ..engine.build import parse_filter_list
+
+    args.filter_specs = parse_filter_list(text)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
     argv = sys.argv[1:] if argv is None else argv
     if not argv:
-        argv = ["bench", "ungm"]
-    args = ap.parse_args(argv)
+        ap.print_help()
+        print(f"\n{QUICK_START}")
+        return 0
+    try:
+        args = ap.parse_args(argv)
+    except SystemExit as e:  # argparse: usage errors exit 2 with a message already
+        return int(e.code or 0)
+    _setup_logging(args.verbose, args.quiet)
     if not hasattr(args, "func"):
         ap.print_help()
         return 2
+    from ..ingest.types import IngestError
+    from ..scenarios import ScenarioError
+
     try:
+        _check_filters(args)
         return int(args.func(args) or 0)
-    except (ScenarioError, ValueError, OSError) as e:
-        print(f"uavest: error: {e}", file=sys.stderr)
+    except (ScenarioError, IngestError, ValueError, OSError) as e:
+        msg = str(e).splitlines()[0] if str(e) else type(e).__name__
+        if len(msg) > 300:
+            msg = msg[:300] + "..."
+        print(f"uavest {args.command}: error: {msg}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("uavest: interrupted", file=sys.stderr)

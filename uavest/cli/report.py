@@ -1,11 +1,9 @@
-"""Plain-text tables and JSON output for benchmark results."""
+"""The one table renderer of the command line (and its progress indicator)."""
 
 from __future__ import annotations
 
-import json
 import math
 import sys
-from pathlib import Path
 
 
 def _fmt(v) -> str:
@@ -16,8 +14,8 @@ def _fmt(v) -> str:
     if isinstance(v, int):
         return str(v)
     if isinstance(v, float):
-        if math.isnan(v):
-            return "nan"
+        if not math.isfinite(v):
+            return "-"
         a = abs(v)
         if a != 0 and (a >= 1e5 or a < 1e-3):
             return f"{v:.3g}"
@@ -36,34 +34,11 @@ def table(rows: dict[str, dict], columns: list[str], first: str = "filter") -> s
     return "\n".join([line(head), line(["-" * w for w in widths])] + [line(b) for b in body])
 
 
-def write_json(path: str | Path, doc: dict) -> None:
-    """Write ``doc`` as JSON (NaN/inf become null so the file is strict JSON)."""
+def progress(total: int | None, desc: str, enabled: bool | None = None):
+    """A tqdm progress bar on stderr, only on a terminal (``enabled`` None) or when asked;
+    otherwise a silent stand-in with the same ``update``/``close``/``set_postfix_str``."""
+    on = sys.stderr.isatty() if enabled is None else enabled
+    from tqdm import tqdm
 
-    def clean(o):
-        if isinstance(o, float) and not math.isfinite(o):
-            return None
-        if isinstance(o, dict):
-            return {k: clean(v) for k, v in o.items()}
-        if isinstance(o, list | tuple):
-            return [clean(v) for v in o]
-        return o
-
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    Path(path).write_text(json.dumps(clean(doc), indent=2) + "\n")
-
-
-class Progress:
-    """A one-line progress indicator on stderr, only when stderr is a terminal."""
-
-    def __init__(self, enabled: bool | None = None) -> None:
-        self.enabled = sys.stderr.isatty() if enabled is None else enabled
-
-    def __call__(self, label: str, i: int, n: int) -> None:
-        if not self.enabled:
-            return
-        w = 30
-        done = int(w * i / n)
-        sys.stderr.write(f"\r{label[:28]:28s} [{'#' * done}{'.' * (w - done)}] {i}/{n}")
-        if i == n:
-            sys.stderr.write("\n")
-        sys.stderr.flush()
+    return tqdm(total=total, desc=desc, disable=not on, leave=False, dynamic_ncols=True,
+                file=sys.stderr)

@@ -6,13 +6,12 @@ Registered by ``uavest/cli.py`` through :func:`add_track_parser`.
 from __future__ import annotations
 
 import argparse
-import json
 
 import numpy as np
 
-from ..core.registry import split_filter_list
 from ..experiments.radar import data_rng, run_trackers, tracker_errors
 from ..scenarios import load_scenario
+from ..sinks.jsonout import write_json
 from ..tracking.scenario import generate_run
 from ..tracking.tracker import Tracker
 
@@ -114,13 +113,13 @@ def print_table(res: dict) -> None:
 def cmd_track(args: argparse.Namespace) -> int:
     sc = load_scenario(args.scenario, args.set or [])
     if sc.get("kind") != "radar":
-        raise SystemExit(f"uavest track: scenario {args.scenario!r} is not a radar scenario")
-    filters = split_filter_list(args.filters) if args.filters else list(sc.get("filters", []))
+        raise ValueError(f"scenario {args.scenario!r} is not a radar scenario "
+                         "(radar scenarios: see 'uavest list')")
+    filters = args.filter_specs or list(sc.get("filters", []))
     res = track_table(sc, filters or ["ekf", "ukf", "hybrid"], args.seed)
     print_table(res)
     if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(res, fh, indent=2)
+        write_json(args.json, res)
     return 0
 
 
@@ -139,21 +138,8 @@ def add_track_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a scenario parameter (dotted keys), repeatable")
     p.add_argument("--json", default=None, metavar="PATH", help="also write the table as JSON")
-    p.set_defaults(func=cmd_track)
+    p.set_defaults(func=cmd_track, filters_preset="radar")
     return p
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Stand-alone entry (``python -m uavest.tracking.cli``)."""
-    ap = argparse.ArgumentParser(prog="uavest")
-    sub = ap.add_subparsers(dest="cmd", required=True)
-    add_track_parser(sub)
-    args = ap.parse_args(argv)
-    return args.func(args)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
 
 
 __all__ = ["add_track_parser", "cmd_track", "track_table"]

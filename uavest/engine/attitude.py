@@ -95,7 +95,8 @@ class AttitudeOptions:
     ``start``/``end`` s (vehicle clock) clip the stream; ``rate_hz`` None -> the
     :data:`DEFAULT_MAX_RATE_HZ` cap, 0 -> every IMU sample; ``declination`` rad east
     positive, None -> the source's parameters at the end of the alignment
-    (``COMPASS_DEC``, ``ATT_MAG_DECL``), else 0; ``noise`` overrides of :class:`~uavest.models.attitude.AttitudeNoise`;
+    (``COMPASS_DEC``, ``ATT_MAG_DECL``), else 0; ``noise`` overrides of
+    :class:`~uavest.models.attitude.AttitudeNoise`;
     ``imu`` an IMU source name or None (the stream's choice); ``mag_mode`` "field" (3-D
     direction) or "heading"; ``mag_delay`` s, the magnetometer sample's age, compensated
     with the step's gyro rate; ``accel_comp`` "auto" (use a velocity source when there is

@@ -29,11 +29,14 @@ from .build import build_filters
 from .loop import run
 from .records import RunInfo, StepRecord, package_versions
 from .runner import FilterRunner
-from .smooth import rts_backward
+from .smooth import smooth_records
 
 Array = np.ndarray
 
-__all__ = ["DEFAULT_FILTERS", "ReplayConfig", "replay", "replay_samples", "samples_from_arrays"]
+__all__ = [
+    "DEFAULT_FILTERS", "ArrayRun", "ReplayConfig", "replay", "replay_arrays", "replay_samples",
+    "samples_from_arrays",
+]
 
 DEFAULT_FILTERS = ("ekf", "ukf", "hybrid")
 
@@ -154,20 +157,53 @@ def replay_samples(
 
 def _score_smoothed(coll: Collector, refs: _Refs, label: str, ref: str, truth: bool,
                     space) -> dict:
-    a = coll.arrays(label)
-    t0, x0, P0 = coll.starts[label]
-    x = np.vstack([x0, a["x"]])
-    P = np.concatenate([P0[None], a["P"]])
-    xp = np.vstack([x0, a["x_pred"]])
-    Pp = np.concatenate([P0[None], a["P_pred"]])
-    C = np.concatenate([np.zeros_like(P0)[None], a["C"]])
-    xs, Ps = rts_backward(space, x, P, xp, Pp, C)
-    q_ref, mask = quat_slerp_interp(np.array(refs.t[ref]), np.array(refs.q[ref]), a["t"])
-    row = rmse_deg(xs[1:, :4], q_ref, mask)
+    t, xs, Ps = smooth_records(coll, label, space)
+    q_ref, mask = quat_slerp_interp(np.array(refs.t[ref]), np.array(refs.q[ref]), t)
+    row = rmse_deg(xs[:, :4], q_ref, mask)
     if truth and mask.any():
-        row["nees_mean"] = float(np.mean(nees_attitude(xs[1:, :4][mask], Ps[1:][mask],
-                                                        q_ref[mask])))
+        row["nees_mean"] = float(np.mean(nees_attitude(xs[:, :4][mask], Ps[mask], q_ref[mask])))
     return row
+
+
+@dataclass
+class ArrayRun:
+    """Filters run over IMU arrays: step end times ``t`` (K,), and per label the
+    estimates ``x`` (K, 7), covariances ``P`` (K, 6, 6), ``resets``, the stream's
+    ``summary``, and with smoothing the smoothed ``xs``/``Ps``."""
+
+    t: Array
+    x: dict
+    P: dict
+    resets: dict
+    summary: dict
+    xs: dict = field(default_factory=dict)
+    Ps: dict = field(default_factory=dict)
+
+
+def replay_arrays(
+    t: Array, gyro: Array, accel: Array, mag_t: Array | None = None,
+    mag_field: Array | None = None, *, filters: tuple | list = DEFAULT_FILTERS,
+    noise=None, declination: float = 0.0, seed: int = 0, smooth: bool = False,
+    use_mag: bool = True, rate_hz: float | None = None,
+) -> ArrayRun:
+    """:func:`replay_samples` over arrays (:func:`samples_from_arrays`): the batch form,
+    the same streaming code. ``noise`` an :class:`~uavest.models.attitude.AttitudeNoise`
+    (all of its values used) or None (the source's defaults)."""
+    from dataclasses import asdict
+
+    cfg = ReplayConfig(filters=tuple(filters), seed=seed, smooth=smooth, rate_hz=rate_hz,
+                       declination=declination, use_mag=use_mag,
+                       noise={} if noise is None else asdict(noise))
+    coll = Collector()
+    _, stream, runners, _, _ = replay_samples(
+        samples_from_arrays(t, gyro, accel, mag_t, mag_field), cfg, sinks=[coll])
+    out = ArrayRun(coll.arrays(runners[0].label)["t"], {}, {}, {}, stream.summary)
+    for r in runners:
+        a = coll.arrays(r.label)
+        out.x[r.label], out.P[r.label], out.resets[r.label] = a["x"], a["P"], r.resets
+        if smooth:
+            _, out.xs[r.label], out.Ps[r.label] = smooth_records(coll, r.label, stream.space)
+    return out
 
 
 def replay(

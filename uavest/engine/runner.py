@@ -104,16 +104,18 @@ class TrackerRunner:
         self.tracker = self.make_tracker()
 
     def step(self, st: Step) -> ScanRecord:
-        (Z, model), = st.updates
+        ((Z, model),) = st.updates
         tr = self.tracker
         c0 = time.perf_counter()
         before = {t.id for t in tr.tracks}
-        r0 = tr.resets
         tr.step(st.k, st.t, st.dt, Z, model)
         wall = time.perf_counter() - c0
-        tracks = tuple(
-            TrackEstimate(t.id, t.est.x, t.est.P, t.confirmed, t.last_hit, t.pred_x)
-            for t in tr.tracks
-        )
+        tracks = []
+        resets = 0
+        for t in tr.tracks:
+            _, gp, ge, hit, conf = t.history[-1]
+            born = t.born == st.k
+            tracks.append(TrackEstimate(t.id, ge.x, ge.P, conf, hit, None if born else gp.x))
+            resets += int(getattr(t.state, "resets", 0))
         deleted = tuple(sorted(before - {t.id for t in tr.tracks}))
-        return ScanRecord(self.label, st.k, st.t, tracks, deleted, tr.resets - r0, wall)
+        return ScanRecord(self.label, st.k, st.t, tuple(tracks), deleted, resets, wall)

@@ -28,7 +28,7 @@ from ..core.linalg import symmetrize
 
 Array = np.ndarray
 
-__all__ = ["ensemble_cross", "rts_backward"]
+__all__ = ["ensemble_cross", "rts_backward", "smooth_records"]
 
 
 def rts_backward(
@@ -65,3 +65,18 @@ def ensemble_cross(E_f: Ensemble, E_p: Ensemble, x_f: Array, x_p: Array) -> Arra
     dA = dA - w @ dA
     dB = dB - w @ dB
     return (dA.T * w) @ dB / max(1.0 - float(w @ w), 1e-12)
+
+
+def smooth_records(coll, label: str, space) -> tuple[Array, Array, Array]:
+    """RTS-smoothed run of ``label`` from a :class:`uavest.sinks.base.Collector` that kept
+    a runner's records made with ``smooth=True``: step times (K,), smoothed means
+    (K, size) and covariances (K, n, n) (the start, row 0 of the recursion, left out)."""
+    a = coll.arrays(label)
+    _, x0, P0 = coll.starts[label]
+    x = np.vstack([x0, a["x"]])
+    P = np.concatenate([P0[None], a["P"]])
+    xp = np.vstack([x0, a["x_pred"]])
+    Pp = np.concatenate([P0[None], a["P_pred"]])
+    C = np.concatenate([np.zeros_like(P0)[None], a["C"]])
+    xs, Ps = rts_backward(space, x, P, xp, Pp, C)
+    return a["t"], xs[1:], Ps[1:]

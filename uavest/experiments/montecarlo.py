@@ -1,22 +1,24 @@
-"""Monte Carlo harness: every filter sees the same seeded truths and measurements.
+"""Monte Carlo trials of the benchmark systems, through the streaming engine.
 
-Seeding: truths and measurements come from ``SeedSequence([seed, 0])``; filter ``label``
-in run ``r`` draws from ``SeedSequence([seed, 1, r, crc32(label)])``, so adding or
-removing a filter changes no other filter's numbers.
+A trial is a pure function (:func:`run_trial`): from (system, filter specs, seed, trial
+index) it draws the truth and measurements from ``rng(seed, r, "truth")`` and runs every
+filter (each with ``rng(seed, r, "filter:<label>")``, see :mod:`uavest.seeding`) through
+:func:`uavest.engine.run`, giving one row of per-trial metrics per filter. Trial r is the
+same whatever the number of trials, so trials can be split over processes or machines
+and :func:`aggregate` combines any set of trial rows into the table.
 """
 
 from __future__ import annotations
 
-import time
-import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
 
 import numpy as np
 
-from ..core.guard import Guarded
-from ..core.hybrid import Hybrid
-from ..core.registry import make_filter, parse_filter_spec
+from ..engine import FilterRunner, Start, Step, run
+from ..engine.build import build_filters
 from ..eval.metrics import mean_abs, nees, nees_band, rmse
+from ..seeding import filter_stream, rng
+from ..sinks.base import Collector
 from .systems import System, simulate
 
 Array = np.ndarray
@@ -27,86 +29,90 @@ METRICS = (
 )
 
 
-def filter_rng(seed: int, run: int, label: str) -> np.random.Generator:
-    return np.random.default_rng(np.random.SeedSequence([seed, 1, run, zlib.crc32(label.encode())]))
+def trial_data(sysm: System, seed: int, r: int) -> tuple[Array, Array]:
+    """Truth (T, n) and measurements (T, m) of trial ``r``."""
+    X, Z = simulate(sysm, 1, rng(seed, r, "truth"))
+    return X[0], Z[0]
 
 
-def build_filter(spec: str, n: int) -> Guarded:
-    """Filter from a spec, guarded. EnKF/ETKF default to the default hybrid's member
-    count M = (2n+1)(N+1) so that ensemble sizes match unless the spec says otherwise."""
-    name, _ = parse_filter_spec(spec)
-    defaults = {}
-    if name.removesuffix("_sh") in ("enkf", "etkf"):
-        defaults["members"] = Hybrid().members(n)
-    return Guarded(make_filter(spec, **defaults))
-
-
-def run_one(flt, sysm: System, Z: Array, rng: np.random.Generator):
-    """Run a (guarded) filter over one measurement sequence.
-
-    Returns predicted means (T, n), estimates (T, n), covariances (T, n, n), number of
-    divergence resets, and the filter's wall time in seconds.
-    """
+def trial_steps(sysm: System, Z: Array) -> Iterator[Start | Step]:
+    """The engine's items for one trial: start at the filter prior, then one step per
+    measurement (predict over dt, update with z_k)."""
     tr, me = sysm.transition, sysm.measurement
-    T = Z.shape[0]
-    n = tr.space.dim
-    pred = np.empty((T, n))
-    est = np.empty((T, n))
-    Ps = np.empty((T, n, n))
-    t0 = time.perf_counter()
-    s = flt.init(sysm.filter_prior, tr.space, rng)
-    for k in range(T):
-        t = (k + 1) * sysm.dt
-        s = flt.predict(s, tr, t, sysm.dt, None, rng)
-        pred[k] = flt.estimate(s).x
-        s, _ = flt.update(s, Z[k], me, rng)
-        g = flt.estimate(s)
-        est[k] = g.x
-        Ps[k] = g.P
-    elapsed = time.perf_counter() - t0
-    return pred, est, Ps, s.resets, elapsed
+    yield Start(0.0, sysm.filter_prior, tr.space)
+    for k in range(Z.shape[0]):
+        yield Step(k + 1, (k + 1) * sysm.dt, sysm.dt, tr, ((Z[k], me),))
 
 
-def evaluate(
-    sysm: System,
-    specs: list[str],
-    runs: int,
-    seed: int,
-    progress: Callable[[str, int, int], None] | None = None,
-) -> dict[str, dict]:
-    """Per-filter metrics (see ``METRICS``) over ``runs`` shared truths."""
-    X, Z = simulate(sysm, runs, np.random.default_rng(np.random.SeedSequence([seed, 0])))
+def run_trial(sysm: System, specs: list[str], seed: int, r: int) -> dict[str, dict]:
+    """Per-filter metrics of trial ``r``: rmse, approx_error (mean |x_pred - x|),
+    est_error (mean |x_est - x|), nees (mean over steps), resets, diverged, seconds."""
+    X, Z = trial_data(sysm, seed, r)
     n = sysm.transition.space.dim
+    built = build_filters(specs, "bench", dim=n)
+    runners = [FilterRunner(sp.label, f, rng(seed, r, filter_stream(sp.label)),
+                            record_prediction=True) for sp, f in built]
+    coll = Collector()
+    run(trial_steps(sysm, Z), runners, [coll])
     out = {}
-    for spec in specs:
-        flt = build_filter(spec, n)
-        rm, ap, es, ne, div, resets, tt = [], [], [], [], 0, 0, 0.0
-        for r in range(runs):
-            pred, est, Ps, nres, el = run_one(flt, sysm, Z[r], filter_rng(seed, r, spec))
-            e = X[r] - est
-            rm.append(rmse(e))
-            ap.append(mean_abs(X[r] - pred))
-            es.append(mean_abs(e))
-            ne.append(float(np.mean(nees(e, Ps))))
-            div += int(rm[-1] > sysm.divergence_rmse or nres > 0)
-            resets += nres
-            tt += el
-            if progress:
-                progress(spec, r + 1, runs)
-        lo, hi = nees_band(n, runs)
-        out[spec] = {
+    for fr in runners:
+        a = coll.arrays(fr.label)
+        e = X - a["x"]
+        rm = rmse(e)
+        out[fr.label] = {
+            "rmse": rm,
+            "approx_error": mean_abs(X - a["x_pred"]),
+            "est_error": mean_abs(e),
+            "nees": float(np.mean(nees(e, a["P"]))),
+            "resets": fr.resets,
+            "diverged": bool(rm > sysm.divergence_rmse or fr.resets > 0),
+            "seconds": fr.seconds,
+            "steps": int(Z.shape[0]),
+        }
+    return out
+
+
+def trial_rows(sysm: System, specs: list[str], seed: int, trials: Iterable[int],
+               progress: Callable[[int], None] | None = None) -> list[dict[str, dict]]:
+    """:func:`run_trial` for each trial index (a shard of a study)."""
+    rows = []
+    for r in trials:
+        rows.append(run_trial(sysm, specs, seed, r))
+        if progress:
+            progress(1)
+    return rows
+
+
+def aggregate(rows: list[dict[str, dict]], n: int) -> dict[str, dict]:
+    """The table over trial rows (any split of the trials gives the same table)."""
+    out = {}
+    labels = list(rows[0]) if rows else []
+    R = len(rows)
+    for lab in labels:
+        c = [row[lab] for row in rows]
+        rm = [x["rmse"] for x in c]
+        ne = [x["nees"] for x in c]
+        lo, hi = nees_band(n, R)
+        out[lab] = {
             "rmse_mean": float(np.mean(rm)),
             "rmse_median": float(np.median(rm)),
-            "approx_error": float(np.mean(ap)),
-            "est_error": float(np.mean(es)),
+            "approx_error": float(np.mean([x["approx_error"] for x in c])),
+            "est_error": float(np.mean([x["est_error"] for x in c])),
             "nees_mean": float(np.mean(ne)),
             "nees_median": float(np.median(ne)),
             "nees_band": [lo, hi],
-            "diverged_fraction": div / runs,
-            "resets": resets,
-            "us_per_step": tt / (runs * sysm.steps) * 1e6,
+            "diverged_fraction": sum(x["diverged"] for x in c) / R,
+            "resets": int(sum(x["resets"] for x in c)),
+            "us_per_step": 1e6 * sum(x["seconds"] for x in c) / sum(x["steps"] for x in c),
         }
     return out
+
+
+def evaluate(sysm: System, specs: list[str], runs: int, seed: int,
+             progress: Callable[[int], None] | None = None) -> dict[str, dict]:
+    """Per-filter metrics (see ``METRICS``) over trials 0..runs-1."""
+    rows = trial_rows(sysm, specs, seed, range(runs), progress)
+    return aggregate(rows, sysm.transition.space.dim)
 
 
 ABLATION_CELLS = (
@@ -115,7 +121,8 @@ ABLATION_CELLS = (
 
 
 def ablation(sysm: System, runs: int, seed: int, progress=None) -> dict[str, dict]:
-    """Seed 000's 2x2 (sampling x weights) for the literal and the consistent hybrid."""
+    """The hybrid paper's 2x2 (sampling x weights; Cui, Sun and Wen, Sensors 2022) for
+    the literal and the consistent hybrid."""
     out = {}
     for family in ("hybrid_literal", "hybrid"):
         specs = [f"{family}(sampling={s}, weights={w})" for s, w in ABLATION_CELLS]

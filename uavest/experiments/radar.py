@@ -15,9 +15,10 @@ Two modes (scenario key ``mode``):
     The full tracker (:mod:`uavest.tracking.tracker`) per filter on the same detections;
     errors are taken over the per-scan GOSPA assignment of confirmed tracks to truths.
 
-Seeding: run r uses ``SeedSequence([seed, r, 0])`` for truths/detections/x0 (shared by
-all filters) and ``SeedSequence([seed, r, crc32(filter label)])`` for the filter's own
-randomness, so a filter's numbers do not depend on which other filters run.
+Seeding (:mod:`uavest.seeding`): run r draws its truths, detections and x0 from
+``rng(seed, r, "truth")`` (shared by all filters) and each filter's own randomness from
+``rng(seed, r, "filter:<label>")``, so a filter's numbers do not depend on which other
+filters run, and run r does not depend on the number of runs.
 
 Averaging (see :mod:`uavest.eval.tracking`): ``pos_rmse``/``vel_rmse`` and
 ``pcrlb_pos``/``pcrlb_vel`` are per-scan RMSE over runs (resp. per-scan bound) averaged
@@ -34,45 +35,37 @@ or of one whole tracker scan (tracker mode), in microseconds.
 
 from __future__ import annotations
 
-import time
-import zlib
+from collections.abc import Iterator
 
 import numpy as np
 
 from ..core.gaussian import Gaussian
 from ..core.guard import Guarded
-from ..core.registry import make_filter_in_context
+from ..engine import FilterRunner, Start, Step, TrackerRunner
+from ..engine import run as run_engine
+from ..engine.build import build_filters
 from ..eval.pcrlb import conditional_bounds, pcrlb, position_bound, velocity_bound
 from ..eval.tracking import nees, nees_band, track_quality
+from ..seeding import filter_stream, rng
+from ..sinks.base import Collector
 from ..tracking.scenario import build_models, clutter_box, generate_run, prior
 from ..tracking.tracker import Tracker, TrackerConfig
 
 Array = np.ndarray
 
 
-#: What ``hybrid`` means for radar tracking (any parameter in the spec still wins; write
-#: ``hybrid(update_mode=shift, n_cloud=32)`` for the core default). The local-gain
-#: (Gaussian-mixture) update keeps the information of a 10 m range that the core
-#: default's single EnKF shift loses against a wide prior: radar_far 5 deg PCRLB ratio
-#: 1.556 -> 1.322 (NEES 10.2 -> 5.1), radar_multitarget GOSPA 119.6 -> 105.2 m and false
-#: tracks 1.3 -> 0 per run (docs/tracking.md). n_cloud = 64 (M = 585 members) gains
-#: 0.01-0.05 in the ratio over 32 for about 1.6x the time.
-HYBRID_RADAR_DEFAULTS = {"update_mode": "local", "n_cloud": 64}
-
-
 def make_radar_filter(spec: str):
-    """A core filter from its spec, ``hybrid`` with :data:`HYBRID_RADAR_DEFAULTS`."""
-    return make_filter_in_context(spec, HYBRID_RADAR_DEFAULTS)
+    """A core filter from its spec with the ``radar`` preset (see ``uavest list``)."""
+    return build_filters([spec], "radar", dim=4)[0][1]
 
 
 def data_rng(seed: int, run: int) -> np.random.Generator:
-    return np.random.default_rng(np.random.SeedSequence([seed, run, 0]))
+    """Trial ``run``'s truths, detections and filter start (shared by every filter)."""
+    return rng(seed, run, "truth")
 
 
 def filter_rng(seed: int, run: int, label: str) -> np.random.Generator:
-    return np.random.default_rng(
-        np.random.SeedSequence([seed, run, zlib.crc32(label.encode()) + 1])
-    )
+    return rng(seed, run, filter_stream(label))
 
 
 def _scan_models(radar, run):
@@ -82,30 +75,27 @@ def _scan_models(radar, run):
 # ------------------------------------------------------------------------------ filter mode
 
 
+def filter_steps(motion, radar, run, P0: Array, dt: float) -> Iterator[Start | Step]:
+    """Engine items of one filter-mode run: start at N(run.x0, P0), then per scan a
+    predict over dt and the target's own detection (none when it was missed)."""
+    yield Start(0.0, Gaussian(run.x0, P0), motion.space)
+    for k, model in enumerate(_scan_models(radar, run), start=1):
+        Z, o = run.scans[k - 1], run.origins[k - 1]
+        z = Z[o == 0]
+        yield Step(k, k * dt, dt, motion, ((z[0], model),) if len(z) else ())
+
+
 def run_filter(filt, motion, radar, run, P0: Array, dt: float, rng) -> dict:
     """One filter on one run in filter mode, started from N(run.x0, P0). Returns per-scan
     arrays ``pred`` (K, n), ``post`` (K, n), ``P`` (K, n, n), and ``seconds``,
     ``resets`` (numerical-failure recoveries of the guard)."""
-    K = len(run.scans)
-    f = Guarded(filt, strikes=10**9)  # catches numerical failures only; no NIS resets
-    n = motion.space.dim
-    s = f.init(Gaussian(run.x0, P0), motion.space, rng)
-    models = _scan_models(radar, run)
-    pred = np.empty((K, n))
-    post = np.empty((K, n))
-    Ps = np.empty((K, n, n))
-    t0 = time.perf_counter()
-    for k in range(1, K + 1):
-        s = f.predict(s, motion, k * dt, dt, None, rng)
-        pred[k - 1] = f.estimate(s).x
-        Z, o = run.scans[k - 1], run.origins[k - 1]
-        z = Z[o == 0]
-        if len(z):
-            s, _ = f.update(s, z[0], models[k - 1], rng)
-        g = f.estimate(s)
-        post[k - 1], Ps[k - 1] = g.x, g.P
-    sec = time.perf_counter() - t0
-    return {"pred": pred, "post": post, "P": Ps, "seconds": sec, "resets": s.resets}
+    fr = FilterRunner("f", filt, rng, guard=Guarded(filt, strikes=10**9),
+                      record_prediction=True)  # numerical failures only; no NIS resets
+    coll = Collector()
+    run_engine(filter_steps(motion, radar, run, P0, dt), [fr], [coll])
+    a = coll.arrays("f")
+    return {"pred": a["x_pred"], "post": a["x"], "P": a["P"], "seconds": fr.seconds,
+            "resets": fr.resets}
 
 
 def check_filter_mode(sc: dict) -> None:
@@ -225,20 +215,27 @@ def bench_filter_mode(sc: dict, filters: list[str], runs: int, seed: int, steps:
 # ----------------------------------------------------------------------------- tracker mode
 
 
+def scan_steps(run, radar, motion, dt: float) -> Iterator[Start | Step]:
+    """Engine items of one tracker-mode run: a start, then every scan's detections."""
+    yield Start(0.0, None, motion.space)
+    for k, model in enumerate(_scan_models(radar, run), start=1):
+        yield Step(k, k * dt, dt, motion, ((run.scans[k - 1], model),))
+
+
 def run_trackers(sc: dict, filters: list[str], run, seed: int, r: int) -> dict[str, Tracker]:
-    """All filters' trackers on the same run (same detections), one tracker per filter."""
+    """All filters' trackers on the same run (same detections), one tracker per filter,
+    side by side through the engine."""
     motion, radar = build_models(sc)
     dt = float(sc.get("dt", 1.0))
     lo, hi = clutter_box(sc, radar)
     cfg = TrackerConfig.from_scenario(sc, clutter_volume=float(np.prod(hi - lo)))
-    models = _scan_models(radar, run)
-    out = {}
-    for label in filters:
-        tr = Tracker(make_radar_filter(label), motion, cfg, filter_rng(seed, r, label))
-        for k in range(1, len(run.scans) + 1):
-            tr.step(k, k * dt, dt, run.scans[k - 1], models[k - 1])
-        out[label] = tr
-    return out
+    runners = [
+        TrackerRunner(label, lambda f=f, label=label: Tracker(f, motion, cfg,
+                                                              filter_rng(seed, r, label)))
+        for label, f in ((sp.label, f) for sp, f in build_filters(filters, "radar", dim=4))
+    ]
+    run_engine(scan_steps(run, radar, motion, dt), runners)
+    return {tr.label: tr.tracker for tr in runners}
 
 
 def tracker_errors(tracker: Tracker, run, ndim: int, c: float, dt: float):

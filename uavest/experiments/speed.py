@@ -1,8 +1,9 @@
 """Speed benchmark: our UKF against FilterPy's ``UnscentedKalmanFilter`` and our hybrid
 against our UKF, in one run, on the same model and data (UNGM by default).
 
-Timing is the best of ``repeats`` passes over ``runs`` x ``steps`` predict+update pairs
-(best-of removes scheduler noise). Filters are timed bare (no divergence guard), as
+Timing is the best of ``repeats`` passes over ``runs`` x ``steps`` predict + update +
+estimate steps of the engine's runner (best-of removes scheduler noise; ``estimate()`` is
+included: a user pays it every step). Filters are timed bare (no divergence guard), as
 FilterPy's has none; the guarded cost is printed too. FilterPy is a benchmark-only
 dependency (``pip install -e .[bench]``).
 """
@@ -16,20 +17,21 @@ import numpy as np
 from ..core.guard import Guarded
 from ..core.hybrid import Hybrid
 from ..core.unscented import UKF
+from ..engine import FilterRunner, run
+from .montecarlo import trial_steps
 from .systems import System, simulate
 
 
 def _time_ours(flt, sysm: System, Z, seed: int) -> float:
-    tr, me = sysm.transition, sysm.measurement
+    """Seconds per predict + update + estimate of ``flt`` stepped by the engine's runner
+    (bare: no guard unless ``flt`` is one)."""
     runs, T = Z.shape[:2]
-    t0 = time.perf_counter()
+    total = 0.0
     for r in range(runs):
-        rng = np.random.default_rng([seed, r])
-        s = flt.init(sysm.filter_prior, tr.space, rng)
-        for k in range(T):
-            s = flt.predict(s, tr, (k + 1) * sysm.dt, sysm.dt, None, rng)
-            s, _ = flt.update(s, Z[r, k], me, rng)
-    return (time.perf_counter() - t0) / (runs * T)
+        fr = FilterRunner("speed", flt, np.random.default_rng([seed, r]), guard=False)
+        run(trial_steps(sysm, Z[r]), [fr])
+        total += fr.seconds
+    return total / (runs * T)
 
 
 def _time_filterpy(sysm: System, Z, alpha: float, beta: float, kappa: float) -> float:

@@ -1,0 +1,157 @@
+"""``uavest replay LOG``: attitude filters side by side over a flight log."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+from ..engine.attitude import DEFAULT_MAX_RATE_HZ
+from ..engine.replay import DEFAULT_FILTERS, ReplayConfig, replay
+from ..models.attitude import AttitudeNoise
+from ..sinks.base import Sink
+from ..sinks.jsonout import write_json
+from .report import progress, table
+
+__all__ = ["add_replay_parser", "cmd_replay", "format_doc"]
+
+
+def _parse_noise(items: list[str]) -> dict:
+    known = set(AttitudeNoise.__dataclass_fields__)
+    out = {}
+    for it in items:
+        if "=" not in it:
+            raise ValueError(f"--noise expects KEY=VALUE, got {it!r}")
+        k, v = (x.strip() for x in it.split("=", 1))
+        if k not in known:
+            raise ValueError(f"--noise: unknown parameter {k!r}; known: {', '.join(sorted(known))}")
+        try:
+            f = float(v)
+        except ValueError:
+            raise ValueError(f"--noise {k}: {v!r} is not a number") from None
+        if not math.isfinite(f) or f < 0:
+            raise ValueError(f"--noise {k}: must be a finite number >= 0, got {v}")
+        out[k] = f
+    return out
+
+
+class _Progress(Sink):
+    def __init__(self, enabled: bool) -> None:
+        self.bar = progress(None, "replay", enabled)
+        self.k = 0
+
+    def record(self, rec) -> None:
+        if rec.k != self.k:
+            self.k = rec.k
+            self.bar.update(1)
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+def format_doc(doc: dict) -> str:
+    """The human-readable result of a replay: what was read, the table, bad data."""
+    lines = [
+        f"{doc['log']}: {doc['format']}, IMU {doc['imu_source']} at {doc['imu_rate_hz']:.1f} Hz,"
+        f" {doc['duration_s']:.1f} s, {doc['steps']} filter steps at "
+        f"{doc['filter_rate_hz']:.1f} Hz ({doc['integration']})"
+    ]
+    ref, kind = doc["reference"], doc["reference_kind"]
+    if ref is None:
+        lines.append("reference: none in this log (RMSE not available)")
+    else:
+        what = "truth" if kind == "truth" else f"{kind} estimate, not truth"
+        lines.append(f"reference: {ref} ({what}); RMSE in degrees, Euler ZYX, wrapped")
+    rows = {}
+    for name, row in doc["filters"].items():
+        rows[name] = row
+        if "smoothed" in row:
+            rows[f"  {name} smoothed"] = row["smoothed"]
+    cols = ["roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg", "nees_mean", "resets",
+            "us_per_step"]
+    lines.append(table(rows, cols))
+    bad = doc["bad_data"]
+    parts = [f"{k} {bad[k]}" for k in bad
+             if isinstance(bad[k], int) and bad[k] and k not in ("bad_total",)]
+    lines.append(f"bad data: {bad['bad_total']}" + (f" ({', '.join(parts)})" if parts else ""))
+    rt = doc["realtime_factor"]
+    lines.append(f"replay speed: {rt:.1f}x real time ({len(doc['guard_resets'])} filters "
+                 f"together, {doc['wall_s']:.2f} s)" if rt else "replay speed: -")
+    return "\n".join(lines)
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    """Entry point of ``uavest replay`` (errors reach ``uavest.cli.main``: exit 2)."""
+    p = Path(args.log)
+    if p.is_dir():
+        raise ValueError(f"{args.log} is a directory, not a log file")
+    if not p.exists():
+        raise ValueError(f"no such log file: {args.log}")
+    if args.declination is not None and not math.isfinite(args.declination):
+        raise ValueError(
+            f"--declination must be a finite number of degrees, got {args.declination}")
+    if args.mag_delay < 0 or not math.isfinite(args.mag_delay):
+        raise ValueError(
+            f"--mag-delay must be a finite number of seconds >= 0, got {args.mag_delay}")
+    if args.rate is not None and (args.rate < 0 or not math.isfinite(args.rate)):
+        raise ValueError(f"--rate must be >= 0 Hz (0 = every IMU sample), got {args.rate}")
+    cfg = ReplayConfig(
+        filters=tuple(args.filter_specs), start=args.start, end=args.end, smooth=args.smooth,
+        seed=args.seed, rate_hz=args.rate, integration=args.integration,
+        declination=None if args.declination is None else math.radians(args.declination),
+        noise=_parse_noise(args.noise), imu=args.imu, use_mag=not args.no_mag,
+        accel_comp=args.accel_comp, mag_mode=args.mag_mode, mag_delay=args.mag_delay,
+    )
+    sinks = [_Progress(False if args.no_progress else None)]
+    doc = replay(args.log, cfg, sinks=sinks, command=" ".join(sys.argv))
+    print(format_doc(doc))
+    if args.json:
+        write_json(args.json, doc)
+        print(f"wrote {args.json}")
+    return 0
+
+
+def add_replay_parser(subparsers) -> argparse.ArgumentParser:
+    """Register ``replay`` on an argparse sub-parsers object (sets ``func``)."""
+    p = subparsers.add_parser(
+        "replay",
+        help="replay a flight log through attitude filters and score them",
+        description="Run attitude filters side by side over a log (tlog, DataFlash .BIN, "
+        "ULog) and report roll/pitch/yaw RMSE against the log's truth (SITL) or, without "
+        "truth, against the autopilot's own estimate. 'hybrid' means the attitude preset "
+        "(see 'uavest list').",
+    )
+    p.add_argument("log", help="log file (.tlog, .bin, .ulg)")
+    p.add_argument("--filters", default=",".join(DEFAULT_FILTERS),
+                   help="comma-separated filter specs (default: ekf,ukf,hybrid), e.g. "
+                   "'ekf,ukf,hybrid(n_cloud=32)'")
+    p.add_argument("--json", help="write the results as JSON to this path")
+    p.add_argument("--start", type=float, help="start time (s, vehicle clock)")
+    p.add_argument("--end", type=float, help="end time (s, vehicle clock)")
+    p.add_argument("--smooth", action="store_true",
+                   help="also run the forward-backward (RTS) smoother and score it")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--rate", type=float, default=None,
+                   help=f"max filter rate in Hz (default {DEFAULT_MAX_RATE_HZ:g}; gyro is "
+                   "pre-integrated exactly between steps); 0 = every IMU sample")
+    p.add_argument("--integration", default="auto", choices=("auto", "hold", "trapezoid"),
+                   help="gyro sample interpretation (default auto: trapezoid below 20 Hz)")
+    p.add_argument("--declination", type=float, default=None,
+                   help="magnetic declination in degrees, east positive (default: from the "
+                   "log's COMPASS_DEC / ATT_MAG_DECL, else 0)")
+    p.add_argument("--noise", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a noise parameter (repeatable), e.g. --noise mag_noise=0.1")
+    p.add_argument("--imu", help="IMU source name (default: the stream's choice)")
+    p.add_argument("--accel-comp", default="auto", choices=("auto", "none"),
+                   help="remove the vehicle's own acceleration (causal difference of the "
+                   "log's velocity) from the accelerometer before using it as gravity "
+                   "(default auto: when the log has velocity)")
+    p.add_argument("--mag-mode", default="field", choices=("field", "heading"),
+                   help="magnetometer as 3-D field direction (default) or heading only")
+    p.add_argument("--mag-delay", type=float, default=0.0,
+                   help="magnetometer sample age in s, compensated with the gyro (default 0)")
+    p.add_argument("--no-mag", action="store_true", help="do not use the magnetometer")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_replay, filters_preset="attitude")
+    return p
