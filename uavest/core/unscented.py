@@ -173,7 +173,7 @@ def _qr_lower(A: Array) -> Array:
 
 @dataclass(frozen=True)
 class SRUKF:
-    """Square-root UKF (Van der Merwe & Wan 2001; seed 002): propagates S = sqrt(P) with a
+    """Square-root UKF (Van der Merwe & Wan 2001): propagates S = sqrt(P) with a
     QR decomposition of the weighted sigma deviations and a rank-1 Cholesky update for the
     zeroth point (a downdate when Wc_0 < 0), so P stays PSD by construction."""
 
