@@ -117,18 +117,13 @@ def test_filter_mode_uav_bound_uses_the_true_poses():
     assert r["ukf"]["pos_rmse"] > 0.6 * r["ukf"]["pcrlb_pos"]
 
 
-def test_radar_hybrid_defaults_local_update_and_beats_core_default_same_data():
+def test_radar_hybrid_preset_is_the_local_update_and_spec_parameters_win():
     """``hybrid`` in radar tracking is the local-gain hybrid (n_cloud 64); a spec's own
-    parameters win. On the far 5-degree case (same seeded truths and detections) it is
-    more accurate and more consistent than the core default's single EnKF shift."""
+    parameters win. (That it beats the core default on radar_far is a 100-run claim,
+    measured by ``benchmarks/radar_bound.py``, not a unit test: 20 runs do not decide it.)"""
     from uavest.experiments.radar import make_radar_filter
 
     f = make_radar_filter("hybrid")
     assert (f.update_mode, f.n_cloud) == ("local", 64)
     assert make_radar_filter("hybrid(update_mode=shift)").update_mode == "shift"
     assert make_radar_filter("hybrid_sh").filter.update_mode == "local"
-    sc = load_scenario("radar_far", [])
-    core = "hybrid(update_mode=shift, n_cloud=32)"
-    r = run_bench(sc, [core, "hybrid"], 20, 0, 30)
-    assert r["hybrid"]["pos_rmse"] < 0.95 * r[core]["pos_rmse"]
-    assert r["hybrid"]["nees_mean"] < r[core]["nees_mean"]
