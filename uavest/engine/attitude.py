@@ -225,12 +225,13 @@ class _StepBuilder:
 
 
 class AttitudeStream:
-    """Iterable of one :class:`Start` then :class:`Step` s from a sample stream (see the
-    module docstring). After (or during) the iteration, :attr:`summary` describes what
+    """One :class:`Start` then :class:`Step` s from a sample stream (see the module
+    docstring). Push samples one at a time (:meth:`push`, :meth:`flush`: each returns the
+    items it completed), or iterate it over ``samples``. :attr:`summary` describes what
     was chosen and counted (sources, rates, integration, steps, inclination...)."""
 
     def __init__(
-        self, samples: Iterable, opts: AttitudeOptions | None = None,
+        self, samples: Iterable = (), opts: AttitudeOptions | None = None,
         params: dict | None = None,
     ) -> None:
         self.samples = samples
@@ -240,21 +241,83 @@ class AttitudeStream:
         self.space = AttitudeSpace()
         self.summary: dict = {}
         self.noise: AttitudeNoise | None = None
+        self._held: list | None = []  # samples of the alignment window (None once set up)
+        self._imu_t0: float | None = None
+        self._align: list[_Raw] | None = None  # steps of the alignment, before the Start
+        self._builder: _StepBuilder | None = None
+        self._k = 0
+        self._imu_n = [0, 0.0, 0.0]  # samples, first and last time
 
     def __iter__(self) -> Iterator[Start | Step]:
+        for s in self.samples:
+            yield from self.push(s)
+        yield from self.flush()
+
+    # ------------------------------------------------------------------ pushing
+    def push(self, s) -> list[Start | Step]:
+        """Feed one sample; returns the items (start, steps) it completed."""
         o = self.opts
-        it = iter(self.samples)
-        held: list = []
-        imu_t0: float | None = None
-        for s in it:
-            if not o.in_window(s.t):
-                continue
-            held.append(s)
+        if not o.in_window(s.t):
+            return []
+        if self._held is not None:
+            self._held.append(s)
             if isinstance(s, ImuSample):
-                if imu_t0 is None:
-                    imu_t0 = s.t
-                elif s.t > imu_t0 + 2.0 * o.align_s:
-                    break
+                if self._imu_t0 is None:
+                    self._imu_t0 = s.t
+                elif s.t > self._imu_t0 + 2.0 * o.align_s:
+                    return self._setup()
+            return []
+        return self._feed(s)
+
+    def flush(self) -> list[Start | Step]:
+        """End of the stream: close the last step; returns the remaining items."""
+        out: list = []
+        if self._held is not None:
+            if not self._held:
+                raise ValueError("no samples in the stream (or in the chosen window)")
+            out += self._setup()
+        out += self._emit(list(self._builder.flush()))
+        if self._align is not None:  # the stream ended during the alignment
+            out += self._start()
+        self._finish_summary()
+        return out
+
+    # ------------------------------------------------------------------ internals
+    def _mine(self, s) -> bool:
+        if isinstance(s, ImuSample):
+            return s.source == self._imu
+        if isinstance(s, MagSample):
+            return s.source == self._mag
+        return isinstance(s, PositionSample) and s.source == self._pos
+
+    def _feed(self, s) -> list:
+        if not self._mine(s):
+            return []
+        if isinstance(s, ImuSample):
+            self._imu_n[0] += 1
+            self._imu_n[2] = s.t
+        return self._emit(list(self._builder.push(s)))
+
+    def _emit(self, raws: list[_Raw]) -> list:
+        if self._align is None:
+            return [self._step(r) for r in raws]
+        out: list = []
+        for i, r in enumerate(raws):
+            self._align.append(r)
+            if r.t > self._first.t + self.opts.align_s:
+                out += self._start()
+                out += [self._step(x) for x in raws[i + 1:]]
+                break
+        return out
+
+    def _step(self, r: _Raw) -> Step:
+        self._k += 1
+        return Step(self._k, r.t, r.t - r.t0, self._model, self._updates(r, self._mref), r.w)
+
+    def _setup(self) -> list:
+        """Choose sources, rate and integration from the held window; replay it."""
+        o, held = self.opts, self._held
+        self._held = None
         imu_counts: dict[str, int] = {}
         mag_counts: dict[str, int] = {}
         for s in held:
@@ -284,52 +347,35 @@ class AttitudeStream:
             integ = "trapezoid" if rate < 20.0 else "hold"
         cap = DEFAULT_MAX_RATE_HZ if o.rate_hz is None else float(o.rate_hz)
         factor = 1 if cap <= 0 or integ == "trapezoid" else max(1, round(rate / cap))
-        self.noise = noise = noise_for_source(imu).with_(**o.noise)
+        self.noise = noise_for_source(imu).with_(**o.noise)
+        self._model = GyroTransition(self.noise)
         self.summary.update(
             imu_source=imu, imu_sources=imu_counts, mag_source=mag, accel_compensation=pos,
             integration=integ, preintegrated_samples_per_step=factor, align_rate_hz=rate,
         )
-        builder = _StepBuilder(integ, factor, pos is not None)
-
-        def mine(s) -> bool:
-            if isinstance(s, ImuSample):
-                return s.source == imu
-            if isinstance(s, MagSample):
-                return s.source == mag
-            return isinstance(s, PositionSample) and s.source == pos
-
+        self._imu, self._mag, self._pos = imu, mag, pos
+        self._builder = _StepBuilder(integ, factor, pos is not None)
         # the first IMU sample, the magnetometer at/before it (else the first one held)
-        first = next(s for s in held if isinstance(s, ImuSample) and s.source == imu)
-        mag0 = None
+        self._first = first = next(s for s in held if isinstance(s, ImuSample)
+                                   and s.source == imu)
+        self._mag0 = None
         for s in held:
             if isinstance(s, MagSample) and s.source == mag:
-                if mag0 is None or s.t <= first.t:
-                    mag0 = s.field
+                if self._mag0 is None or s.t <= first.t:
+                    self._mag0 = s.field
                 if s.t > first.t:
                     break
-        imu_n = [0, first.t, first.t]  # samples, first and last time
+        self._imu_n = [0, first.t, first.t]
+        self._align = []
+        out: list = []
+        for s in held:
+            out += self._feed(s)
+        return out
 
-        def raws() -> Iterator[_Raw]:
-            def feed(s):
-                if isinstance(s, ImuSample) and s.source == imu:
-                    imu_n[0] += 1
-                    imu_n[2] = s.t
-                yield from builder.push(s)
-
-            for s in held:
-                if mine(s):
-                    yield from feed(s)
-            for s in it:
-                if o.in_window(s.t) and mine(s):
-                    yield from feed(s)
-            yield from builder.flush()
-
-        rs = raws()
-        align: list[_Raw] = []
-        for r in rs:
-            align.append(r)
-            if r.t > first.t + o.align_s:
-                break
+    def _start(self) -> list:
+        """Alignment done: declination, inclination, prior; the Start and held steps."""
+        o, first, mag0, noise = self.opts, self._first, self._mag0, self.noise
+        align, self._align = self._align, None
         decl, src = o.declination, "option"
         if decl is None:
             decl = declination_from_params(self.params)
@@ -337,36 +383,33 @@ class AttitudeStream:
             decl = decl or 0.0
         self.declination = decl
         self.summary.update(declination_rad=decl, declination_source=src)
-        mref = None
-        if mag is not None and o.mag_mode == "field":
+        self._mref = None
+        if self._mag is not None and o.mag_mode == "field":
             win = [r for r in align if r.t <= first.t + o.align_s and r.mag is not None]
             acc = [r.a for r in win]
             fld = [r.mag for r in win]
             if mag0 is not None:
                 acc, fld = [first.accel] + acc, [mag0] + fld
-            mref = mag_reference(
-                decl,
-                inclination_from_samples(np.array(acc).reshape(-1, 3),
-                                         np.array(fld).reshape(-1, 3)),
-            )
-            self.summary["inclination_rad"] = float(np.arcsin(mref[2]))
-        q0 = initial_attitude(first.accel, mag0 if mag is not None else None, decl)
+            self._mref = mag_reference(
+                decl, inclination_from_samples(np.array(acc).reshape(-1, 3),
+                                               np.array(fld).reshape(-1, 3)))
+            self.summary["inclination_rad"] = float(np.arcsin(self._mref[2]))
+        q0 = initial_attitude(first.accel, mag0 if self._mag is not None else None, decl)
         P0 = np.diag([noise.init_tilt**2, noise.init_tilt**2, noise.init_yaw**2]
                      + [noise.init_bias**2] * 3)
-        yield Start(first.t, Gaussian(np.concatenate([q0, np.zeros(3)]), P0), self.space)
-        model = GyroTransition(noise)
-        k = 0
-        for r in _chain(align, rs):
-            k += 1
-            yield Step(k, r.t, r.t - r.t0, model, self._updates(r, mref), r.w)
+        start = Start(first.t, Gaussian(np.concatenate([q0, np.zeros(3)]), P0), self.space)
+        return [start] + [self._step(r) for r in align]
+
+    def _finish_summary(self) -> None:
+        n, t0, t1 = self._imu_n
+        span = t1 - t0
         self.summary.update(
-            steps=k, imu_samples=imu_n[0], t_first=imu_n[1], t_last=imu_n[2],
-            imu_dropped=builder.dropped,
+            steps=self._k, imu_samples=n, t_first=t0, t_last=t1,
+            imu_dropped=self._builder.dropped if self._builder else 0,
+            duration_s=span,
+            imu_rate_hz=(n - 1) / span if span > 0 else 0.0,
+            filter_rate_hz=self._k / span if span > 0 else 0.0,
         )
-        span = imu_n[2] - imu_n[1]
-        self.summary["duration_s"] = span
-        self.summary["imu_rate_hz"] = (imu_n[0] - 1) / span if span > 0 else 0.0
-        self.summary["filter_rate_hz"] = k / span if span > 0 else 0.0
 
     def _updates(self, r: _Raw, mref: Array | None) -> tuple:
         o, noise = self.opts, self.noise
@@ -385,8 +428,3 @@ class AttitudeStream:
         if len(meas) > 1:
             meas = [Stacked.of(meas)]
         return tuple(meas)
-
-
-def _chain(first: list, rest: Iterator) -> Iterator:
-    yield from first
-    yield from rest

@@ -2,8 +2,10 @@
 space; for the benchmark systems that is plain subtraction).
 
 - RMSE per run: sqrt(mean over time of ||e_k||^2).
-- approximation error (Cui, Sun and Wen 2022): mean over time of ||x_pred - x_true|| (before update).
-- estimation error (Cui, Sun and Wen 2022): mean over time of ||x_est - x_true|| (after update).
+- approximation error (Cui, Sun and Wen 2022): mean over time of ||x_pred - x_true||
+  (before update).
+- estimation error (Cui, Sun and Wen 2022): mean over time of ||x_est - x_true||
+  (after update).
 - NEES per step: e^T P^-1 e; averaged over time and runs.
 """
 

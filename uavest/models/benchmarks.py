@@ -1,12 +1,13 @@
-"""Benchmark systems: the UNGM (Gordon, Salmond and Smith 1993; docs/references.md) and a 2-D strongly nonlinear system.
+"""Benchmark systems: the UNGM (Gordon, Salmond and Smith 1993; docs/references.md) and a
+2-D strongly nonlinear system.
 
 UNGM (univariate nonstationary growth model), with t = k the index of the new state:
     x_k = a x_{k-1} + b x_{k-1} / (1 + x_{k-1}^2) + alpha cos(beta (k - 1)) + w,  w ~ N(0, Q)
     y_k = x_k^2 / c + v,  v ~ N(0, R)
 defaults a=0.5, b=25, c=20, alpha=8, beta=1.2, Q=10, R=1 (Q and R are variances).
 
-Nonlinear2D (ours; the hybrid paper's 2-D equations are not recoverable from its text). A damped rotation
-plus a UNGM-like growth term and a squared measurement, with one parameter ``nl`` that
+Nonlinear2D (ours; the hybrid paper's 2-D equations are not recoverable from its text). A
+damped rotation plus a UNGM-like growth term and a squared measurement, with one parameter ``nl`` that
 sweeps the nonlinearity from a linear system (nl = 0) to a strongly nonlinear one (nl = 1):
     x1' = rho (cos(th) x1 - sin(th) x2) + nl * g x1 / (1 + x1^2)
     x2' = rho (sin(th) x1 + cos(th) x2) + nl * alpha cos(beta k)

@@ -17,7 +17,8 @@ BUILTIN: dict[str, dict] = {
     "ungm": {
         "name": "ungm",
         "kind": "ungm",
-        "description": "Univariate nonstationary growth model (Gordon, Salmond and Smith 1993), bimodal posterior",
+        "description": "Univariate nonstationary growth model (Gordon, Salmond and Smith "
+        "1993), bimodal posterior",
         "runs": 200,
         "steps": 100,
         "divergence_rmse": 20.0,
