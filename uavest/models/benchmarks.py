@@ -7,7 +7,8 @@ UNGM (univariate nonstationary growth model), with t = k the index of the new st
 defaults a=0.5, b=25, c=20, alpha=8, beta=1.2, Q=10, R=1 (Q and R are variances).
 
 Nonlinear2D (ours; the hybrid paper's 2-D equations are not recoverable from its text). A
-damped rotation plus a UNGM-like growth term and a squared measurement, with one parameter ``nl`` that
+damped rotation plus a UNGM-like growth term and a squared measurement, with one parameter
+``nl`` that
 sweeps the nonlinearity from a linear system (nl = 0) to a strongly nonlinear one (nl = 1):
     x1' = rho (cos(th) x1 - sin(th) x2) + nl * g x1 / (1 + x1^2)
     x2' = rho (sin(th) x1 + cos(th) x2) + nl * alpha cos(beta k)
