@@ -14,7 +14,7 @@ import pytest
 
 from uavest.engine.attitude import AttitudeOptions, AttitudeStream
 from uavest.engine.records import Start, Step
-from uavest.engine.replay import ReplayConfig, replay
+from uavest.apps.replay import ReplayConfig, replay
 from uavest.eval.attitude import rmse_deg
 from uavest.geometry.rotation import quat_slerp_interp
 from uavest.ingest import open_source, read_log

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from uavest.engine.replay import replay_arrays
+from uavest.apps.replay import replay_arrays
 from uavest.engine.smooth import rts_backward
 from uavest.eval.attitude import rmse_deg
 from uavest.geometry.spaces import VectorSpace

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from uavest.engine.replay import ReplayConfig, replay
+from uavest.apps.replay import ReplayConfig, replay
 from uavest.sinks.base import Collector
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from ..engine.attitude import DEFAULT_MAX_RATE_HZ
-from ..engine.replay import DEFAULT_FILTERS, ReplayConfig, replay
+from ..apps.replay import DEFAULT_FILTERS, ReplayConfig, replay
 from ..models.attitude import AttitudeNoise
 from ..sinks.base import Sink
 from ..sinks.jsonout import write_json

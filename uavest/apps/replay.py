@@ -24,12 +24,12 @@ from ..geometry.rotation import quat_slerp_interp
 from ..ingest.types import AttitudeRef, ImuSample, MagSample
 from ..seeding import filter_stream, rng
 from ..sinks.base import Collector, Sink
-from .attitude import AttitudeOptions, AttitudeStream
-from .build import build_filters
-from .loop import run
-from .records import RunInfo, StepRecord, package_versions
-from .runner import FilterRunner
-from .smooth import smooth_records
+from ..engine.attitude import AttitudeOptions, AttitudeStream
+from ..engine.build import build_filters
+from ..engine.loop import run
+from ..engine.records import RunInfo, StepRecord, package_versions
+from ..engine.runner import FilterRunner
+from ..engine.smooth import smooth_records
 
 Array = np.ndarray
 
