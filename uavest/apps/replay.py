@@ -19,17 +19,17 @@ from pathlib import Path
 
 import numpy as np
 
+from ..engine.attitude import AttitudeOptions, AttitudeStream
+from ..engine.build import build_filters
+from ..engine.loop import Lane, run_lanes
+from ..engine.records import RunInfo, StepRecord, package_versions
+from ..engine.runner import FilterRunner
+from ..engine.smooth import smooth_records
 from ..eval.attitude import AttitudeScorer, nees_attitude, rmse_deg, select_reference
 from ..geometry.rotation import quat_slerp_interp
 from ..ingest.types import AttitudeRef, ImuSample, MagSample
 from ..seeding import filter_stream, rng
 from ..sinks.base import Collector, Sink
-from ..engine.attitude import AttitudeOptions, AttitudeStream
-from ..engine.build import build_filters
-from ..engine.loop import run
-from ..engine.records import RunInfo, StepRecord, package_versions
-from ..engine.runner import FilterRunner
-from ..engine.smooth import smooth_records
 
 Array = np.ndarray
 
@@ -96,13 +96,11 @@ class _Refs(Sink):
                 self.q.setdefault(s.source, []).append(s.q)
 
 
-def _tap(samples: Iterable, sinks: list, window: Callable[[float], bool]) -> Iterator:
-    """The samples, each shown first to every sink (recorders, the scorer)."""
+def _windowed(samples: Iterable, window: Callable[[float], bool]) -> Iterator:
+    """The samples inside the replay's time window."""
     for s in samples:
         if window(s.t):
-            for k in sinks:
-                k.sample(s)
-        yield s
+            yield s
 
 
 def samples_from_arrays(
@@ -143,13 +141,12 @@ def replay_samples(
     score = _Score(scorer)
     coll = Collector() if cfg.smooth else None
     refs = _Refs() if cfg.smooth else None
-    taps = [score] + ([refs] if refs else []) + [s for s in sinks]
-    stream = AttitudeStream(_tap(samples, taps, opts.in_window), opts, params=params)
+    stream = AttitudeStream(opts=opts, params=params)
     info = info or RunInfo("", "", cfg.seed)
     info.filters = {sp.label: sp.as_dict() for sp, _ in specs}
-    all_sinks = [score] + ([coll] if coll else []) + list(sinks)
+    all_sinks = [score] + ([refs] if refs else []) + ([coll] if coll else []) + list(sinks)
     wall0 = time.perf_counter()
-    run(stream, runners, all_sinks, info)
+    run_lanes(_windowed(samples, opts.in_window), [Lane(stream, runners)], all_sinks, info)
     wall = time.perf_counter() - wall0 - sum(r.smooth_seconds for r in runners)
     scorer.finish()
     return {"wall_s": wall, "refs": refs}, stream, runners, scorer, coll

@@ -7,10 +7,10 @@ import math
 import sys
 from pathlib import Path
 
-from ..engine.attitude import DEFAULT_MAX_RATE_HZ
 from ..apps.replay import DEFAULT_FILTERS, ReplayConfig, replay
+from ..engine.attitude import DEFAULT_MAX_RATE_HZ
 from ..models.attitude import AttitudeNoise
-from ..sinks.base import Sink
+from ..sinks.base import ResetLog, Sink
 from ..sinks.jsonout import write_json
 from .report import progress, table
 
@@ -103,7 +103,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         noise=_parse_noise(args.noise), imu=args.imu, use_mag=not args.no_mag,
         accel_comp=args.accel_comp, mag_mode=args.mag_mode, mag_delay=args.mag_delay,
     )
-    sinks = [_Progress(False if args.no_progress else None)]
+    sinks = [_Progress(False if args.no_progress else None), ResetLog()]
     doc = replay(args.log, cfg, sinks=sinks, command=" ".join(sys.argv))
     print(format_doc(doc))
     if args.json:

@@ -1,13 +1,49 @@
-"""The streaming engine's loop: items from a step source go to every estimator, every
-record to every sink, one at a time (nothing is held but what the estimators hold)."""
+"""The streaming engine's loop: items go to every estimator, every record to every sink,
+one at a time (nothing is held but what the estimators hold).
+
+:func:`run` steps estimators over an item stream (a :class:`Start`, then
+:class:`Step` s). :func:`run_lanes` is the general form for a sample stream: each
+:class:`Lane` is a step builder (``push(sample) -> items``, ``flush() -> items``, e.g.
+:class:`~uavest.engine.attitude.AttitudeStream`) with the estimators it feeds, so one
+source (a live link) drives attitude filters and trackers side by side; every sample is
+shown to every sink first (recorders, scorers).
+"""
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 
 from .records import RunInfo, Start, Step
 
-__all__ = ["run"]
+__all__ = ["Lane", "run", "run_lanes"]
+
+
+@dataclass
+class Lane:
+    """A step builder and the estimators its items go to."""
+
+    builder: object
+    estimators: Sequence
+
+
+def _dispatch(items, estimators, sinks) -> int:
+    n = 0
+    for it in items:
+        if isinstance(it, Step):
+            for e in estimators:
+                rec = e.step(it)
+                for s in sinks:
+                    s.record(rec)
+            n += 1
+        else:
+            assert isinstance(it, Start), it
+            for e in estimators:
+                e.start(it)
+                for s in sinks:
+                    s.start(e.label, it.t0, getattr(it.prior, "x", None),
+                            getattr(it.prior, "P", None))
+    return n
 
 
 def run(
@@ -16,28 +52,41 @@ def run(
     sinks: Sequence = (),
     info: RunInfo | None = None,
 ) -> int:
-    """Run ``estimators`` over ``items`` (a :class:`Start`, then :class:`Step` s, maybe
-    more starts), handing every record to every sink; returns the number of steps.
+    """Run ``estimators`` over ``items``, handing every record to every sink; returns the
+    number of steps. Sinks are opened first and closed last, also when the loop stops on
+    an exception (e.g. KeyboardInterrupt), so output files are complete."""
+    for s in sinks:
+        if info is not None:
+            s.open(info)
+    try:
+        return _dispatch(items, estimators, sinks)
+    finally:
+        for s in sinks:
+            s.close()
 
-    Sinks are opened first and closed last, also when the loop stops on an exception
-    (e.g. KeyboardInterrupt), so output files are complete."""
+
+def run_lanes(
+    samples: Iterable,
+    lanes: Sequence[Lane],
+    sinks: Sequence = (),
+    info: RunInfo | None = None,
+) -> int:
+    """Feed every sample to every sink and every lane's builder; step each lane's
+    estimators with the items it completes. Returns the number of steps of all lanes."""
     for s in sinks:
         if info is not None:
             s.open(info)
     n = 0
     try:
-        for it in items:
-            if isinstance(it, Step):
-                for e in estimators:
-                    rec = e.step(it)
-                    for s in sinks:
-                        s.record(rec)
-                n += 1
-            else:
-                for e in estimators:
-                    e.start(it)
-                    for s in sinks:
-                        s.start(e.label, it.t0, it.prior.x, it.prior.P)
+        for smp in samples:
+            for s in sinks:
+                s.sample(smp)
+            for ln in lanes:
+                items = ln.builder.push(smp)
+                if items:
+                    n += _dispatch(items, ln.estimators, sinks)
+        for ln in lanes:
+            n += _dispatch(ln.builder.flush(), ln.estimators, sinks)
     finally:
         for s in sinks:
             s.close()

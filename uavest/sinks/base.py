@@ -12,11 +12,13 @@ from __future__ import annotations
 
 from collections import defaultdict
 
+import logging
+
 import numpy as np
 
 from ..engine.records import RunInfo, ScanRecord, StepRecord
 
-__all__ = ["Collector", "Sink"]
+__all__ = ["Collector", "ResetLog", "Sink"]
 
 
 class Sink:
@@ -69,3 +71,17 @@ class Collector(Sink):
         if recs and recs[0].C is not None:
             out["C"] = np.array([r.C for r in recs])
         return out
+
+
+class ResetLog(Sink):
+    """Logs every divergence reset as it happens (``logging`` INFO on ``uavest.filters``;
+    the command line shows INFO with ``-v``) and counts them per estimator."""
+
+    def __init__(self) -> None:
+        self.log = logging.getLogger("uavest.filters")
+        self.counts: dict[str, int] = defaultdict(int)
+
+    def record(self, rec) -> None:
+        if isinstance(rec, StepRecord) and rec.reset:
+            self.counts[rec.estimator] += 1
+            self.log.info("%s reset at t = %.3f s: %s", rec.estimator, rec.t, rec.reason)
