@@ -63,6 +63,8 @@ def _fill(p: argparse.ArgumentParser) -> None:
                    help="override a scenario value, e.g. --set radar.pd=0.8")
     p.add_argument("--wait", action="store_true",
                    help="hold the simulated clock at 0 until a peer connects / sends")
+    p.add_argument("--params", action="store_true",
+                   help="send the parameter list (PARAM_VALUE, e.g. COMPASS_DEC) once at start")
     p.add_argument("--quiet", action="store_true", help="no summary on stderr")
     p.set_defaults(func=cmd_sim)
 
@@ -99,7 +101,8 @@ def cmd_sim(args) -> int:
                   f"{' + ' + args.tlog if args.tlog else ''}, IMU {sim.imu_rate:g} Hz, "
                   f"speed {args.speed:g}, seed {args.seed}", file=sys.stderr, flush=True)
         summary = sim.run(out, duration=args.duration, speed=args.speed, stop_event=stop,
-                          tlog=args.tlog, wait_gcs=args.wait)
+                          tlog=args.tlog, wait_gcs=args.wait,
+                          send_params=args.params)
     finally:
         for s, h in old.items():
             signal.signal(s, h)

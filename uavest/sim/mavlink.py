@@ -21,6 +21,7 @@ import os
 
 os.environ["MAVLINK20"] = "1"  # before pymavlink.mavutil is imported anywhere by us
 
+import bisect  # noqa: E402
 import math  # noqa: E402
 import struct  # noqa: E402
 import threading  # noqa: E402
@@ -261,7 +262,7 @@ class Simulator:
             self.set_rate(name, float(hz))
         # run state
         self.t = 0.0
-        self._chunks: list[_Chunk] = []
+        self._hist: tuple[list[_Chunk], list[int]] = ([], [])
         self._gps_fix: dict | None = None
         self._next_gps_us = 0
         self._next_scan_us = 0
@@ -378,11 +379,14 @@ class Simulator:
         ch = _Chunk(self.k, t_us, tr, imu, self.att_err.run(n), self.nav_err.run(n),
                     self.vel_err.run(n), self.baro_err.run(n)[:, 0],
                     np.column_stack([lat, lon, h]))
-        self._chunks.append(ch)
+        chunks = self._hist[0] + [ch]
         if self.history_s is not None:
             keep = self.history_s * 1e6
-            while len(self._chunks) > 2 and self._chunks[1].t_us[0] < t_us[-1] - keep:
-                self._chunks.pop(0)
+            while len(chunks) > 2 and chunks[1].t_us[0] < t_us[-1] - keep:
+                chunks.pop(0)
+        # new lists (not in-place edits) so that truth_at in another thread sees a
+        # consistent pair
+        self._hist = (chunks, [int(c.t_us[0]) for c in chunks])
         return ch
 
     def truth_at(self, t: float) -> Truth:
@@ -391,15 +395,19 @@ class Simulator:
         velocity are linearly interpolated between IMU steps, attitude and rates are
         evaluated exactly, biases taken at the step before ``t``."""
         t_us = t * 1e6
-        ch = next((c for c in reversed(self._chunks) if c.t_us[0] <= t_us + 1e-6), None)
-        if ch is None or t_us > ch.t_us[-1] + self.dt_us + 1e-6 or (
-            ch is self._chunks[-1] and t_us > ch.t_us[-1] + 1e-6
-        ):
+        chunks, starts = self._hist  # one tuple, replaced (never mutated) by the sim
+        n = bisect.bisect_right(starts, t_us + 1e-6) - 1
+        # the newest step may still be unsent: only times up to the current step count
+        if n < 0 or t_us > min(chunks[-1].t_us[-1], self.k * self.dt_us) + 1e-6:
             raise ValueError(f"t = {t} s is outside the simulated history")
+        ch = chunks[n]
         i = int(np.searchsorted(ch.t_us, t_us, side="right") - 1)
-        nxt = (ch, i + 1) if i + 1 < ch.t_us.size else (
-            self._chunks[self._chunks.index(ch) + 1], 0)
-        c2, j = nxt
+        if i + 1 < ch.t_us.size:
+            c2, j = ch, i + 1
+        elif n + 1 < len(chunks):
+            c2, j = chunks[n + 1], 0
+        else:
+            c2, j = ch, i
         span = c2.t_us[j] - ch.t_us[i]
         s = 0.0 if span == 0 else (t_us - ch.t_us[i]) / span
         tr, tr2 = ch.truth, c2.truth
@@ -683,6 +691,7 @@ class Simulator:
         stop_event: threading.Event | None = None,
         tlog: str | Path | None = None,
         wait_gcs: bool = False,
+        send_params: bool = False,
     ) -> RunSummary:
         """Simulate and send until ``duration`` simulated seconds (None: until stopped).
 
@@ -694,6 +703,9 @@ class Simulator:
             cleanly after the current step.
           tlog: write everything sent to this telemetry log.
           wait_gcs: hold the clock at 0 until a peer shows up (see :meth:`_wait_gcs`).
+          send_params: send the parameter list (PARAM_VALUE) once at t = 0, as if a
+            ground station had asked (PARAM_REQUEST_LIST); handy for logs made without a
+            peer so that they carry COMPASS_DEC.
         Call once per Simulator (the clock is not rewound).
         """
         if duration is None and (conn is None or str(conn).lower() == "none"):
@@ -739,6 +751,10 @@ class Simulator:
                 if t_us >= self._next_hb_us:
                     self._send(self._heartbeat(), t_us)
                     self._next_hb_us += 1_000_000
+                if send_params:
+                    send_params = False
+                    for name in self.params:
+                        self._send_param(name, t_us)
                 if t_us >= self._next_gps_us:
                     self._gps_update(ch, i)
                     self._next_gps_us += gps_iv
@@ -771,6 +787,10 @@ class Simulator:
                 except OSError:
                     pass
                 self._conn = None
+
+    @property
+    def _chunks(self) -> list[_Chunk]:
+        return self._hist[0]
 
     def _summary(self, wall0: float, reason: str, tlog) -> RunSummary:
         return RunSummary(max(self.k - 1, 0) * self.dt_us * 1e-6, time.monotonic() - wall0,
