@@ -207,6 +207,25 @@ def test_params_compass_dec(live):
     assert names["COMPASS_AUTODEC"].param_value == 0.0
     assert names["SYSID_THISMAV"].param_value == 1.0
     assert sorted(m.param_index for m in names.values()) == list(range(len(names)))
+    # GET_MESSAGE_INTERVAL after SET, and REQUEST_MESSAGE (one instance)
+    cl = lv.client.mav
+    cl.command_long_send(1, 1, mav2.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                         mav2.MAVLINK_MSG_ID_SIMSTATE, 20000, 0, 0, 0, 0, 0)
+    cl.command_long_send(1, 1, mav2.MAV_CMD_GET_MESSAGE_INTERVAL, 0,
+                         mav2.MAVLINK_MSG_ID_SIMSTATE, 0, 0, 0, 0, 0, 0)
+    mi = lv.until(lambda m: m.get_type() == "MESSAGE_INTERVAL")
+    assert (mi.message_id, mi.interval_us) == (mav2.MAVLINK_MSG_ID_SIMSTATE, 20000)
+    cl.command_long_send(1, 1, mav2.MAV_CMD_REQUEST_MESSAGE, 0,
+                         mav2.MAVLINK_MSG_ID_SYSTEM_TIME, 0, 0, 0, 0, 0, 0)
+    st = lv.until(lambda m: m.get_type() == "SYSTEM_TIME")
+    assert st.time_unix_usec == int(lv.sim.epoch * 1e6) + st.time_boot_ms * 1000
+    cl.command_long_send(1, 1, mav2.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+    ack = lv.until(lambda m: m.get_type() == "COMMAND_ACK"
+                   and m.command == mav2.MAV_CMD_COMPONENT_ARM_DISARM)
+    assert ack.result == mav2.MAV_RESULT_UNSUPPORTED
+    lv.until(lambda m: m.get_type() == "HEARTBEAT")
+    lv.until(lambda m: m.get_type() == "HEARTBEAT")
+    assert lv.sim.sent["SYSTEM_TIME"] == 1 and lv.sim.sent["SIMSTATE"] > 40
 
 
 def test_tcpin_like_sitl(live):
@@ -421,7 +440,8 @@ def test_determinism_and_stream_independence(tmp_path):
     assert imu[0] != imu[1]
 
 
-def test_subprocess_sigint_leaves_whole_tlog(tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_subprocess_signal_leaves_whole_tlog(tmp_path, sig):
     path = tmp_path / "int.tlog"
     port = free_port()
     env = dict(os.environ, PYTHONPATH=str(ROOT))
@@ -435,7 +455,7 @@ def test_subprocess_sigint_leaves_whole_tlog(tmp_path):
         while time.monotonic() < t_end and (not path.exists() or path.stat().st_size < 20000):
             time.sleep(0.1)
         assert p.poll() is None, p.stderr.read()
-        p.send_signal(signal.SIGINT)
+        p.send_signal(sig)
         rc = p.wait(15)
     finally:
         if p.poll() is None:
@@ -450,11 +470,19 @@ def test_subprocess_sigint_leaves_whole_tlog(tmp_path):
     assert np.all(np.diff(ts) >= 0)
 
 
+def test_targets_repeat_with_period():
+    sim = Simulator(load_scenario("sim_default"))
+    P, _ = sim.targets.state_at(np.array([10.0, 130.0, 250.0]))
+    assert np.allclose(P[1, 0], P[1, 1]) and np.allclose(P[1, 0], P[1, 2])  # CROSS2
+    assert not np.allclose(P[0, 0], P[0, 1])  # ORBIT1 has no period
+
+
 def test_cli_rejects_bad_arguments(capsys):
     from uavest.cli.sim import main
 
     assert main(["--out", "none", "--speed", "0"]) == 2  # no duration
     assert main(["ungm", "--out", "none", "--duration", "1"]) == 2  # not a sim scenario
+    assert main(["--out", "none", "--duration", "1", "--speed", "-1"]) == 2
     assert main(["--out", "none", "--duration", "1", "--rate", "NOPE=3"]) == 2
     assert "unknown message" in capsys.readouterr().err
 

@@ -85,6 +85,9 @@ def cmd_sim(args) -> int:
     except (ScenarioError, ValueError, argparse.ArgumentTypeError, KeyError) as e:
         print(f"uavest sim: {e}", file=sys.stderr)
         return 2
+    if args.speed < 0 or (args.duration is not None and args.duration < 0):
+        print("uavest sim: --speed and --duration must be >= 0", file=sys.stderr)
+        return 2
     out = None if str(args.out).lower() == "none" else args.out
     if out is None and args.duration is None:
         print("uavest sim: --out none needs --duration", file=sys.stderr)

@@ -38,7 +38,8 @@ EMITTERS = {  # ADSB_EMITTER_TYPE
 @dataclass
 class Target:
     """One aircraft: initial NED state at t = 0 and horizontal turn segments
-    ``[[t_start, t_end, deg_per_s], ...]`` (s since boot; end may be ``inf``)."""
+    ``[[t_start, t_end, deg_per_s], ...]`` (s since boot; end may be ``inf``); with
+    ``period`` the whole trajectory restarts every ``period`` s (time taken modulo it)."""
 
     name: str
     ident: int  # OBSTACLE_DISTANCE_3D obstacle_id
@@ -48,6 +49,7 @@ class Target:
     p0: Array
     v0: Array
     turns: list
+    period: float | None = None  # s: the trajectory restarts every period (a new pass)
 
 
 def _ct(p: Array, v: Array, w: float, tau: Array) -> tuple[Array, Array]:
@@ -80,6 +82,7 @@ class Targets:
                 v0=np.asarray(d.get("velocity_ned", [0.0, 0.0, 0.0]), float),
                 turns=sorted([float(a), float(b), np.deg2rad(float(w))]
                              for a, b, w in d.get("turns", [])),
+                period=float(d["period_s"]) if d.get("period_s") else None,
             ))
             if self.targets[-1].ident == CLUTTER_ID:
                 raise ValueError(f"target id {CLUTTER_ID} is reserved for clutter")
@@ -105,6 +108,8 @@ class Targets:
 
     def _one(self, tg: Target, t: Array) -> tuple[Array, Array]:
         t = np.atleast_1d(np.asarray(t, float))
+        if tg.period:
+            t = np.mod(t, tg.period)
         pos = np.empty((t.size, 3))
         vel = np.empty((t.size, 3))
         pos[:, 2] = tg.p0[2] + tg.v0[2] * t
