@@ -244,6 +244,29 @@ def test_tcpin_like_sitl(live):
     assert np.linalg.norm([h[-1].xmag, h[-1].ymag, h[-1].zmag]) == pytest.approx(0.48, abs=0.02)
 
 
+def test_udpin_server_answers_whoever_calls():
+    """``--out udpin:...``: the sim is the UDP server; it replies to the client's address."""
+    port = free_port()
+    sim = Simulator(load_scenario("sim_default"), imu_rate=200.0)
+    stop = threading.Event()
+    th = threading.Thread(target=sim.run, kwargs=dict(
+        conn=f"udpin:127.0.0.1:{port}", duration=60.0, speed=20.0, stop_event=stop,
+        wait_gcs=True), daemon=True)
+    th.start()
+    try:
+        assert sim.ready.wait(10)
+        c = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=255)
+        c.mav.heartbeat_send(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        c.mav.command_long_send(1, 1, mav2.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                                mav2.MAVLINK_MSG_ID_RAW_IMU, 5000, 0, 0, 0, 0, 0)
+        m = c.recv_match(type="RAW_IMU", blocking=True, timeout=10)
+        assert m is not None and m.get_srcSystem() == 1
+    finally:
+        stop.set()
+        th.join(10)
+    assert sim.received["HEARTBEAT"] >= 1 and sim.received["COMMAND_LONG"] == 1
+
+
 def test_radar_detections_over_udp_match_truth(live):
     lv = live(sc_sets=["radar.rate_hz=4"], speed=0.0, imu_rate=50.0, duration=150.0)
     lv.hello()
