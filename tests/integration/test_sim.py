@@ -533,3 +533,26 @@ def test_committed_log(tmp_path):
     cmd[i + 1] = str(tmp_path / "again.tlog")
     assert main(cmd[3:]) == 0  # drop "python -m uavest.cli.sim"
     assert (tmp_path / "again.tlog").read_bytes() == log.read_bytes()
+
+
+def test_truth_csv(tmp_path):
+    import csv
+
+    from uavest.cli.sim import main
+    from uavest.sim.mavlink import TRUTH_COLUMNS
+
+    out = tmp_path / "truth.csv"
+    assert main(["--out", "none", "--duration", "10", "--speed", "0", "--imu-rate", "100",
+                 "--truth", str(out), "--truth-rate", "5", "--quiet"]) == 0
+    rows = list(csv.DictReader(out.open()))
+    assert tuple(rows[0]) == TRUTH_COLUMNS
+    veh = [r for r in rows if r["kind"] == "vehicle"]
+    tgt = [r for r in rows if r["kind"] == "target"]
+    det = [r for r in rows if r["kind"] == "det"]
+    assert len(veh) == 51 and len(tgt) == 4 * 51
+    sim = Simulator(load_scenario("sim_default"))
+    for r in tgt[::17]:
+        P, _ = sim.targets.state_at(float(r["t"]))
+        assert np.allclose([float(r[k]) for k in "ned"], P[int(r["origin"])], atol=1e-3)
+    assert det and all((r["id"] == "65535") == (r["origin"] == "-1") for r in det)
+    assert abs(float(veh[-1]["d"]) + 30.0) < 1.0  # hovering 30 m above the origin

@@ -55,6 +55,10 @@ def _fill(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="master seed (default 0)")
     p.add_argument("--sysid", type=int, default=1, help="MAVLink system id (default 1)")
     p.add_argument("--tlog", help="also write everything sent to this .tlog")
+    p.add_argument("--truth", help="also write a truth CSV (vehicle, targets, detection "
+                   "origins; columns in docs/sim.md) as the run goes")
+    p.add_argument("--truth-rate", type=float, default=10.0,
+                   help="rows per second for vehicle/targets in --truth (default 10)")
     p.add_argument("--rate", action="append", default=[], metavar="NAME=HZ",
                    help="start a message (RAW_IMU, HIGHRES_IMU, SIMSTATE, ...) or a data "
                    "stream (RAW_SENSORS, EXTENDED_STATUS, POSITION, EXTRA1..3, ALL; capped "
@@ -105,7 +109,8 @@ def cmd_sim(args) -> int:
                   f"speed {args.speed:g}, seed {args.seed}", file=sys.stderr, flush=True)
         summary = sim.run(out, duration=args.duration, speed=args.speed, stop_event=stop,
                           tlog=args.tlog, wait_gcs=args.wait,
-                          send_params=args.params)
+                          send_params=args.params, truth=args.truth,
+                          truth_rate=args.truth_rate)
     finally:
         for s, h in old.items():
             signal.signal(s, h)

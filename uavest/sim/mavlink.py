@@ -47,6 +47,13 @@ from .vehicle import (  # noqa: E402
 
 Array = np.ndarray
 
+#: Columns of the truth CSV (``run(truth=...)`` / ``--truth``). ``kind`` is ``vehicle``
+#: (id 0), ``target`` (id = obstacle id, origin = target index) or ``det`` (a radar
+#: detection: id = obstacle_id sent, origin = target index or -1 for clutter, n/e/d =
+#: the FRD x/y/z sent, a/b/c = range m, azimuth rad, elevation rad). Vehicle rows: a/b/c =
+#: roll, pitch, yaw rad. NED m and m/s from the origin; lat/lon deg, alt m.
+TRUTH_COLUMNS = ("t", "kind", "id", "origin", "n", "e", "d", "vn", "ve", "vd", "a", "b", "c",
+                 "lat", "lon", "alt")
 STREAM_CAP_HZ = 50.0  # ArduPilot's maximum data-stream rate (SRn_* parameters)
 DEFAULT_EPOCH = 1767225600.0  # 2026-01-01T00:00:00Z, UNIX time of boot (scenario time.epoch)
 
@@ -279,6 +286,7 @@ class Simulator:
         self._rx.robust_parsing = True
         self._conn = None
         self._tlog = None
+        self._truth = None
         self.received: Counter = Counter()
 
     # ------------------------------------------------------------------ params / rates
@@ -628,6 +636,14 @@ class Simulator:
         dets = self.radar.scan(ch.truth.R[i], ch.truth.pos[i], P,
                                [tg.ident for tg in self.targets.targets])
         self.detections.append((float(t), dets))
+        if self._truth is not None:
+            rows = []
+            for d in dets:
+                r, az, el = d.rae
+                rows.append(f"{t:.6f},det,{d.obstacle_id},{d.origin},{d.xyz[0]:.3f},"
+                            f"{d.xyz[1]:.3f},{d.xyz[2]:.3f},,,,{r:.3f},{az:.6f},{el:.6f},,,")
+            if rows:
+                self._truth.write("\n".join(rows) + "\n")
         if self.history_s is not None:
             while self.detections and self.detections[0][0] < t - self.history_s:
                 self.detections.pop(0)
@@ -692,6 +708,8 @@ class Simulator:
         tlog: str | Path | None = None,
         wait_gcs: bool = False,
         send_params: bool = False,
+        truth: str | Path | None = None,
+        truth_rate: float = 10.0,
     ) -> RunSummary:
         """Simulate and send until ``duration`` simulated seconds (None: until stopped).
 
@@ -706,6 +724,9 @@ class Simulator:
           send_params: send the parameter list (PARAM_VALUE) once at t = 0, as if a
             ground station had asked (PARAM_REQUEST_LIST); handy for logs made without a
             peer so that they carry COMPASS_DEC.
+          truth: write a truth CSV as the run goes (:data:`TRUTH_COLUMNS`; one row per
+            object, vehicle and targets, every ``1 / truth_rate`` s, plus one row per
+            radar detection with its origin), flushed every row block.
         Call once per Simulator (the clock is not rewound).
         """
         if duration is None and (conn is None or str(conn).lower() == "none"):
@@ -719,6 +740,11 @@ class Simulator:
         reason = "duration"
         self._conn = self._open(conn)
         self._tlog = open(tlog, "wb") if tlog else None  # noqa: SIM115
+        self._truth = open(truth, "w") if truth else None  # noqa: SIM115
+        if self._truth is not None:
+            self._truth.write(",".join(TRUTH_COLUMNS) + "\n")
+        truth_iv = int(round(1e6 / truth_rate)) if truth_rate > 0 else None
+        next_truth = 0
         try:
             self.ready.set()
             if wait_gcs and self._conn is not None and not self._wait_gcs(str(conn), stop):
@@ -770,6 +796,9 @@ class Simulator:
                 if t_us >= self._next_scan_us:
                     self._radar_scan(ch, i)
                     self._next_scan_us += scan_iv
+                if self._truth is not None and truth_iv and t_us >= next_truth:
+                    self._write_truth(ch, i)
+                    next_truth += truth_iv
                 for j in range(len(self.targets)):
                     if t_us >= self._next_adsb_us[j]:
                         self._next_adsb_us[j] += self.adsb_interval_us
@@ -778,6 +807,9 @@ class Simulator:
                 self.k += 1
             return self._summary(wall0, reason, tlog)
         finally:
+            if self._truth is not None:
+                self._truth.close()
+                self._truth = None
             if self._tlog is not None:
                 self._tlog.close()
                 self._tlog = None
@@ -787,6 +819,24 @@ class Simulator:
                 except OSError:
                     pass
                 self._conn = None
+
+    def _write_truth(self, ch: _Chunk, i: int) -> None:
+        t = ch.t_us[i] * 1e-6
+        tr = ch.truth
+        p, v, e = tr.pos[i], tr.vel[i], tr.euler[i]
+        la, lo, h = ch.lla[i]
+        rows = [f"{t:.6f},vehicle,0,,{p[0]:.4f},{p[1]:.4f},{p[2]:.4f},{v[0]:.4f},{v[1]:.4f},"
+                f"{v[2]:.4f},{e[0]:.6f},{e[1]:.6f},{e[2]:.6f},{la:.8f},{lo:.8f},{h:.3f}"]
+        if len(self.targets):
+            P, V = self.targets.state_at(t)
+            LA, LO, H = self.frame.ned_to_geodetic(P)
+            for j, tg in enumerate(self.targets.targets):
+                p, v = P[j], V[j]
+                rows.append(f"{t:.6f},target,{tg.ident},{j},{p[0]:.3f},{p[1]:.3f},{p[2]:.3f},"
+                            f"{v[0]:.3f},{v[1]:.3f},{v[2]:.3f},,,,{LA[j]:.8f},{LO[j]:.8f},"
+                            f"{H[j]:.3f}")
+        self._truth.write("\n".join(rows) + "\n")
+        self._truth.flush()
 
     @property
     def _chunks(self) -> list[_Chunk]:
