@@ -8,8 +8,8 @@
 See ``docs/sim.md``.
 """
 
-from .mavlink import STREAMS, RunSummary, Simulator, Truth, VehicleTruth
+from .mavlink import STREAMS, TRUTH_COLUMNS, RunSummary, Simulator, Truth, VehicleTruth
 from .radar import CLUTTER_ID, Detection, Radar, Targets
 
-__all__ = ["CLUTTER_ID", "STREAMS", "Detection", "Radar", "RunSummary", "Simulator",
-           "Targets", "Truth", "VehicleTruth"]
+__all__ = ["CLUTTER_ID", "STREAMS", "TRUTH_COLUMNS", "Detection", "Radar", "RunSummary",
+           "Simulator", "Targets", "Truth", "VehicleTruth"]

@@ -287,6 +287,8 @@ class Simulator:
         self._conn = None
         self._tlog = None
         self._truth = None
+        self._pending_once: list[str] = []
+        self._n_det = 0
         self.received: Counter = Counter()
 
     # ------------------------------------------------------------------ params / rates
@@ -731,11 +733,11 @@ class Simulator:
         """
         if duration is None and (conn is None or str(conn).lower() == "none"):
             raise ValueError("without a link a duration is required")
+        if self.k > 0:
+            raise RuntimeError("Simulator.run was already called; make a new Simulator")
         stop = stop_event or threading.Event()
         speed = float(speed)
         self.params["SIM_SPEEDUP"] = (float(speed), mav2.MAV_PARAM_TYPE_REAL32)
-        self._pending_once: list[str] = []
-        self._n_det = 0
         wall0 = time.monotonic()
         reason = "duration"
         self._conn = self._open(conn)
