@@ -1,0 +1,86 @@
+"""WGS84 geodetic <-> local NED (exact, through ECEF).
+
+The simulator's world frame is the local tangent plane NED at the scenario origin
+(lat0, lon0, h0): x north, y east, z down, metres. Geodetic heights are WGS84 ellipsoidal
+heights; the simulator takes the geoid undulation as 0, so they double as MSL altitudes
+in GPS_RAW_INT / GLOBAL_POSITION_INT / ADSB_VEHICLE.
+
+Formulas: Groves, *Principles of GNSS, Inertial, and Multisensor Integrated Navigation
+Systems* (2nd ed.), eqs. 2.112 (geodetic -> ECEF) and 2.150 (NED rotation); ECEF ->
+geodetic by Bowring's iteration (converges to < 1e-9 rad in 3 iterations near the Earth).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+Array = np.ndarray
+
+A = 6378137.0  # m, WGS84 semi-major axis
+F = 1.0 / 298.257223563
+E2 = F * (2.0 - F)  # first eccentricity squared
+B = A * (1.0 - F)
+
+
+def geodetic_to_ecef(lat: Array, lon: Array, h: Array) -> Array:
+    """ECEF (..., 3) m from latitude, longitude (rad) and ellipsoidal height (m)."""
+    lat, lon, h = np.asarray(lat, float), np.asarray(lon, float), np.asarray(h, float)
+    sl, cl = np.sin(lat), np.cos(lat)
+    n = A / np.sqrt(1.0 - E2 * sl * sl)
+    return np.stack(
+        [(n + h) * cl * np.cos(lon), (n + h) * cl * np.sin(lon), (n * (1.0 - E2) + h) * sl],
+        axis=-1,
+    )
+
+
+def ecef_to_geodetic(xyz: Array) -> tuple[Array, Array, Array]:
+    """(lat rad, lon rad, h m) of ECEF points (..., 3) m."""
+    xyz = np.asarray(xyz, float)
+    x, y, z = xyz[..., 0], xyz[..., 1], xyz[..., 2]
+    lon = np.arctan2(y, x)
+    p = np.hypot(x, y)
+    lat = np.arctan2(z, p * (1.0 - E2))
+    for _ in range(5):
+        sl = np.sin(lat)
+        n = A / np.sqrt(1.0 - E2 * sl * sl)
+        h = p / np.cos(lat) - n
+        lat = np.arctan2(z, p * (1.0 - E2 * n / (n + h)))
+    sl = np.sin(lat)
+    n = A / np.sqrt(1.0 - E2 * sl * sl)
+    h = p / np.cos(lat) - n
+    return lat, lon, h
+
+
+def _r_en(lat0: float, lon0: float) -> Array:
+    """ECEF-from-NED rotation at (lat0, lon0) rad (columns: north, east, down in ECEF)."""
+    sl, cl, so, co = np.sin(lat0), np.cos(lat0), np.sin(lon0), np.cos(lon0)
+    return np.array(
+        [[-sl * co, -so, -cl * co], [-sl * so, co, -cl * so], [cl, 0.0, -sl]]
+    )
+
+
+class LocalFrame:
+    """Local tangent-plane NED frame at a geodetic origin.
+
+    Args:
+      lat_deg, lon_deg: origin latitude / longitude (degrees).
+      alt_m: origin ellipsoidal height (m).
+    """
+
+    def __init__(self, lat_deg: float, lon_deg: float, alt_m: float) -> None:
+        self.lat0 = np.deg2rad(float(lat_deg))
+        self.lon0 = np.deg2rad(float(lon_deg))
+        self.h0 = float(alt_m)
+        self.origin_ecef = geodetic_to_ecef(self.lat0, self.lon0, self.h0)
+        self.R_en = _r_en(self.lat0, self.lon0)
+
+    def ned_to_geodetic(self, ned: Array) -> tuple[Array, Array, Array]:
+        """(lat deg, lon deg, h m) of NED points (..., 3) m."""
+        ecef = self.origin_ecef + np.einsum("ij,...j->...i", self.R_en, np.asarray(ned, float))
+        lat, lon, h = ecef_to_geodetic(ecef)
+        return np.rad2deg(lat), np.rad2deg(lon), h
+
+    def geodetic_to_ned(self, lat_deg: Array, lon_deg: Array, h: Array) -> Array:
+        """NED (..., 3) m of geodetic points (degrees, m)."""
+        ecef = geodetic_to_ecef(np.deg2rad(lat_deg), np.deg2rad(lon_deg), h)
+        return np.einsum("ji,...j->...i", self.R_en, ecef - self.origin_ecef)
