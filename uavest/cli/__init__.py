@@ -92,10 +92,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "name resolves to in each command")
     pl.set_defaults(func=cmd_list)
     from .replay import add_replay_parser
+    from .sim import add_sim_parser
     from .track import add_track_parser
 
     add_track_parser(sub)
     add_replay_parser(sub)
+    add_sim_parser(sub)
     return ap
 
 
