@@ -41,7 +41,11 @@ def ess(w: Array) -> float:
 
 
 def log_likelihood(r: Array, R: Array) -> Array:
-    """Gaussian log-likelihood (up to a constant) of residuals ``r`` (M, m) under ``R``."""
+    """Gaussian log-likelihood (up to a constant) of residuals ``r`` (M, m) under ``R``.
+    Raises ValueError if the residuals do not have R's dimension (LAPACK would not)."""
+    if r.shape[-1] != R.shape[0]:
+        raise ValueError(f"residuals have {r.shape[-1]} components, the measurement "
+                         f"noise {R.shape[0]}")
     u = dtrtrs(chol(R), r.T, lower=1)[0]
     return -0.5 * (u * u).sum(axis=0)
 

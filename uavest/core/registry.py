@@ -154,8 +154,10 @@ def parse_filter_list(
     Refuses an empty list and duplicates (the same label twice, or two labels that
     resolve to the same filter and parameters)."""
     items = split_filter_list(text) if isinstance(text, str) else [str(t) for t in text]
-    if not items:
+    if not any(items):
         raise SpecError("the filter list is empty")
+    if not all(items):
+        raise SpecError(f"the filter list {text!r} has an empty entry")
     specs = [parse_spec(t, defaults) for t in items]
     seen: dict[tuple, str] = {}
     for s in specs:
