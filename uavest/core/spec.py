@@ -258,8 +258,8 @@ def check_params(
     """
     for k in given:
         if k not in table and k in user:
-            raise SpecError(f"{filt}: unknown parameter {k!r}; known: "
-                            f"{', '.join(table) or 'none'}")
+            raise SpecError(f"{filt}: unknown parameter {k!r} (given {k}={_show(given[k])});"
+                            f" known: {', '.join(table) or 'none'}")
     out: dict[str, Any] = {}
     for k, (p, default) in table.items():
         out[k] = p.check(filt, k, given[k]) if k in given else default
