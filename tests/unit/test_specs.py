@@ -239,20 +239,23 @@ def test_make_filter_in_context_matches_presets_and_old_defaults():
                                   "hybrid(n_cloud=4, stages=2, shifts=2)"])
 def test_split_hybrid_gives_the_numbers_of_the_flat_parameter_set(spec):
     """The strategy split kept the numbers: a seeded run equals the same run with the
-    class built directly from the resolved parameters (and the existing numeric tests in
-    tests/ pass unchanged)."""
+    class built directly from the resolved parameters, and with the dimension-dependent
+    gamma resolved by a preset (the existing numeric tests in tests/ pass unchanged)."""
     from uavest.models.benchmarks import UNGMMeasurement, UNGMTransition
 
     s = parse_spec(spec)
     cls = HybridLocal if s.params["update_mode"] == "local" else Hybrid
     direct = cls(**{k: v for k, v in s.params.items() if k != "update_mode"})
     tr, me = UNGMTransition(), UNGMMeasurement()
+    resolved = presets.build(presets.resolve(spec, "bench", dim=1))  # gamma resolved to sqrt(3)
+    assert resolved.gamma == pytest.approx(np.sqrt(3)) and direct.gamma is None
     out = []
-    for f in (build(s), direct):
+    for f in (build(s), direct, resolved):
         rng = np.random.default_rng(0)
         E = f.init(Gaussian.of(0.0, 1.0), tr.space, rng)
         for k in range(1, 21):
             E = f.predict(E, tr, k, 1.0, None, rng)
             E, _ = f.update(E, np.array([0.5 * np.sin(k)]), me, rng)
         out.append(f.estimate(E))
-    assert np.array_equal(out[0].x, out[1].x) and np.array_equal(out[0].P, out[1].P)
+    for o in out[1:]:
+        assert np.array_equal(out[0].x, o.x) and np.array_equal(out[0].P, o.P)

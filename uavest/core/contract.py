@@ -57,6 +57,7 @@ import numpy as np
 from ..geometry.spaces import Space
 from .base import Ensemble, Innovation
 from .gaussian import Gaussian
+from .model import Measurement, Transition
 
 Array = np.ndarray
 Rng = np.random.Generator
@@ -71,18 +72,18 @@ class Filter(Protocol):
 
     def init(self, prior: Gaussian, space: Space, rng: Rng | None = None) -> Any: ...
 
-    def predict(self, s: Any, model: Any, t: float, dt: float, u: Array | None = None,
-                rng: Rng | None = None) -> Any: ...
+    def predict(self, s: Any, model: Transition, t: float, dt: float,
+                u: Array | None = None, rng: Rng | None = None) -> Any: ...
 
-    def update(self, s: Any, z: Array, model: Any, rng: Rng | None = None
+    def update(self, s: Any, z: Array, model: Measurement, rng: Rng | None = None
                ) -> tuple[Any, Innovation | None]: ...
 
     def estimate(self, s: Any) -> Gaussian: ...
 
-    def cross_covariance(self, s_prev: Any, s_pred: Any, model: Any, t: float, dt: float,
-                         u: Array | None = None) -> Array: ...
+    def cross_covariance(self, s_prev: Any, s_pred: Any, model: Transition, t: float,
+                         dt: float, u: Array | None = None) -> Array: ...
 
-    def rts_terms(self, s_prev: Any, s_pred: Any, model: Any, t: float, dt: float,
+    def rts_terms(self, s_prev: Any, s_pred: Any, model: Transition, t: float, dt: float,
                   u: Array | None = None, prev: Gaussian | None = None
                   ) -> tuple[Gaussian, Array]: ...
 
@@ -93,7 +94,7 @@ class Filter(Protocol):
 
 
 def sigma_point_terms(
-    g: Gaussian, model: Any, t: float, dt: float, u: Array | None = None, ukf: Any = None
+    g: Gaussian, model: Transition, t: float, dt: float, u: Array | None = None, ukf: Any = None
 ) -> tuple[Gaussian, Array]:
     """Unscented prediction of ``g`` and its cross-covariance C (the documented fallback):
     ``ukf`` (default ``UKF()``: alpha=1, beta=2, kappa=0) ``.predict_cross``."""
@@ -158,7 +159,7 @@ class FilterBase:
         raise NotImplementedError  # pragma: no cover
 
     def rts_terms(
-        self, s_prev: Any, s_pred: Any, model: Any, t: float, dt: float,
+        self, s_prev: Any, s_pred: Any, model: Transition, t: float, dt: float,
         u: Array | None = None, prev: Gaussian | None = None,
     ) -> tuple[Gaussian, Array]:
         """(prediction to pair with C, C) for RTS smoothing. ``prev`` is the filtered
@@ -168,7 +169,7 @@ class FilterBase:
         return sigma_point_terms(g, model, t, dt, u)
 
     def cross_covariance(
-        self, s_prev: Any, s_pred: Any, model: Any, t: float, dt: float,
+        self, s_prev: Any, s_pred: Any, model: Transition, t: float, dt: float,
         u: Array | None = None,
     ) -> Array:
         """C = Cov(e_{k-1}, e_k) (n, n), tangent coordinates; see :meth:`rts_terms`."""
@@ -190,7 +191,7 @@ class EnsembleFilter(FilterBase):
         return True
 
     def rts_terms(
-        self, s_prev: Any, s_pred: Any, model: Any, t: float, dt: float,
+        self, s_prev: Any, s_pred: Any, model: Transition, t: float, dt: float,
         u: Array | None = None, prev: Gaussian | None = None,
     ) -> tuple[Gaussian, Array]:
         """Member-wise cross-covariance paired with ``estimate(s_pred)`` when the predict
