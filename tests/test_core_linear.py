@@ -14,6 +14,7 @@ from uavest.core import (
     Gaussian,
     Hybrid,
     HybridLiteral,
+    HybridLocal,
     LinearMeasurement,
     LinearTransition,
 )
@@ -94,7 +95,7 @@ def test_sigma_point_filters_equal_kf_on_linear_model(cv_case, flt, tol_x, tol_P
         (EnKF(members=2000), 0.15),
         (ETKF(members=500), 0.15),
         (Hybrid(n_cloud=400), 0.15),
-        (Hybrid(n_cloud=400, update_mode="local"), 0.15),
+        (HybridLocal(n_cloud=400), 0.15),
         # the literal cloud has covariance (2 g^2/(2n+1) + s^2 N/(N+1)) P (spec, point 3):
         # with n=2, s=0.5, N=400 it equals P only for g^2 = (1 - 0.25*400/401) * 5/2
         (HybridLiteral(weights="equal", process_noise="members", n_cloud=400,

@@ -1,6 +1,6 @@
-"""Sage-Husa adaptive noise estimation with a forgetting factor (seeds 001, 002), as a
-wrapper usable with EKF, UKF and the hybrid filter (any filter whose update returns an
-:class:`Innovation`).
+"""Sage-Husa adaptive noise estimation with a forgetting factor (Sage and Husa, "Adaptive
+filtering with unknown prior statistics", JACC 1969), as a wrapper usable with EKF, UKF
+and the hybrid filter (any filter whose update returns an :class:`Innovation`).
 
 With forgetting factor b (0 < b < 1) and d_k = (1 - b) / (1 - b^(k+1)):
     R_k = (1 - d_k) R_{k-1} + d_k (nu nu^T - (S - R_{k-1}))       (S - R = H P- H^T)
@@ -12,12 +12,16 @@ smallest eigenvalue (documented safeguard). ``adapt`` chooses "R", "Q" or "RQ".
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..geometry.spaces import Space
+from .contract import FilterBase
 from .gaussian import Gaussian
 from .linalg import nearest_pd
+from .spec import param
 
 
 @dataclass(frozen=True, slots=True)
@@ -50,14 +54,17 @@ class _NoiseOverride:
 
 
 @dataclass(frozen=True)
-class SageHusa:
+class SageHusa(FilterBase):
     """Adaptive wrapper. ``b`` forgetting factor (0.98), ``adapt`` in {"R", "Q", "RQ"},
-    ``floor`` relative eigenvalue floor (0.1)."""
+    ``floor`` relative eigenvalue floor (0.1). Spec name: ``<filter>_sh``."""
 
     filter: object
-    b: float = 0.98
-    adapt: str = "R"
-    floor: float = 0.1
+    b: float = field(default=0.98, metadata=param(
+        "float", lo=0.0, hi=1.0, lo_open=True, hi_open=True, doc="forgetting factor"))
+    adapt: str = field(default="R", metadata=param(
+        "choice", choices=("R", "Q", "RQ"), doc="which noise to adapt"))
+    floor: float = field(default=0.1, metadata=param(
+        "float", lo=0.0, lo_open=True, doc="eigenvalue floor relative to the model's"))
 
     @property
     def name(self) -> str:
@@ -96,6 +103,30 @@ class SageHusa:
 
     def estimate(self, s: AdaptiveState) -> Gaussian:
         return self.filter.estimate(s.inner)
+
+    def rts_terms(self, s_prev: AdaptiveState, s_pred: AdaptiveState | None, model, t, dt,
+                  u=None, prev: Gaussian | None = None):
+        """The inner filter's, with the model as given (the smoother sees the nominal
+        transition; with the default ``adapt="R"`` that is the one predict used)."""
+        inner = None if s_pred is None else s_pred.inner
+        return self.filter.rts_terms(s_prev.inner, inner, model, t, dt, u, prev)
+
+    def mix(self, states: Sequence[AdaptiveState], w, space: Space, rng) -> AdaptiveState:
+        """The inner filter's mixture; the adapted R and Q are the w-weighted means of
+        the hypotheses' estimates (those that have one), the step count the largest."""
+        w = np.asarray(w, float)
+        inner = self.filter.mix([s.inner for s in states], w, space, rng)
+        return AdaptiveState(inner, _wmean([s.R for s in states], w),
+                             _wmean([s.Q for s in states], w), max(s.k for s in states),
+                             None, states[0].Qfix)
+
+
+def _wmean(As: list, w: np.ndarray):
+    idx = [i for i, A in enumerate(As) if A is not None]
+    if not idx:
+        return None
+    ws = w[idx] / w[idx].sum()
+    return sum(wi * As[i] for wi, i in zip(ws, idx, strict=True))
 
 
 def _floor(P: np.ndarray, P0: np.ndarray, rel: float) -> np.ndarray:

@@ -1,5 +1,7 @@
 """Ensemble Kalman filters: stochastic EnKF (perturbed observations) and the ensemble
-transform Kalman filter (ETKF, a deterministic square-root EnKF; Hunt et al. 2007).
+transform Kalman filter (ETKF, a deterministic square-root EnKF; Hunt, Kostelich and
+Szunyogh, "Efficient data assimilation for spatiotemporal chaos: a local ensemble
+transform Kalman filter", Physica D 2007).
 
 Members persist across steps. Process noise rides on the members:
     X_j <- retract(f(X_j), w_j),  w_j ~ N(0, Q)
@@ -13,14 +15,16 @@ ETKF update (no perturbations): with C = dY R^-1, A = (M-1) I + C dY^T = V diag(
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from .base import Ensemble, Innovation, ensemble_estimate, innovation, sample_gaussian
+from .contract import EnsembleFilter
 from .gaussian import Gaussian
 from .linalg import chol, gain, symmetrize
 from .model import Measurement, Transition
+from .spec import param
 
 Array = np.ndarray
 
@@ -54,9 +58,10 @@ def _equal_moments(E: Ensemble, model: Measurement):
     return x, dX, Y, ybar, dY
 
 
-class _PersistentEnsemble:
+class _PersistentEnsemble(EnsembleFilter):
     """Shared by EnKF and ETKF: iid Gaussian start, members propagated with process noise
-    and multiplicative ``inflation``, the estimate from the ensemble's moments."""
+    and multiplicative ``inflation``, the estimate from the ensemble's moments. Every
+    predict keeps member j as row j (member-wise RTS cross-covariance)."""
 
     members: int
     inflation: float
@@ -76,8 +81,9 @@ class EnKF(_PersistentEnsemble):
     """Stochastic EnKF with perturbed observations. ``members`` M (default 100),
     multiplicative ``inflation`` of the forecast anomalies (default 1.0: none)."""
 
-    members: int = 100
-    inflation: float = 1.0
+    members: int = field(default=100, metadata=param("int", lo=2, doc="ensemble size M"))
+    inflation: float = field(default=1.0, metadata=param(
+        "float", lo=0.0, lo_open=True, doc="multiplicative anomaly inflation (1: none)"))
     name: str = "enkf"
 
     def update(self, E: Ensemble, z, model: Measurement, rng=None) -> tuple[Ensemble, Innovation]:
@@ -97,8 +103,9 @@ class ETKF(_PersistentEnsemble):
     observations); the analysis ensemble has exactly the Kalman posterior covariance in
     the ensemble subspace. Symmetric square root keeps the mean unbiased."""
 
-    members: int = 100
-    inflation: float = 1.0
+    members: int = field(default=100, metadata=param("int", lo=2, doc="ensemble size M"))
+    inflation: float = field(default=1.0, metadata=param(
+        "float", lo=0.0, lo_open=True, doc="multiplicative anomaly inflation (1: none)"))
     name: str = "etkf"
 
     def update(self, E: Ensemble, z, model: Measurement, rng=None) -> tuple[Ensemble, Innovation]:

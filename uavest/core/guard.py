@@ -10,24 +10,43 @@ NIS above the gate (chi-square ``gate_prob`` quantile for the measurement dimens
 last good estimate with its covariance multiplied by ``inflate`` and reports it: the
 state's ``resets`` counter grows and ``reset`` is True for that step. It never returns a
 NaN/inf estimate.
+
+Only *numerical* failures are recovered from: ``numpy.linalg.LinAlgError`` (which the
+core's own numerical failures raise: :class:`~uavest.core.linalg.NumericalError`,
+:class:`~uavest.core.linalg.NotPositiveDefinite`) and ``FloatingPointError``, plus the
+checks above. Anything else (a measurement of the wrong shape, a wrong model type: a
+``ValueError``, ``TypeError``, ``IndexError``...) is a programming error and propagates.
+
+Smoothing (:meth:`Guarded.rts_terms`): the inner filter's terms; after a reset in the
+predict the predicted state is a re-initialisation, not a propagation of the previous
+one, so the inner filter is asked for its sigma-point fallback (``s_pred=None``: an
+unscented prediction of the filtered estimate and its cross-covariance).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtri
 
+from ..geometry.spaces import Space
 from .base import Innovation
+from .contract import FilterBase
 from .gaussian import Gaussian
 from .linalg import is_pd
+
+#: What the guard recovers from (numerical failures only; see the module docstring).
+NUMERICAL_ERRORS = (np.linalg.LinAlgError, FloatingPointError)
 
 
 @lru_cache(maxsize=64)
 def nis_gate(m: int, prob: float) -> float:
-    return float(chi2.ppf(prob, m))
+    """The ``prob`` quantile of chi-square with ``m`` degrees of freedom
+    (chi2.ppf(prob, m) == chdtri(m, 1 - prob), without importing scipy.stats)."""
+    return float(chdtri(m, 1.0 - prob))
 
 
 @dataclass(frozen=True, slots=True)
@@ -43,7 +62,7 @@ class GuardState:
 
 
 @dataclass(frozen=True)
-class Guarded:
+class Guarded(FilterBase):
     """Wraps ``filter`` with divergence detection and recovery (see module docstring)."""
 
     filter: object
@@ -72,7 +91,7 @@ class Guarded:
     def _check(self, inner, var_limit: float = np.inf) -> tuple[Gaussian | None, str]:
         try:
             g = self.filter.estimate(inner)
-        except (np.linalg.LinAlgError, ValueError, FloatingPointError) as e:
+        except NUMERICAL_ERRORS as e:
             return None, f"estimate failed: {e}"
         if not g.finite():
             return None, "non-finite estimate"
@@ -85,7 +104,7 @@ class Guarded:
     def predict(self, s: GuardState, model, t, dt, u=None, rng=None) -> GuardState:
         try:
             inner = self.filter.predict(s.inner, model, t, dt, u, rng)
-        except (np.linalg.LinAlgError, ValueError, FloatingPointError) as e:
+        except NUMERICAL_ERRORS as e:
             return self._recover(s, model.space, rng, f"predict failed: {e}")
         g, why = self._check(inner, s.var_limit)
         if g is None:
@@ -95,7 +114,7 @@ class Guarded:
     def update(self, s: GuardState, z, model, rng=None) -> tuple[GuardState, Innovation | None]:
         try:
             inner, inn = self.filter.update(s.inner, z, model, rng)
-        except (np.linalg.LinAlgError, ValueError, FloatingPointError) as e:
+        except NUMERICAL_ERRORS as e:
             return self._recover(s, model.space, rng, f"update failed: {e}"), None
         g, why = self._check(inner, s.var_limit)
         if g is None or not np.isfinite(inn.nis):
@@ -120,3 +139,18 @@ class Guarded:
             return s.est
         g, _ = self._check(s.inner)
         return s.last_good if g is None else g
+
+    def rts_terms(self, s_prev: GuardState, s_pred: GuardState | None, model, t, dt,
+                  u=None, prev: Gaussian | None = None) -> tuple[Gaussian, np.ndarray]:
+        """The inner filter's smoothing terms; after a reset in this predict (or with
+        ``s_pred=None``) its sigma-point fallback from the filtered estimate ``prev``
+        (default ``estimate(s_prev)``), see the module docstring."""
+        prev = self.estimate(s_prev) if prev is None else prev
+        inner = None if s_pred is None or s_pred.reset else s_pred.inner
+        return self.filter.rts_terms(s_prev.inner, inner, model, t, dt, u, prev)
+
+    def mix(self, states: Sequence[GuardState], w, space: Space, rng) -> GuardState:
+        """The inner filter's mixture of the hypotheses' inner states, checked like an
+        update (:meth:`adopt`), keeping the largest reset count of the hypotheses."""
+        inner = self.filter.mix([s.inner for s in states], np.asarray(w, float), space, rng)
+        return self.adopt(states[0], inner, space, rng, max(s.resets for s in states))

@@ -1,35 +1,43 @@
 """The hybrid sampling-driven Kalman filter (UKF characteristic sampling + EnKF random
-sampling + confidence weights; seed 000, spec ``shared/docs/hybrid-filter.md``).
+sampling + confidence weights; Cui, Sun and Wen, Sensors 2022).
 
-Two implementations share the sampling code:
+Implementations sharing the sampling code:
 
-:class:`HybridLiteral`
+:class:`HybridLiteral` (``hybrid_literal``)
     The reconstruction of the paper, step by step (sigma points with gamma outside the
     root, N-member clouds around each, inverse-distance confidence weights with a
     centroid share omega, perturbed-observation analysis, fresh sampling every step).
-    Every **choice** of the spec is a named parameter. Kept for the ablation and for
-    measuring the paper's claims; on the UNGM it loses to a plain EnKF (docs/filters.md).
+    Every **choice** of the reconstruction is a named parameter. Kept for the ablation
+    and for measuring the paper's claims; on the UNGM it loses to a plain EnKF
+    (docs/filters.md).
 
-:class:`Hybrid` (the default ``hybrid``)
-    Keeps the paper's two ideas while staying consistent:
+:class:`Hybrid` (``hybrid``, ``update_mode=shift``, the default) and :class:`HybridLocal`
+(``hybrid(update_mode=local)``)
+    Keep the paper's two ideas while staying consistent:
     *expanded sampling*: the ensemble is built from the 2n+1 sigma points each expanded
     into a cloud and then moment-matched, so the cloud reproduces exactly the mean and
     covariance it stands for; members persist across steps and, when the weights have
     degenerated (ESS below a threshold), are regenerated as clouds around the credible
     members (systematic selection + a covariance-preserving shrink kernel);
-    *confidence weights*: a member's credibility is how well it explains the measurement:
-    w_j <- w_j * p(z | X_j)^(1 - tau); the remaining share tau of the measurement is then
-    assimilated by an EnKF shift with R / tau, all moments with one weight set, process
-    noise on the members. All weights are positive and sum to 1.
+    *confidence weights*: a member's credibility is how well it explains the measurement.
+    They differ only in the update strategy, and each class declares only the
+    parameters its strategy uses:
+    ``shift``: w_j <- w_j * p(z | X_j)^(1 - tau); the remaining share tau of the
+    measurement is then assimilated by an EnKF shift with R / tau, all moments with one
+    weight set, process noise on the members. ``local``: a Gaussian-mixture update with
+    a local gain per member (:meth:`HybridLocal.update`). All weights are positive and
+    sum to 1.
 
-Switches (both classes): ``sampling`` in {"expanded", "random"} and ``weights`` in
+Switches (all classes): ``sampling`` in {"expanded", "random"} and ``weights`` in
 {"confidence", "equal"}. random + equal is a plain EnKF (re-sampled from the Gaussian
-every step); expanded + confidence is the hybrid.
+every step); expanded + confidence is the hybrid. Parameters that a switch makes
+irrelevant are refused in specs (their ``when`` declaration).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -42,11 +50,13 @@ from .base import (
     innovation,
     mean_start,
 )
+from .contract import EnsembleFilter, FilterBase
 from .ensemble import propagate_members
 from .gaussian import Gaussian
 from .linalg import chol, gain, is_pd, symmetrize
 from .model import Measurement, Transition
 from .particle import ess, log_likelihood, systematic_resample
+from .spec import param
 
 Array = np.ndarray
 
@@ -56,7 +66,7 @@ WEIGHTINGS = ("confidence", "equal")
 
 
 def default_gamma(n: int) -> float:
-    """Spec default: sqrt(3) for n <= 3, else sqrt(n)."""
+    """Default sigma scaling: sqrt(3) for n <= 3, else sqrt(n)."""
     return float(np.sqrt(3.0) if n <= 3 else np.sqrt(n))
 
 
@@ -101,7 +111,7 @@ def match_moments(D: Array, L: Array) -> Array:
 def confidence_weights(
     d: Array, omega: float, eps: float, distance: str, centre: int = 0
 ) -> Array:
-    """Spec step 4: inverse-distance weights of a cloud given its deviations ``d`` (M, k)
+    """Step 4 of the paper: inverse-distance weights of a cloud given its deviations ``d`` (M, k)
     from the centroid (row ``centre``). Mahalanobis under the cloud's own sample
     covariance, or Euclidean; raw weight 1/max(d_j, eps), centroid raw 0; normalised to
     1 - omega; the centroid gets omega. All weights > 0, sum 1."""
@@ -133,11 +143,29 @@ class HybridPrior:
     w: Array
 
 
-@dataclass(frozen=True)
-class HybridLiteral:
-    """The paper's hybrid filter as reconstructed in the spec (steps 1-7).
+_EXPANDED = {"sampling": ("expanded",)}
+_CONFIDENCE = {"weights": ("confidence",)}
 
-    Parameters (spec **choices**, defaults as the spec):
+
+def _sampling_param() -> dict:
+    return param("choice", choices=SAMPLINGS, doc="expanded (sigma clouds) | random")
+
+
+def _weights_param() -> dict:
+    return param("choice", choices=WEIGHTINGS, doc="confidence | equal")
+
+
+def _gamma_param() -> dict:
+    return param("float", lo=0.0, lo_open=True, none_ok=True, when=_EXPANDED,
+                 doc="sigma scaling; none = sqrt(3) for n <= 3 else sqrt(n)")
+
+
+@dataclass(frozen=True)
+class HybridLiteral(FilterBase):
+    """The paper's hybrid filter (Cui, Sun and Wen, Sensors 2022) as reconstructed step
+    by step (steps 1-7).
+
+    Parameters (the reconstruction's **choices**, defaults as reconstructed):
       sampling: "expanded" (sigma points + clouds) | "random" (EnKF draws; the centre x is
         kept as member 0 so a centroid exists), same member count M = (2n+1)(N+1).
       weights: "confidence" | "equal".
@@ -145,23 +173,31 @@ class HybridLiteral:
       n_cloud: N members per cloud (20). spread: cloud std factor s (0.5).
       omega: centroid share of the confidence weights (0.5). eps: distance floor (1e-6).
       distance: "mahalanobis" | "euclidean".
-      process_noise: "covariance" (add Q to P-, spec default) | "members" (w_j ~ N(0,Q)).
-      cross_weights: weights of Pxy: "state" (spec default) | "measurement" | "product".
+      process_noise: "covariance" (add Q to P-, the paper's) | "members" (w_j ~ N(0,Q)).
+      cross_weights: weights of Pxy: "state" (the paper's) | "measurement" | "product".
       posterior: "kalman" (P- - K Pyy K^T, falling back to the weighted sample covariance of
         the analysed cloud when not PD) | "sample" (always the sample covariance).
+    RTS smoothing: the sigma-point fallback (members are redrawn every step).
     """
 
-    sampling: str = "expanded"
-    weights: str = "confidence"
-    gamma: float | None = None
-    n_cloud: int = 20
-    spread: float = 0.5
-    omega: float = 0.5
-    eps: float = 1e-6
-    distance: str = "mahalanobis"
-    process_noise: str = "covariance"
-    cross_weights: str = "state"
-    posterior: str = "kalman"
+    sampling: str = field(default="expanded", metadata=_sampling_param())
+    weights: str = field(default="confidence", metadata=_weights_param())
+    gamma: float | None = field(default=None, metadata=_gamma_param())
+    n_cloud: int = field(default=20, metadata=param("int", lo=1, doc="members per cloud N"))
+    spread: float = field(default=0.5, metadata=param(
+        "float", lo=0.0, lo_open=True, when=_EXPANDED, doc="cloud std factor"))
+    omega: float = field(default=0.5, metadata=param(
+        "float", lo=0.0, hi=1.0, hi_open=True, when=_CONFIDENCE, doc="centroid share"))
+    eps: float = field(default=1e-6, metadata=param(
+        "float", lo=0.0, lo_open=True, when=_CONFIDENCE, doc="distance floor"))
+    distance: str = field(default="mahalanobis", metadata=param(
+        "choice", choices=("mahalanobis", "euclidean"), when=_CONFIDENCE))
+    process_noise: str = field(default="covariance", metadata=param(
+        "choice", choices=("covariance", "members")))
+    cross_weights: str = field(default="state", metadata=param(
+        "choice", choices=("state", "measurement", "product"), when=_CONFIDENCE))
+    posterior: str = field(default="kalman", metadata=param(
+        "choice", choices=("kalman", "sample")))
     name: str = "hybrid_literal"
 
     def __post_init__(self) -> None:
@@ -275,63 +311,20 @@ def tempered_weights(
 
 
 
-@dataclass(frozen=True)
-class Hybrid:
-    """Consistent hybrid filter (the default ``hybrid``). See the module docstring.
+class _HybridBase(EnsembleFilter):
+    """Sampling, regeneration and prediction shared by :class:`Hybrid` and
+    :class:`HybridLocal` (fields declared by the subclasses)."""
 
-    Parameters:
-      sampling: "expanded" (sigma points + moment-matched clouds, persistent members,
-        regeneration around credible members) | "random" (iid Gaussian redraw each step).
-      weights: "confidence" (likelihood credibility, tempered) | "equal" (pure EnKF shift).
-      gamma: sigma-point scaling, None = sqrt(3) for n <= 3 else sqrt(n).
-      n_cloud: N, members per sigma point besides the point itself; M = (2n+1)(N+1).
-      spread: cloud std factor s around each sigma point before moment matching (0.5).
-      tau: share of the measurement assimilated by the EnKF shift (R / tau); the rest,
-        1 - tau, goes into the confidence weights (0 < tau <= 1; ignored for "equal").
-      min_ess: floor on the effective sample size an update may leave, as a fraction of M
-        (0.2). The weighting exponent phi <= 1 - tau is the largest on a grid that keeps
-        ESS >= min_ess * M; the EnKF shift then takes the rest, R / (1 - phi) (adaptive
-        tempering, as in the ensemble Kalman particle filter of Frei & Kunsch 2013).
-      stages: at most this many tempering stages per update (1). When the ESS floor stops
-        the weighting short of 1 - tau (a measurement much sharper than the ensemble, e.g.
-        a 10 m range against a 1 km prior), the members are regenerated around the
-        credible ones and weighted again with the rest (progressive correction); the
-        EnKF shift takes what is left. 6 stages with n_cloud=64 help the far radar case
-        (PCRLB ratio 1.53 -> 1.31) but cost on the bimodal UNGM (docs/filters.md).
-      shifts: split the EnKF shift into this many smaller ones, each with R * shifts / share
-        and a gain recomputed from the moved members (multiple data assimilation, Emerick
-        and Reynolds 2013), for measurements much more nonlinear than one linear
-        regression across the ensemble can follow (1).
-      regen_ess: regenerate when the effective sample size < regen_ess * M (0.5).
-      kernel: bandwidth h of the regeneration kernel; members are shrunk by sqrt(1-h^2)
-        towards the mean and jittered with N(0, h^2 P), preserving mean and covariance.
-    """
-
-    sampling: str = "expanded"
-    weights: str = "confidence"
-    gamma: float | None = None
-    n_cloud: int = 32
-    spread: float = 0.5
-    tau: float = 0.3
-    min_ess: float = 0.2
-    stages: int = 1
-    shifts: int = 1
-    regen_ess: float = 0.5
-    kernel: float = 0.3
-    update_mode: str = "shift"
-    bandwidth: float | None = None
-    name: str = "hybrid"
-
-    def __post_init__(self) -> None:
-        _check_switches(self.sampling, self.weights)
-        if self.update_mode not in UPDATE_MODES:
-            raise ValueError(f"update_mode must be one of {UPDATE_MODES}")
-        if self.bandwidth is not None and not 0.0 < self.bandwidth < 1.0:
-            raise ValueError("bandwidth must be in (0, 1)")
-        if not 0.0 < self.tau <= 1.0:
-            raise ValueError("tau must be in (0, 1]")
+    sampling: str
+    weights: str
+    gamma: float | None
+    n_cloud: int
+    spread: float
+    regen_ess: float
+    kernel: float
 
     def members(self, n: int) -> int:
+        """Ensemble size M = (2n+1)(N+1) for tangent dimension n."""
         return (2 * n + 1) * (self.n_cloud + 1)
 
     def _draw(self, g: Gaussian, space: Space, rng) -> Array:
@@ -369,9 +362,77 @@ class Hybrid:
             E = self._regenerate(E, rng)
         return propagate_members(E, model, t, dt, u, rng)
 
+    def estimate(self, E: Ensemble) -> Gaussian:
+        return ensemble_estimate(E)
+
+
+@dataclass(frozen=True)
+class Hybrid(_HybridBase):
+    """Consistent hybrid filter with the tempered-weights + EnKF-shift update (the
+    default ``hybrid``, ``update_mode=shift``). See the module docstring.
+
+    Parameters:
+      sampling: "expanded" (sigma points + moment-matched clouds, persistent members,
+        regeneration around credible members) | "random" (iid Gaussian redraw each step).
+      weights: "confidence" (likelihood credibility, tempered) | "equal" (pure EnKF shift).
+      gamma: sigma-point scaling, None = sqrt(3) for n <= 3 else sqrt(n).
+      n_cloud: N, members per sigma point besides the point itself; M = (2n+1)(N+1).
+      spread: cloud std factor s around each sigma point before moment matching (0.5).
+      tau: share of the measurement assimilated by the EnKF shift (R / tau); the rest,
+        1 - tau, goes into the confidence weights (0 < tau <= 1).
+      min_ess: floor on the effective sample size an update may leave, as a fraction of M
+        (0.2). The weighting exponent phi <= 1 - tau is the largest on a grid that keeps
+        ESS >= min_ess * M; the EnKF shift then takes the rest, R / (1 - phi) (adaptive
+        tempering, as in the ensemble Kalman particle filter of Frei and Kuensch,
+        "Bridging the ensemble Kalman and particle filters", Biometrika 2013).
+      stages: at most this many tempering stages per update (1). When the ESS floor stops
+        the weighting short of 1 - tau (a measurement much sharper than the ensemble, e.g.
+        a 10 m range against a 1 km prior), the members are regenerated around the
+        credible ones and weighted again with the rest (progressive correction); the
+        EnKF shift takes what is left. 6 stages with n_cloud=64 help the far radar case
+        (PCRLB ratio 1.53 -> 1.31) but cost on the bimodal UNGM (docs/filters.md).
+      shifts: split the EnKF shift into this many smaller ones, each with R * shifts / share
+        and a gain recomputed from the moved members (multiple data assimilation, Emerick
+        and Reynolds, "Ensemble smoother with multiple data assimilation", Computers and
+        Geosciences 2013), for measurements much more nonlinear than one linear
+        regression across the ensemble can follow (1).
+      regen_ess: regenerate when the effective sample size < regen_ess * M (0.5).
+      kernel: bandwidth h of the regeneration kernel; members are shrunk by sqrt(1-h^2)
+        towards the mean and jittered with N(0, h^2 P), preserving mean and covariance.
+    ``tau``, ``min_ess``, ``stages``, ``kernel`` have an effect only with confidence
+    weights, ``regen_ess`` only with expanded sampling and confidence weights, ``gamma``
+    and ``spread`` only with expanded sampling.
+    """
+
+    update_mode: ClassVar[str] = "shift"
+
+    sampling: str = field(default="expanded", metadata=_sampling_param())
+    weights: str = field(default="confidence", metadata=_weights_param())
+    gamma: float | None = field(default=None, metadata=_gamma_param())
+    n_cloud: int = field(default=32, metadata=param("int", lo=1, doc="members per sigma point N"))
+    spread: float = field(default=0.5, metadata=param(
+        "float", lo=0.0, lo_open=True, when=_EXPANDED, doc="cloud std factor"))
+    tau: float = field(default=0.3, metadata=param(
+        "float", lo=0.0, hi=1.0, lo_open=True, when=_CONFIDENCE, doc="EnKF-shift share"))
+    min_ess: float = field(default=0.2, metadata=param(
+        "float", lo=0.0, hi=1.0, when=_CONFIDENCE, doc="ESS floor of one update, / M"))
+    stages: int = field(default=1, metadata=param(
+        "int", lo=1, when=_CONFIDENCE, doc="tempering stages per update"))
+    shifts: int = field(default=1, metadata=param("int", lo=1, doc="EnKF shifts per update"))
+    regen_ess: float = field(default=0.5, metadata=param(
+        "float", lo=0.0, hi=1.0, when={**_EXPANDED, **_CONFIDENCE},
+        doc="regenerate below this ESS / M"))
+    kernel: float = field(default=0.3, metadata=param(
+        "float", lo=0.0, hi=1.0, lo_open=True, when=_CONFIDENCE,
+        doc="regeneration kernel bandwidth h"))
+    name: str = "hybrid"
+
+    def __post_init__(self) -> None:
+        _check_switches(self.sampling, self.weights)
+        if not 0.0 < self.tau <= 1.0:
+            raise ValueError("tau must be in (0, 1]")
+
     def update(self, E: Ensemble, z, model: Measurement, rng=None) -> tuple[Ensemble, Innovation]:
-        if self.update_mode == "local":
-            return self._update_local(E, z, model, rng)
         space = model.space
         M = E.M
         w = np.full(M, 1.0 / M) if E.w is None else E.w
@@ -413,7 +474,47 @@ class Hybrid:
             X = space.retract(X, (r + V) @ K.T)
         return Ensemble(X, E.space, None if self.weights == "equal" else w), innov
 
-    def _update_local(self, E: Ensemble, z, model: Measurement, rng) -> tuple[Ensemble, Innovation]:
+
+
+@dataclass(frozen=True)
+class HybridLocal(_HybridBase):
+    """Consistent hybrid filter with the local-gain Gaussian-mixture update
+    (``hybrid(update_mode=local)``; the ensemble Gaussian-mixture / kernel filter of
+    Anderson and Anderson, "A Monte Carlo implementation of the nonlinear filtering
+    problem to produce ensemble assimilations and forecasts", Monthly Weather Review
+    1999, with the hybrid's sampling and confidence weights).
+
+    Parameters: ``sampling``, ``weights``, ``gamma``, ``n_cloud``, ``spread`` as
+    :class:`Hybrid`; ``regen_ess``: resample the mixture components when the ESS of the
+    updated weights is < regen_ess * M (0.5; confidence weights only); ``bandwidth``: the
+    kernel bandwidth h as a fraction of the ensemble spread (None: Silverman's rule).
+    The update leaves either equal weights or weights with ESS >= regen_ess * M, so the
+    predict never regenerates (the fixed ``kernel`` below is never used by a spec'd run).
+    """
+
+    update_mode: ClassVar[str] = "local"
+    kernel: ClassVar[float] = 0.3  # regeneration kernel of an externally weighted state
+
+    sampling: str = field(default="expanded", metadata=_sampling_param())
+    weights: str = field(default="confidence", metadata=_weights_param())
+    gamma: float | None = field(default=None, metadata=_gamma_param())
+    n_cloud: int = field(default=32, metadata=param("int", lo=1, doc="members per sigma point N"))
+    spread: float = field(default=0.5, metadata=param(
+        "float", lo=0.0, lo_open=True, when=_EXPANDED, doc="cloud std factor"))
+    regen_ess: float = field(default=0.5, metadata=param(
+        "float", lo=0.0, hi=1.0, when=_CONFIDENCE, doc="resample below this ESS / M"))
+    bandwidth: float | None = field(default=None, metadata=param(
+        "float", lo=0.0, hi=1.0, lo_open=True, hi_open=True, none_ok=True,
+        doc="kernel bandwidth h; none = Silverman's rule"))
+    name: str = "hybrid"
+
+    def __post_init__(self) -> None:
+        _check_switches(self.sampling, self.weights)
+        if self.bandwidth is not None and not 0.0 < self.bandwidth < 1.0:
+            raise ValueError("bandwidth must be in (0, 1)")
+
+    def update(self, E: Ensemble, z, model: Measurement, rng=None
+               ) -> tuple[Ensemble, Innovation]:
         """Kernel (Gaussian-mixture) update with a local gain per member.
 
         The weighted members are read as a mixture sum_j w_j N(C_j, B): centres shrunk
@@ -462,8 +563,6 @@ class Hybrid:
         X = space.retract(Cp, np.einsum("jab,jb->ja", Lb, rng.standard_normal((M, n))))
         return Ensemble(X, space, wn), innov
 
-    def estimate(self, E: Ensemble) -> Gaussian:
-        return ensemble_estimate(E)
 
 
 def silverman_bandwidth(M: int, n: int) -> float:

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .base import Innovation
+from .contract import FilterBase, sigma_point_terms
 from .gaussian import Gaussian
 from .linalg import gain_factor, nis_from_factor, symmetrize
 from .model import Measurement, Transition
@@ -24,9 +25,10 @@ Array = np.ndarray
 
 
 @dataclass(frozen=True)
-class EKF:
+class EKF(FilterBase):
     """Extended Kalman filter. Uses the model's analytic ``F``/``H`` when it has them,
-    else central finite differences (see :func:`uavest.core.model.fd_jacobian`)."""
+    else central finite differences (see :func:`uavest.core.model.fd_jacobian`).
+    No parameters."""
 
     name: str = "ekf"
 
@@ -61,6 +63,15 @@ class EKF:
 
     def estimate(self, g: Gaussian) -> Gaussian:
         return g
+
+    def rts_terms(self, s_prev, s_pred, model, t, dt, u=None, prev=None):
+        """(estimate(s_pred), P F^T), F the transition's tangent Jacobian at the prior
+        mean (the RTS smoother's cross-covariance). ``s_pred=None``: the sigma-point
+        fallback from the prior (see :mod:`uavest.core.contract`)."""
+        g = s_prev if prev is None else prev
+        if s_pred is None:
+            return sigma_point_terms(g, model, t, dt, u)
+        return s_pred, g.P @ model.F(g.x, t, dt, u).T
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,14 @@ from scipy.linalg.lapack import dposv, dpotrf, dpotrs
 Array = np.ndarray
 
 
-class NotPositiveDefinite(np.linalg.LinAlgError):
+class NumericalError(np.linalg.LinAlgError):
+    """A numerical failure of a filter step (non-finite values, lost positive
+    definiteness, degenerate weights). A ``LinAlgError``, so that the divergence guard
+    (:class:`uavest.core.Guarded`) recovers from it, while shape/type errors (ValueError,
+    TypeError...) keep propagating as programming errors."""
+
+
+class NotPositiveDefinite(NumericalError):
     """A covariance could not be factored even with jitter."""
 
 

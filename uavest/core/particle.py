@@ -9,24 +9,28 @@ Resampling is deferred to the next predict so that the estimate uses the weighte
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.linalg.lapack import dtrtrs
 
 from .base import Ensemble, Innovation, ensemble_estimate, innovation, sample_gaussian
+from .contract import EnsembleFilter
 from .ensemble import propagate_members
 from .gaussian import Gaussian
-from .linalg import chol, symmetrize
+from .linalg import NumericalError, chol, symmetrize
+from .spec import param
 
 Array = np.ndarray
 
 
 def systematic_resample(w: Array, rng: np.random.Generator, n: int | None = None) -> Array:
     """Indices (n,) drawn by systematic resampling from normalised weights ``w`` (N,);
-    n defaults to N."""
+    n defaults to N. Raises :class:`NumericalError` for non-finite weights."""
     N = w.shape[0] if n is None else n
     cs = w.cumsum()
+    if not np.isfinite(cs[-1]):
+        raise NumericalError("resampling weights are not finite")
     cs[-1] = 1.0
     return cs.searchsorted((rng.random() + np.arange(N)) * (1.0 / N))
 
@@ -37,7 +41,11 @@ def ess(w: Array) -> float:
 
 
 def log_likelihood(r: Array, R: Array) -> Array:
-    """Gaussian log-likelihood (up to a constant) of residuals ``r`` (M, m) under ``R``."""
+    """Gaussian log-likelihood (up to a constant) of residuals ``r`` (M, m) under ``R``.
+    Raises ValueError if the residuals do not have R's dimension (LAPACK would not)."""
+    if r.shape[-1] != R.shape[0]:
+        raise ValueError(f"residuals have {r.shape[-1]} components, the measurement "
+                         f"noise {R.shape[0]}")
     u = dtrtrs(chol(R), r.T, lower=1)[0]
     return -0.5 * (u * u).sum(axis=0)
 
@@ -52,13 +60,21 @@ def normalise_log(logw: Array) -> Array:
 
 
 @dataclass(frozen=True)
-class PF:
+class PF(EnsembleFilter):
     """Bootstrap particle filter. ``particles`` N (default 2000), resample when the
-    effective sample size falls below ``resample_threshold`` * N (1.0: every step)."""
+    effective sample size falls below ``resample_threshold`` * N (1.0: every step).
 
-    particles: int = 2000
-    resample_threshold: float = 1.0
+    RTS smoothing: a predict that resamples does not keep member j as row j, and one
+    that does not is rare with the default threshold, so the PF always uses the
+    documented sigma-point fallback (:mod:`uavest.core.contract`)."""
+
+    particles: int = field(default=2000, metadata=param("int", lo=2, doc="particles N"))
+    resample_threshold: float = field(default=1.0, metadata=param(
+        "float", lo=0.0, hi=1.0, doc="resample when ESS < this * N"))
     name: str = "pf"
+
+    def keeps_members(self, E: Ensemble) -> bool:
+        return False
 
     def init(self, prior: Gaussian, space, rng: np.random.Generator) -> Ensemble:
         return Ensemble(sample_gaussian(prior, space, self.particles, rng), space)

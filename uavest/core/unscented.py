@@ -17,15 +17,17 @@ update:   fresh sigma points of (x-, P-); Z_j = h(chi_j); z- = mean(Z, Wm)
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
 
 from .base import Innovation, innovation
+from .contract import FilterBase
 from .gaussian import Gaussian
 from .linalg import chol, gain_factor, nis_from_factor
 from .model import Measurement, Transition
+from .spec import param
 
 Array = np.ndarray
 
@@ -65,16 +67,24 @@ def sigma_offsets(L: Array, c: float, points: str) -> Array:
     return np.vstack([np.zeros((1, L.shape[0])), cL, -cL])
 
 
+_MERWE = {"points": ("merwe",)}
+
+
 @dataclass(frozen=True)
-class UKF:
+class UKF(FilterBase):
     """Unscented Kalman filter. ``alpha``, ``beta``, ``kappa`` as Van der Merwe; defaults
     alpha=1, beta=2, kappa=0 (all weights positive but Wc_0 = 2). ``points="cubature"``
-    gives the cubature Kalman filter."""
+    gives the cubature Kalman filter (Arasaratnam and Haykin, IEEE TAC 2009), where the
+    three have no effect. n + kappa must be > 0 (checked at the first step)."""
 
-    alpha: float = 1.0
-    beta: float = 2.0
-    kappa: float = 0.0
-    points: str = "merwe"
+    alpha: float = field(default=1.0, metadata=param(
+        "float", lo=0.0, lo_open=True, when=_MERWE, doc="sigma-point spread"))
+    beta: float = field(default=2.0, metadata=param(
+        "float", lo=0.0, when=_MERWE, doc="prior-distribution term of Wc_0 (2: Gaussian)"))
+    kappa: float = field(default=0.0, metadata=param(
+        "float", when=_MERWE, doc="secondary scaling"))
+    points: str = field(default="merwe", metadata=param(
+        "choice", choices=("merwe", "cubature"), doc="sigma-point set"))
     name: str = "ukf"
 
     def _w(self, n: int):
@@ -100,6 +110,11 @@ class UKF:
         the unscented RTS smoother."""
         gp, D, dY, Wc = self._predict(g, model, t, dt, u)
         return gp, (D.T * Wc) @ dY
+
+    def rts_terms(self, s_prev, s_pred, model, t, dt, u=None, prev=None):
+        """The sigma-point prediction of the prior and its cross-covariance
+        (:meth:`predict_cross`); identical to ``predict`` for the prediction."""
+        return self.predict_cross(s_prev if prev is None else prev, model, t, dt, u)
 
     def predict(self, g: Gaussian, model: Transition, t: float, dt: float, u=None, rng=None):
         return self._predict(g, model, t, dt, u)[0]
@@ -127,6 +142,19 @@ class UKF:
 
     def estimate(self, g: Gaussian) -> Gaussian:
         return g
+
+
+@dataclass(frozen=True)
+class CKF(UKF):
+    """Cubature Kalman filter: the UKF with the 2n cubature points +-sqrt(n) L_i and
+    equal weights (Arasaratnam and Haykin, "Cubature Kalman filters", IEEE TAC 2009).
+    No parameters."""
+
+    alpha: float = 1.0
+    beta: float = 2.0
+    kappa: float = 0.0
+    points: str = "cubature"
+    name: str = "ckf"
 
 
 # ----------------------------------------------------------------------------- square root
@@ -172,14 +200,17 @@ def _qr_lower(A: Array) -> Array:
 
 
 @dataclass(frozen=True)
-class SRUKF:
-    """Square-root UKF (Van der Merwe & Wan 2001): propagates S = sqrt(P) with a
-    QR decomposition of the weighted sigma deviations and a rank-1 Cholesky update for the
+class SRUKF(FilterBase):
+    """Square-root UKF (Van der Merwe and Wan, "The square-root unscented Kalman filter
+    for state and parameter estimation", ICASSP 2001): propagates S = sqrt(P) with a QR
+    decomposition of the weighted sigma deviations and a rank-1 Cholesky update for the
     zeroth point (a downdate when Wc_0 < 0), so P stays PSD by construction."""
 
-    alpha: float = 1.0
-    beta: float = 2.0
-    kappa: float = 0.0
+    alpha: float = field(default=1.0, metadata=param(
+        "float", lo=0.0, lo_open=True, doc="sigma-point spread"))
+    beta: float = field(default=2.0, metadata=param(
+        "float", lo=0.0, doc="prior-distribution term of Wc_0 (2: Gaussian)"))
+    kappa: float = field(default=0.0, metadata=param("float", doc="secondary scaling"))
     name: str = "srukf"
 
     def _w(self, n: int):
@@ -224,3 +255,9 @@ class SRUKF:
 
     def estimate(self, s: SqrtGaussian) -> Gaussian:
         return Gaussian(s.x, s.S @ s.S.T)
+
+    def rts_terms(self, s_prev, s_pred, model, t, dt, u=None, prev=None):
+        """The sigma-point prediction (a UKF with the same alpha, beta, kappa) of the
+        prior and its cross-covariance."""
+        g = self.estimate(s_prev) if prev is None else prev
+        return UKF(self.alpha, self.beta, self.kappa).predict_cross(g, model, t, dt, u)

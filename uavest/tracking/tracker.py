@@ -11,7 +11,8 @@ Per scan (time t, detections Z (N, m), radar model at the scan's sensor pose):
    covariance S = Cov(h(x)) + R are computed by the unscented transform of the track's
    Gaussian estimate (the same for every filter, so gating does not favour one);
    detection j is in the gate of track i if d2_ij = nu^T S^-1 nu <= chi2.ppf(gate_prob, m)
-   with nu the angle-wrapped residual.
+   (computed as ``scipy.special.chdtri(m, 1 - gate_prob)``) with nu the angle-wrapped
+   residual.
 3. **Associate** (``association``):
    ``"gnn"`` (default): global nearest neighbour, scipy's ``linear_sum_assignment`` on
    the cost d2_ij + ln det S_i (negative log-likelihood), out-of-gate pairs forbidden.
@@ -28,9 +29,10 @@ Per scan (time t, detections Z (N, m), radar model at the scan's sensor pose):
    the detections outside every confirmed gate.
 4. **Update** assigned tracks with the filter; unassigned tracks coast (predict only).
    Under JPDA a confirmed track is updated with each gated detection separately and the
-   hypotheses (plus "none", the prediction) are mixed with weights beta: a Gaussian
-   state by moment matching, an ensemble state by pooling the members with weights
-   beta_j w_j and drawing M of them (systematic), so any filter works unchanged.
+   hypotheses (plus "none", the prediction) are mixed with weights beta by the filter's
+   own ``mix`` (the filter contract, :mod:`uavest.core.contract`): a Gaussian state by
+   moment matching, an ensemble state by pooling the members with weights beta_j w_j
+   and drawing M of them (systematic), so any filter works unchanged.
 5. **Initiate**: each detection left over and outside every confirmed track's gate starts
    a tentative track by *single-point initiation*: position and covariance from the
    converted measurement (:meth:`RadarMeasurement.to_cartesian`), velocity 0 with std
@@ -53,13 +55,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
-from scipy.stats import chi2
+from scipy.special import chdtri
 
-from ..core.base import Ensemble
 from ..core.gaussian import Gaussian
 from ..core.guard import Guarded
 from ..core.linalg import chol
-from ..core.particle import systematic_resample
 from ..core.unscented import sigma_weights
 from ..models.radar import RadarMeasurement
 
@@ -199,32 +199,11 @@ def _joint_events(tracks: list[int], gated: Array, lik: Array, miss: Array) -> A
 
 
 def mix_states(f: Guarded, states: list, w: Array, space, rng) -> object:
-    """Mixture of ``f``'s states with weights ``w`` (summing to 1), as one state of ``f``.
-
-    Ensembles (same size M) pool their members with weights w_h * w_hj and draw M of them
-    systematically; any other state is moment-matched to one Gaussian (posterior mean and
-    covariance of the mixture, spread of the means included) and re-initialised through
-    the filter unless it already is a Gaussian. The guard checks the result and keeps the
-    largest reset count of the hypotheses.
-    """
-    inner = [s.inner for s in states]
-    resets = max(s.resets for s in states)
-    if all(isinstance(e, Ensemble) for e in inner) and len({e.M for e in inner}) == 1:
-        M = inner[0].M
-        X = np.concatenate([e.X for e in inner])
-        wx = np.concatenate([wh * (np.full(M, 1.0 / M) if e.w is None else e.w)
-                             for wh, e in zip(w, inner, strict=True)])
-        idx = systematic_resample(wx / wx.sum(), rng, M)
-        return f.adopt(states[0], Ensemble(X[idx], inner[0].space), space, rng, resets)
-    gs = [f.estimate(s) for s in states]
-    x = space.mean(np.stack([g.x for g in gs]), w, gs[int(np.argmax(w))].x)
-    P = np.zeros_like(gs[0].P)
-    for wh, g in zip(w, gs, strict=True):
-        d = space.local(x, g.x[None, :])[0]
-        P += wh * (g.P + np.outer(d, d))
-    g = Gaussian(x, 0.5 * (P + P.T))
-    new = g if isinstance(inner[0], Gaussian) else f.filter.init(g, space, rng)
-    return f.adopt(states[0], new, space, rng, resets)
+    """Mixture of ``f``'s states with weights ``w`` (summing to 1), as one state of ``f``:
+    the filter contract's ``mix`` (Gaussians moment-matched, equal-size ensembles pooled
+    with weights w_h * w_hj and systematically redrawn to M). The guard checks the result
+    and keeps the largest reset count of the hypotheses."""
+    return f.mix(states, w, space, rng)
 
 
 class Tracker:
@@ -260,7 +239,7 @@ class Tracker:
         T, N = len(tracks), len(Z)
         d2 = np.full((T, N), np.inf)
         cost = np.full((T, N), np.inf)
-        g = chi2.ppf(self.cfg.gate_prob, meas.dim)
+        g = float(chdtri(meas.dim, 1.0 - self.cfg.gate_prob))
         for i, tr in enumerate(tracks):
             zhat, S = predicted_measurement(tr.pred, meas)
             L = chol(S)
