@@ -125,9 +125,12 @@ def _check_filters(args) -> None:
     if text is None:
         args.filter_specs = None
         return
-    from ..engine.build import parse_filter_list
+    from ..presets import resolve_list
 
-    args.filter_specs = parse_filter_list(text)
+    resolve_list(text, args.filters_preset)  # one-line SpecError (exit 2) before any work
+    from ..core.spec import split_filter_list
+
+    args.filter_specs = split_filter_list(text)
 
 
 def main(argv: list[str] | None = None) -> int:

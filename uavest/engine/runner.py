@@ -25,8 +25,9 @@ class FilterRunner:
     ``filter`` is a core filter (wrapped in :class:`Guarded` unless ``guard`` is False or
     it is one already); ``rng`` its own generator (see :mod:`uavest.seeding`).
     ``record_prediction``: also record the prediction's mean/covariance before the
-    updates; ``smooth``: also record the cross-covariance RTS smoothing needs (wall time
-    of that is not counted in ``wall_s``)."""
+    updates; ``smooth``: also record what RTS smoothing needs, through the filter
+    contract's ``rts_terms`` (the prediction to pair with the cross-covariance C, and C;
+    wall time of that is not counted in ``wall_s``)."""
 
     def __init__(
         self,
@@ -52,10 +53,12 @@ class FilterRunner:
         self.space = None
         self.smooth_seconds = 0.0
         self.seconds = 0.0  # wall time of all steps (without smoothing's share)
+        self._last = None
 
     def start(self, st: Start) -> None:
         self.space = st.space
         self.state = self.filter.init(st.prior, st.space, self.rng)
+        self._last = st.prior  # the previous step's estimate (smoothing pairs with it)
 
     def step(self, st: Step) -> StepRecord:
         f, rng = self.filter, self.rng
@@ -68,7 +71,8 @@ class FilterRunner:
             x_pred, P_pred = gp.x, gp.P
         if self.smooth:
             c1 = time.perf_counter()
-            C = f.cross_covariance(s0, s, st.transition, st.t, st.dt, st.u)
+            gp, C = f.rts_terms(s0, s, st.transition, st.t, st.dt, st.u, prev=self._last)
+            x_pred, P_pred = gp.x, gp.P
             dt_s = time.perf_counter() - c1
             self.smooth_seconds += dt_s
             c0 += dt_s
@@ -79,6 +83,7 @@ class FilterRunner:
                 ups.append(Update(type(m).__name__, inn.nu, inn.S, float(inn.nis)))
         g = f.estimate(s)
         self.state = s
+        self._last = g
         wall = time.perf_counter() - c0
         self.seconds += wall
         return StepRecord(

@@ -23,12 +23,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.base import Ensemble
 from ..core.linalg import symmetrize
 
 Array = np.ndarray
 
-__all__ = ["ensemble_cross", "rts_backward", "smooth_records"]
+__all__ = ["rts_backward", "smooth_records"]
 
 
 def rts_backward(
@@ -53,18 +52,6 @@ def rts_backward(
         x_s[k] = space.retract(x_f[k], G @ d)
         P_s[k] = symmetrize(P_f[k] + G @ (P_s[k + 1] - P_p[k + 1]) @ G.T)
     return x_s, P_s
-
-
-def ensemble_cross(E_f: Ensemble, E_p: Ensemble, x_f: Array, x_p: Array) -> Array:
-    """Weighted cross-covariance (n, n) of member deviations before (``E_f`` about
-    ``x_f``) and after (``E_p`` about ``x_p``) one predict; members must correspond."""
-    M = E_f.M
-    w = np.full(M, 1.0 / M) if E_f.w is None else E_f.w
-    dA = E_f.space.local(x_f, E_f.X)
-    dB = E_p.space.local(x_p, E_p.X)
-    dA = dA - w @ dA
-    dB = dB - w @ dB
-    return (dA.T * w) @ dB / max(1.0 - float(w @ w), 1e-12)
 
 
 def smooth_records(coll, label: str, space) -> tuple[Array, Array, Array]:

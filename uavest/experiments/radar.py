@@ -46,6 +46,7 @@ from ..engine import run as run_engine
 from ..engine.build import build_filters
 from ..eval.pcrlb import conditional_bounds, pcrlb, position_bound, velocity_bound
 from ..eval.tracking import nees, nees_band, track_quality
+from ..presets import build
 from ..seeding import filter_stream, rng
 from ..sinks.base import Collector
 from ..tracking.scenario import build_models, clutter_box, generate_run, prior
@@ -54,9 +55,9 @@ from ..tracking.tracker import Tracker, TrackerConfig
 Array = np.ndarray
 
 
-def make_radar_filter(spec: str):
+def make_radar_filter(spec: str, dim: int | None = None):
     """A core filter from its spec with the ``radar`` preset (see ``uavest list``)."""
-    return build_filters([spec], "radar", dim=4)[0][1]
+    return build(spec, "radar", dim)
 
 
 def data_rng(seed: int, run: int) -> np.random.Generator:
@@ -162,7 +163,7 @@ def bench_filter_mode(sc: dict, filters: list[str], runs: int, seed: int, steps:
     bcond = np.sqrt(np.einsum("rkii->k", cond[:, :, :ndim, :ndim]) / runs)  # RMS over runs
     out = {}
     for label in filters:
-        filt = make_radar_filter(label)
+        filt = make_radar_filter(label, motion.space.dim)
         E_pre = np.empty((runs, K, ndim))
         E = np.empty((runs, K, 2 * ndim))
         NE = np.empty((runs, K))
@@ -232,7 +233,8 @@ def run_trackers(sc: dict, filters: list[str], run, seed: int, r: int) -> dict[s
     runners = [
         TrackerRunner(label, lambda f=f, label=label: Tracker(f, motion, cfg,
                                                               filter_rng(seed, r, label)))
-        for label, f in ((sp.label, f) for sp, f in build_filters(filters, "radar", dim=4))
+        for label, f in ((sp.label, f)
+                         for sp, f in build_filters(filters, "radar", dim=motion.space.dim))
     ]
     run_engine(scan_steps(run, radar, motion, dt), runners)
     return {tr.label: tr.tracker for tr in runners}

@@ -10,9 +10,8 @@ what it needs.
 
 from __future__ import annotations
 
-from collections import defaultdict
-
 import logging
+from collections import defaultdict
 
 import numpy as np
 
