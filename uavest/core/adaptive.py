@@ -8,6 +8,10 @@ With forgetting factor b (0 < b < 1) and d_k = (1 - b) / (1 - b^(k+1)):
 The raw Sage-Husa R estimate can lose positive definiteness; each estimate is projected
 to the nearest PD matrix with eigenvalues at least ``floor`` times the initial noise's
 smallest eigenvalue (documented safeguard). ``adapt`` chooses "R", "Q" or "RQ".
+
+R is estimated per measurement kind (the model's class and dimension): a filter that sees
+an accelerometer update on some steps and an accelerometer + magnetometer update on
+others keeps one adapted R for each, never one R for both (whose shapes differ).
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ from .spec import param
 @dataclass(frozen=True, slots=True)
 class AdaptiveState:
     inner: object
-    R: np.ndarray | None
+    R: dict | None  # measurement kind (class name, dim) -> adapted R
     Q: np.ndarray | None
     k: int
     prior: Gaussian | None = None  # predicted estimate (for the Q estimator)
@@ -84,15 +88,16 @@ class SageHusa(FilterBase):
         return AdaptiveState(inner, s.R, s.Q if s.Q is not None else Q0, s.k, g, Q0)
 
     def update(self, s: AdaptiveState, z, model, rng=None):
-        R_prev = s.R if s.R is not None else np.asarray(model.R, float)
+        R0 = np.asarray(model.R, float)
+        key = (type(model).__name__, R0.shape[0])
+        R_prev = s.R.get(key, R0) if s.R is not None else R0
         m = _NoiseOverride(model, R=R_prev if "R" in self.adapt else None)
         inner, inn = self.filter.update(s.inner, z, m, rng)
         d = self._d(s.k)
         R_new, Q_new = s.R, s.Q
         if "R" in self.adapt:
-            R0 = np.asarray(model.R, float)
             raw = (1 - d) * R_prev + d * (np.outer(inn.nu, inn.nu) - (inn.S - R_prev))
-            R_new = _floor(raw, R0, self.floor)
+            R_new = {**(s.R or {}), key: _floor(raw, R0, self.floor)}
         if "Q" in self.adapt and s.prior is not None:
             post = self.filter.estimate(inner)
             dx = model.space.local(s.prior.x, post.x)
@@ -116,9 +121,10 @@ class SageHusa(FilterBase):
         the hypotheses' estimates (those that have one), the step count the largest."""
         w = np.asarray(w, float)
         inner = self.filter.mix([s.inner for s in states], w, space, rng)
-        return AdaptiveState(inner, _wmean([s.R for s in states], w),
-                             _wmean([s.Q for s in states], w), max(s.k for s in states),
-                             None, states[0].Qfix)
+        keys = {k for s in states if s.R for k in s.R}
+        R = {k: _wmean([(s.R or {}).get(k) for s in states], w) for k in keys} or None
+        return AdaptiveState(inner, R, _wmean([s.Q for s in states], w),
+                             max(s.k for s in states), None, states[0].Qfix)
 
 
 def _wmean(As: list, w: np.ndarray):
