@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import heapq
 import io
 import math
@@ -17,7 +18,9 @@ import numpy as np
 from .convert import Raw, check, convert_dataflash, convert_mavlink, stat_key
 from .timebase import StreamGate, VehicleClock
 from .types import (
+    AdsbSample,
     AttitudeRef,
+    DetectionSample,
     ImuSample,
     IngestError,
     IngestStats,
@@ -27,7 +30,7 @@ from .types import (
 )
 
 # Messages without a time field: timed from receive time (see docs/ingest.md).
-_UNTIMED = {"SIMSTATE", "AHRS2"}
+_UNTIMED = {"SIMSTATE", "AHRS2", "ADSB_VEHICLE"}
 _MAX_STALL = 1000  # reads without file progress before giving up (hang guard)
 _SKIPPED_RE = re.compile(r"Skipped (\d+) bad bytes")
 
@@ -41,7 +44,30 @@ def build(raw: Raw, t: float) -> Sample:
         return MagSample(t, v[0], raw.source, raw.instance)
     if raw.cat == "ref":
         return AttitudeRef(t, v[0], raw.kind, raw.source)
+    if raw.cat == "det":
+        from .detections import rae_from_frd
+
+        m = raw.meta
+        xyz = v[0]
+        rae = rae_from_frd(xyz) if m["frame"] == "BODY_FRD" else None
+        return DetectionSample(
+            t, m["obstacle_id"], xyz, m["frame"], rae, m["min_distance"], m["max_distance"],
+            raw.source, m["sensor_type"],
+        )
+    if raw.cat == "adsb":
+        m = raw.meta
+        return AdsbSample(
+            t, m["icao"], v[0], v[1], m["altitude_type"], m["callsign"], m["flags"], m["tslc"],
+            raw.source, m["squawk"], m["emitter_type"],
+        )
     return PositionSample(t, v[0], v[1], v[2], raw.source)
+
+
+def gate_time(raw: Raw, t: float) -> float:
+    """Time (s) under which the stream gate orders an item: ADS-B by its position time."""
+    if raw.cat == "adsb":
+        return t - raw.meta["tslc"]
+    return t
 
 
 class _Reorder:
@@ -57,7 +83,7 @@ class _Reorder:
 
     def push(self, m: Sample) -> None:
         if m.t < self.last_out:
-            self.stats.bad("late", m.source + (".mag" if isinstance(m, MagSample) else ""))
+            self.stats.bad("late", _source_key(m))
             return
         heapq.heappush(self.heap, (m.t, self.seq, m))
         self.seq += 1
@@ -69,6 +95,10 @@ class _Reorder:
             t, _, m = heapq.heappop(self.heap)
             self.last_out = t
             yield m
+
+
+def _source_key(m) -> str:
+    return m.source + (".mag" if isinstance(m, MagSample) else "")
 
 
 class MavlinkSource:
@@ -88,11 +118,13 @@ class MavlinkSource:
         *,
         imu: str | None = None,
         reorder_window: float = 1.0,
+        sysid: int | None = None,
     ) -> None:
         self.path = target
         self.format = fmt
         self.imu = imu
         self.reorder_window = reorder_window
+        self.sysid = sysid  # MAVLink: only this system (others counted wrong_sysid)
         self.stats = IngestStats()
         self.params: dict[str, float] = {}
 
@@ -223,7 +255,9 @@ class MavlinkSource:
             for t, (sysid, raws) in items:
                 for raw in raws:
                     key = (sysid, raw.cat, raw.source, raw.instance)
-                    if not gate.admit(key, t, raw.values, stat_key(raw), count=raw.primary):
+                    admit = gate.admit_multi if raw.cat == "det" else gate.admit
+                    tg = gate_time(raw, t)
+                    if not admit(key, tg, raw.values, stat_key(raw), count=raw.primary):
                         continue
                     st.accepted[stat_key(raw)] += 1
                     reorder.push(build(raw, t))
@@ -234,7 +268,14 @@ class MavlinkSource:
                     if raw.primary:  # time faults are counted once per message
                         st.bad(kind, stat_key(raw))
 
+        self._reorder = reorder
         for msg, rx in self._messages():
+            if msg is None:  # live: a link event (rx holds it); flush what is buffered first
+                yield from reorder.pop_ready(flush=True)
+                if rx is not None:
+                    t_ev = reorder.last_out if math.isfinite(reorder.last_out) else 0.0
+                    yield dataclasses.replace(rx, t=t_ev)
+                continue
             name = msg.get_type()
             if is_df:
                 if name == "PARM":
@@ -247,6 +288,9 @@ class MavlinkSource:
                     self._param(getattr(msg, "param_id", None), getattr(msg, "param_value", None))
                     continue
                 sysid = int(msg.get_srcSystem())
+                if self.sysid is not None and sysid != self.sysid:
+                    st.bad("wrong_sysid", name)
+                    continue
                 if name == "SYSTEM_TIME" and msg.time_boot_ms and msg.time_unix_usec:
                     systime[sysid] = msg.time_unix_usec * 1e-6 - msg.time_boot_ms * 1e-3
                     continue
