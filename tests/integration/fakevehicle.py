@@ -77,7 +77,8 @@ class FakeVehicle:
 
     def stop(self) -> None:
         self._stop.set()
-        self.thread.join(timeout=5)
+        if self.thread.is_alive():
+            self.thread.join(timeout=5)
         for s in (self.sock, self.client, self.listener):
             if s is not None:
                 s.close()

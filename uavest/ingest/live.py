@@ -394,6 +394,9 @@ class LiveLink(MavlinkSource):
             s.link_id = 0
             s.timestamp = int((time.time() - _SIGNING_EPOCH) * 1e5)
             s.allow_unsigned_callback = lambda _mav, _msgid: False
+            # pymavlink's check_signature stores a packet's timestamp *before* checking its
+            # signature, so one forged packet with a future timestamp blocks the real stream
+            self._mav.check_signature = self._check_signature
         self._q: queue.Queue = queue.Queue(maxsize=queue_size)
         self._stop = threading.Event()
         self._hb = threading.Event()
@@ -424,6 +427,7 @@ class LiveLink(MavlinkSource):
         self._rates_checked = False
         self._requested_at: float | None = None
         self._need_request = False
+        self._gen: Iterator | None = None
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> LiveLink:
@@ -469,8 +473,7 @@ class LiveLink(MavlinkSource):
         with self._writer.lock:
             if self._writer.transport is not None:
                 self._writer.transport.close()
-        if len(self._mav.buf) - self._mav.buf_index > 0:
-            self.stats.truncated += 1
+        self._reset_parser(count=True)
         self._close_tlog()
         if self._registered:
             with _ACTIVE_LOCK:
@@ -556,8 +559,7 @@ class LiveLink(MavlinkSource):
                 with self._writer.lock:
                     self._writer.transport = tr
                 self.stats.reconnect += 1
-                self._mav.buf = bytearray()
-                self._mav.buf_index = 0
+                self._reset_parser(count=True)
                 self._events.append(LinkEvent(0.0, "reconnect", count=self.stats.reconnect,
                                               detail="TCP reconnected", source=self.conn))
                 self._need_request = True
@@ -574,18 +576,34 @@ class LiveLink(MavlinkSource):
                     self._drop_transport(tr)  # silent TCP peer: reconnect
                 self._flush_tlog()
                 continue
+            if tr.kind.startswith("udp"):
+                self._reset_parser(count=True)  # a datagram is a unit: no frame spans two
             rx_us = int(time.time() * 1e6) & ~3  # as MAVProxy: low bits are the link id
             rx = rx_us * 1.0e-6  # exactly what mavlogfile computes from the tlog
             try:
                 msgs = self._mav.parse_buffer(data) or []
             except Exception:  # noqa: BLE001 - garbage must never stop the reader
                 self.stats.corrupt += 1
-                self._mav.buf = bytearray()
-                self._mav.buf_index = 0
+                self._reset_parser()
                 msgs = []
             for m in msgs:
                 self._handle(m, rx_us, rx)
             self._flush_tlog()
+
+    def _reset_parser(self, count: bool = False) -> None:
+        """Forget buffered bytes; with ``count``, count them (truncated frame / junk)."""
+        mav = self._mav
+        left = bytes(mav.buf[mav.buf_index:])
+        if count and left:
+            if left[0] in (0xFD, 0xFE):
+                self.stats.truncated += 1
+            elif all(b in _PRINTABLE for b in left):
+                self.stats.non_mavlink += 1
+            else:
+                self.stats.corrupt += 1
+        mav.buf = bytearray()
+        mav.buf_index = 0
+        mav.expected_length = mavlink.HEADER_LEN_V1 + 2
 
     def _drop_transport(self, tr: _Transport) -> None:
         with self._writer.lock:
@@ -650,6 +668,26 @@ class LiveLink(MavlinkSource):
             self._q.put_nowait((m, rx))
         except queue.Full:
             st.queue_overflow += 1
+
+    def _check_signature(self, msgbuf, src_system: int, src_component: int) -> bool:
+        """MAVLink 2 signature check: HMAC first, then the per-stream timestamp (replay)."""
+        sig = self._mav.signing
+        h = hashlib.sha256()
+        h.update(sig.secret_key)
+        h.update(msgbuf[:-6])
+        if h.digest()[:6] != bytes(msgbuf[-6:]):
+            return False
+        tlow, thigh = struct.unpack("<IH", bytes(msgbuf[-12:-6]))
+        ts = tlow + (thigh << 32)
+        key = (msgbuf[-13], src_system, src_component)
+        last = sig.stream_timestamps.get(key)
+        if last is not None and ts <= last:
+            return False  # replayed or duplicated signed packet
+        if last is None and ts + 6000 * 1000 < sig.timestamp:
+            return False  # a new stream more than a minute in the past
+        sig.stream_timestamps[key] = ts
+        sig.timestamp = max(sig.timestamp, ts)
+        return True
 
     @staticmethod
     def _is_vehicle(m) -> bool:
@@ -775,11 +813,14 @@ class LiveLink(MavlinkSource):
 
     # ------------------------------------------------------------ consumer side
     def __iter__(self) -> Iterator:
+        """The link's one sample stream: iterating again continues it (clock, order kept)."""
         if not self._started:
             self.start()
-        if self._closed:
+        if self._closed and self._gen is None:
             raise IngestError(f"{self.conn}: link is closed")
-        return super().__iter__()
+        if self._gen is None:
+            self._gen = super().__iter__()
+        return self._gen
 
     def _messages(self) -> Iterator[tuple[object, object]]:
         """(message, receive time) from the queue; (None, LinkEvent) for link events."""
