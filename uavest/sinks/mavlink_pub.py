@@ -40,8 +40,13 @@ import numpy as np  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
 from ..geometry.rotation import quat_to_euler  # noqa: E402
-from ..ingest.live import _Transport, _Writer, endpoint_key, is_vehicle_endpoint  # noqa: E402
-from ..ingest.live import signing_key_bytes  # noqa: E402
+from ..ingest.live import (  # noqa: E402
+    _Transport,
+    _Writer,
+    endpoint_key,
+    is_vehicle_endpoint,
+    signing_key_bytes,  # noqa: E402
+)
 
 __all__ = ["Publisher", "DEFAULT_SYSID", "icao_address"]
 
