@@ -255,7 +255,8 @@ class MavlinkSource:
             for t, (sysid, raws) in items:
                 for raw in raws:
                     key = (sysid, raw.cat, raw.source, raw.instance)
-                    admit = gate.admit_multi if raw.cat == "det" else gate.admit
+                    admit = {"det": gate.admit_multi, "adsb": gate.admit_repeat}.get(
+                        raw.cat, gate.admit)
                     tg = gate_time(raw, t)
                     if not admit(key, tg, raw.values, stat_key(raw), count=raw.primary):
                         continue

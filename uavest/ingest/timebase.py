@@ -156,6 +156,22 @@ class StreamGate:
         if len(self.last) > MAX_STREAMS:
             self.last.popitem(last=False)
 
+    def admit_repeat(
+        self, key: tuple, t: float, content: tuple, source: str, count: bool = True,
+        slack: float = 1.5,
+    ) -> bool:
+        """Like :meth:`admit` for reports re-sent with a coarse age (ADS-B ``tslc``, whole s).
+
+        The same content within ``slack`` s of the last admitted time is a ``duplicate``
+        (a re-sent report whose age rounding moved its time); otherwise as :meth:`admit`.
+        """
+        prev = self.last.get(key)
+        if prev is not None and abs(t - prev[0]) < slack and _same(content, prev[1]):
+            if count:
+                self.stats.bad("duplicate", source)
+            return False
+        return self.admit(key, t, content, source, count)
+
     def admit_multi(
         self, key: tuple, t: float, content: tuple, source: str, count: bool = True
     ) -> bool:
