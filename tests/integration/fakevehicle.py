@@ -54,6 +54,7 @@ class FakeVehicle:
         self.commands: list = []  # COMMAND_LONG received
         self.data_streams: list = []  # REQUEST_DATA_STREAM received
         self.param_reads: list = []
+        self.sent: dict[str, list] = {}  # name -> monotonic send times (stream messages)
         self.streams: dict[str, float] = dict(auto_streams or {})  # name -> Hz being sent
         self.boot = time.monotonic()
         self.silent = False  # stop sending (link cut)
@@ -197,6 +198,8 @@ class FakeVehicle:
                                           mavlink.MAV_PARAM_TYPE_REAL32, len(self.params), 0)
 
     def _send_stream(self, name: str) -> None:
+        if not self.silent:
+            self.sent.setdefault(name, []).append(time.monotonic())
         tb = self.time_boot_ms()
         k = tb * 1e-3
         if name == "HIGHRES_IMU":

