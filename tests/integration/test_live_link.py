@@ -411,3 +411,61 @@ def test_tlog_complete_after_signal(tmp_path, sig):
     n = sum(1 for _ in src)
     assert n > 40
     assert src.stats.truncated == 0 and src.stats.corrupt == 0
+
+
+def test_declination_auto_waits_for_gps_then_rereads():
+    port = free_port()
+    with FakeVehicle(port, params={"COMPASS_DEC": 0.0, "COMPASS_AUTODEC": 1}) as fv:
+        with open_live(f"udpin:127.0.0.1:{port}", streams={}, param_timeout=0.5) as link:
+            assert link.declination is None and "waiting for GPS" in link.declination_source
+            with fv.lock:
+                fv.params["COMPASS_DEC"] = 0.2  # the autopilot sets it after its GPS lock
+                fv.streams["GPS_RAW_INT"] = 5.0
+            take(link, 1.5, until=lambda s: link.declination_source.startswith("param"))
+            assert link.declination_source == "param:COMPASS_DEC"
+            assert link.declination == pytest.approx(0.2, abs=1e-6)
+        assert fv.param_reads.count("COMPASS_DEC") == 2
+
+
+def test_declination_from_wmm_without_params():
+    from uavest.geometry.magnetic import declination
+
+    port = free_port()
+    with FakeVehicle(port, auto_streams={"GLOBAL_POSITION_INT": 5.0}):
+        with open_live(f"udpin:127.0.0.1:{port}", streams={}, param_timeout=0.2) as link:
+            take(link, 1.0, until=lambda s: link.declination is not None)
+            assert link.declination_source == "wmm2025"
+            from datetime import UTC, datetime
+
+            ref = declination(-35.363261, 149.16523, 584.0, datetime.now(UTC))
+            assert link.declination == pytest.approx(ref, abs=1e-6)
+            assert 0.15 < link.declination < 0.25  # Canberra: about 12 deg east
+
+
+def test_tcp_vehicle_started_after_the_link():
+    port = free_port(socket.SOCK_STREAM)
+    import threading
+
+    box = {}
+
+    def late_vehicle():
+        time.sleep(0.7)
+        box["fv"] = FakeVehicle(port, tcp=True, auto_streams={"ATTITUDE": 20.0}).start()
+
+    threading.Thread(target=late_vehicle, daemon=True).start()
+    try:
+        with open_live(f"tcp:127.0.0.1:{port}", streams={}, read_declination=False,
+                       heartbeat_timeout=5.0) as link:
+            got = take(link, 0.8)
+            assert link.stats.reconnect == 0
+    finally:
+        box["fv"].stop()
+    assert sum(getattr(x, "source", "") == "ATTITUDE" for x in got) > 5
+
+
+def test_unreachable_tcp_times_out_cleanly():
+    port = free_port(socket.SOCK_STREAM)
+    with pytest.raises(LinkTimeout, match="no HEARTBEAT"):
+        open_live(f"tcp:127.0.0.1:{port}", heartbeat_timeout=0.6)
+    with pytest.raises(Exception, match="cannot open|host:port"):
+        open_live("udpin:127.0.0.1:notaport", heartbeat_timeout=0.3)

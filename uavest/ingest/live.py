@@ -428,6 +428,7 @@ class LiveLink(MavlinkSource):
         self._requested_at: float | None = None
         self._need_request = False
         self._gen: Iterator | None = None
+        self._connected_once = False
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> LiveLink:
@@ -440,7 +441,14 @@ class LiveLink(MavlinkSource):
             self._tlog_f = open(self.tlog_path, "wb", buffering=0)  # noqa: SIM115
         try:
             self._writer.transport = _Transport(self.conn, self.baud)
-        except (OSError, ValueError) as e:
+            self._connected_once = True
+        except OSError as e:
+            if _split(self.conn)[0] != "tcp":
+                self._close_tlog()
+                raise IngestError(f"{self.conn}: cannot open ({e})") from None
+            # a SITL not up yet: the reader keeps trying until the heartbeat timeout
+            log.info("%s: %s; retrying", self.conn, e)
+        except ValueError as e:
             self._close_tlog()
             raise IngestError(f"{self.conn}: cannot open ({e})") from None
         with _ACTIVE_LOCK:
@@ -558,11 +566,13 @@ class LiveLink(MavlinkSource):
                 backoff = 0.1
                 with self._writer.lock:
                     self._writer.transport = tr
-                self.stats.reconnect += 1
                 self._reset_parser(count=True)
-                self._events.append(LinkEvent(0.0, "reconnect", count=self.stats.reconnect,
-                                              detail="TCP reconnected", source=self.conn))
-                self._need_request = True
+                if self._connected_once:
+                    self.stats.reconnect += 1
+                    self._events.append(LinkEvent(0.0, "reconnect", count=self.stats.reconnect,
+                                                  detail="TCP reconnected", source=self.conn))
+                    self._need_request = True
+                self._connected_once = True
             try:
                 data = tr.recv(0.05)
             except _Disconnected:
