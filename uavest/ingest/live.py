@@ -73,6 +73,7 @@ _DATA_STREAM = {
     "SYSTEM_TIME": mavlink.MAV_DATA_STREAM_EXTRA3,
 }
 _DATA_STREAM_MAX_HZ = 50
+TCP_SILENCE = 3.0  # s, min silence before a TCP link is reconnected (SITL heartbeat: 1 Hz)
 
 _NOT_VEHICLE_TYPES = {
     mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_GIMBAL, mavlink.MAV_TYPE_ADSB,
@@ -429,6 +430,7 @@ class LiveLink(MavlinkSource):
         self._need_request = False
         self._gen: Iterator | None = None
         self._connected_once = False
+        self._connected_at = time.monotonic()
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> LiveLink:
@@ -564,6 +566,7 @@ class LiveLink(MavlinkSource):
                     backoff = min(2 * backoff, 2.0)
                     continue
                 backoff = 0.1
+                self._connected_at = time.monotonic()
                 with self._writer.lock:
                     self._writer.transport = tr
                 self._reset_parser(count=True)
@@ -582,7 +585,8 @@ class LiveLink(MavlinkSource):
                 self._drop_transport(tr)
                 continue
             if not data:
-                if tr.kind == "tcp" and time.monotonic() - self._last_rx_mono > self.gap_timeout:
+                quiet = time.monotonic() - max(self._last_rx_mono, self._connected_at)
+                if tr.kind == "tcp" and quiet > max(self.gap_timeout, TCP_SILENCE):
                     self._drop_transport(tr)  # silent TCP peer: reconnect
                 self._flush_tlog()
                 continue
@@ -616,12 +620,14 @@ class LiveLink(MavlinkSource):
         mav.expected_length = mavlink.HEADER_LEN_V1 + 2
 
     def _drop_transport(self, tr: _Transport) -> None:
+        """After a read error: TCP and serial are closed and reopened with backoff; a UDP
+        socket stays (an ICMP 'port unreachable' for udpout is not a broken socket)."""
+        if tr.kind.startswith("udp"):
+            self._stop.wait(0.05)
+            return
         with self._writer.lock:
             tr.close()
-            if tr.kind in ("tcp",):
-                self._writer.transport = None  # reconnect with backoff
-        if tr.kind != "tcp":
-            self._stop.wait(0.1)
+            self._writer.transport = None
 
     def _handle(self, m, rx_us: int, rx: float) -> None:
         st = self.stats
@@ -813,11 +819,15 @@ class LiveLink(MavlinkSource):
             with self._cond:
                 self._param_replies.pop("COMPASS_DEC", None)
             self._mav.param_request_read_send(ts, tc, b"COMPASS_DEC", -1)
-        from ..geometry.magnetic import declination
-
         try:  # the host's date: a day's error changes the declination by < 0.001 deg
+            from ..geometry.magnetic import declination
+
             self.declination = declination(lat, lon, alt, datetime.now(UTC))
             self.declination_source = "wmm2025"
+        except ImportError:
+            self.declination_source = "unknown (pygeomag not installed for the WMM)"
+            log.warning("%s: no declination: COMPASS_DEC unknown and pygeomag missing",
+                        self.conn)
         except ValueError as e:
             log.warning("%s: %s", self.conn, e)
 
