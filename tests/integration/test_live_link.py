@@ -229,12 +229,13 @@ def test_bad_input_counted_not_fatal():
     assert len(t) > 10 and np.all(np.diff(t) >= 0) and max(t) < 1000
 
 
-def test_signing_rejects_unsigned_and_wrong_key():
+def test_signing_rejects_unsigned_and_wrong_key(tmp_path):
     port = free_port()
     key = hashlib.sha256(b"secret words").digest()
+    tl = tmp_path / "signed.tlog"
     with FakeVehicle(port, auto_streams={"ATTITUDE": 20.0}, signing_key=key) as fv:
         with open_live(f"udpin:127.0.0.1:{port}", streams={}, read_declination=False,
-                       signing_key="secret words") as link:
+                       signing_key="secret words", tlog=tl) as link:
             assert link.signing_active
             time.sleep(0.2)
             s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -252,6 +253,8 @@ def test_signing_rejects_unsigned_and_wrong_key():
     att = [x for x in got if getattr(x, "source", "") == "ATTITUDE"]
     assert len(att) > 5  # the signed vehicle stream still flows
     assert all(abs(x.q[1]) < 0.1 for x in att)  # none of the injected 0.5 rad attitudes
+    replay = [x for x in open_source(tl) if getattr(x, "source", "") == "ATTITUDE"]
+    assert len(replay) >= len(att) and all(abs(x.q[1]) < 0.1 for x in replay)  # only signed
 
 
 def _rss_mb() -> float:
