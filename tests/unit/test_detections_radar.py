@@ -230,3 +230,23 @@ def test_tlog_adsb_timed_from_receive_time_minus_tslc(tmp_path):
     assert ad[0].t == pytest.approx(1.4 + 0.05, abs=1e-6)  # last ATTITUDE 1.4 s + 0.05 s rx
     assert src.stats.duplicate == 1  # the re-sent report: same position time, same content
     assert src.stats.out_of_range == 1 and src.stats.unknown_frame == 1
+
+
+def test_virtual_radar_sensor_axes():
+    own = np.array([-35.0, 149.0, 500.0])
+    east = own + [0.0, 1000.0 / (111_320 * math.cos(math.radians(35.0))), 0.0]
+    cfg = dict(pd=1.0, clutter_rate=0.0, sigma_r=0.0, sigma_az=0.0, sigma_el=0.0)
+    stream = [AttitudeRef(0.0, euler_to_quat(0.0, 0.0, math.pi / 2), "autopilot", "ATTITUDE"),
+              PositionSample(0.0, None, np.zeros(3), own, "GLOBAL_POSITION_INT"),
+              AdsbSample(0.1, 0x30, east, np.zeros(3), "geometric", "E", 0x1F, 0),
+              PositionSample(1.5, None, np.zeros(3), own, "GLOBAL_POSITION_INT")]
+    level = [s for s in virtual_radar(stream, np.random.default_rng(0), RadarConfig(**cfg))
+             if isinstance(s, DetectionScan)][0].detections[0]
+    body = [s for s in virtual_radar(stream, np.random.default_rng(0),
+                                     RadarConfig(attitude="autopilot", **cfg))
+            if isinstance(s, DetectionScan)][0].detections[0]
+    assert level.frame == "BODY_NED" and body.frame == "BODY_FRD"
+    assert level.rae[0] == pytest.approx(1000.0, rel=2e-3)
+    assert level.rae[1] == pytest.approx(-math.pi / 2, abs=3e-3)  # east = right of north
+    assert body.rae[1] == pytest.approx(0.0, abs=3e-3)  # facing east: dead ahead
+    assert abs(body.rae[2]) < 1e-3  # same altitude: level (earth curvature ~8e-5 rad)

@@ -217,7 +217,9 @@ class AdsbRadar:
         return DetectionScan(t, tuple(dets), "adsb_radar", tuple(origin), truth)
 
     def _det(self, t: float, z: np.ndarray, q: np.ndarray, own: np.ndarray) -> DetectionSample:
-        return DetectionSample(t, _UNKNOWN_ID, frd_from_rae(z), "BODY_FRD", z, 0.0,
+        # sensor axes: body FRD with an attitude, else NED (q = identity): "BODY_NED"
+        frame = "BODY_NED" if self.config.attitude is None else "BODY_FRD"
+        return DetectionSample(t, _UNKNOWN_ID, frd_from_rae(z), frame, z, 0.0,
                                self.config.max_range, "adsb_radar", 3, q, own.copy())
 
     def truth_arrays(self) -> dict[int, tuple[np.ndarray, np.ndarray]]:
