@@ -170,6 +170,10 @@ class FakeVehicle:
                 data = s.recv(65536)
             except OSError:
                 continue
+            if self.tcp and not data:  # the client went away: accept the next one
+                self.client.close()
+                self.client = None
+                continue
             for m in self.rx.parse_buffer(data) or []:
                 self._on(m)
 

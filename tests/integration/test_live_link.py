@@ -243,7 +243,8 @@ def test_signing_rejects_unsigned_and_wrong_key(tmp_path):
             for _ in range(4):
                 m.attitude_send(fv.time_boot_ms(), 0.5, 0.5, 0.5, 0, 0, 0)
             _send(port, buf.b, s)
-            w, wbuf = frames(key=b"\x01" * 32)
+            t_forged = fv.time_boot_ms() * 1e-3
+            w, wbuf = frames(key=b"\x01" * 32)  # a forged stream with a *later* timestamp
             for _ in range(3):
                 w.attitude_send(fv.time_boot_ms(), 0.5, 0.5, 0.5, 0, 0, 0)
             _send(port, wbuf.b, s)
@@ -252,6 +253,8 @@ def test_signing_rejects_unsigned_and_wrong_key(tmp_path):
     assert st.unsigned == 4 and st.bad_signature == 3
     att = [x for x in got if getattr(x, "source", "") == "ATTITUDE"]
     assert len(att) > 5  # the signed vehicle stream still flows
+    # ... also after the forged packets (pymavlink's own check would have locked it out)
+    assert sum(x.t > t_forged + 0.3 for x in att) > 5
     assert all(abs(x.q[1]) < 0.1 for x in att)  # none of the injected 0.5 rad attitudes
     replay = [x for x in open_source(tl) if getattr(x, "source", "") == "ATTITUDE"]
     assert len(replay) >= len(att) and all(abs(x.q[1]) < 0.1 for x in replay)  # only signed
@@ -472,3 +475,18 @@ def test_unreachable_tcp_times_out_cleanly():
         open_live(f"tcp:127.0.0.1:{port}", heartbeat_timeout=0.6)
     with pytest.raises(Exception, match="cannot open|host:port"):
         open_live("udpin:127.0.0.1:notaport", heartbeat_timeout=0.3)
+
+
+def test_silent_tcp_peer_is_reconnected():
+    port = free_port(socket.SOCK_STREAM)
+    with FakeVehicle(port, tcp=True, auto_streams={"ATTITUDE": 20.0}) as fv:
+        with open_live(f"tcp:127.0.0.1:{port}", streams={}, read_declination=False,
+                       gap_timeout=0.5) as link:
+            take(link, 0.3)
+            fv.silent = True  # connection open, nothing sent (a hung SITL)
+            time.sleep(3.6)
+            fv.silent = False
+            got = take(link, 1.0)
+            st = link.stats
+    assert st.reconnect >= 1 and st.link_gap == 1
+    assert sum(getattr(x, "source", "") == "ATTITUDE" for x in got) > 5
