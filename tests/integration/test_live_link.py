@@ -280,11 +280,18 @@ def test_flood_is_bounded_and_counted():
             s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
             rss0 = _rss_mb()
             sent = 0
+
+            def seen() -> int:  # frames the reader has taken off the socket
+                return link._q.qsize() + link.stats.queue_overflow
+
             for _ in range(100):
                 for p in pkts:
                     s.sendto(p, ("127.0.0.1", port))
                     sent += 1
-            time.sleep(1.0)  # nobody consumes: the queue fills, the rest is dropped
+                end = time.monotonic() + 0.3  # let a loaded reader catch up a little
+                while seen() < sent - 1500 and time.monotonic() < end:
+                    time.sleep(0.002)
+            time.sleep(0.5)  # nobody consumes: the queue fills, the rest is dropped
             rss1 = _rss_mb()
             q = link._q.qsize()
             got = take(link, 30.0, until=lambda x: link._q.empty())
@@ -293,8 +300,8 @@ def test_flood_is_bounded_and_counted():
           f"overflow {st.queue_overflow}")
     assert sent == 100_000
     assert q <= 10_000
-    assert st.queue_overflow > 0
-    assert st.queue_overflow + q + st.duplicate <= sent + 100
+    assert st.queue_overflow > 20_000  # most of the flood reached the reader and was dropped
+    assert st.queue_overflow + q <= sent + 100
     assert rss1 - rss0 < 80.0  # bounded by the queue, not by the flood
     assert len(got) > 0
 
