@@ -85,7 +85,14 @@ def _looks_like_tlog(head: bytes) -> bool:
     return 0 <= tus < 2**62
 
 
-def open_source(path_or_url: str | Path, *, imu: str | None = None) -> Source:
+def open_source(
+    path_or_url: str | Path,
+    *,
+    imu: str | None = None,
+    reorder_window: float | None = None,
+    sysid: int | None = None,
+    **live_options,
+) -> Source:
     """Open a log file or live MAVLink connection string as a measurement stream.
 
     Files: ``.tlog`` (MAVLink telemetry), ArduPilot DataFlash ``.bin`` (binary or
@@ -99,14 +106,26 @@ def open_source(path_or_url: str | Path, *, imu: str | None = None) -> Source:
     vehicle-time order (s).  ``imu`` restricts IMU samples to that source
     (e.g. ``"RAW_IMU"``, ``"IMU[1]"``); None yields every IMU source.
     ``.stats``, ``.params`` (name -> float) and ``.format`` are attributes.
+    ``reorder_window`` (s of vehicle time; default 1.0 for files, 0.2 live) and ``sysid``
+    (MAVLink: only that system) apply to MAVLink sources.  A live link is a
+    :class:`uavest.ingest.live.LiveLink` (started on first iteration); ``live_options`` go
+    to it (``streams``, ``signing_key``, ``tlog``, ``gap_timeout``...).  To replay a tlog a
+    live link recorded exactly as it ran, pass the link's ``reorder_window`` and ``sysid``.
     """
     s = str(path_or_url)
     if _LIVE_RE.match(s) and not Path(s).is_file():
-        return MavlinkSource(s, "mavlink-live", imu=imu, reorder_window=0.2)
+        from .live import LiveLink
+
+        return LiveLink(s, imu=imu, sysid=sysid,
+                        reorder_window=0.2 if reorder_window is None else reorder_window,
+                        **live_options)
+    if live_options:
+        raise TypeError(f"options {sorted(live_options)} apply to live links only")
     fmt = detect_format(s)
     if fmt == "ulog":
         return ULogSource(Path(s), imu=imu)
-    return MavlinkSource(Path(s), fmt, imu=imu)
+    return MavlinkSource(Path(s), fmt, imu=imu, sysid=sysid,
+                         reorder_window=1.0 if reorder_window is None else reorder_window)
 
 
 # ---------------------------------------------------------------------- read_log

@@ -43,6 +43,7 @@ class Raw:
     values: tuple
     kind: str = ""  # reference kind for cat == "ref"
     primary: bool = True  # False for the mag part of an IMU message (time faults counted once)
+    meta: dict | None = None  # extra fields of "det" / "adsb" items (not compared by the gate)
 
 
 def stat_key(raw: Raw) -> str:
@@ -84,6 +85,16 @@ def check(raw: Raw) -> str | None:
         (q,) = raw.values
         if abs(np.linalg.norm(q) - 1.0) > QUAT_NORM_TOL:
             return "out_of_range"
+    elif raw.cat == "det":
+        return check_detection(raw)
+    elif raw.cat == "adsb":
+        lla, vel = raw.values
+        if not (raw.meta or {}).get("valid_coords", True):
+            return "empty"
+        if abs(lla[0]) > 90 or abs(lla[1]) > 180 or not -1e3 < lla[2] < 1e5:
+            return "out_of_range"
+        if vel is not None and np.linalg.norm(vel) > MAX_VEL:
+            return "out_of_range"
     elif raw.cat == "pos":
         ned, vel, lla = raw.values
         if ned is not None and np.linalg.norm(ned) > MAX_POS:
@@ -95,6 +106,34 @@ def check(raw: Raw) -> str | None:
                 return "out_of_range"
             if lla[0] == 0 and lla[1] == 0:
                 return "empty"
+    return None
+
+
+MAX_DETECTION_RANGE = 1e6  # m, |xyz| of an OBSTACLE_DISTANCE_3D beyond which it is nonsense
+_RANGE_TOL = 1e-3  # m, slack on min/max_distance (float32 fields)
+
+
+def check_detection(raw: Raw) -> str | None:
+    """Bad-data kind of a converted OBSTACLE_DISTANCE_3D item, or None.
+
+    ``unknown_frame`` for a frame this layer cannot interpret, ``nan`` for a non-finite
+    x/y/z/min/max, ``out_of_range`` when min/max are negative or min > max, or the
+    distance of a vehicle-centred detection is outside [min_distance, max_distance].
+    """
+    (xyz,) = raw.values
+    meta = raw.meta or {}
+    if meta.get("frame") is None:
+        return "unknown_frame"
+    lo, hi = meta.get("min_distance", 0.0), meta.get("max_distance", math.inf)
+    if not (np.all(np.isfinite(xyz)) and math.isfinite(lo) and math.isfinite(hi)):
+        return "nan"
+    if lo < 0 or hi <= 0 or lo > hi:
+        return "out_of_range"
+    d = float(np.linalg.norm(xyz))
+    if d > MAX_DETECTION_RANGE:
+        return "out_of_range"
+    if meta["frame"] != "LOCAL_NED" and not (lo - _RANGE_TOL <= d <= hi + _RANGE_TOL):
+        return "out_of_range"
     return None
 
 
@@ -197,6 +236,65 @@ def _local_pos(m, name: str) -> list[Raw]:
     return [Raw("pos", name, 0, (ned, vel, None))]
 
 
+def _gps_raw(m, name: str) -> list[Raw]:
+    # GPS_RAW_INT carries no vertical velocity: vel_ned stays None (use GLOBAL_POSITION_INT)
+    if int(m.fix_type) < 3:  # no 3D fix
+        return [Raw("pos", name, 0, (None, None, np.zeros(3)))]
+    lla = np.array([m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3])
+    return [Raw("pos", name, 0, (None, None, lla))]
+
+
+#: MAV_FRAME value -> frame name of a DetectionSample (others: ``unknown_frame``).
+DETECTION_FRAMES = {
+    12: "BODY_FRD",  # MAV_FRAME_BODY_FRD
+    9: "BODY_FRD",  # MAV_FRAME_BODY_OFFSET_NED (deprecated; "same as MAV_FRAME_BODY_FRD")
+    8: "BODY_NED",  # MAV_FRAME_BODY_NED: vehicle-carried NED
+    7: "BODY_NED",  # MAV_FRAME_LOCAL_OFFSET_NED: offset from the vehicle, NED axes
+    1: "LOCAL_NED",  # MAV_FRAME_LOCAL_NED: autopilot local origin
+}
+
+
+def _obstacle_3d(m, name: str) -> list[Raw]:
+    xyz = np.array([m.x, m.y, m.z], dtype=float)
+    meta = {
+        "frame": DETECTION_FRAMES.get(int(m.frame)),
+        "mav_frame": int(m.frame),
+        "obstacle_id": int(m.obstacle_id),
+        "min_distance": float(m.min_distance),
+        "max_distance": float(m.max_distance),
+        "sensor_type": int(m.sensor_type),
+    }
+    return [Raw("det", name, int(m.obstacle_id), (xyz,), meta=meta)]
+
+
+_ADSB_COORDS, _ADSB_ALT, _ADSB_HDG, _ADSB_VEL, _ADSB_CALL = 1, 2, 4, 8, 16
+_ADSB_VVEL = 0x100  # ADSB_FLAGS_VERTICAL_VELOCITY_VALID
+
+
+def _adsb(m, name: str) -> list[Raw]:
+    flags = int(m.flags)
+    lla = np.array([m.lat * 1e-7, m.lon * 1e-7, m.altitude * 1e-3], dtype=float)
+    vel = None
+    if flags & _ADSB_VEL and flags & _ADSB_HDG:
+        h, hd = m.hor_velocity * 1e-2, m.heading * 1e-2 * DEG
+        vz = -m.ver_velocity * 1e-2  # ver_velocity is positive up
+        vel = np.array([h * math.cos(hd), h * math.sin(hd), vz])
+    cs = m.callsign
+    if isinstance(cs, bytes):
+        cs = cs.decode("ascii", "replace")
+    meta = {
+        "icao": int(m.ICAO_address),
+        "altitude_type": "geometric" if int(m.altitude_type) == 1 else "pressure_qnh",
+        "callsign": str(cs).rstrip("\x00").strip(),
+        "flags": flags,
+        "tslc": float(m.tslc),
+        "squawk": int(m.squawk),
+        "emitter_type": int(m.emitter_type),
+        "valid_coords": bool(flags & _ADSB_COORDS),
+    }
+    return [Raw("adsb", name, int(m.ICAO_address), (lla, vel), meta=meta)]
+
+
 MAVLINK_CONVERTERS = {
     "RAW_IMU": _milli_imu,
     "SCALED_IMU": _milli_imu,
@@ -209,6 +307,9 @@ MAVLINK_CONVERTERS = {
     "AHRS2": _ahrs2,
     "GLOBAL_POSITION_INT": _global_pos,
     "LOCAL_POSITION_NED": _local_pos,
+    "GPS_RAW_INT": _gps_raw,
+    "OBSTACLE_DISTANCE_3D": _obstacle_3d,
+    "ADSB_VEHICLE": _adsb,
 }
 
 

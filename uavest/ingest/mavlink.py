@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import heapq
 import io
 import math
 import os
 import re
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -17,7 +17,9 @@ import numpy as np
 from .convert import Raw, check, convert_dataflash, convert_mavlink, stat_key
 from .timebase import StreamGate, VehicleClock
 from .types import (
+    AdsbSample,
     AttitudeRef,
+    DetectionSample,
     ImuSample,
     IngestError,
     IngestStats,
@@ -27,7 +29,7 @@ from .types import (
 )
 
 # Messages without a time field: timed from receive time (see docs/ingest.md).
-_UNTIMED = {"SIMSTATE", "AHRS2"}
+_UNTIMED = {"SIMSTATE", "AHRS2", "ADSB_VEHICLE"}
 _MAX_STALL = 1000  # reads without file progress before giving up (hang guard)
 _SKIPPED_RE = re.compile(r"Skipped (\d+) bad bytes")
 
@@ -41,7 +43,30 @@ def build(raw: Raw, t: float) -> Sample:
         return MagSample(t, v[0], raw.source, raw.instance)
     if raw.cat == "ref":
         return AttitudeRef(t, v[0], raw.kind, raw.source)
+    if raw.cat == "det":
+        from .detections import rae_from_frd
+
+        m = raw.meta
+        xyz = v[0]
+        rae = rae_from_frd(xyz) if m["frame"] == "BODY_FRD" else None
+        return DetectionSample(
+            t, m["obstacle_id"], xyz, m["frame"], rae, m["min_distance"], m["max_distance"],
+            raw.source, m["sensor_type"],
+        )
+    if raw.cat == "adsb":
+        m = raw.meta
+        return AdsbSample(
+            t, m["icao"], v[0], v[1], m["altitude_type"], m["callsign"], m["flags"], m["tslc"],
+            raw.source, m["squawk"], m["emitter_type"],
+        )
     return PositionSample(t, v[0], v[1], v[2], raw.source)
+
+
+def gate_time(raw: Raw, t: float) -> float:
+    """Time (s) under which the stream gate orders an item: ADS-B by its position time."""
+    if raw.cat == "adsb":
+        return t - raw.meta["tslc"]
+    return t
 
 
 class _Reorder:
@@ -57,7 +82,7 @@ class _Reorder:
 
     def push(self, m: Sample) -> None:
         if m.t < self.last_out:
-            self.stats.bad("late", m.source + (".mag" if isinstance(m, MagSample) else ""))
+            self.stats.bad("late", _source_key(m))
             return
         heapq.heappush(self.heap, (m.t, self.seq, m))
         self.seq += 1
@@ -71,14 +96,19 @@ class _Reorder:
             yield m
 
 
+def _source_key(m) -> str:
+    return m.source + (".mag" if isinstance(m, MagSample) else "")
+
+
 class MavlinkSource:
-    """Iterable of measurements from a tlog, a DataFlash log or a live MAVLink link.
+    """Iterable of measurements from a tlog or a DataFlash log (live links: ``LiveLink``).
 
     Yields :class:`ImuSample`, :class:`MagSample`, :class:`AttitudeRef` and
     :class:`PositionSample` in vehicle-time order (a ``reorder_window`` second
     buffer absorbs the small disorder between message types).  ``stats`` and
     ``params`` fill while iterating; ``params`` is complete after the iteration.
-    Iterating twice re-reads the file (not possible for live links).
+    Iterating twice re-reads the file.  :class:`uavest.ingest.live.LiveLink` subclasses
+    this and replaces :meth:`_messages` with its reader queue (same conversion path).
     """
 
     def __init__(
@@ -88,11 +118,13 @@ class MavlinkSource:
         *,
         imu: str | None = None,
         reorder_window: float = 1.0,
+        sysid: int | None = None,
     ) -> None:
         self.path = target
         self.format = fmt
         self.imu = imu
         self.reorder_window = reorder_window
+        self.sysid = sysid  # MAVLink: only this system (others counted wrong_sysid)
         self.stats = IngestStats()
         self.params: dict[str, float] = {}
 
@@ -106,10 +138,8 @@ class MavlinkSource:
             if self.format == "dataflash":
                 with contextlib.redirect_stdout(io.StringIO()):
                     return DFReader.DFReader_binary(str(self.path), zero_time_base=False)
-            if self.format == "dataflash-text":
-                with contextlib.redirect_stdout(io.StringIO()):
-                    return DFReader.DFReader_text(str(self.path), zero_time_base=False)
-            return mavutil.mavlink_connection(str(self.path), robust_parsing=True)
+            with contextlib.redirect_stdout(io.StringIO()):
+                return DFReader.DFReader_text(str(self.path), zero_time_base=False)
         except Exception as e:  # pymavlink raises many kinds on garbage
             raise IngestError(
                 f"{self.path}: cannot open as {self.format} ({type(e).__name__}: {e})"
@@ -120,18 +150,13 @@ class MavlinkSource:
         conn = self._open()
         st = self.stats
         is_df = self.format.startswith("dataflash")
-        live = self.format == "mavlink-live"
         stall = 0
         last_pos = -1
         try:
             while True:
                 buf = io.StringIO()
                 try:
-                    if live:
-                        msg = conn.recv_match(blocking=True, timeout=1.0)
-                        if msg is None:
-                            continue
-                    elif is_df:
+                    if is_df:
                         with contextlib.redirect_stdout(buf):
                             msg = conn.recv_msg()
                     else:
@@ -139,23 +164,22 @@ class MavlinkSource:
                 except Exception:  # noqa: BLE001 - corrupt bytes must not crash us
                     st.bad("corrupt")
                     msg = None
-                    if not is_df and not live and self._at_eof(conn):
+                    if not is_df and self._at_eof(conn):
                         break
                 if is_df and buf.tell():
                     text = buf.getvalue()
                     st.bad("corrupt", n=len(_SKIPPED_RE.findall(text)))
                     st.bad("unknown_message", n=text.count("unknown msg type"))
-                if not live:
-                    pos = self._position(conn)
-                    if pos == last_pos:
-                        stall += 1
-                        if stall > _MAX_STALL:
-                            st.bad("corrupt")
-                            break
-                    else:
-                        stall, last_pos = 0, pos
+                pos = self._position(conn)
+                if pos == last_pos:
+                    stall += 1
+                    if stall > _MAX_STALL:
+                        st.bad("corrupt")
+                        break
+                else:
+                    stall, last_pos = 0, pos
                 if msg is None:
-                    if live or not self._at_eof(conn):
+                    if not self._at_eof(conn):
                         continue
                     break
                 name = msg.get_type()
@@ -167,9 +191,7 @@ class MavlinkSource:
                     st.bad("unknown_message")
                     continue
                 st.messages[name] += 1
-                if live:
-                    rx = time.time()
-                elif is_df:
+                if is_df:
                     rx = None
                 else:
                     rx = getattr(msg, "_timestamp", None)
@@ -177,8 +199,7 @@ class MavlinkSource:
                         rx = None
                 yield msg, rx
         finally:
-            if not live:
-                self._check_truncated(conn)
+            self._check_truncated(conn)
             with contextlib.suppress(Exception):
                 conn.close()
 
@@ -223,7 +244,10 @@ class MavlinkSource:
             for t, (sysid, raws) in items:
                 for raw in raws:
                     key = (sysid, raw.cat, raw.source, raw.instance)
-                    if not gate.admit(key, t, raw.values, stat_key(raw), count=raw.primary):
+                    admit = {"det": gate.admit_multi, "adsb": gate.admit_repeat}.get(
+                        raw.cat, gate.admit)
+                    tg = gate_time(raw, t)
+                    if not admit(key, tg, raw.values, stat_key(raw), count=raw.primary):
                         continue
                     st.accepted[stat_key(raw)] += 1
                     reorder.push(build(raw, t))
@@ -234,7 +258,14 @@ class MavlinkSource:
                     if raw.primary:  # time faults are counted once per message
                         st.bad(kind, stat_key(raw))
 
+        self._reorder = reorder
         for msg, rx in self._messages():
+            if msg is None:  # live: a link event (rx holds it); flush what is buffered first
+                yield from reorder.pop_ready(flush=True)
+                if rx is not None:
+                    t_ev = reorder.last_out if math.isfinite(reorder.last_out) else 0.0
+                    yield dataclasses.replace(rx, t=t_ev)
+                continue
             name = msg.get_type()
             if is_df:
                 if name == "PARM":
@@ -247,6 +278,9 @@ class MavlinkSource:
                     self._param(getattr(msg, "param_id", None), getattr(msg, "param_value", None))
                     continue
                 sysid = int(msg.get_srcSystem())
+                if self.sysid is not None and sysid != self.sysid:
+                    st.bad("wrong_sysid", name)
+                    continue
                 if name == "SYSTEM_TIME" and msg.time_boot_ms and msg.time_unix_usec:
                     systime[sysid] = msg.time_unix_usec * 1e-6 - msg.time_boot_ms * 1e-3
                     continue

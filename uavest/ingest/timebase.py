@@ -5,6 +5,7 @@ See docs/ingest.md "Timestamps".  All times are seconds.
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 from .types import IngestStats
@@ -134,12 +135,69 @@ class VehicleClock:
         return []
 
 
+MAX_STREAMS = 4096  # streams remembered by StreamGate (ADS-B ICAO addresses are streams)
+MAX_SAME_TIME = 256  # contents remembered at one time of a multi-item stream (detections)
+
+
 @dataclass
 class StreamGate:
-    """Per-stream monotonicity: drop duplicates and samples going backwards."""
+    """Per-stream monotonicity: drop duplicates and samples going backwards.
+
+    At most :data:`MAX_STREAMS` streams are remembered (least recently used forgotten), so
+    a flood of made-up ADS-B addresses cannot grow memory without bound.
+    """
 
     stats: IngestStats
-    last: dict = field(default_factory=dict)  # key -> (t, content)
+    last: OrderedDict = field(default_factory=OrderedDict)  # key -> (t, content)
+
+    def _remember(self, key: tuple, value) -> None:
+        self.last[key] = value
+        self.last.move_to_end(key)
+        if len(self.last) > MAX_STREAMS:
+            self.last.popitem(last=False)
+
+    def admit_repeat(
+        self, key: tuple, t: float, content: tuple, source: str, count: bool = True,
+        slack: float = 1.5,
+    ) -> bool:
+        """Like :meth:`admit` for reports re-sent with a coarse age (ADS-B ``tslc``, whole s).
+
+        The same content within ``slack`` s of the last admitted time is a ``duplicate``
+        (a re-sent report whose age rounding moved its time); otherwise as :meth:`admit`.
+        """
+        prev = self.last.get(key)
+        if prev is not None and abs(t - prev[0]) < slack and _same(content, prev[1]):
+            if count:
+                self.stats.bad("duplicate", source)
+            return False
+        return self.admit(key, t, content, source, count)
+
+    def admit_multi(
+        self, key: tuple, t: float, content: tuple, source: str, count: bool = True
+    ) -> bool:
+        """Like :meth:`admit` for streams with several items at one time (a scan's detections).
+
+        An item at the stream's last time is admitted unless its content was already seen at
+        that time (then ``duplicate``); an older time is ``time_backwards``.
+        """
+        prev = self.last.get(key)
+        if prev is not None:
+            t0, seen = prev
+            if t < t0:
+                if count:
+                    self.stats.bad("time_backwards", source)
+                return False
+            if t == t0:
+                if any(_same(content, c) for c in seen):
+                    if count:
+                        self.stats.bad("duplicate", source)
+                    return False
+                if len(seen) < MAX_SAME_TIME:
+                    seen.append(content)
+                self.last.move_to_end(key)
+                return True
+        self._remember(key, (t, [content]))
+        return True
 
     def admit(self, key: tuple, t: float, content: tuple, source: str, count: bool = True) -> bool:
         """True if ``t`` (s) is newer than the last admitted time of stream ``key``.
@@ -156,7 +214,7 @@ class StreamGate:
             else:
                 self.stats.bad("time_backwards", source)
             return False
-        self.last[key] = (t, content)
+        self._remember(key, (t, content))
         return True
 
 

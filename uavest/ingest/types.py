@@ -26,6 +26,10 @@ __all__ = [
     "MagSample",
     "AttitudeRef",
     "PositionSample",
+    "DetectionSample",
+    "DetectionScan",
+    "AdsbSample",
+    "LinkEvent",
     "IngestStats",
     "ImuSeries",
     "MagSeries",
@@ -57,6 +61,21 @@ BAD_KINDS = (
     "empty",  # all-zero sensor payload (sensor not present) or no GPS fix
     "no_time",  # no vehicle time could be assigned (no timed message seen yet)
     "late",  # arrived later than the streaming reorder window allows
+    "unknown_frame",  # OBSTACLE_DISTANCE_3D in a MAV_FRAME this layer cannot interpret
+    "wrong_sysid",  # live link: message from another MAVLink system than the vehicle's
+    "unsigned",  # live link with signing on: unsigned (or MAVLink 1) packet
+    "bad_signature",  # live link with signing on: wrong key, or replayed/old timestamp
+    "queue_overflow",  # live link: reader queue full (consumer too slow), message dropped
+)
+
+#: Events counted by :class:`IngestStats` that are not bad data.
+EVENT_KINDS = (
+    "time_reset",  # vehicle reboots detected (time continued)
+    "time_wrap",  # 32-bit time_boot_ms wraps unwrapped
+    "non_mavlink",  # runs of printable text between frames (ArduPilot SITL boot banner)
+    "link_gap",  # live link: no message for gap_timeout s (see LinkEvent)
+    "reconnect",  # live link: TCP connection re-established
+    "pre_heartbeat",  # live link: messages discarded before the vehicle heartbeat
 )
 
 
@@ -117,8 +136,124 @@ class PositionSample:
     source: str
 
 
+@dataclass(frozen=True, slots=True)
+class DetectionSample:
+    """One radar-like detection (MAVLink ``OBSTACLE_DISTANCE_3D`` or the ADS-B virtual radar).
+
+    t: s, vehicle clock.  obstacle_id: the sensor's id (65535 = unknown).
+    xyz: (3,) m, the position as sent, in ``frame``.  frame: ``"BODY_FRD"`` (vehicle
+    centred, body axes), ``"BODY_NED"`` (vehicle centred, NED axes) or ``"LOCAL_NED"``
+    (autopilot local origin, NED axes).
+    rae: (3,) ``[range m, azimuth rad, elevation rad]`` in the sensor frame, with the
+    conventions of :mod:`uavest.models.radar` for a sensor whose axes are the body FRD
+    axes (:meth:`SensorPose.from_ned_frd`): with ``d`` the line of sight in body FRD,
+    ``range = |d|``, ``azimuth = atan2(-d_y, d_x)`` (counter-clockwise from the nose seen
+    from above, i.e. *positive to the left*; :attr:`azimuth_frd` is the clockwise one),
+    ``elevation = atan2(-d_z, hypot(d_x, d_y))`` (positive up).  None when the frame is
+    world-fixed and no attitude/position has been attached yet
+    (:func:`uavest.ingest.detections.attach_pose`).
+    q: (4,) sensor attitude ``[w,x,y,z]`` body FRD -> NED used for ``rae``, or None.
+    sensor_ned: (3,) m, sensor position in the local NED frame used, or None (unknown).
+    min_distance, max_distance: m, the sensor's range limits from the message.
+    source: ``"OBSTACLE_DISTANCE_3D"`` or ``"adsb_radar"``.  sensor_type: MAV_DISTANCE_SENSOR.
+    """
+
+    t: float
+    obstacle_id: int
+    xyz: np.ndarray
+    frame: str
+    rae: np.ndarray | None
+    min_distance: float
+    max_distance: float
+    source: str
+    sensor_type: int = 3  # MAV_DISTANCE_SENSOR_RADAR
+    q: np.ndarray | None = None
+    sensor_ned: np.ndarray | None = None
+
+    @property
+    def azimuth_frd(self) -> float:
+        """Azimuth clockwise from the nose (rad, positive right) = ``-rae[1]``; NaN if no rae."""
+        return float("nan") if self.rae is None else float(-self.rae[1])
+
+
+@dataclass(frozen=True, slots=True)
+class DetectionScan:
+    """Detections of one scan of one sensor (see ``docs/live.md`` "Scans").
+
+    t: s, vehicle clock of the scan.  detections: the scan's :class:`DetectionSample`
+    (possibly empty for the virtual radar, which knows its scans).  origin: for each
+    detection the ICAO address of the aircraft that caused it, or None for clutter (only
+    the virtual radar knows this; () for MAVLink scans).  truth: ICAO address -> (6,)
+    ``[n, e, d, vn, ve, vd]`` m, m/s, in the local NED frame of the stage (virtual radar;
+    {} otherwise), every aircraft within range at the scan time, detected or not.
+    """
+
+    t: float
+    detections: tuple
+    source: str
+    origin: tuple = ()
+    truth: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.detections)
+
+
+@dataclass(frozen=True, slots=True)
+class AdsbSample:
+    """One ADS-B report (MAVLink ``ADSB_VEHICLE``).
+
+    t: s, vehicle clock of the *position* (receive time mapped to vehicle time, minus
+    ``tslc``).  icao: 24-bit ICAO address.  lat_lon_alt: (3,) deg, deg, m; the altitude
+    is AMSL barometric (QNH) or geometric (GNSS) as ``altitude_type`` says
+    (``"pressure_qnh"`` | ``"geometric"``).  vel_ned: (3,) m/s NED from
+    hor_velocity/heading/ver_velocity, or None when the message flags say they are not
+    valid.  callsign: str.  flags: MAV_ADSB_FLAGS bits.  tslc: s since last
+    communication (integer seconds in the message).  squawk, emitter_type: as sent.
+    """
+
+    t: float
+    icao: int
+    lat_lon_alt: np.ndarray
+    vel_ned: np.ndarray | None
+    altitude_type: str
+    callsign: str
+    flags: int
+    tslc: float
+    source: str = "ADSB_VEHICLE"
+    squawk: int = 0
+    emitter_type: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class LinkEvent:
+    """Something that happened to a live link (not data).
+
+    t: s, vehicle clock: the newest sample time yielded before the event.  kind:
+    ``"link_lost"`` (no message for ``gap_timeout`` s; ``end`` None), ``"link_restored"``
+    (first message after the gap), ``"reconnect"`` (TCP reconnected) or
+    ``"streams_requested"``.  start, end: receive (UNIX) times s of the last message
+    before and the first after the gap.  count: ordinal of the gap (1, 2...).
+    detail: free text.  source: the connection string.
+    """
+
+    t: float
+    kind: str
+    start: float | None = None
+    end: float | None = None
+    count: int = 0
+    detail: str = ""
+    source: str = "link"
+
+    @property
+    def duration(self) -> float | None:
+        """end - start in s, or None while the gap lasts."""
+        return None if self.end is None or self.start is None else self.end - self.start
+
+
 #: One typed, timestamped sample from a source (data, not a measurement *model*).
-Sample = ImuSample | MagSample | AttitudeRef | PositionSample
+Sample = (
+    ImuSample | MagSample | AttitudeRef | PositionSample | DetectionSample | AdsbSample
+)
 
 
 @dataclass(slots=True)
@@ -141,8 +276,17 @@ class IngestStats:
     empty: int = 0
     no_time: int = 0
     late: int = 0
+    unknown_frame: int = 0
+    wrong_sysid: int = 0
+    unsigned: int = 0
+    bad_signature: int = 0
+    queue_overflow: int = 0
     time_reset: int = 0  # vehicle reboots detected (not bad data; time continued)
     time_wrap: int = 0  # 32-bit time_boot_ms wraps unwrapped
+    non_mavlink: int = 0  # printable text runs between frames (SITL banner), bytes ignored
+    link_gap: int = 0  # live link gaps (no message for gap_timeout s)
+    reconnect: int = 0  # live TCP reconnections
+    pre_heartbeat: int = 0  # live messages discarded before the vehicle heartbeat
     messages: Counter = field(default_factory=Counter)
     accepted: Counter = field(default_factory=Counter)
     rejected: Counter = field(default_factory=Counter)
@@ -163,8 +307,8 @@ class IngestStats:
     def as_dict(self) -> dict:
         """Plain-dict view (JSON-serialisable)."""
         d: dict = {k: getattr(self, k) for k in BAD_KINDS}
-        d["time_reset"] = self.time_reset
-        d["time_wrap"] = self.time_wrap
+        for k in EVENT_KINDS:
+            d[k] = getattr(self, k)
         d["bad_total"] = self.bad_total
         d["messages"] = dict(sorted(self.messages.items()))
         d["accepted"] = dict(sorted(self.accepted.items()))

@@ -1,0 +1,920 @@
+"""The live MAVLink link: a vehicle (autopilot or SITL) as a streaming sample source.
+
+:class:`LiveLink` (made by :func:`open_live`, or by :func:`uavest.ingest.open_source` for a
+connection string) owns a reader thread that reads raw bytes from UDP, TCP or a serial port,
+parses them with its own MAVLink 2 parser (signing checked there), filters one vehicle,
+records the accepted frames to a tlog and puts them in a bounded queue.  Iterating the link
+runs the *same* conversion / timing / ordering code as a file (:class:`MavlinkSource`), with
+each message timed by its vehicle time field or, for untimed messages, by the receive time
+that is also written to the tlog, so replaying the tlog gives the same samples.
+
+See ``docs/live.md``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import logging
+import math
+import os
+import queue
+import select
+import socket
+import struct
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+os.environ.setdefault("MAVLINK20", "1")  # before any pymavlink.mavutil import (signing)
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
+
+from .mavlink import MavlinkSource  # noqa: E402
+from .types import IngestError, LinkEvent  # noqa: E402
+
+__all__ = ["LiveLink", "open_live", "DEFAULT_STREAMS", "signing_key_bytes", "endpoint_key",
+           "LinkTimeout"]
+
+log = logging.getLogger("uavest.live")
+
+#: Messages requested by default (name -> Hz).  ArduPilot serves HIGHRES_IMU and
+#: ATTITUDE_QUATERNION only through SET_MESSAGE_INTERVAL.
+DEFAULT_STREAMS: dict[str, float] = {
+    "HIGHRES_IMU": 100.0,
+    "RAW_IMU": 50.0,
+    "ATTITUDE_QUATERNION": 50.0,
+    "ATTITUDE": 10.0,
+    "GLOBAL_POSITION_INT": 10.0,
+    "GPS_RAW_INT": 5.0,
+    "SYSTEM_TIME": 1.0,
+}
+
+#: REQUEST_DATA_STREAM fallback: message -> ArduPilot data stream that carries it (or a
+#: substitute: HIGHRES_IMU -> RAW_SENSORS gives RAW_IMU; ATTITUDE_QUATERNION -> EXTRA1 gives
+#: ATTITUDE).  ArduPilot caps data streams at 50 Hz.
+_DATA_STREAM = {
+    "HIGHRES_IMU": mavlink.MAV_DATA_STREAM_RAW_SENSORS,
+    "RAW_IMU": mavlink.MAV_DATA_STREAM_RAW_SENSORS,
+    "SCALED_IMU": mavlink.MAV_DATA_STREAM_RAW_SENSORS,
+    "SCALED_IMU2": mavlink.MAV_DATA_STREAM_RAW_SENSORS,
+    "SCALED_IMU3": mavlink.MAV_DATA_STREAM_RAW_SENSORS,
+    "GPS_RAW_INT": mavlink.MAV_DATA_STREAM_EXTENDED_STATUS,
+    "GLOBAL_POSITION_INT": mavlink.MAV_DATA_STREAM_POSITION,
+    "LOCAL_POSITION_NED": mavlink.MAV_DATA_STREAM_POSITION,
+    "ATTITUDE": mavlink.MAV_DATA_STREAM_EXTRA1,
+    "ATTITUDE_QUATERNION": mavlink.MAV_DATA_STREAM_EXTRA1,
+    "SIMSTATE": mavlink.MAV_DATA_STREAM_EXTRA1,
+    "AHRS2": mavlink.MAV_DATA_STREAM_EXTRA1,
+    "SYSTEM_TIME": mavlink.MAV_DATA_STREAM_EXTRA3,
+}
+_DATA_STREAM_MAX_HZ = 50
+TCP_SILENCE = 3.0  # s, min silence before a TCP link is reconnected (SITL heartbeat: 1 Hz)
+
+_NOT_VEHICLE_TYPES = {
+    mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_GIMBAL, mavlink.MAV_TYPE_ADSB,
+    mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_TYPE_CAMERA,
+}
+_SIGNING_EPOCH = datetime(2015, 1, 1, tzinfo=UTC).timestamp()  # MAVLink signing time base
+_PRINTABLE = set(range(0x20, 0x7F)) | {0x09, 0x0A, 0x0D}
+
+
+class LinkTimeout(IngestError):
+    """No vehicle heartbeat within the timeout (a one-line message)."""
+
+
+# ------------------------------------------------------------------ helpers
+
+
+def signing_key_bytes(key: str | bytes | Path) -> bytes:
+    """The 32-byte MAVLink 2 signing key.
+
+    ``bytes`` of length 32 are the key.  A path to an existing file: its content, if it is
+    32 bytes, else its text stripped is a passphrase.  Any other string is a passphrase;
+    key = sha256(passphrase), the MAVProxy ``signing setup`` convention.
+    """
+    if isinstance(key, bytes):
+        if len(key) != 32:
+            raise ValueError(f"signing key must be 32 bytes, got {len(key)}")
+        return key
+    p = Path(str(key))
+    with contextlib.suppress(OSError):
+        if p.is_file():
+            data = p.read_bytes()
+            if len(data) == 32:
+                return data
+            key = data.decode("utf-8", "replace").strip()
+    if not str(key):
+        raise ValueError("empty signing passphrase")
+    return hashlib.sha256(str(key).encode("utf-8")).digest()
+
+
+def _split(conn: str) -> tuple[str, str]:
+    if ":" not in conn:
+        return "serial", conn
+    scheme, rest = conn.split(":", 1)
+    scheme = scheme.lower()
+    aliases = {"udp": "udpin", "tcpout": "tcp"}
+    scheme = aliases.get(scheme, scheme)
+    if scheme not in ("udpin", "udpout", "tcp", "tcpin"):
+        return "serial", conn
+    return scheme, rest
+
+
+def _hostport(rest: str, default_host: str) -> tuple[str, int]:
+    host, _, port = rest.rpartition(":")
+    if not port.isdigit():
+        raise ValueError(f"bad connection address {rest!r}: expected host:port")
+    return (host or default_host), int(port)
+
+
+def endpoint_key(conn: str) -> tuple:
+    """A normalised (kind, address) key of a connection string, to compare two of them.
+
+    UDP in/out and TCP client/server on the same host and port compare equal (a publisher
+    there would talk to the vehicle's link); ``localhost`` and ``0.0.0.0`` count as
+    127.0.0.1; a serial device compares by path.
+    """
+    scheme, rest = _split(str(conn))
+    if scheme == "serial":
+        return ("serial", rest.split(",")[0])
+    host, port = _hostport(rest, "127.0.0.1")
+    if host in ("localhost", "0.0.0.0", ""):
+        host = "127.0.0.1"
+    return ("udp" if scheme.startswith("udp") else "tcp", host, port)
+
+
+_ACTIVE: dict[tuple, int] = {}  # endpoint_key -> number of open LiveLinks on it
+_ACTIVE_LOCK = threading.Lock()
+
+
+def is_vehicle_endpoint(conn: str) -> bool:
+    """True if a LiveLink in this process is open on the same endpoint as ``conn``."""
+    try:
+        k = endpoint_key(conn)
+    except ValueError:
+        return False
+    with _ACTIVE_LOCK:
+        return _ACTIVE.get(k, 0) > 0
+
+
+class _Disconnected(Exception):
+    pass
+
+
+class _Transport:
+    """Raw bytes over UDP, TCP or (through pymavlink's mavutil) a serial port."""
+
+    def __init__(self, conn: str, baud: int) -> None:
+        self.conn = conn
+        self.kind, rest = _split(conn)
+        self.sock: socket.socket | None = None
+        self.peer = None  # where writes go (UDP in: the last sender)
+        self.serial = None
+        self.listener: socket.socket | None = None
+        if self.kind == "udpin":
+            host, port = _hostport(rest, "127.0.0.1")  # loopback unless the user writes one
+            self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+            self.sock.bind((host, port))
+        elif self.kind == "udpout":
+            self.peer = _hostport(rest, "127.0.0.1")
+            self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            self.sock.bind(("127.0.0.1" if self.peer[0].startswith("127.") else "0.0.0.0", 0))
+        elif self.kind == "tcp":
+            self.peer = _hostport(rest, "127.0.0.1")
+            self.sock = socket.create_connection(self.peer, timeout=2.0)
+            self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        elif self.kind == "tcpin":
+            self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            self.listener.bind(_hostport(rest, "127.0.0.1"))
+            self.listener.listen(1)
+        else:
+            from pymavlink import mavutil
+
+            dev, _, b = rest.partition(",")
+            self.serial = mavutil.mavlink_connection(dev, baud=int(b or baud))
+
+    def recv(self, timeout: float) -> bytes:
+        """Bytes available within ``timeout`` s (b"" if none); raises _Disconnected."""
+        if self.serial is not None:
+            if not self.serial.select(timeout):
+                return b""
+            return bytes(self.serial.recv(4096) or b"")
+        if self.listener is not None and self.sock is None:
+            r, _, _ = select.select([self.listener], [], [], timeout)
+            if not r:
+                return b""
+            self.sock, _ = self.listener.accept()
+            return b""
+        r, _, _ = select.select([self.sock], [], [], timeout)
+        if not r:
+            return b""
+        try:
+            if self.kind.startswith("udp"):
+                data, addr = self.sock.recvfrom(65536)
+                if self.kind == "udpin":
+                    self.peer = addr
+                return data
+            data = self.sock.recv(65536)
+        except (ConnectionError, OSError) as e:
+            raise _Disconnected(str(e)) from e
+        if not data:
+            if self.kind == "tcpin":
+                self.sock.close()
+                self.sock = None
+                return b""
+            raise _Disconnected("connection closed by peer")
+        return data
+
+    def write(self, buf: bytes) -> None:
+        try:
+            if self.serial is not None:
+                self.serial.write(buf)
+            elif self.kind.startswith("udp"):
+                if self.peer is not None:
+                    self.sock.sendto(buf, self.peer)
+            elif self.sock is not None:
+                self.sock.sendall(buf)
+        except OSError:
+            pass  # a lost link shows as a gap; sends are best effort
+
+    def close(self) -> None:
+        for s in (self.sock, self.listener):
+            if s is not None:
+                with contextlib.suppress(OSError):
+                    s.close()
+        if self.serial is not None:
+            with contextlib.suppress(Exception):
+                self.serial.close()
+
+
+class _Writer:
+    """Thread-safe write target for the MAVLink object (the current transport)."""
+
+    def __init__(self) -> None:
+        self.transport: _Transport | None = None
+        self.lock = threading.Lock()
+
+    def write(self, buf: bytes) -> None:
+        with self.lock:
+            if self.transport is not None:
+                self.transport.write(bytes(buf))
+
+
+class _RateMeter:
+    """Arrival rate per message name over the last ``window`` s (bounded memory)."""
+
+    def __init__(self, window: float = 5.0, maxlen: int = 4096) -> None:
+        self.window = window
+        self.times: dict[str, deque] = {}
+        self.first: dict[str, float] = {}
+        self.maxlen = maxlen
+        self.lock = threading.Lock()
+
+    def add(self, name: str, t: float) -> None:
+        with self.lock:
+            d = self.times.get(name)
+            if d is None:
+                if len(self.times) > 512:  # made-up names from a flood: don't grow
+                    return
+                d = self.times[name] = deque(maxlen=self.maxlen)
+                self.first[name] = t
+            d.append(t)
+
+    def rates(self, now: float) -> dict[str, float]:
+        out = {}
+        with self.lock:
+            for name, d in self.times.items():
+                ts = [t for t in d if t >= now - self.window]
+                if len(d) == d.maxlen and ts and len(ts) == len(d):  # saturated: span rate
+                    span = ts[-1] - ts[0]
+                    out[name] = (len(ts) - 1) / span if span > 0 else 0.0
+                else:  # over the window, or since the stream started if that is shorter
+                    span = min(self.window, now - self.first[name])
+                    out[name] = len(ts) / span if span > 0.2 else 0.0
+        return out
+
+
+@dataclass
+class StreamStatus:
+    """One requested stream: requested Hz, how (``SET_MESSAGE_INTERVAL`` | ``REQUEST_DATA_STREAM``
+    | ``none``), the COMMAND_ACK result (MAV_RESULT, None if no ACK) and the measured Hz."""
+
+    name: str
+    requested_hz: float
+    method: str = "none"
+    ack: int | None = None
+    measured_hz: float = 0.0
+
+    @property
+    def ok(self) -> bool:
+        return self.measured_hz >= 0.8 * self.requested_hz
+
+
+# ------------------------------------------------------------------ the link
+
+
+class LiveLink(MavlinkSource):
+    """A live MAVLink vehicle link as an iterable sample source (see module docstring).
+
+    Args:
+      conn: pymavlink-style connection string: ``udpin:127.0.0.1:14550`` (``udp:`` is the
+        same; an empty host binds 127.0.0.1, ``udpin:0.0.0.0:14550`` only when written),
+        ``udpout:host:port``, ``tcp:127.0.0.1:5760``, ``tcpin:127.0.0.1:5760``, or a serial
+        device ``/dev/ttyACM0`` / ``/dev/ttyUSB0,57600`` (``baud`` otherwise).
+      sysid: the vehicle's MAVLink system id; None = the first vehicle heartbeat's.
+      streams: message name -> Hz to request (:data:`DEFAULT_STREAMS`); {} = request none.
+      heartbeat_timeout: s to wait for the vehicle heartbeat (``LinkTimeout`` after).
+      on_wait: called with a one-line status about once a second while waiting.
+      gap_timeout: s without any vehicle message that makes a gap (``LinkEvent``).
+      signing_key: MAVLink 2 signing key (see :func:`signing_key_bytes`); when set, unsigned
+        and wrongly signed packets are rejected (``unsigned`` / ``bad_signature``).
+      tlog: path of a tlog to record the accepted frames to (8-byte big-endian receive
+        time in us + frame, like MAVProxy), written in whole records every ``flush_s``.
+      queue_size: bound of the reader -> consumer queue (excess: ``queue_overflow``).
+      reorder_window: s of vehicle time held to order messages (0.2 s; latency).
+      read_declination: read COMPASS_DEC / COMPASS_AUTODEC and fall back to the WMM.
+      ack_timeout, param_timeout: s to wait for a COMMAND_ACK / PARAM_VALUE.
+      source_system, source_component: the identity of our requests (GCS-like, 250/190).
+    """
+
+    def __init__(
+        self,
+        conn: str,
+        *,
+        baud: int = 115200,
+        sysid: int | None = None,
+        imu: str | None = None,
+        streams: dict[str, float] | None = None,
+        heartbeat_timeout: float = 30.0,
+        on_wait: Callable[[str], None] | None = None,
+        gap_timeout: float = 2.0,
+        signing_key: str | bytes | Path | None = None,
+        tlog: str | Path | None = None,
+        queue_size: int = 10_000,
+        reorder_window: float = 0.2,
+        read_declination: bool = True,
+        ack_timeout: float = 1.0,
+        param_timeout: float = 1.0,
+        source_system: int = 250,
+        source_component: int = mavlink.MAV_COMP_ID_MISSIONPLANNER,
+        flush_s: float = 0.2,
+    ) -> None:
+        super().__init__(conn, "mavlink-live", imu=imu, reorder_window=reorder_window,
+                         sysid=sysid)
+        self.conn = conn
+        self.baud = baud
+        self.streams = dict(DEFAULT_STREAMS if streams is None else streams)
+        self.heartbeat_timeout = heartbeat_timeout
+        self.on_wait = on_wait
+        self.gap_timeout = gap_timeout
+        self.queue_size = queue_size
+        self.read_declination = read_declination
+        self.ack_timeout = ack_timeout
+        self.param_timeout = param_timeout
+        self.flush_s = flush_s
+        self.tlog_path = Path(tlog) if tlog is not None else None
+        self._key = signing_key_bytes(signing_key) if signing_key is not None else None
+        if _split(conn)[0] != "serial":
+            endpoint_key(conn)  # a bad host:port raises ValueError here, not in the thread
+        self._writer = _Writer()
+        self._mav = mavlink.MAVLink(self._writer, srcSystem=source_system,
+                                    srcComponent=source_component)
+        self._mav.robust_parsing = True
+        if self._key is not None:
+            s = self._mav.signing
+            s.secret_key = self._key
+            s.sign_outgoing = True
+            s.link_id = 0
+            s.timestamp = int((time.time() - _SIGNING_EPOCH) * 1e5)
+            s.allow_unsigned_callback = lambda _mav, _msgid: False
+            # pymavlink's check_signature stores a packet's timestamp *before* checking its
+            # signature, so one forged packet with a future timestamp blocks the real stream
+            self._mav.check_signature = self._check_signature
+        self._q: queue.Queue = queue.Queue(maxsize=queue_size)
+        self._stop = threading.Event()
+        self._hb = threading.Event()
+        self._cond = threading.Condition()
+        self._acks: deque = deque(maxlen=64)  # (command, result, monotonic time)
+        self._param_replies: dict[str, float] = {}
+        self._rates = _RateMeter()
+        self._events: deque = deque(maxlen=256)  # LinkEvents from the reader thread
+        self._thread: threading.Thread | None = None
+        self._tlog_f = None
+        self._tlog_buf = bytearray()
+        self._last_flush = 0.0
+        self._last_rx_mono = time.monotonic()
+        self._last_rx_unix: float | None = None
+        self._started = False
+        self._closed = False
+        self._registered = False
+        self.vehicle_compid: int | None = None
+        self.vehicle_type: int | None = None
+        self.autopilot: int | None = None
+        self.stream_status: dict[str, StreamStatus] = {}
+        self.events: list[LinkEvent] = []
+        self.declination: float | None = None
+        self.declination_source = "unknown"
+        self._dec_pending = False
+        self._autodec: float | None = None
+        self._gps_fix: tuple[float, float, float] | None = None
+        self._rates_checked = False
+        self._requested_at: float | None = None
+        self._need_request = False
+        self._gen: Iterator | None = None
+        self._connected_once = False
+        self._connected_at = time.monotonic()
+
+    # ------------------------------------------------------------ lifecycle
+    def start(self) -> LiveLink:
+        """Open the link, wait for the vehicle, request streams, read the declination."""
+        if self._started:
+            return self
+        self._started = True
+        if self.tlog_path is not None:
+            self.tlog_path.parent.mkdir(parents=True, exist_ok=True)
+            self._tlog_f = open(self.tlog_path, "wb", buffering=0)  # noqa: SIM115
+        try:
+            self._writer.transport = _Transport(self.conn, self.baud)
+            self._connected_once = True
+        except OSError as e:
+            if _split(self.conn)[0] != "tcp":
+                self._close_tlog()
+                raise IngestError(f"{self.conn}: cannot open ({e})") from None
+            # a SITL not up yet: the reader keeps trying until the heartbeat timeout
+            log.info("%s: %s; retrying", self.conn, e)
+        except ValueError as e:
+            self._close_tlog()
+            raise IngestError(f"{self.conn}: cannot open ({e})") from None
+        with _ACTIVE_LOCK:
+            k = endpoint_key(self.conn)
+            _ACTIVE[k] = _ACTIVE.get(k, 0) + 1
+        self._registered = True
+        self._thread = threading.Thread(target=self._reader, name="uavest-live-reader",
+                                        daemon=True)
+        self._thread.start()
+        try:
+            self._wait_heartbeat()
+            self.check_signing()
+            if self.streams:
+                self.request_streams()
+            if self.read_declination:
+                self._read_declination()
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def close(self) -> None:
+        """Stop the reader thread (joined), close the transport and the tlog.  Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        with self._writer.lock:
+            if self._writer.transport is not None:
+                self._writer.transport.close()
+        self._reset_parser(count=True)
+        self._close_tlog()
+        if self._registered:
+            with _ACTIVE_LOCK:
+                k = endpoint_key(self.conn)
+                _ACTIVE[k] -= 1
+            self._registered = False
+
+    def __enter__(self) -> LiveLink:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        with contextlib.suppress(Exception):
+            self.close()
+
+    def _close_tlog(self) -> None:
+        if self._tlog_f is not None:
+            self._flush_tlog(force=True)
+            self._tlog_f.close()
+            self._tlog_f = None
+
+    def _flush_tlog(self, force: bool = False) -> None:
+        now = time.monotonic()
+        if self._tlog_f is None or not self._tlog_buf:
+            return
+        if force or now - self._last_flush >= self.flush_s or len(self._tlog_buf) > 1 << 16:
+            # one unbuffered write of whole records: the file always ends on a record
+            self._tlog_f.write(bytes(self._tlog_buf))
+            self._tlog_buf.clear()
+            self._last_flush = now
+
+    # ------------------------------------------------------------ status
+    @property
+    def vehicle_sysid(self) -> int | None:
+        """The vehicle's system id (after the heartbeat)."""
+        return self.sysid
+
+    @property
+    def signing_active(self) -> bool:
+        """True if our parser checks signatures and signs what we send."""
+        s = self._mav.signing
+        return self._key is not None and s.secret_key == self._key and bool(s.sign_outgoing)
+
+    def check_signing(self) -> None:
+        """Raise ``IngestError`` if signing was asked for but is not in force on the parser."""
+        if self._key is not None and not self.signing_active:
+            raise IngestError(f"{self.conn}: MAVLink 2 signing was requested but is not active")
+        if mavlink.WIRE_PROTOCOL_VERSION != "2.0":
+            raise IngestError(f"{self.conn}: parser is not MAVLink 2")
+
+    def rates(self) -> dict[str, float]:
+        """Measured arrival rate (Hz) per message name of the vehicle, over the last 5 s."""
+        return self._rates.rates(time.time())
+
+    def check_rates(self, min_fraction: float = 0.8) -> list[str]:
+        """Warnings (also logged) for requested streams arriving below ``min_fraction``."""
+        r = self.rates()
+        out = []
+        for name, st in self.stream_status.items():
+            st.measured_hz = r.get(name, 0.0)
+            if st.measured_hz < min_fraction * st.requested_hz:
+                msg = (f"{name}: {st.measured_hz:.1f} Hz arriving, {st.requested_hz:g} Hz "
+                       f"requested ({st.method})")
+                log.warning(msg)
+                out.append(msg)
+        return out
+
+    # ------------------------------------------------------------ reader thread
+    def _reader(self) -> None:
+        backoff = 0.1
+        while not self._stop.is_set():
+            tr = self._writer.transport
+            if tr is None:
+                try:
+                    tr = _Transport(self.conn, self.baud)
+                except OSError:
+                    self._stop.wait(backoff)
+                    backoff = min(2 * backoff, 2.0)
+                    continue
+                backoff = 0.1
+                self._connected_at = time.monotonic()
+                with self._writer.lock:
+                    self._writer.transport = tr
+                self._reset_parser(count=True)
+                if self._connected_once:
+                    self.stats.reconnect += 1
+                    self._events.append(LinkEvent(0.0, "reconnect", count=self.stats.reconnect,
+                                                  detail="TCP reconnected", source=self.conn))
+                    self._need_request = True
+                self._connected_once = True
+            try:
+                data = tr.recv(0.05)
+            except _Disconnected:
+                self._drop_transport(tr)
+                continue
+            except OSError:
+                self._drop_transport(tr)
+                continue
+            if not data:
+                quiet = time.monotonic() - max(self._last_rx_mono, self._connected_at)
+                if tr.kind == "tcp" and quiet > max(self.gap_timeout, TCP_SILENCE):
+                    self._drop_transport(tr)  # silent TCP peer: reconnect
+                self._flush_tlog()
+                continue
+            if tr.kind.startswith("udp"):
+                self._reset_parser(count=True)  # a datagram is a unit: no frame spans two
+            rx_us = int(time.time() * 1e6) & ~3  # as MAVProxy: low bits are the link id
+            rx = rx_us * 1.0e-6  # exactly what mavlogfile computes from the tlog
+            try:
+                msgs = self._mav.parse_buffer(data) or []
+            except Exception:  # noqa: BLE001 - garbage must never stop the reader
+                self.stats.corrupt += 1
+                self._reset_parser()
+                msgs = []
+            for m in msgs:
+                self._handle(m, rx_us, rx)
+            self._flush_tlog()
+
+    def _reset_parser(self, count: bool = False) -> None:
+        """Forget buffered bytes; with ``count``, count them (truncated frame / junk)."""
+        mav = self._mav
+        left = bytes(mav.buf[mav.buf_index:])
+        if count and left:
+            if left[0] in (0xFD, 0xFE):
+                self.stats.truncated += 1
+            elif all(b in _PRINTABLE for b in left):
+                self.stats.non_mavlink += 1
+            else:
+                self.stats.corrupt += 1
+        mav.buf = bytearray()
+        mav.buf_index = 0
+        mav.expected_length = mavlink.HEADER_LEN_V1 + 2
+
+    def _drop_transport(self, tr: _Transport) -> None:
+        """After a read error: TCP and serial are closed and reopened with backoff; a UDP
+        socket stays (an ICMP 'port unreachable' for udpout is not a broken socket)."""
+        if tr.kind.startswith("udp"):
+            self._stop.wait(0.05)
+            return
+        with self._writer.lock:
+            tr.close()
+            self._writer.transport = None
+
+    def _handle(self, m, rx_us: int, rx: float) -> None:
+        st = self.stats
+        name = m.get_type()
+        if name == "BAD_DATA":
+            reason = str(getattr(m, "reason", ""))
+            data = bytes(getattr(m, "data", b"") or b"")
+            if "signature" in reason.lower():
+                signed = len(data) > 2 and data[0] == 0xFD and data[2] & 0x01
+                if signed:
+                    st.bad_signature += 1
+                else:
+                    st.unsigned += 1
+            elif data and all(b in _PRINTABLE for b in data):
+                st.non_mavlink += 1  # e.g. the SITL boot banner on its TCP port
+            else:
+                st.corrupt += 1
+            return
+        if name.startswith("UNKNOWN"):
+            st.unknown_message += 1
+            return
+        if self._key is not None and not getattr(m, "_signed", False):
+            st.unsigned += 1  # belt and braces: the parser should have refused it
+            return
+        sysid = m.get_srcSystem()
+        if name == "HEARTBEAT" and self.sysid in (None, sysid) and self._is_vehicle(m):
+            if self.sysid is None:
+                self.sysid = sysid
+            self.vehicle_compid = m.get_srcComponent()
+            self.vehicle_type, self.autopilot = int(m.type), int(m.autopilot)
+            self._hb.set()
+        if self.sysid is None:
+            st.pre_heartbeat += 1
+            return
+        if sysid != self.sysid:
+            st.wrong_sysid += 1
+            return
+        self._last_rx_mono = time.monotonic()
+        self._rates.add(name, rx)
+        if name == "COMMAND_ACK":
+            with self._cond:
+                self._acks.append((int(m.command), int(m.result), time.monotonic()))
+                self._cond.notify_all()
+        elif name == "PARAM_VALUE":
+            pid = m.param_id
+            if isinstance(pid, bytes):
+                pid = pid.decode("ascii", "replace")
+            with self._cond:
+                self._param_replies[str(pid).rstrip("\x00")] = float(m.param_value)
+                self._cond.notify_all()
+        if self._tlog_f is not None:
+            self._tlog_buf += struct.pack(">Q", rx_us) + bytes(m.get_msgbuf())
+        try:
+            self._q.put_nowait((m, rx))
+        except queue.Full:
+            st.queue_overflow += 1
+
+    def _check_signature(self, msgbuf, src_system: int, src_component: int) -> bool:
+        """MAVLink 2 signature check: HMAC first, then the per-stream timestamp (replay)."""
+        sig = self._mav.signing
+        h = hashlib.sha256()
+        h.update(sig.secret_key)
+        h.update(msgbuf[:-6])
+        if h.digest()[:6] != bytes(msgbuf[-6:]):
+            return False
+        tlow, thigh = struct.unpack("<IH", bytes(msgbuf[-12:-6]))
+        ts = tlow + (thigh << 32)
+        key = (msgbuf[-13], src_system, src_component)
+        last = sig.stream_timestamps.get(key)
+        if last is not None and ts <= last:
+            return False  # replayed or duplicated signed packet
+        if last is None and ts + 6000 * 1000 < sig.timestamp:
+            return False  # a new stream more than a minute in the past
+        sig.stream_timestamps[key] = ts
+        sig.timestamp = max(sig.timestamp, ts)
+        return True
+
+    @staticmethod
+    def _is_vehicle(m) -> bool:
+        return (int(m.type) not in _NOT_VEHICLE_TYPES
+                and int(m.autopilot) != mavlink.MAV_AUTOPILOT_INVALID)
+
+    # ------------------------------------------------------------ setup steps
+    def _wait_heartbeat(self) -> None:
+        t0 = time.monotonic()
+        next_note = t0
+        who = f"system {self.sysid}" if self.sysid is not None else "a vehicle"
+        while not self._hb.wait(0.05):
+            now = time.monotonic()
+            if now - t0 > self.heartbeat_timeout:
+                raise LinkTimeout(
+                    f"{self.conn}: no HEARTBEAT from {who} within {self.heartbeat_timeout:g} s "
+                    f"(is the vehicle/SITL sending to this address?)")
+            if now >= next_note:
+                msg = f"{self.conn}: waiting for a HEARTBEAT from {who} ({now - t0:.0f} s)"
+                if self.on_wait is not None:
+                    self.on_wait(msg)
+                else:
+                    log.info(msg)
+                next_note += 1.0
+
+    def _target(self) -> tuple[int, int]:
+        return int(self.sysid or 1), int(self.vehicle_compid or 1)
+
+    def _wait_ack(self, command: int, since: float, timeout: float) -> int | None:
+        end = time.monotonic() + timeout
+        with self._cond:
+            while True:
+                for c, r, t in self._acks:
+                    if c == command and t >= since:
+                        self._acks.remove((c, r, t))
+                        return r
+                left = end - time.monotonic()
+                if left <= 0:
+                    return None
+                self._cond.wait(left)
+
+    def request_streams(self, wait: bool = True) -> dict[str, StreamStatus]:
+        """Ask for :attr:`streams`: SET_MESSAGE_INTERVAL each (ACK awaited if ``wait``),
+        REQUEST_DATA_STREAM for those refused or unanswered.  Returns :attr:`stream_status`."""
+        ts, tc = self._target()
+        fallback: dict[int, float] = {}
+        answered = False
+        for i, (name, hz) in enumerate(self.streams.items()):
+            st = self.stream_status.setdefault(name, StreamStatus(name, float(hz)))
+            msgid = getattr(mavlink, f"MAVLINK_MSG_ID_{name}", None)
+            if msgid is None:
+                raise ValueError(f"unknown MAVLink message {name!r} in streams")
+            since = time.monotonic()
+            self._mav.command_long_send(ts, tc, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                                        float(msgid), float(1e6 / hz), 0, 0, 0, 0, 0)
+            res = None
+            if wait and (answered or i == 0):  # no ACK to the first: the vehicle gives none
+                res = self._wait_ack(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, since,
+                                     self.ack_timeout)
+                answered = answered or res is not None
+            st.ack = res
+            if res == mavlink.MAV_RESULT_ACCEPTED:
+                st.method = "SET_MESSAGE_INTERVAL"
+            else:
+                ds = _DATA_STREAM.get(name)
+                if ds is not None:
+                    fallback[ds] = max(fallback.get(ds, 0.0), float(hz))
+                    st.method = "REQUEST_DATA_STREAM"
+                else:
+                    st.method = "none"
+                    log.warning("%s: %s refused (result %s) and has no data stream fallback",
+                                self.conn, name, res)
+        for ds, hz in fallback.items():
+            rate = int(min(max(1, round(hz)), _DATA_STREAM_MAX_HZ))
+            self._mav.request_data_stream_send(ts, tc, ds, rate, 1)
+        self._requested_at = time.monotonic()
+        self._rates_checked = False
+        return self.stream_status
+
+    def _read_param(self, name: str, timeout: float) -> float | None:
+        with self._cond:
+            self._param_replies.pop(name, None)
+        ts, tc = self._target()
+        self._mav.param_request_read_send(ts, tc, name.encode("ascii"), -1)
+        end = time.monotonic() + timeout
+        with self._cond:
+            while name not in self._param_replies:
+                left = end - time.monotonic()
+                if left <= 0:
+                    return None
+                self._cond.wait(left)
+            return self._param_replies[name]
+
+    def _read_declination(self) -> None:
+        dec = self._read_param("COMPASS_DEC", self.param_timeout)
+        auto = self._read_param("COMPASS_AUTODEC", self.param_timeout) if dec is not None \
+            else None
+        self._autodec = auto
+        if dec is not None and (dec != 0.0 or not auto):
+            self.declination, self.declination_source = float(dec), "param:COMPASS_DEC"
+        else:
+            # auto-declination with 0 = unknown until GPS lock; no param: WMM once we have GPS
+            self._dec_pending = True
+            self.declination_source = "unknown (waiting for GPS)"
+
+    def _on_gps(self, lat: float, lon: float, alt: float) -> None:
+        if not self._dec_pending:
+            return
+        self._dec_pending = False
+        self._gps_fix = (lat, lon, alt)
+        if self._autodec:  # the autopilot computes it after lock: ask again (answer async)
+            ts, tc = self._target()
+            with self._cond:
+                self._param_replies.pop("COMPASS_DEC", None)
+            self._mav.param_request_read_send(ts, tc, b"COMPASS_DEC", -1)
+        try:  # the host's date: a day's error changes the declination by < 0.001 deg
+            from ..geometry.magnetic import declination
+
+            self.declination = declination(lat, lon, alt, datetime.now(UTC))
+            self.declination_source = "wmm2025"
+        except ImportError:
+            self.declination_source = "unknown (pygeomag not installed for the WMM)"
+            log.warning("%s: no declination: COMPASS_DEC unknown and pygeomag missing",
+                        self.conn)
+        except ValueError as e:
+            log.warning("%s: %s", self.conn, e)
+
+    # ------------------------------------------------------------ consumer side
+    def __iter__(self) -> Iterator:
+        """The link's one sample stream: iterating again continues it (clock, order kept)."""
+        if not self._started:
+            self.start()
+        if self._closed and self._gen is None:
+            raise IngestError(f"{self.conn}: link is closed")
+        if self._gen is None:
+            self._gen = super().__iter__()
+        return self._gen
+
+    def _messages(self) -> Iterator[tuple[object, object]]:
+        """(message, receive time) from the queue; (None, LinkEvent) for link events."""
+        gaps = 0
+        in_gap = False
+        prev_rx: float | None = None
+        st = self.stats
+        while not (self._closed and self._q.empty()):
+            while self._events:
+                ev = self._events.popleft()
+                self.events.append(ev)
+                yield None, ev
+            if self._need_request and self._hb.is_set() and self.streams:
+                self._need_request = False
+                self.request_streams(wait=False)
+            if (not self._rates_checked and self._requested_at is not None
+                    and time.monotonic() - self._requested_at > 3.0):
+                self._rates_checked = True
+                self.check_rates()
+            try:
+                m, rx = self._q.get(timeout=0.05)
+            except queue.Empty:
+                if not in_gap and time.monotonic() - self._last_rx_mono > self.gap_timeout:
+                    in_gap = True
+                    gaps += 1
+                    st.link_gap += 1
+                    ev = LinkEvent(0.0, "link_lost", start=prev_rx, count=gaps,
+                                   detail=f"no message for {self.gap_timeout:g} s",
+                                   source=self.conn)
+                    self.events.append(ev)
+                    yield None, ev
+                continue
+            if prev_rx is not None and not in_gap and rx - prev_rx > self.gap_timeout:
+                in_gap = True  # a gap the consumer was too busy to see while it lasted
+                gaps += 1
+                st.link_gap += 1
+                ev = LinkEvent(0.0, "link_lost", start=prev_rx, count=gaps, source=self.conn)
+                self.events.append(ev)
+                yield None, ev
+            if in_gap:
+                in_gap = False
+                ev = LinkEvent(0.0, "link_restored", start=prev_rx, end=rx, count=gaps,
+                               detail=f"gap of {rx - (prev_rx or rx):.2f} s", source=self.conn)
+                self.events.append(ev)
+                yield None, ev
+                if self.streams:
+                    self._need_request = True
+            prev_rx = rx
+            self._last_rx_unix = rx
+            name = m.get_type()
+            st.messages[name] += 1
+            self._watch(m, name)
+            yield m, rx
+
+    def _watch(self, m, name: str) -> None:
+        """Declination bookkeeping from the messages flowing by."""
+        if name == "GPS_RAW_INT" and m.fix_type >= 3 and (m.lat or m.lon):
+            self._on_gps(m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3)
+        elif name == "GLOBAL_POSITION_INT" and (m.lat or m.lon):
+            self._on_gps(m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3)
+        elif name == "PARAM_VALUE":
+            pid = m.param_id.decode() if isinstance(m.param_id, bytes) else str(m.param_id)
+            pid = pid.rstrip("\x00")
+            v = float(m.param_value)
+            if pid == "COMPASS_DEC" and math.isfinite(v) and (v != 0.0 or not self._autodec):
+                self.declination, self.declination_source = v, "param:COMPASS_DEC"
+                self._dec_pending = False
+
+
+def open_live(conn: str, **kwargs) -> LiveLink:
+    """Open and start a :class:`LiveLink` (heartbeat awaited, streams requested).
+
+    Raises :class:`LinkTimeout` (one line) without a vehicle heartbeat, or
+    :class:`IngestError` if the connection cannot be opened.  Keyword arguments as
+    :class:`LiveLink`.  Use as a context manager or call ``close()``.
+    """
+    return LiveLink(conn, **kwargs).start()
