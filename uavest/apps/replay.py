@@ -78,7 +78,8 @@ class _Score(Sink):
             self.scorer.add_reference(s.source, s.kind, s.t, s.q)
 
     def record(self, rec: StepRecord) -> None:
-        self.scorer.add_estimate(rec.t, rec.estimator, rec.x[:4], rec.P)
+        if isinstance(rec, StepRecord):  # attitude records (trackers make ScanRecords)
+            self.scorer.add_estimate(rec.t, rec.estimator, rec.x[:4], rec.P)
 
 
 class _Refs(Sink):

@@ -22,7 +22,8 @@ import sys  # noqa: E402
 
 from .. import __version__  # noqa: E402
 
-QUICK_START = "quick start: uavest bench ungm   (a Monte Carlo of every filter, no hardware)"
+QUICK_START = ("quick start: uavest demo   (the built-in simulator and the live estimator over "
+               "loopback UDP, 30 s)")
 
 log = logging.getLogger("uavest")
 
@@ -92,9 +93,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "name resolves to in each command")
     pl.set_defaults(func=cmd_list)
     from .replay import add_replay_parser
+    from .run import add_demo_parser, add_run_parser
     from .sim import add_sim_parser
     from .track import add_track_parser
 
+    add_demo_parser(sub)
+    add_run_parser(sub)
     add_track_parser(sub)
     add_replay_parser(sub)
     add_sim_parser(sub)

@@ -1,0 +1,506 @@
+"""The live estimator (``uavest run``): a MAVLink vehicle in, estimates out, in real time.
+
+live link (:class:`uavest.ingest.live.LiveLink`: heartbeat, stream requests, signing,
+declination, tlog of what it accepted) -> the streaming engine with two lanes:
+
+* **attitude**: :class:`~uavest.engine.attitude.AttitudeStream` -> one
+  :class:`~uavest.engine.runner.FilterRunner` per filter (``attitude`` preset);
+* **tracking**: :class:`TrackLane`, scans of radar-like detections -> one
+  :class:`~uavest.engine.runner.TrackerRunner` per filter (``radar`` preset). The scans
+  come from the **virtual radar** over the vehicle's ADS-B traffic
+  (:class:`uavest.ingest.adsb_radar.AdsbRadar`, seeded from ``rng(seed, 0, "radar")``) or
+  from the vehicle's own ``OBSTACLE_DISTANCE_3D`` detections (``radar_source``).
+
+-> sinks: the streaming attitude scorer (against SIMSTATE truth when the vehicle sends
+it, else its own estimate), the track scorer (against the ADS-B positions, per ICAO
+address), the one-line status, the MAVLink publisher on a ground-station-side link, and
+the caller's (MCAP, JSON...).
+
+Link gaps: a gap up to ``bridge_s`` is bridged (the next step predicts over it); a
+longer one restarts the attitude alignment (a new :class:`~uavest.engine.records.Start`)
+and is reported. Every estimate is made from samples that are also in the tlog
+(``tlog``), so ``uavest replay`` of that tlog gives the same attitude estimates.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..engine.attitude import AttitudeOptions, AttitudeStream
+from ..engine.build import build_filters
+from ..engine.loop import Lane, run_lanes
+from ..engine.records import RunInfo, ScanRecord, Start, Step, StepRecord, package_versions
+from ..engine.runner import FilterRunner, TrackerRunner
+from ..eval.attitude import AttitudeScorer, select_reference
+from ..eval.metrics import nees
+from ..eval.tracking import track_quality
+from ..ingest.adsb_radar import AdsbRadar, RadarConfig, geodetic_to_ned
+from ..ingest.types import AdsbSample, AttitudeRef, DetectionSample, LinkEvent, PositionSample
+from ..models.motion import NearlyConstantVelocity
+from ..models.radar import RadarMeasurement, SensorPose
+from ..seeding import filter_stream, rng
+from ..sinks.base import Sink
+from ..tracking.tracker import Tracker, TrackerConfig
+from .replay import _Score
+
+Array = np.ndarray
+
+__all__ = ["LIVE_STREAMS", "LiveConfig", "PublishSink", "TrackLane", "run_live", "run_samples"]
+
+log = logging.getLogger("uavest.live")
+
+_T = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # NED <-> ENU (own inverse)
+
+#: What the live estimator asks the vehicle for (name -> Hz): the IMU, the autopilot's
+#: attitude (the radar's pose and the fallback reference), position (ownship of the
+#: virtual radar), SIMSTATE (a SITL's truth; a real vehicle ignores it) and time.
+LIVE_STREAMS = {
+    "HIGHRES_IMU": 100.0, "RAW_IMU": 50.0, "ATTITUDE": 10.0, "GLOBAL_POSITION_INT": 10.0,
+    "GPS_RAW_INT": 5.0, "SIMSTATE": 10.0, "SYSTEM_TIME": 1.0,
+}
+
+
+@dataclass
+class LiveConfig:
+    """Options of :func:`run_live` (see ``uavest run --help``)."""
+
+    connect: str = "udpin:127.0.0.1:14550"
+    filters: tuple[str, ...] = ("ekf", "ukf", "hybrid")
+    trackers: tuple[str, ...] = ("ekf", "ukf", "hybrid")
+    seed: int = 0
+    sysid: int | None = None
+    signing_key: str | None = None
+    tlog: str | None = None
+    heartbeat_timeout: float = 30.0
+    reorder_window: float = 0.05
+    duration: float | None = None  # wall seconds; None: until stopped
+    rate_hz: float | None = None
+    radar_source: str = "adsb"  # adsb (virtual radar) | obstacle (OBSTACLE_DISTANCE_3D)
+    radar: RadarConfig = field(default_factory=RadarConfig)
+    motion_q: float = 1.0  # NCV noise intensity of the tracks (m^2/s^3)
+    gospa_c: float = 200.0
+    bridge_s: float = 2.0
+    streams: dict = field(default_factory=lambda: dict(LIVE_STREAMS))
+
+
+# ----------------------------------------------------------------------- tracking lane
+
+
+class _AdsbTruth:
+    """Latest ADS-B position per ICAO address in the local NED frame of ``origin``."""
+
+    def __init__(self, max_age: float) -> None:
+        self.max_age = max_age
+        self.origin: Array | None = None
+        self.air: dict[int, tuple[float, Array, Array]] = {}
+        self.own: tuple[float, Array] | None = None
+
+    def push(self, s) -> None:
+        if isinstance(s, PositionSample) and s.lat_lon_alt is not None and \
+                s.source in ("GLOBAL_POSITION_INT", "GPS_RAW_INT"):
+            lla = np.asarray(s.lat_lon_alt, float)
+            if self.origin is None:
+                self.origin = lla.copy()
+            if s.source == "GLOBAL_POSITION_INT" or self.own is None:
+                self.own = (s.t, geodetic_to_ned(lla, self.origin))
+        elif isinstance(s, AdsbSample) and self.origin is not None:
+            v = np.zeros(3) if s.vel_ned is None else np.asarray(s.vel_ned, float)
+            self.air[s.icao] = (s.t - s.tslc, geodetic_to_ned(s.lat_lon_alt, self.origin), v)
+
+    def at(self, t: float, max_range: float) -> dict[int, Array]:
+        """ICAO -> ENU [e, n, u, ve, vn, vu] of every fresh aircraft within range."""
+        out = {}
+        own = None if self.own is None else self.own[1]
+        for icao, (t0, p, v) in self.air.items():
+            if t - t0 > self.max_age:
+                continue
+            q = p + v * (t - t0)
+            if own is not None and np.linalg.norm(q - own) > max_range:
+                continue
+            out[icao] = np.concatenate([_T @ q, _T @ v])
+        return out
+
+
+class TrackLane:
+    """Step builder of the tracking lane: samples in, one :class:`Step` per radar scan out
+    (``updates`` = ((Z (N, 3) range/azimuth/elevation, radar model at the scan's pose),)).
+    Tracks live in the local ENU frame of the first ownship fix (m, m/s). ``truth`` keeps
+    the ADS-B truth at every scan (ENU), for the track scorer."""
+
+    def __init__(self, cfg: LiveConfig, seed: int) -> None:
+        self.cfg = cfg
+        r = cfg.radar
+        self.model = RadarMeasurement(3, 6, r.sigma_r, r.sigma_az, r.sigma_el)
+        self.motion = NearlyConstantVelocity(3, cfg.motion_q)
+        self.virtual = (AdsbRadar(rng(seed, 0, "radar"), r) if cfg.radar_source == "adsb"
+                        else None)
+        self.truth_src = _AdsbTruth(r.max_age)
+        self.truth: list[tuple[float, dict]] = []
+        self.q_auto: Array | None = None
+        self.pending: list[DetectionSample] = []
+        self.t_last: float | None = None
+        self.k = 0
+        self.pose = SensorPose(np.zeros(3), np.eye(3), np.zeros(3))
+
+    def push(self, s) -> list:
+        out: list = []
+        if self.virtual is not None:
+            for scan in self.virtual.push(s):
+                out += self._scan(scan.t, list(scan.detections))
+        else:
+            if isinstance(s, DetectionSample) and s.source == "OBSTACLE_DISTANCE_3D":
+                if self.pending and s.t != self.pending[0].t:
+                    out += self._flush_obstacles()
+                self.pending.append(s)
+            elif self.pending and s.t > self.pending[0].t:
+                out += self._flush_obstacles()
+        self.truth_src.push(s)
+        if isinstance(s, AttitudeRef) and s.kind == "autopilot":
+            self.q_auto = np.asarray(s.q, float)
+        return out
+
+    def flush(self) -> list:
+        return self._flush_obstacles() if self.pending else []
+
+    def _flush_obstacles(self) -> list:
+        dets, self.pending = self.pending, []
+        if self.q_auto is None or self.truth_src.own is None:
+            return []  # no pose yet for the body-frame detections
+        dets = [d for d in dets if d.frame == "BODY_FRD" and d.rae is not None]
+        pose = SensorPose.from_ned_frd(self.q_auto, self.truth_src.own[1])
+        return self._scan(dets[0].t if dets else self.t_last, dets, pose)
+
+    def _scan(self, t: float, dets: list, pose: SensorPose | None = None) -> list:
+        out: list = []
+        if self.t_last is None:
+            out.append(Start(t, None, self.motion.space, "first scan"))
+        if dets and pose is None:
+            d = dets[0]
+            pose = SensorPose.from_ned_frd(d.q, d.sensor_ned)
+        self.pose = pose or self.pose
+        dt = 1.0 if self.t_last is None else max(t - self.t_last, 1e-3)
+        self.t_last = t
+        self.k += 1
+        Z = np.array([d.rae for d in dets]).reshape(-1, 3)
+        self.truth.append((t, self.truth_src.at(t, self.cfg.radar.max_range)))
+        out.append(Step(self.k, t, dt, self.motion, ((Z, self.model.with_pose(self.pose)),)))
+        return out
+
+
+class _TrackScore(Sink):
+    """Collects every tracker's confirmed tracks per scan; :meth:`result` scores them
+    against the lane's ADS-B truth (GOSPA, breaks, swaps, position RMSE, NEES)."""
+
+    def __init__(self, lane: TrackLane) -> None:
+        self.lane = lane
+        self.tracks: dict[str, dict[int, dict]] = {}
+        self.wall: dict[str, float] = {}
+
+    def record(self, rec) -> None:
+        if isinstance(rec, ScanRecord):
+            self.tracks.setdefault(rec.estimator, {})[rec.k] = {
+                t.id: (t.x, t.P) for t in rec.tracks if t.confirmed}
+            self.wall[rec.estimator] = self.wall.get(rec.estimator, 0.0) + rec.wall_s
+
+    def result(self, c: float) -> dict[str, dict]:
+        truth = [tr for _, tr in self.lane.truth]
+        times = [t for t, _ in self.lane.truth]
+        dt = float(np.median(np.diff(times))) if len(times) > 1 else 1.0
+        out = {}
+        for label, per in self.tracks.items():
+            ks = sorted(per)
+            tsteps = [{j: x[:3] for j, (x, _) in per[k].items()} for k in ks]
+            gsteps = [{i: s[:3] for i, s in truth[k - 1].items()} for k in ks]
+            q = track_quality(gsteps, tsteps, c=c, dt=dt)
+            e2, ne = [], []
+            for tid, lst in q.assigned.items():
+                for k0, j in lst:
+                    x, P = per[ks[k0]][j]
+                    e = x[:6] - truth[ks[k0] - 1][tid]
+                    e2.append(float(e[:3] @ e[:3]))
+                    ne.append(float(nees(e, P[:6, :6])))
+            out[label] = {
+                "gospa": q.gospa, "pos_rmse": float(np.sqrt(np.mean(e2))) if e2 else None,
+                "nees_mean": float(np.mean(ne)) if ne else None,
+                "track_breaks": q.track_breaks, "id_swaps": q.id_swaps,
+                "false_tracks": q.false_tracks, "confirmed_tracks": q.confirmed_tracks,
+                "scans": len(ks),
+                "us_per_scan": 1e6 * self.wall.get(label, 0.0) / max(len(ks), 1),
+            }
+        return out
+
+
+# ----------------------------------------------------------------------- status, gaps
+
+
+class _Status(Sink):
+    """The one-line live status on stderr (once a second, only on a terminal unless
+    ``force``): link rates per message, drops, filter resets and NIS, latency."""
+
+    def __init__(self, link, enabled: bool | None = None, settle_s: float = 3.0) -> None:
+        self.link = link
+        self.on = sys.stderr.isatty() if enabled is None else enabled
+        self.next = 0.0
+        self.settle = time.monotonic() + settle_s  # the alignment's burst is not latency
+        self.resets: dict[str, int] = {}
+        self.nis: dict[str, float] = {}
+        self.lat: list[float] = []
+        self.t_sample = time.monotonic()
+
+    def sample(self, s) -> None:
+        self.t_sample = time.monotonic()
+
+    def record(self, rec) -> None:
+        now = time.monotonic()
+        if now >= self.settle:
+            self.lat.append(now - self.t_sample)
+        if isinstance(rec, StepRecord):
+            self.resets[rec.estimator] = rec.resets
+            if rec.nis is not None:
+                self.nis[rec.estimator] = rec.nis
+        if self.on and now >= self.next:
+            self.next = now + 1.0
+            rates = self.link.rates() if hasattr(self.link, "rates") else {}
+            r = " ".join(f"{k} {v:.0f}" for k, v in sorted(rates.items()) if v >= 1)
+            h = " ".join(f"{k}:{self.nis.get(k, float('nan')):.1f}/{self.resets.get(k, 0)}"
+                         for k in self.resets)
+            lat = 1e3 * float(np.percentile(self.lat[-500:], 99)) if self.lat else 0.0
+            bad = getattr(getattr(self.link, "stats", None), "bad_total", 0)
+            sys.stderr.write(f"\r[{r}] bad {bad} | NIS/resets {h} | p99 {lat:.1f} ms   ")
+            sys.stderr.flush()
+
+    def close(self) -> None:
+        if self.on:
+            sys.stderr.write("\n")
+
+
+def _live_samples(link, stop: threading.Event | None, duration: float | None,
+                  events: list, check_after: float = 3.0) -> Iterator:
+    t0 = time.monotonic()
+    t_end = None if duration is None else t0 + duration
+    checked = False
+    for s in link:
+        now = time.monotonic()
+        if (stop is not None and stop.is_set()) or (t_end and now >= t_end):
+            return
+        if not checked and now - t0 >= check_after:  # what actually arrives, once
+            checked = True
+            for w in link.check_rates():
+                log.warning("%s", w)
+        if isinstance(s, LinkEvent):
+            events.append(s)
+            if s.kind == "link_lost":
+                log.warning("link lost at t = %.1f s (no message for the gap timeout)", s.t)
+            elif s.kind == "link_restored":
+                log.warning("link restored after %.1f s", s.duration or float("nan"))
+            yield s
+            continue
+        yield s
+
+
+class _GapAware:
+    """The attitude builder, restarted (a new alignment and Start) after a link gap longer
+    than ``bridge_s``; shorter gaps are bridged by the next step's prediction."""
+
+    def __init__(self, make: Callable[[], AttitudeStream], bridge_s: float) -> None:
+        self.make = make
+        self.bridge_s = bridge_s
+        self.stream = make()
+        self.restarts = 0
+
+    def push(self, s) -> list:
+        if isinstance(s, LinkEvent):
+            if s.kind == "link_restored" and (s.duration or 0.0) > self.bridge_s:
+                out = self.stream.flush() if self.stream._builder is not None else []
+                self.stream = self.make()
+                self.restarts += 1
+                return out
+            return []
+        return self.stream.push(s)
+
+    def flush(self) -> list:
+        try:
+            return self.stream.flush()
+        except ValueError:  # a stream stopped before any IMU sample
+            return []
+
+
+class _NoEvents:
+    """A lane builder that never sees link events."""
+
+    def __init__(self, b) -> None:
+        self.b = b
+
+    def push(self, s) -> list:
+        return [] if isinstance(s, LinkEvent) else self.b.push(s)
+
+    def flush(self) -> list:
+        return self.b.flush()
+
+
+class PublishSink(Sink):
+    """Publishes every estimate on a ground-station-side link under the estimator's own
+    identity (:class:`uavest.sinks.mavlink_pub.Publisher`): attitude per filter as
+    ATTITUDE plus named values, NIS and resets as NAMED_VALUE_FLOAT, confirmed tracks as
+    ADSB_VEHICLE with the SIMULATED flag (their positions from the lane's ENU frame)."""
+
+    def __init__(self, publisher, lane: TrackLane) -> None:
+        self.pub = publisher
+        self.lane = lane
+
+    def record(self, rec) -> None:
+        if isinstance(rec, StepRecord):
+            self.pub.attitude(rec.estimator, rec.t, rec.x[:4])
+            if rec.nis is not None:
+                self.pub.value(f"{rec.estimator[:6]}_nis", rec.t, rec.nis)
+            if rec.reset:
+                self.pub.value(f"{rec.estimator[:6]}_rst", rec.t, rec.resets)
+        elif isinstance(rec, ScanRecord) and self.lane.truth_src.origin is not None:
+            for tr in rec.tracks:
+                if tr.confirmed:
+                    ned, v = _T @ tr.x[:3], _T @ tr.x[3:6]
+                    lat, lon, alt = ned_to_lla(ned, self.lane.truth_src.origin)
+                    self.pub.track(rec.estimator, tr.id, rec.t, lat, lon, alt, v)
+
+    def close(self) -> None:
+        self.pub.close()
+
+
+# ----------------------------------------------------------------------- the job
+
+
+def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
+                declination: Callable[[], float | None] | None = None, sinks=(),
+                info: RunInfo | None = None, link=None, status: bool | None = None) -> dict:
+    """The live job over any sample stream (a live link, or a tlog for tests): both
+    lanes, scorers, ``sinks``. Returns the result document."""
+    specs = build_filters(cfg.filters, "attitude", dim=6) if cfg.filters else []
+    tspecs = build_filters(cfg.trackers, "radar", dim=6) if cfg.trackers else []
+
+    def make_stream() -> AttitudeStream:
+        d = declination() if declination is not None else None
+        return AttitudeStream(opts=AttitudeOptions(rate_hz=cfg.rate_hz, declination=d),
+                              params=params)
+
+    att = _GapAware(make_stream, cfg.bridge_s)
+    runners = [FilterRunner(sp.label, f, rng(cfg.seed, 0, filter_stream(sp.label)))
+               for sp, f in specs]
+    lane = TrackLane(cfg, cfg.seed)
+    tcfg = TrackerConfig(pd=cfg.radar.pd, clutter_density=max(cfg.radar.clutter_density, 1e-12))
+    trackers = [
+        TrackerRunner(sp.label, lambda f=f, lab=sp.label: Tracker(
+            f, lane.motion, tcfg, rng(cfg.seed, 0, filter_stream(lab))))
+        for sp, f in tspecs
+    ]
+    scorer = AttitudeScorer()
+    tscore = _TrackScore(lane)
+    st = _Status(link, status)
+    info = info or RunInfo("", cfg.connect, cfg.seed)
+    info.filters = {sp.label: sp.as_dict() for sp, _ in specs}
+    info.filters.update({f"track:{sp.label}": sp.as_dict() for sp, _ in tspecs})
+    lanes = [Lane(att, runners)] + ([Lane(_NoEvents(lane), trackers)] if trackers else [])
+    sinks = [s.bind(lane) if isinstance(s, _LazyPublish) else s for s in sinks]
+    wall0 = time.perf_counter()
+    steps = run_lanes(samples, lanes, [_Score(scorer), tscore, st, *sinks], info)
+    wall = time.perf_counter() - wall0
+    scorer.finish()
+    refs = scorer.refs
+    ref, _ = select_reference(refs)
+    truth = ref is not None and refs[ref].kind == "truth"
+    doc = {
+        "run": info.as_dict(), "steps": steps, "wall_s": wall, "reference": ref,
+        "reference_kind": None if ref is None else refs[ref].kind,
+        "attitude": {r.label: {**(scorer.scores(r.label, ref, truth) if ref else {}),
+                               "resets": r.resets,
+                               "us_per_step": 1e6 * r.seconds / max(1, steps)}
+                     for r in runners},
+        "tracks": tscore.result(cfg.gospa_c),
+        "scans": len(lane.truth),
+        "targets_seen": len({i for _, tr in lane.truth for i in tr}),
+        "attitude_restarts": att.restarts,
+        "latency_ms": ({"p50": 1e3 * float(np.percentile(st.lat, 50)),
+                        "p99": 1e3 * float(np.percentile(st.lat, 99))} if st.lat else None),
+    }
+    if ref is not None:
+        for name in refs:
+            if name != ref and refs[name].kind == "autopilot":
+                doc["attitude"]["autopilot"] = {**scorer.scores(name, ref, False),
+                                                "source": name}
+                break
+    return doc
+
+
+def run_live(cfg: LiveConfig, *, sinks=(), stop: threading.Event | None = None,
+             command: str = "", status: bool | None = None,
+             on_wait: Callable[[str], None] | None = None, publish: str | None = None,
+             publish_sysid: int = 250, allow_vehicle_link: bool = False) -> dict:
+    """Attach to the vehicle at ``cfg.connect`` and run until ``cfg.duration`` s of wall
+    time, ``stop`` or Ctrl-C; every output is complete when it returns or raises."""
+    from ..ingest.live import open_live
+
+    link = open_live(cfg.connect, sysid=cfg.sysid, signing_key=cfg.signing_key,
+                     tlog=cfg.tlog, heartbeat_timeout=cfg.heartbeat_timeout,
+                     reorder_window=cfg.reorder_window, streams=cfg.streams,
+                     on_wait=on_wait)
+    events: list = []
+    try:
+        link.start()
+        info = RunInfo(command, cfg.connect, cfg.seed, config=_config(cfg),
+                       versions=package_versions())
+        sinks = list(sinks)
+        if publish:
+            from ..sinks.mavlink_pub import Publisher
+
+            pub = Publisher(publish, sysid=publish_sysid, vehicle_conn=cfg.connect,
+                            allow_vehicle_link=allow_vehicle_link)
+            sinks.append(_LazyPublish(pub))
+        doc = run_samples(_live_samples(link, stop, cfg.duration, events), cfg,
+                          params=link.params, declination=lambda: link.declination,
+                          sinks=sinks, info=info, link=link, status=status)
+    finally:
+        link.close()
+    doc["link"] = {
+        "connect": cfg.connect, "vehicle_sysid": link.vehicle_sysid,
+        "declination_rad": link.declination, "declination_source": link.declination_source,
+        "rates_hz": link.rates(), "bad_data": link.stats.as_dict(),
+        "gaps": [{"t": e.t, "duration_s": e.duration} for e in events
+                 if e.kind == "link_restored"],
+        "signing": link.signing_active, "tlog": cfg.tlog,
+    }
+    return doc
+
+
+class _LazyPublish:
+    """A publisher waiting for the tracking lane it takes positions from."""
+
+    def __init__(self, pub) -> None:
+        self.pub = pub
+
+    def bind(self, lane: TrackLane) -> PublishSink:
+        return PublishSink(self.pub, lane)
+
+
+def _config(cfg: LiveConfig) -> dict:
+    d = {k: v for k, v in vars(cfg).items() if k not in ("radar", "signing_key")}
+    d["radar"] = {k: v for k, v in vars(cfg.radar).items()}
+    d["signing"] = cfg.signing_key is not None
+    d["filters"], d["trackers"] = list(cfg.filters), list(cfg.trackers)
+    return d
+
+
+def ned_to_lla(ned: Array, origin: Array) -> tuple[float, float, float]:
+    """Geodetic (deg, deg, m) of a local NED point (m) near ``origin`` (deg, deg, m):
+    a local spherical approximation (metres-level within a few km), for publishing."""
+    R = 6378137.0
+    lat0 = math.radians(origin[0])
+    lat = origin[0] + math.degrees(ned[0] / R)
+    lon = origin[1] + math.degrees(ned[1] / (R * math.cos(lat0)))
+    return lat, lon, float(origin[2] - ned[2])

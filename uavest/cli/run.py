@@ -1,0 +1,230 @@
+"""``uavest run --connect CONN``: the live estimator, and ``uavest demo``: the built-in
+simulator and the live estimator over loopback UDP."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import socket
+import sys
+import threading
+
+from ..apps.live import LiveConfig, run_live
+from ..ingest.adsb_radar import RadarConfig
+from ..sinks.jsonout import write_json
+from .report import table
+
+__all__ = ["add_demo_parser", "add_run_parser", "format_live"]
+
+
+def _radar(args) -> RadarConfig:
+    for name in ("sigma_range", "sigma_az_deg", "sigma_el_deg", "clutter_rate"):
+        v = getattr(args, name)
+        if not (math.isfinite(v) and v >= 0):
+            raise ValueError(f"--{name.replace('_', '-')} must be a finite number >= 0, got {v}")
+    if not 0.0 <= args.pd <= 1.0:
+        raise ValueError(f"--pd must be in [0, 1], got {args.pd}")
+    return RadarConfig(sigma_r=args.sigma_range, sigma_az=math.radians(args.sigma_az_deg),
+                       sigma_el=math.radians(args.sigma_el_deg), pd=args.pd,
+                       clutter_rate=args.clutter_rate, max_range=args.max_range)
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--filters", default="ekf,ukf,hybrid",
+                   help="attitude filters (attitude preset), default ekf,ukf,hybrid")
+    p.add_argument("--trackers", default="ekf,ukf,hybrid",
+                   help="tracker filters (radar preset), default ekf,ukf,hybrid; 'none' for "
+                   "no tracking")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
+    p.add_argument("--duration", type=float, default=None, help="stop after S seconds")
+    p.add_argument("--json", help="write the results as JSON to this path")
+    p.add_argument("--tlog", help="record the incoming stream to this tlog")
+    p.add_argument("--radar-source", default="adsb", choices=("adsb", "obstacle"),
+                   help="scans from the virtual radar over ADS-B traffic (default) or from "
+                   "the vehicle's OBSTACLE_DISTANCE_3D detections")
+    p.add_argument("--sigma-range", type=float, default=10.0, help="virtual radar range "
+                   "noise std, m (default 10); also the trackers' model")
+    p.add_argument("--sigma-az-deg", type=float, default=1.0, help="azimuth std, deg")
+    p.add_argument("--sigma-el-deg", type=float, default=1.0, help="elevation std, deg")
+    p.add_argument("--pd", type=float, default=0.9, help="virtual radar detection probability")
+    p.add_argument("--clutter-rate", type=float, default=1.0,
+                   help="virtual radar false detections per scan (Poisson mean)")
+    p.add_argument("--max-range", type=float, default=5000.0, help="radar range, m")
+    p.add_argument("--rate", type=float, default=None,
+                   help="max attitude filter rate, Hz (default 25; 0 = every IMU sample)")
+    p.add_argument("--reorder-window", type=float, default=0.05,
+                   help="s of vehicle time held to order messages (default 0.05)")
+    p.add_argument("--no-status", action="store_true", help="no live status line")
+
+
+def add_run_parser(sub) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "run", help="the live estimator: attach to a vehicle or SITL over MAVLink",
+        description="Attach to a vehicle (autopilot, ArduPilot/PX4 SITL, 'uavest sim') over "
+        "MAVLink, ask for the streams it needs, and run attitude filters and trackers side "
+        "by side in real time. Estimates are published only on --publish, a separate "
+        "ground-station-side link, under the estimator's own system id (docs/live.md).")
+    p.add_argument("--connect", required=True, help="pymavlink connection string: "
+                   "udpin:127.0.0.1:14550, tcp:127.0.0.1:5760 (ArduPilot SITL), "
+                   "/dev/ttyACM0,115200")
+    p.add_argument("--publish", help="ground-station-side link for the estimates, e.g. "
+                   "udpout:127.0.0.1:14551 (never the vehicle's link)")
+    p.add_argument("--publish-sysid", type=int, default=250,
+                   help="our MAVLink system id on --publish (default 250)")
+    p.add_argument("--sysid", type=int, help="listen to this vehicle only")
+    p.add_argument("--signing-key", help="MAVLink 2 signing passphrase (sha256, the MAVProxy "
+                   "convention) or a 32-byte key file; unsigned packets are then rejected")
+    p.add_argument("--heartbeat-timeout", type=float, default=30.0,
+                   help="s to wait for the vehicle's heartbeat (default 30)")
+    _common(p)
+    p.set_defaults(func=cmd_run, filters_preset="attitude")
+    return p
+
+
+def _cfg(args, connect: str) -> LiveConfig:
+    trackers = () if args.trackers.strip() in ("", "none") else tuple(
+        s for s in args.trackers.split(","))
+    from ..core.spec import split_filter_list
+
+    if args.duration is not None and not args.duration > 0:
+        raise ValueError(f"--duration must be > 0 s, got {args.duration}")
+    return LiveConfig(
+        connect=connect, filters=tuple(args.filter_specs or split_filter_list(args.filters)),
+        trackers=tuple(split_filter_list(",".join(trackers))) if trackers else (),
+        seed=args.seed, sysid=getattr(args, "sysid", None),
+        signing_key=getattr(args, "signing_key", None), tlog=args.tlog,
+        heartbeat_timeout=getattr(args, "heartbeat_timeout", 30.0),
+        reorder_window=args.reorder_window, duration=args.duration, rate_hz=args.rate,
+        radar_source=args.radar_source, radar=_radar(args))
+
+
+def format_live(doc: dict) -> str:
+    """The side-by-side tables of a live run."""
+    ref, kind = doc["reference"], doc["reference_kind"]
+    what = "none" if ref is None else (f"{ref} (truth)" if kind == "truth"
+                                       else f"{ref} ({kind} estimate, not truth)")
+    lines = [f"attitude against {what}; RMSE in degrees", table(doc["attitude"], [
+        "roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg", "nees_mean", "resets",
+        "us_per_step"])]
+    if doc["tracks"]:
+        lines += ["", f"tracks against ADS-B truth ({doc['targets_seen']} aircraft seen, "
+                  f"{doc['scans']} scans); GOSPA and position RMSE in m",
+                  table(doc["tracks"], ["pos_rmse", "gospa", "nees_mean", "track_breaks",
+                                        "id_swaps", "false_tracks", "us_per_scan"])]
+    link = doc.get("link", {})
+    if link:
+        bad = link["bad_data"]
+        lines.append(f"\nlink: vehicle {link['vehicle_sysid']}, declination "
+                     f"{math.degrees(link['declination_rad'] or 0.0):.2f} deg "
+                     f"({link['declination_source']}), gaps {len(link['gaps'])}, bad data "
+                     f"{bad['bad_total']}")
+    if doc.get("latency_ms"):
+        lat = doc["latency_ms"]
+        lines.append(f"latency sample -> estimate: p50 {lat['p50']:.2f} ms, "
+                     f"p99 {lat['p99']:.2f} ms")
+    return "\n".join(lines)
+
+
+def _wait(msg: str) -> None:
+    print(f"uavest: {msg}", file=sys.stderr)
+
+
+def _stop_on_signals() -> threading.Event:
+    """SIGINT / SIGTERM end the run cleanly (results printed, every file complete)."""
+    stop = threading.Event()
+
+    def handler(signum, frame) -> None:
+        if stop.is_set():  # a second signal: stop now
+            raise KeyboardInterrupt
+        stop.set()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, handler)
+    return stop
+
+
+def cmd_run(args) -> int:
+    cfg = _cfg(args, args.connect)
+    doc = run_live(cfg, command=" ".join(sys.argv), status=False if args.no_status else None,
+                   on_wait=_wait, publish=args.publish, publish_sysid=args.publish_sysid,
+                   stop=_stop_on_signals())
+    print(format_live(doc))
+    if args.json:
+        write_json(args.json, doc)
+        print(f"wrote {args.json}")
+    return 0
+
+
+# ----------------------------------------------------------------------------- demo
+
+
+def add_demo_parser(sub) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "demo", help="the built-in simulator and the live estimator over loopback UDP",
+        description="Start the built-in MAVLink vehicle-and-radar simulator and the live "
+        "estimator, talking over real UDP on 127.0.0.1, for --duration seconds (default "
+        "30), then print attitude and track errors of every filter against the "
+        "simulator's truth. No hardware, no SITL, no network beyond loopback.")
+    p.add_argument("scenario", nargs="?", default="sim_default", help="sim scenario")
+    p.add_argument("--speed", type=float, default=1.0,
+                   help="simulated seconds per wall second (default 1: real time)")
+    p.add_argument("--imu-rate", type=float, default=200.0, help="simulated IMU rate, Hz")
+    _common(p)
+    p.set_defaults(func=cmd_demo, filters_preset="attitude", duration=30.0)
+    return p
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def demo(args) -> dict:
+    """Run the simulator and the live estimator side by side; returns the result doc."""
+    from ..scenarios import load_scenario
+    from ..sim import Simulator
+
+    if not args.speed > 0:
+        raise ValueError(f"--speed must be > 0 for a live demo, got {args.speed}")
+    port = _free_udp_port()
+    sc = load_scenario(args.scenario, [])
+    sim = Simulator(sc, seed=args.seed, imu_rate=args.imu_rate)
+    stop = threading.Event()
+    errors: list = []
+
+    def sim_main() -> None:
+        try:
+            sim.run(f"udpout:127.0.0.1:{port}", duration=None, speed=args.speed,
+                    stop_event=stop, wait_gcs=True)
+        except Exception as e:  # noqa: BLE001 - reported after the run
+            errors.append(e)
+
+    th = threading.Thread(target=sim_main, name="uavest-sim", daemon=True)
+    th.start()
+    cfg = _cfg(args, f"udpin:127.0.0.1:{port}")
+    cfg.heartbeat_timeout = 15.0
+    print(f"uavest demo: simulator '{args.scenario}' -> udp 127.0.0.1:{port} -> live "
+          f"estimator, {args.duration:g} s", file=sys.stderr)
+    try:
+        doc = run_live(cfg, command=" ".join(sys.argv),
+                       status=False if args.no_status else None, on_wait=_wait,
+                       stop=_stop_on_signals())
+    finally:
+        stop.set()
+        th.join(timeout=10)
+    if errors:
+        raise ValueError(f"simulator failed: {errors[0]}")
+    doc["simulator"] = {"scenario": args.scenario, "speed": args.speed, "port": port,
+                        "seed": args.seed, "imu_rate_hz": args.imu_rate}
+    return doc
+
+
+def cmd_demo(args) -> int:
+    doc = demo(args)
+    print(format_live(doc))
+    if args.json:
+        write_json(args.json, doc)
+        print(f"wrote {args.json}")
+    return 0
