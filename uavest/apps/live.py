@@ -227,7 +227,7 @@ class _TrackScore(Sink):
                     e = x[:6] - truth[ks[k0] - 1][tid]
                     e2.append(float(e[:3] @ e[:3]))
                     ne.append(float(nees(e, P[:6, :6])))
-            out[label] = {
+            out[label.removeprefix("track:")] = {
                 "gospa": q.gospa, "pos_rmse": float(np.sqrt(np.mean(e2))) if e2 else None,
                 "nees_mean": float(np.mean(ne)) if ne else None,
                 "track_breaks": q.track_breaks, "id_swaps": q.id_swaps,
@@ -395,8 +395,8 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
                for sp, f in specs]
     lane = TrackLane(cfg, cfg.seed)
     tcfg = TrackerConfig(pd=cfg.radar.pd, clutter_density=max(cfg.radar.clutter_density, 1e-12))
-    trackers = [
-        TrackerRunner(sp.label, lambda f=f, lab=sp.label: Tracker(
+    trackers = [  # labelled "track:<spec>": an attitude ekf and a tracking ekf are two
+        TrackerRunner(f"track:{sp.label}", lambda f=f, lab=sp.label: Tracker(
             f, lane.motion, tcfg, rng(cfg.seed, 0, filter_stream(lab))))
         for sp, f in tspecs
     ]
