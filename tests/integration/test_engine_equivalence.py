@@ -60,6 +60,7 @@ def _old_code(tmp: Path) -> Path:
     return dest
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("log", ["vtol.tlog", "sample.ulg"])
 def test_streaming_replay_equals_batch_replay(log, tmp_path):
     path = LOGS / log

@@ -99,6 +99,7 @@ def _cfg(port: int, **kw) -> LiveConfig:
     return LiveConfig(**base)
 
 
+@pytest.mark.slow
 def test_sim_to_live_estimator_matches_truth_and_its_tlog_replays_the_same(tmp_path):
     port = _port()
     tlog = tmp_path / "live.tlog"
@@ -132,6 +133,7 @@ def test_sim_to_live_estimator_matches_truth_and_its_tlog_replays_the_same(tmp_p
         np.testing.assert_allclose(a["x"][:n], b["x"][:n], rtol=0, atol=1e-9, err_msg=label)
 
 
+@pytest.mark.slow
 def test_link_cut_is_reported_and_the_run_resumes():
     port = _port()
     relay = _Relay(port)
@@ -158,6 +160,7 @@ def test_link_cut_is_reported_and_the_run_resumes():
     assert doc["attitude"]["ekf"]["yaw_rmse_deg"] < 10.0  # incl. the realignment after the gap
 
 
+@pytest.mark.slow
 def test_sigint_leaves_complete_output_files(tmp_path):
     port = _port()
     out, tlog = tmp_path / "run.json", tmp_path / "run.tlog"
