@@ -445,8 +445,7 @@ class Publisher:
             if last is not None and t - last < self.frame_dt:
                 return
             self.last_frame[key] = t
-        from foxglove.messages import (
-            FrameTransform, Pose, PoseInFrame, Quaternion, Vector3)
+        from foxglove.messages import FrameTransform, Pose, PoseInFrame, Quaternion, Vector3
 
         w, x, y, z = _enu_flu(q)
         e, n, u = self.pos_enu
@@ -466,8 +465,15 @@ class Publisher:
             return
         self.markers_wall = now
         from foxglove.messages import (
-            ArrowPrimitive, CubePrimitive, Pose, Quaternion, SceneEntity, SceneUpdate,
-            TextPrimitive, Vector3)
+            ArrowPrimitive,
+            CubePrimitive,
+            Pose,
+            Quaternion,
+            SceneEntity,
+            SceneUpdate,
+            TextPrimitive,
+            Vector3,
+        )
 
         ents = []
         items = [(lab, f"body_{lab}", colour(lab)) for lab in self.labels]
@@ -566,7 +572,13 @@ class Publisher:
     def _radar(self, s) -> None:
         self.kind = "radar"
         from foxglove.messages import (
-            Pose, Quaternion, SceneEntity, SceneUpdate, SpherePrimitive, Vector3)
+            Pose,
+            Quaternion,
+            SceneEntity,
+            SceneUpdate,
+            SpherePrimitive,
+            Vector3,
+        )
 
         Z = np.asarray(s.Z, float).reshape(len(s.Z), -1)
         m = s.model
@@ -611,8 +623,16 @@ class Publisher:
 
     def _track_entity(self, t, eid, pos, P, text, col, alpha, hist):
         from foxglove.messages import (
-            LinePrimitive, LinePrimitiveLineType, Point3, Pose, Quaternion, SceneEntity,
-            SpherePrimitive, TextPrimitive, Vector3)
+            LinePrimitive,
+            LinePrimitiveLineType,
+            Point3,
+            Pose,
+            Quaternion,
+            SceneEntity,
+            SpherePrimitive,
+            TextPrimitive,
+            Vector3,
+        )
 
         ident = Quaternion(x=0, y=0, z=0, w=1)
         if P is None:
