@@ -445,9 +445,16 @@ def _radar_figures(data: dict, rows: dict, m: dict, events: list) -> list[tuple]
             ax.plot(p[:, 0], p[:, 1], color=colour(lab), lw=1.0,
                     label=f"{lab} tracks" if j == 0 else None)
             ax.text(p[-1, 0], p[-1, 1], f"#{i}", color=colour(lab), fontsize=7)
+    pts = [np.array(p)[:, :2] for p in paths.values()]
+    if pts:  # zoom on the targets (clutter far away is cut off)
+        a = np.vstack(pts)
+        lo, hi = a.min(axis=0), a.max(axis=0)
+        pad = 0.25 * max(float(np.max(hi - lo)), 500.0)
+        ax.set_xlim(lo[0] - pad, hi[0] + pad)
+        ax.set_ylim(lo[1] - pad, hi[1] + pad)
     ax.set_xlabel("east (m, world ENU)")
     ax.set_ylabel("north (m)")
-    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_aspect("equal", adjustable="box")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     ax.set_title("Confirmed tracks (per tracker) and truth, top view")
