@@ -46,7 +46,7 @@ def vtol(tmp_path_factory):
     path = d / "vtol.mcap"
     coll, smp = Collector(), Samples()
     sink = McapSink(path)
-    doc = replay(VTOL, ReplayConfig(end=700.0), sinks=[coll, smp, sink], command="test")
+    doc = replay(VTOL, ReplayConfig(end=660.0), sinks=[coll, smp, sink], command="test")
     return {"path": path, "coll": coll, "samples": smp, "doc": doc, "sink": sink,
             "rec": read_recording(path)}
 
