@@ -35,7 +35,8 @@ class Pace(Sink):
         time.sleep(0.02)
 
 out, progress = sys.argv[1], sys.argv[2]
-replay(sys.argv[3], ReplayConfig(), sinks=[McapSink(out, flush_s=1.0, chunk_size=1 << 30), Pace(progress)])
+sink = McapSink(out, flush_s=1.0, chunk_size=1 << 30)
+replay(sys.argv[3], ReplayConfig(), sinks=[sink, Pace(progress)])
 print("finished")
 """
 

@@ -326,6 +326,7 @@ class Publisher:
         self.tracks_hist: dict[tuple[str, int], deque] = {}
         self.markers_wall = -1e9
         self.counts: dict[str, int] = {}
+        self.info: dict | None = None
 
     # -- channels -------------------------------------------------------------------------
     def _channel(self, topic: str, schema: str):
@@ -361,7 +362,8 @@ class Publisher:
 
     # -- run ------------------------------------------------------------------------------
     def open(self, info: RunInfo) -> None:
-        self._json("/run/info", "uavest.RunInfo", 0.0, _clean(_jsonable(info.as_dict())))
+        self.info = _clean(_jsonable(info.as_dict()))
+        self._json("/run/info", "uavest.RunInfo", 0.0, self.info)
 
     def log_event(self, t: float, level: str, name: str, message: str) -> None:
         """An event on ``/log`` (foxglove.Log): level ``info``/``warning``/``error``."""
@@ -464,6 +466,8 @@ class Publisher:
         if now - self.markers_wall < 1.0:
             return
         self.markers_wall = now
+        if self.only_subscribed and self.info is not None:  # for live clients joining late
+            self._json("/run/info", "uavest.RunInfo", 0.0, self.info)
         from foxglove.messages import (
             ArrowPrimitive,
             CubePrimitive,
