@@ -19,10 +19,14 @@ def add_report_parser(subparsers) -> argparse.ArgumentParser:
         description="Read a recording made with --record (MCAP) back, recompute RMSE, NEES, "
                     "NIS (attitude) or GOSPA and track counts (radar) from it, and write "
                     "a self-contained HTML page and a Markdown summary.")
+    _add_args(p)
+    return p
+
+
+def _add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("recording", help="the .mcap file (a torn file of a killed run works too)")
     p.add_argument("--out", help="output directory (default: beside the recording)")
     p.set_defaults(func=cmd_report)
-    return p
 
 
 def cmd_report(args) -> int:
@@ -41,8 +45,8 @@ def cmd_report(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Stand-alone entry (``python -m uavest.cli.report_cmd RUN.mcap``)."""
-    ap = argparse.ArgumentParser(prog="uavest")
-    add_report_parser(ap.add_subparsers(dest="command", required=True))
+    ap = argparse.ArgumentParser(prog="uavest report")
+    _add_args(ap)
     args = ap.parse_args(argv)
     return int(args.func(args) or 0)
 
