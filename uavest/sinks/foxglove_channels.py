@@ -93,6 +93,47 @@ def _enu_flu(q) -> tuple[float, float, float, float]:
     return (-ax, aw, az, -ay)
 
 
+def _qmul(p, q) -> tuple[float, float, float, float]:
+    """Hamilton product of two scalar quaternions (tuples)."""
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    return (pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw)
+
+
+def _qlog(q) -> tuple[float, float, float]:
+    """Scalar :func:`uavest.geometry.rotation.quat_log` (shortest way)."""
+    w, x, y, z = q
+    if w < 0.0:
+        w, x, y, z = -w, -x, -y, -z
+    n = math.sqrt(x * x + y * y + z * z)
+    k = 2.0 / max(w, 1e-300) if n < 1e-8 else 2.0 * math.atan2(n, w) / n
+    return (k * x, k * y, k * z)
+
+
+def _qexp(v) -> tuple[float, float, float, float]:
+    """Scalar :func:`uavest.geometry.rotation.quat_exp`."""
+    x, y, z = v
+    th = math.sqrt(x * x + y * y + z * z)
+    s = 0.5 - th * th / 48.0 if th < 1e-5 else math.sin(0.5 * th) / th
+    return (math.cos(0.5 * th), s * x, s * y, s * z)
+
+
+def _nees3(q, q_ref, P3) -> float:
+    """e^T P3^-1 e with e = Log(q^-1 q_ref) (as :func:`uavest.eval.attitude.nees_attitude`;
+    P3 a 3x3 nested list, solved by Cramer's rule)."""
+    w, x, y, z = q
+    e = _qlog(_qmul((w, -x, -y, -z), q_ref))
+    (a, b, c), (d, f, g), (h, i, j) = P3
+    det = a * (f * j - g * i) - b * (d * j - g * h) + c * (d * i - f * h)
+    if det == 0.0 or not math.isfinite(det):
+        return math.nan
+    inv = ((f * j - g * i, c * i - b * j, b * g - c * f),
+           (g * h - d * j, a * j - c * h, c * d - a * g),
+           (d * i - f * h, b * h - a * i, a * f - b * d))
+    return sum(e[r] * sum(inv[r][k] * e[k] for k in range(3)) for r in range(3)) / det
+
+
 def quat_to_rpy_deg(q) -> tuple[float, float, float]:
     """ZYX roll, pitch, yaw (deg) of one quaternion [w, x, y, z] (as
     :func:`uavest.geometry.rotation.quat_to_euler`)."""
@@ -261,13 +302,12 @@ class _RefSeries:
         if self.t and t <= self.t[-1]:
             return False
         self.t.append(t)
-        self.q.append(np.asarray(q, float))
+        self.q.append(tuple(float(v) for v in q))
         return True
 
-    def at(self, t: float) -> Array | None:
-        """Slerp at ``t`` (None outside the span seen so far), as the scorer does."""
-        from ..geometry.rotation import quat_conj, quat_exp, quat_log, quat_mul
-
+    def at(self, t: float):
+        """Slerp at ``t`` as a tuple (None outside the span seen so far), as the scorer:
+        q0 Exp(s Log(q0^-1 q1))."""
         ts = self.t
         if not ts or t < ts[0] or t > ts[-1]:
             return None
@@ -276,8 +316,9 @@ class _RefSeries:
         i = min(bisect_right(ts, t) - 1, len(ts) - 2)
         s = min(max((t - ts[i]) / (ts[i + 1] - ts[i]), 0.0), 1.0)
         q0 = self.q[i]
-        d = quat_log(quat_mul(quat_conj(q0), self.q[i + 1]))
-        return quat_mul(q0, quat_exp(s * d))
+        w, x, y, z = q0
+        d = _qlog(_qmul((w, -x, -y, -z), self.q[i + 1]))
+        return _qmul(q0, _qexp((s * d[0], s * d[1], s * d[2])))
 
     def trim(self, t: float) -> None:
         i = bisect_right(self.t, t) - 1
@@ -318,7 +359,8 @@ class Publisher:
         self.refs: dict[str, _RefSeries] = {}
         self.ref_frames: dict[str, str] = {}
         self.best_ref: str | None = None
-        self.pending: deque = deque()  # (t, k, label, q, P3, sigma3) waiting for the reference
+        # steps waiting for the reference: (t, k, label, q, P3, sigma3, rpy)
+        self.pending: deque = deque()
         self.last_step_t: float | None = None
         self.pos_enu = (0.0, 0.0, 0.0)
         self.pos_source: str | None = None
@@ -535,7 +577,8 @@ class Publisher:
         self._markers(t)
         self.last_step_t = t
         if self.refs:
-            self.pending.append((t, rec.k, lab, np.array(q, float), P[:3, :3].copy(), s3))
+            self.pending.append((t, rec.k, lab, tuple(float(v) for v in q),
+                                 [row[:3] for row in Pl[:3]], s3, rpy))
             self._drain(final=False)
 
     def _drain(self, final: bool) -> None:
@@ -546,25 +589,21 @@ class Publisher:
         r = self.refs[name]
         truth = r.kind == "truth"
         while self.pending:
-            t, k, lab, q, P3, s3 = self.pending[0]
+            t, k, lab, q, P3, s3, a = self.pending[0]
             if r.t and t > r.t[-1] and not final:
                 break
             self.pending.popleft()
             qr = r.at(t)
             if qr is None:
                 continue  # outside the reference's span: not scored (as the scorer)
-            a, b = quat_to_rpy_deg(q), quat_to_rpy_deg(qr)
+            b = quat_to_rpy_deg(qr)
             err = [_wrap180(a[i] - b[i]) for i in range(3)]
             msg = {"t": t, "k": k, "reference": name, "kind": r.kind,
                    "err_deg": {"roll": err[0], "pitch": err[1], "yaw": err[2]},
                    "sigma3_deg": {"roll": s3[0], "pitch": s3[1], "yaw": s3[2]},
                    "neg_sigma3_deg": {"roll": -s3[0], "pitch": -s3[1], "yaw": -s3[2]}}
             if truth:
-                from ..eval.attitude import nees_attitude
-
-                P6 = np.zeros((1, 6, 6))
-                P6[0, :3, :3] = P3
-                msg["nees"] = _fin(float(nees_attitude(q[None], P6, qr[None])[0]))
+                msg["nees"] = _fin(_nees3(q, qr, P3))
             self._json(f"/attitude/{lab}/error", "uavest.AttitudeError", t, msg)
         # later steps come at or after the newest step seen: keep what they may need
         keep = self.pending[0][0] if self.pending else self.last_step_t
