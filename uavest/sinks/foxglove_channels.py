@@ -40,7 +40,7 @@ Array = np.ndarray
 
 __all__ = [
     "Publisher", "RadarScanSample", "SCHEMAS", "euler_sigma_deg", "ned_frd_to_enu_flu",
-    "quat_to_rpy_deg",
+    "quat_to_rpy_deg", "triu_to_full",
 ]
 
 _S2 = math.sqrt(0.5)
@@ -242,11 +242,12 @@ SCHEMAS: dict[str, dict] = {
             "q": {"type": "array", "items": _NUM}, "rpy_deg": _RPY}, ["t", "q", "kind"]),
     "uavest.AttitudeEstimate": _obj(
         "uavest.AttitudeEstimate", "a filter's posterior: q [w,x,y,z] body FRD -> NED, gyro "
-        "bias rad/s FRD, ZYX Euler deg with 3-sigma (deg, linearised), P (6x6 row-major, "
-        "tangent: 3 body rotation errors rad, 3 bias errors rad/s)", {
+        "bias rad/s FRD, ZYX Euler deg with 3-sigma (deg, linearised), P_triu: the upper "
+        "triangle of the symmetric 6x6 tangent covariance, row by row (numpy.triu_indices; "
+        "3 body rotation errors rad, 3 bias errors rad/s)", {
             "t": _NUM, "k": {"type": "integer"}, "q": {"type": "array", "items": _NUM},
             "bias_rad_s": _VEC3, "rpy_deg": _RPY, "sigma3_deg": _RPY,
-            "P": {"type": "array", "items": _NUM}}, ["t", "k", "q", "P"]),
+            "P_triu": {"type": "array", "items": _NUM}}, ["t", "k", "q", "P_triu"]),
     "uavest.AttitudeError": _obj(
         "uavest.AttitudeError", "estimate - reference ZYX Euler error (deg, wrapped), the "
         "filter's own +-3 sigma (deg), NEES (3 dof, against truth only); the reference is "
@@ -561,7 +562,7 @@ class Publisher:
             "t": t, "k": rec.k, "q": _floats(q), "bias_rad_s": _floats(x[4:7]),
             "rpy_deg": {"roll": rpy[0], "pitch": rpy[1], "yaw": rpy[2]},
             "sigma3_deg": {"roll": s3[0], "pitch": s3[1], "yaw": s3[2]},
-            "P": _floats(P)})
+            "P_triu": _floats(P[_triu(P.shape[0])])})
         nis = rec.nis
         ups = [{"kind": u.kind, "nis": _fin(u.nis), "dof": int(np.size(u.nu))}
                for u in rec.updates]
@@ -741,6 +742,27 @@ class Publisher:
 
 
 # ------------------------------------------------------------------------------ helpers
+
+
+_TRIU: dict[int, tuple] = {}
+
+
+def _triu(n: int) -> tuple:
+    """``numpy.triu_indices(n)`` (cached)."""
+    if n not in _TRIU:
+        _TRIU[n] = np.triu_indices(n)
+    return _TRIU[n]
+
+
+def triu_to_full(v, n: int) -> Array:
+    """Symmetric (..., n, n) matrices from their upper triangles (..., n (n + 1) / 2) as
+    written by the recorder (``P_triu``)."""
+    v = np.asarray(v, float)
+    out = np.empty(v.shape[:-1] + (n, n))
+    i, j = np.triu_indices(n)
+    out[..., i, j] = v
+    out[..., j, i] = v
+    return out
 
 
 def _ns(t: float) -> int:
