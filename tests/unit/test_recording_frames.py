@@ -107,3 +107,18 @@ def test_colours_are_fixed_per_label():
     assert colour("ekf") == "#1f77b4" and colour("ukf") != colour("ekf")
     assert colour("ukf(alpha=0.1)") == colour("ukf(alpha=0.1)")
     assert len({colour(x) for x in ("ekf", "ukf", "hybrid", "enkf", "pf")}) == 5
+
+
+def test_track_ellipsoid_is_three_sigma_along_the_principal_axes():
+    from uavest.geometry.rotation import quat_to_dcm
+    from uavest.sinks.foxglove_channels import _ellipsoid
+
+    c, s = np.cos(0.5), np.sin(0.5)
+    R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+    P = R @ np.diag([100.0**2, 50.0**2, 10.0**2]) @ R.T
+    size, q = _ellipsoid(P)
+    Rq = quat_to_dcm(np.array(q))
+    # the ellipsoid x Rq diag(size/2)^2 Rq^T is 3-sigma: (3 sigma)^2 along each axis
+    D = np.diag((np.array(size) / 2) ** 2)
+    np.testing.assert_allclose(Rq @ D @ Rq.T, 9 * P, rtol=1e-9)
+    assert sorted(size) == pytest.approx([60.0, 300.0, 600.0])

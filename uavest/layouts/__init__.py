@@ -96,18 +96,20 @@ def _column(ids: list[str]) -> str | dict:
     return _split("column", ids[0], _column(ids[1:]), 100.0 / len(ids))
 
 
-def build_layout(labels: list[str] | tuple[str, ...], kind: str = "attitude") -> dict:
+def build_layout(labels: list[str] | tuple[str, ...], kind: str = "attitude",
+                 follow: str | None = None) -> dict:
     """The Foxglove layout (a JSON-ready dict) for estimators ``labels``.
 
     ``kind="attitude"``: the 3-D panel (every filter's body frame and the truth's side by
     side), roll/pitch/yaw error plots each with every filter's +-3 sigma bounds (deg), the
     NEES and NIS plots, and the event log. ``kind="radar"``: the 3-D panel with the
-    detections, the truths and every tracker's tracks, and the track-count plot."""
+    detections, the truths and every tracker's tracks, and the track-count plot.
+    ``follow``: the frame the 3-D view follows (default ``body_truth`` / ``world``)."""
     labels = list(labels)
     cfg: dict[str, dict] = {}
     if kind == "attitude":
         topics = ["/attitude/bodies"] + [f"/tf/{lab}" for lab in labels]
-        cfg["3D!uavest3d"] = _three_d("body_truth", topics, 12.0)
+        cfg["3D!uavest3d"] = _three_d(follow or "body_truth", topics, 12.0)
         plots = []
         for ax in ("roll", "pitch", "yaw"):
             paths = []
@@ -135,7 +137,7 @@ def build_layout(labels: list[str] | tuple[str, ...], kind: str = "attitude") ->
         layout = _split("row", left, right, 45.0)
     elif kind == "radar":
         topics = ["/radar/detections", "/radar/truth"] + [f"/tracks/{lab}" for lab in labels]
-        td = _three_d("world", topics, 15000.0)
+        td = _three_d(follow or "world", topics, 15000.0)
         td["followMode"] = "follow-none"
         cfg["3D!uavest3d"] = td
         cfg["Plot!uavest_tracks"] = _plot(
@@ -159,9 +161,9 @@ def build_layout(labels: list[str] | tuple[str, ...], kind: str = "attitude") ->
     }
 
 
-def layout_text(labels, kind: str = "attitude") -> str:
+def layout_text(labels, kind: str = "attitude", follow: str | None = None) -> str:
     """:func:`build_layout` as indented JSON text."""
-    return json.dumps(build_layout(labels, kind), indent=2) + "\n"
+    return json.dumps(build_layout(labels, kind, follow), indent=2) + "\n"
 
 
 def shipped(kind: str = "attitude") -> str:

@@ -682,7 +682,8 @@ class Publisher:
         if P is None:
             size, orient = (40.0, 40.0, 40.0), ident
         else:
-            size, orient = _ellipsoid(P)
+            size, (w, x, y, z) = _ellipsoid(P)
+            orient = Quaternion(x=x, y=y, z=z, w=w)
         return SceneEntity(
             timestamp=_ts(t), frame_id="world", id=eid,
             spheres=[SpherePrimitive(pose=Pose(position=Vector3(x=pos[0], y=pos[1],
@@ -797,11 +798,9 @@ def _jsonable(o):
     return str(o)
 
 
-def _ellipsoid(P: Array) -> tuple[tuple[float, float, float], Any]:
+def _ellipsoid(P: Array) -> tuple[tuple[float, float, float], tuple]:
     """3-sigma ellipsoid of a 2x2/3x3 position covariance: full axis lengths (m) and the
-    orientation (foxglove Quaternion) of its principal axes."""
-    from foxglove.messages import Quaternion
-
+    orientation [w, x, y, z] of its principal axes (world)."""
     from ..geometry.rotation import dcm_to_quat
 
     d = P.shape[0]
@@ -814,4 +813,4 @@ def _ellipsoid(P: Array) -> tuple[tuple[float, float, float], Any]:
         V[:, 0] = -V[:, 0]
     size = tuple(float(6.0 * math.sqrt(max(v, 0.0))) for v in w)
     q = dcm_to_quat(V)
-    return size, Quaternion(x=float(q[1]), y=float(q[2]), z=float(q[3]), w=float(q[0]))
+    return size, (float(q[0]), float(q[1]), float(q[2]), float(q[3]))

@@ -144,8 +144,12 @@ class McapSink(Sink):
         if self.write_layout:
             from ..layouts import layout_text
 
-            self.layout_path.write_text(layout_text(self.pub.labels, self.pub.kind
-                                                    or "attitude"))
+            pub = self.pub
+            follow = pub.ref_frames.get(pub.best_ref) if pub.best_ref else None
+            if follow is None and pub.labels and pub.kind != "radar":
+                follow = f"body_{pub.labels[0]}"
+            self.layout_path.write_text(layout_text(pub.labels, pub.kind or "attitude",
+                                                    follow))
 
     @property
     def counts(self) -> dict[str, int]:
