@@ -122,3 +122,24 @@ def test_track_ellipsoid_is_three_sigma_along_the_principal_axes():
     D = np.diag((np.array(size) / 2) ** 2)
     np.testing.assert_allclose(Rq @ D @ Rq.T, 9 * P, rtol=1e-9)
     assert sorted(size) == pytest.approx([60.0, 300.0, 600.0])
+
+
+def test_publisher_survives_a_diverged_filter(tmp_path):
+    """NaN covariance and pitch 90 deg are written as null, not an exception."""
+    import foxglove
+
+    from uavest.engine.records import StepRecord
+    from uavest.report import read_recording
+    from uavest.sinks.foxglove_channels import Publisher
+
+    ctx = foxglove.Context()
+    w = foxglove.open_mcap(str(tmp_path / "nan.mcap"), context=ctx)
+    pub = Publisher(ctx)
+    q90 = euler_to_quat(0.0, np.pi / 2, 0.0)
+    pub.record(StepRecord("ekf", 1, 1.0, np.r_[q90, 0, 0, 0], np.eye(6) * 1e-4))
+    pub.record(StepRecord("ekf", 2, 2.0, np.r_[1.0, 0, 0, 0, 0, 0, 0], np.full((6, 6), np.nan)))
+    pub.close()
+    w.close()
+    est = read_recording(tmp_path / "nan.mcap").json["/attitude/ekf/estimate"]
+    assert [m["k"] for m in est] == [1, 2]
+    assert est[0]["sigma3_deg"]["yaw"] is None and est[1]["P_triu"][0] is None

@@ -171,6 +171,8 @@ def euler_sigma_deg(q: Array, P: Array) -> Array:
 def _sigma3_scalar(rpy_deg, P) -> tuple[float, float, float]:
     r, p = math.radians(rpy_deg[0]), math.radians(rpy_deg[1])
     sr, cr, tp, cp = math.sin(r), math.cos(r), math.tan(p), math.cos(p)
+    if abs(cp) < 1e-12:  # gimbal lock: the Euler bounds are unbounded
+        return math.inf, math.inf, math.inf
     W = ((1.0, sr * tp, cr * tp), (0.0, cr, -sr), (0.0, sr / cp, cr / cp))
     out = []
     for w in W:
@@ -180,7 +182,8 @@ def _sigma3_scalar(rpy_deg, P) -> tuple[float, float, float]:
                 continue
             for j in range(3):
                 v += w[i] * P[i][j] * w[j]
-        out.append(3.0 * math.degrees(math.sqrt(max(v, 0.0))))
+        out.append(3.0 * math.degrees(math.sqrt(v)) if v >= 0.0 else
+                   (0.0 if v > -1e-300 else math.nan))
     return out[0], out[1], out[2]
 
 
@@ -394,7 +397,11 @@ class Publisher:
     def _json(self, topic: str, schema: str, t: float, msg: dict) -> None:
         ch = self._want(topic, schema)
         if ch is not None:
-            ch.log(json.dumps(msg, allow_nan=False).encode(), log_time=_ns(t))
+            try:
+                data = json.dumps(msg, allow_nan=False)
+            except ValueError:  # a NaN/inf somewhere (a diverged filter): write null
+                data = json.dumps(_clean(msg), allow_nan=False)
+            ch.log(data.encode(), log_time=_ns(t))
             self.counts[topic] = self.counts.get(topic, 0) + 1
 
     def _pb(self, topic: str, schema: str, t: float, build) -> None:
