@@ -13,6 +13,7 @@ import pytest
 
 from uavest.engine.replay import ReplayConfig, replay
 from uavest.sinks.base import Sink
+from uavest.sinks.foxglove_channels import b64_floats
 from uavest.sinks.foxglove_live import FoxgloveLiveSink
 
 websockets = pytest.importorskip("websockets")
@@ -101,7 +102,8 @@ def test_live_server_advertises_and_streams_while_a_replay_runs():
     assert set(got["data"]) == set(WANT) | {"/run/info"}
     log_time, payload = got["data"]["/attitude/ekf/estimate"]
     m = json.loads(payload)
-    assert len(m["q"]) == 4 and len(m["P_triu"]) == 21 and abs(m["t"] * 1e9 - log_time) < 2
+    assert len(m["q"]) == 4 and len(b64_floats(m["P_triu_b64"])) == 21
+    assert abs(m["t"] * 1e9 - log_time) < 2
     e = json.loads(got["data"]["/attitude/ukf/error"][1])
     assert e["reference"] == "SIMSTATE" and "nees" in e
     info = json.loads(got["data"]["/run/info"][1])

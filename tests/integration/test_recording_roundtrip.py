@@ -17,7 +17,7 @@ from uavest.report import read_recording, write_report
 from uavest.report.build import ATTITUDE_FIGURES, RADAR_FIGURES
 from uavest.report.radar_demo import run_radar_demo
 from uavest.sinks.base import Collector, Sink
-from uavest.sinks.foxglove_channels import ned_frd_to_enu_flu, triu_to_full
+from uavest.sinks.foxglove_channels import b64_floats, ned_frd_to_enu_flu, triu_to_full
 from uavest.sinks.mcap import McapSink
 
 VTOL = Path("/work/shared/logs/vtol.tlog")
@@ -92,10 +92,11 @@ def test_values_equal_what_the_run_computed(vtol):
         np.testing.assert_array_equal(np.array([m["q"] for m in est]), a["x"][:, :4])
         np.testing.assert_array_equal(np.array([m["bias_rad_s"] for m in est]), a["x"][:, 4:])
         iu = np.triu_indices(6)
-        np.testing.assert_array_equal(np.array([m["P_triu"] for m in est]), a["P"][:, iu[0], iu[1]])
+        Pt = b64_floats([m["P_triu_b64"] for m in est])
+        np.testing.assert_array_equal(Pt, a["P"][:, iu[0], iu[1]])
         # the filters' covariances are symmetric up to rounding (the recorder keeps the
         # upper triangle exactly)
-        np.testing.assert_allclose(triu_to_full([m["P_triu"] for m in est], 6), a["P"],
+        np.testing.assert_allclose(triu_to_full(Pt, 6), a["P"],
                                    rtol=1e-12, atol=1e-18)
         hl = rec.json[f"/attitude/{lab}/health"]
         nis = np.array([np.nan if m["nis"] is None else m["nis"] for m in hl])

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ..layouts import REFERENCE_COLOUR, colour
-from ..sinks.foxglove_channels import triu_to_full
+from ..sinks.foxglove_channels import b64_floats, triu_to_full
 from .read import Recording, read_recording
 
 Array = np.ndarray
@@ -73,7 +73,8 @@ def attitude_data(rec: Recording) -> dict:
         hl = rec.json.get(f"/attitude/{lab}/health", [])
         n = min(len(est), len(hl))
         est, hl = est[:n], hl[:n]
-        P = triu_to_full(_stack(est, "P_triu", 21), 6) if n else np.zeros((0, 6, 6))
+        P = (triu_to_full(b64_floats([m["P_triu_b64"] for m in est]), 6) if n
+             else np.zeros((0, 6, 6)))
         out["filters"][lab] = {
             "t": _stack(est, "t"), "k": _stack(est, "k"), "q": _stack(est, "q", 4),
             "P": P, "nis": _stack(hl, "nis"), "nis_dof": _stack(hl, "nis_dof"),

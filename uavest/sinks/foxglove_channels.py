@@ -23,6 +23,7 @@ JSON channels have a JSON schema with a ``title`` (``uavest.*``); NaN is written
 
 from __future__ import annotations
 
+import base64
 import json
 import math
 import time
@@ -40,7 +41,7 @@ Array = np.ndarray
 
 __all__ = [
     "Publisher", "RadarScanSample", "SCHEMAS", "euler_sigma_deg", "ned_frd_to_enu_flu",
-    "quat_to_rpy_deg", "triu_to_full",
+    "b64_floats", "quat_to_rpy_deg", "triu_to_full",
 ]
 
 _S2 = math.sqrt(0.5)
@@ -245,12 +246,14 @@ SCHEMAS: dict[str, dict] = {
             "q": {"type": "array", "items": _NUM}, "rpy_deg": _RPY}, ["t", "q", "kind"]),
     "uavest.AttitudeEstimate": _obj(
         "uavest.AttitudeEstimate", "a filter's posterior: q [w,x,y,z] body FRD -> NED, gyro "
-        "bias rad/s FRD, ZYX Euler deg with 3-sigma (deg, linearised), P_triu: the upper "
+        "bias rad/s FRD, ZYX Euler deg with 3-sigma (deg, linearised), P_triu_b64: the upper "
         "triangle of the symmetric 6x6 tangent covariance, row by row (numpy.triu_indices; "
-        "3 body rotation errors rad, 3 bias errors rad/s)", {
+        "3 body rotation errors rad, 3 bias errors rad/s), as base64 of little-endian "
+        "float64 (exact, and 50x cheaper to write than JSON numbers)", {
             "t": _NUM, "k": {"type": "integer"}, "q": {"type": "array", "items": _NUM},
             "bias_rad_s": _VEC3, "rpy_deg": _RPY, "sigma3_deg": _RPY,
-            "P_triu": {"type": "array", "items": _NUM}}, ["t", "k", "q", "P_triu"]),
+            "P_triu_b64": {"type": "string", "contentEncoding": "base64"}},
+        ["t", "k", "q", "P_triu_b64"]),
     "uavest.AttitudeError": _obj(
         "uavest.AttitudeError", "estimate - reference ZYX Euler error (deg, wrapped), the "
         "filter's own +-3 sigma (deg), NEES (3 dof, against truth only); the reference is "
@@ -569,7 +572,7 @@ class Publisher:
             "t": t, "k": rec.k, "q": _floats(q), "bias_rad_s": _floats(x[4:7]),
             "rpy_deg": {"roll": rpy[0], "pitch": rpy[1], "yaw": rpy[2]},
             "sigma3_deg": {"roll": s3[0], "pitch": s3[1], "yaw": s3[2]},
-            "P_triu": _floats(P[_triu(P.shape[0])])})
+            "P_triu_b64": _b64(P[_triu(P.shape[0])])})
         nis = rec.nis
         ups = [{"kind": u.kind, "nis": _fin(u.nis), "dof": int(np.size(u.nu))}
                for u in rec.updates]
@@ -762,9 +765,20 @@ def _triu(n: int) -> tuple:
     return _TRIU[n]
 
 
+def _b64(a: Array) -> str:
+    return base64.b64encode(np.ascontiguousarray(a, "<f8").tobytes()).decode()
+
+
+def b64_floats(s: str | list[str]) -> Array:
+    """float64 array(s) from the recorder's base64 fields (a list gives a stacked array)."""
+    if isinstance(s, str):
+        return np.frombuffer(base64.b64decode(s), "<f8")
+    return np.stack([np.frombuffer(base64.b64decode(x), "<f8") for x in s])
+
+
 def triu_to_full(v, n: int) -> Array:
     """Symmetric (..., n, n) matrices from their upper triangles (..., n (n + 1) / 2) as
-    written by the recorder (``P_triu``)."""
+    written by the recorder (``P_triu_b64``, decoded with :func:`b64_floats`)."""
     v = np.asarray(v, float)
     out = np.empty(v.shape[:-1] + (n, n))
     i, j = np.triu_indices(n)
