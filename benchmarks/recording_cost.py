@@ -6,8 +6,8 @@ side (alternating runs, so both see the same machine load), and the file size.
 
 Default: ``/work/shared/logs/sample.ulg`` (PX4, 248 Hz IMU) at ``rate_hz=0`` (every IMU
 sample a filter step) with the three default filters (ekf, ukf, hybrid). Prints per run
-the wall time, then the ratio (median with / median without), the time spent inside the
-recorder (its own share, timed around every sink call, less sensitive to the load of
+the wall and CPU time, then the ratios (median with / median without; the CPU-time ratio
+is the robust one on a shared machine), the time spent inside the recorder (its own share, timed around every sink call, less sensitive to the load of
 other processes), the file size, MB per minute of data and the write speed.
 """
 
@@ -71,29 +71,34 @@ def main(argv: list[str] | None = None) -> int:
 
         t0 = next(iter(open_source(args.log))).t
         cfg = ReplayConfig(rate_hz=args.rate_hz, end=t0 + args.seconds)
-    base, rec, inner = [], [], []
+    base, rec, inner, cpu_b, cpu_r = [], [], [], [], []
     size = dur = steps = 0.0
     with tempfile.TemporaryDirectory() as d:
         for i in range(args.pairs):
             for with_rec in (False, True) if i % 2 == 0 else (True, False):
                 path = Path(d) / f"run{i}.mcap"
                 sinks = [Timed(McapSink(path))] if with_rec else []
-                c = time.perf_counter()
+                c, p = time.perf_counter(), time.process_time()
                 doc = replay(args.log, cfg, sinks=sinks)
                 wall = time.perf_counter() - c
+                cpu = time.process_time() - p
                 (rec if with_rec else base).append(wall)
+                (cpu_r if with_rec else cpu_b).append(cpu)
                 if with_rec:
                     inner.append(sinks[0].seconds)
                     size = path.stat().st_size
                 dur, steps = float(doc["duration_s"]), int(doc["steps"])
                 print(f"run {i} {'with   ' if with_rec else 'without'} recording: "
-                      f"{wall:7.2f} s wall ({steps} steps, {dur:.1f} s of data, "
+                      f"{wall:7.2f} s wall, {cpu:7.2f} s CPU ({steps} steps, {dur:.1f} s of data, "
                       f"{doc['filter_rate_hz']:.1f} Hz)", flush=True)
     b, r, s = statistics.median(base), statistics.median(rec), statistics.median(inner)
     print(f"filters: {', '.join(cfg.filters)}; log {args.log}")
     print(f"replay without recording  {b:7.2f} s (median of {len(base)})")
     print(f"replay with recording     {r:7.2f} s (median of {len(rec)})")
-    print(f"ratio with / without      {r / b:7.3f}")
+    print(f"ratio with / without      {r / b:7.3f} (wall)")
+    cb, cr = statistics.median(cpu_b), statistics.median(cpu_r)
+    print(f"CPU without / with        {cb:7.2f} s / {cr:7.2f} s: ratio {cr / cb:.3f} "
+          "(process CPU time: less sensitive to other processes on the machine)")
     print(f"time inside the recorder  {s:7.2f} s = {100 * s / b:.1f} % of the replay "
           f"(ratio from it: {(b + s) / b:.3f})")
     mb = size / 1e6

@@ -32,7 +32,32 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
+import foxglove
 import numpy as np
+from foxglove import channels as fch
+from foxglove.messages import (
+    ArrowPrimitive,
+    Color,
+    CubePrimitive,
+    FrameTransform,
+    LinePrimitive,
+    LinePrimitiveLineType,
+    LocationFix,
+    Log,
+    LogLevel,
+    Point3,
+    Pose,
+    PoseInFrame,
+    Quaternion,
+    SceneEntity,
+    SceneEntityDeletion,
+    SceneEntityDeletionType,
+    SceneUpdate,
+    SpherePrimitive,
+    TextPrimitive,
+    Timestamp,
+    Vector3,
+)
 
 from ..engine.records import RunInfo, ScanRecord, StepRecord
 from ..layouts import REFERENCE_COLOUR, colour
@@ -209,7 +234,6 @@ def _floats(a) -> list:
 
 
 def _rgba(hex_colour: str, alpha: float = 1.0):
-    from foxglove.messages import Color
 
     h = hex_colour.lstrip("#")
     return Color(r=int(h[0:2], 16) / 255, g=int(h[2:4], 16) / 255, b=int(h[4:6], 16) / 255,
@@ -381,9 +405,6 @@ class Publisher:
     def _channel(self, topic: str, schema: str):
         ch = self.channels.get(topic)
         if ch is None:
-            import foxglove
-            from foxglove import channels as fch
-
             if schema.startswith("uavest."):
                 ch = foxglove.Channel(topic, schema=SCHEMAS[schema], context=self.ctx)
             else:
@@ -420,7 +441,6 @@ class Publisher:
 
     def log_event(self, t: float, level: str, name: str, message: str) -> None:
         """An event on ``/log`` (foxglove.Log): level ``info``/``warning``/``error``."""
-        from foxglove.messages import Log, LogLevel
 
         lvl = {"info": LogLevel.Info, "warning": LogLevel.Warning,
                "error": LogLevel.Error}[level]
@@ -464,7 +484,6 @@ class Publisher:
             lla = _floats(s.lat_lon_alt)
             msg["lat_lon_alt"] = lla
             if all(v is not None for v in lla):
-                from foxglove.messages import LocationFix
 
                 self._pb(f"/gps/{s.source}", "LocationFix", s.t, lambda: LocationFix(
                     timestamp=_ts(s.t), frame_id="world", latitude=lla[0], longitude=lla[1],
@@ -500,16 +519,16 @@ class Publisher:
             if last is not None and t - last < self.frame_dt:
                 return
             self.last_frame[key] = t
-        from foxglove.messages import FrameTransform, Pose, PoseInFrame, Quaternion, Vector3
 
         w, x, y, z = _enu_flu(q)
         e, n, u = self.pos_enu
         rot = Quaternion(x=x, y=y, z=z, w=w)
+        ts = _ts(t)
         self._pb(f"/tf/{name}", "FrameTransform", t, lambda: FrameTransform(
-            timestamp=_ts(t), parent_frame_id="world", child_frame_id=frame,
+            timestamp=ts, parent_frame_id="world", child_frame_id=frame,
             translation=Vector3(x=e + offset_east, y=n, z=u), rotation=rot))
         self._pb(f"/attitude/{name}/pose", "PoseInFrame", t, lambda: PoseInFrame(
-            timestamp=_ts(t), frame_id="world",
+            timestamp=ts, frame_id="world",
             pose=Pose(position=Vector3(x=e, y=n, z=u), orientation=rot)))
 
     def _markers(self, t: float) -> None:
@@ -521,16 +540,6 @@ class Publisher:
         self.markers_wall = now
         if self.only_subscribed and self.info is not None:  # for live clients joining late
             self._json("/run/info", "uavest.RunInfo", 0.0, self.info)
-        from foxglove.messages import (
-            ArrowPrimitive,
-            CubePrimitive,
-            Pose,
-            Quaternion,
-            SceneEntity,
-            SceneUpdate,
-            TextPrimitive,
-            Vector3,
-        )
 
         ents = []
         items = [(lab, f"body_{lab}", colour(lab)) for lab in self.labels]
@@ -625,14 +634,6 @@ class Publisher:
     # -- radar ----------------------------------------------------------------------------
     def _radar(self, s) -> None:
         self.kind = "radar"
-        from foxglove.messages import (
-            Pose,
-            Quaternion,
-            SceneEntity,
-            SceneUpdate,
-            SpherePrimitive,
-            Vector3,
-        )
 
         Z = np.asarray(s.Z, float).reshape(len(s.Z), -1)
         m = s.model
@@ -676,17 +677,6 @@ class Publisher:
             self._pb("/radar/truth", "SceneUpdate", s.t, lambda: SceneUpdate(entities=tents))
 
     def _track_entity(self, t, eid, pos, P, text, col, alpha, hist):
-        from foxglove.messages import (
-            LinePrimitive,
-            LinePrimitiveLineType,
-            Point3,
-            Pose,
-            Quaternion,
-            SceneEntity,
-            SpherePrimitive,
-            TextPrimitive,
-            Vector3,
-        )
 
         ident = Quaternion(x=0, y=0, z=0, w=1)
         if P is None:
@@ -713,7 +703,6 @@ class Publisher:
                                  color=_rgba(col, alpha))] if len(hist) > 1 else [])
 
     def _scan(self, rec: ScanRecord) -> None:
-        from foxglove.messages import SceneEntityDeletion, SceneEntityDeletionType, SceneUpdate
 
         self.kind = "radar"
         lab, t = rec.estimator, rec.t
@@ -792,7 +781,6 @@ def _ns(t: float) -> int:
 
 
 def _ts(t: float):
-    from foxglove.messages import Timestamp
 
     ns = _ns(t)
     return Timestamp(ns // 1_000_000_000, ns % 1_000_000_000)
