@@ -138,8 +138,16 @@ def test_publisher_survives_a_diverged_filter(tmp_path):
     q90 = euler_to_quat(0.0, np.pi / 2, 0.0)
     pub.record(StepRecord("ekf", 1, 1.0, np.r_[q90, 0, 0, 0], np.eye(6) * 1e-4))
     pub.record(StepRecord("ekf", 2, 2.0, np.r_[1.0, 0, 0, 0, 0, 0, 0], np.full((6, 6), np.nan)))
+    pub.record(StepRecord("ekf", 3, 3.0, np.r_[1.0, 0, 0, 0, 0, 0, 0], np.eye(6), reset=True,
+                          reason="NIS above the gate 5 times", resets=1))
     pub.close()
     w.close()
-    est = read_recording(tmp_path / "nan.mcap").json["/attitude/ekf/estimate"]
-    assert [m["k"] for m in est] == [1, 2]
+    rec = read_recording(tmp_path / "nan.mcap")
+    logs = rec.decode("/log")
+    assert [m["level"] for m in logs] == [3]  # WARNING
+    assert "NIS above the gate 5 times" in logs[0]["message"]
+    hl = rec.json["/attitude/ekf/health"]
+    assert [m["reset"] for m in hl] == [False, False, True] and hl[-1]["resets"] == 1
+    est = rec.json["/attitude/ekf/estimate"]
+    assert [m["k"] for m in est] == [1, 2, 3]
     assert est[0]["sigma3_deg"]["yaw"] is None and np.isnan(b64_floats(est[1]["P_triu_b64"])).all()

@@ -411,6 +411,8 @@ def _resets_fig(series: dict, events: list) -> tuple:
     for ev in events:
         if ev["level"] >= 3:
             ax.axvline(ev["t"], color="r", lw=0.6, alpha=0.5)
+    ax.set_ylim(-0.05, max(total, 1) * 1.15)
+    ax.yaxis.get_major_locator().set_params(integer=True)
     ax.set_xlabel("time t (s)")
     ax.set_ylabel("resets (cumulative)")
     ax.grid(alpha=0.3)
