@@ -1,0 +1,114 @@
+"""Cost of recording a replay to MCAP: replay with and without :class:`McapSink`, side by
+side (alternating runs, so both see the same machine load), and the file size.
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/recording_cost.py [LOG] [--pairs N]
+        [--rate-hz 0] [--seconds S]
+
+Default: ``/work/shared/logs/sample.ulg`` (PX4, 248 Hz IMU) at ``rate_hz=0`` (every IMU
+sample a filter step) with the three default filters (ekf, ukf, hybrid). Prints per run
+the wall and CPU time, then the ratios (median with / median without; the CPU-time ratio
+is the robust one on a shared machine), the time spent inside the recorder (timed
+around every sink call), the file size, MB per minute of data and the write speed.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import statistics  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from uavest.engine.replay import ReplayConfig, replay  # noqa: E402
+from uavest.sinks.base import Sink  # noqa: E402
+from uavest.sinks.mcap import McapSink  # noqa: E402
+
+
+class Timed(Sink):
+    """Wraps a sink and adds up the wall time spent in it (s)."""
+
+    def __init__(self, inner: Sink) -> None:
+        self.inner = inner
+        self.seconds = 0.0
+
+    def _t(self, name, *a):
+        c = time.perf_counter()
+        getattr(self.inner, name)(*a)
+        self.seconds += time.perf_counter() - c
+
+    def open(self, info):
+        self._t("open", info)
+
+    def sample(self, s):
+        self._t("sample", s)
+
+    def start(self, *a):
+        self._t("start", *a)
+
+    def record(self, r):
+        self._t("record", r)
+
+    def close(self):
+        self._t("close")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("log", nargs="?", default="/work/shared/logs/sample.ulg")
+    ap.add_argument("--pairs", type=int, default=2)
+    ap.add_argument("--rate-hz", type=float, default=0.0)
+    ap.add_argument("--frame-rate-hz", type=float, default=None,
+                    help="McapSink frame_rate_hz (3-D channels per estimator; default every step)")
+    ap.add_argument("--seconds", type=float, default=None,
+                    help="replay only this many seconds of data")
+    args = ap.parse_args(argv)
+    cfg = ReplayConfig(rate_hz=args.rate_hz)
+    if args.seconds:
+        from uavest.ingest import open_source
+
+        t0 = next(iter(open_source(args.log))).t
+        cfg = ReplayConfig(rate_hz=args.rate_hz, end=t0 + args.seconds)
+    base, rec, inner, cpu_b, cpu_r = [], [], [], [], []
+    size = dur = steps = 0.0
+    with tempfile.TemporaryDirectory() as d:
+        for i in range(args.pairs):
+            for with_rec in (False, True) if i % 2 == 0 else (True, False):
+                path = Path(d) / f"run{i}.mcap"
+                sinks = [Timed(McapSink(path, args.frame_rate_hz))] if with_rec else []
+                c, p = time.perf_counter(), time.process_time()
+                doc = replay(args.log, cfg, sinks=sinks)
+                wall = time.perf_counter() - c
+                cpu = time.process_time() - p
+                (rec if with_rec else base).append(wall)
+                (cpu_r if with_rec else cpu_b).append(cpu)
+                if with_rec:
+                    inner.append(sinks[0].seconds)
+                    size = path.stat().st_size
+                dur, steps = float(doc["duration_s"]), int(doc["steps"])
+                print(f"run {i} {'with   ' if with_rec else 'without'} recording: "
+                      f"{wall:7.2f} s wall, {cpu:7.2f} s CPU ({steps} steps, {dur:.1f} s of data, "
+                      f"{doc['filter_rate_hz']:.1f} Hz)", flush=True)
+    b, r, s = statistics.median(base), statistics.median(rec), statistics.median(inner)
+    print(f"filters: {', '.join(cfg.filters)}; log {args.log}")
+    print(f"replay without recording  {b:7.2f} s (median of {len(base)})")
+    print(f"replay with recording     {r:7.2f} s (median of {len(rec)})")
+    print(f"ratio with / without      {r / b:7.3f} (wall)")
+    cb, cr = statistics.median(cpu_b), statistics.median(cpu_r)
+    print(f"CPU without / with        {cb:7.2f} s / {cr:7.2f} s: ratio {cr / cb:.3f} "
+          "(process CPU time: less sensitive to other processes on the machine)")
+    print(f"time inside the recorder  {s:7.2f} s = {100 * s / b:.1f} % of the replay "
+          f"(ratio from it: {(b + s) / b:.3f})")
+    mb = size / 1e6
+    print(f"file {mb:.2f} MB for {dur:.1f} s of data = {60 * mb / dur:.2f} MB per minute; "
+          f"{steps / dur:.0f} steps/s x 3 filters; write speed {mb / s:.2f} MB/s of recorder "
+          f"time, {mb / r:.2f} MB/s of replay wall time")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

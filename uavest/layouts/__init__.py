@@ -1,0 +1,171 @@
+"""Foxglove layouts shipped with uavest, and the colours every view uses per estimator.
+
+``attitude.json`` and ``radar.json`` (package data, beside this module) are the layouts
+for the default filters (``ekf``, ``ukf``, ``hybrid``); :func:`build_layout` makes the
+same layout for any set of estimator labels, and the recording sinks write it beside each
+recording as ``<name>.layout.json`` (Foxglove: *Layouts -> Import from file*).
+
+The layout JSON is the Foxglove app's layout file format (``configById`` with one config
+per panel id ``"<PanelType>!<id>"``, and a ``layout`` mosaic tree of ``direction`` /
+``first`` / ``second`` / ``splitPercentage``).
+"""
+
+from __future__ import annotations
+
+import json
+import zlib
+from importlib import resources
+
+__all__ = ["COLOURS", "REFERENCE_COLOUR", "build_layout", "colour", "layout_text", "shipped"]
+
+#: Fixed colours of the usual estimator labels (hex RGB); any other label takes a colour
+#: of :data:`_CYCLE` chosen by a CRC of its name, so every process (recorder, layout,
+#: report) gives a label the same colour.
+COLOURS = {
+    "ekf": "#1f77b4",
+    "ukf": "#ff7f0e",
+    "hybrid": "#2ca02c",
+    "enkf": "#d62728",
+    "pf": "#9467bd",
+    "ahrs": "#8c564b",
+}
+_CYCLE = ("#e377c2", "#17becf", "#bcbd22", "#7f7f7f", "#aec7e8", "#ffbb78", "#98df8a")
+#: Truth / reference colour.
+REFERENCE_COLOUR = "#000000"
+
+
+def colour(label: str) -> str:
+    """Hex colour ``#rrggbb`` of an estimator label."""
+    if label in COLOURS:
+        return COLOURS[label]
+    return _CYCLE[zlib.crc32(label.encode()) % len(_CYCLE)]
+
+
+def _plot(title: str, paths: list[tuple[str, str, str]], ylabel: str = "",
+          min_y: float | None = None, max_y: float | None = None) -> dict:
+    cfg: dict = {
+        "title": title,
+        "paths": [
+            {"value": v, "enabled": True, "timestampMethod": "receiveTime", "label": lab,
+             "color": col}
+            for v, lab, col in paths
+        ],
+        "showXAxisLabels": True,
+        "showYAxisLabels": True,
+        "showLegend": True,
+        "legendDisplay": "floating",
+        "showPlotValuesInLegend": False,
+        "isSynced": True,
+        "xAxisVal": "timestamp",
+        "sidebarDimension": 240,
+        "foxglovePanelTitle": title,
+    }
+    if ylabel:
+        cfg["yAxisLabel"] = ylabel
+    if min_y is not None:
+        cfg["minYValue"] = min_y
+    if max_y is not None:
+        cfg["maxYValue"] = max_y
+    return cfg
+
+
+def _three_d(follow: str, topics: list[str], distance: float) -> dict:
+    return {
+        "followTf": follow,
+        "followMode": "follow-position",
+        "scene": {"enableStats": False, "transforms": {"showLabel": True, "axisScale": 1.5}},
+        "transforms": {},
+        "topics": {t: {"visible": True} for t in topics},
+        "layers": {"grid": {"layerId": "foxglove.Grid", "visible": True, "frameId": "world",
+                            "size": 10 * distance, "divisions": 20}},
+        "cameraState": {"distance": distance, "perspective": True, "phi": 60.0,
+                        "thetaOffset": 45.0, "targetOffset": [0, 0, 0], "target": [0, 0, 0],
+                        "targetOrientation": [0, 0, 0, 1], "fovy": 45, "near": 0.5,
+                        "far": 50000},
+        "foxglovePanelTitle": "3-D: world ENU, bodies FLU",
+    }
+
+
+def _split(direction: str, first, second, pct: float = 50.0) -> dict:
+    return {"direction": direction, "first": first, "second": second, "splitPercentage": pct}
+
+
+def _column(ids: list[str]) -> str | dict:
+    if len(ids) == 1:
+        return ids[0]
+    return _split("column", ids[0], _column(ids[1:]), 100.0 / len(ids))
+
+
+def build_layout(labels: list[str] | tuple[str, ...], kind: str = "attitude",
+                 follow: str | None = None) -> dict:
+    """The Foxglove layout (a JSON-ready dict) for estimators ``labels``.
+
+    ``kind="attitude"``: the 3-D panel (every filter's body frame and the truth's side by
+    side), roll/pitch/yaw error plots each with every filter's +-3 sigma bounds (deg), the
+    NEES and NIS plots, and the event log. ``kind="radar"``: the 3-D panel with the
+    detections, the truths and every tracker's tracks, and the track-count plot.
+    ``follow``: the frame the 3-D view follows (default ``body_truth`` / ``world``)."""
+    labels = list(labels)
+    cfg: dict[str, dict] = {}
+    if kind == "attitude":
+        topics = ["/attitude/bodies"] + [f"/tf/{lab}" for lab in labels]
+        cfg["3D!uavest3d"] = _three_d(follow or "body_truth", topics, 12.0)
+        plots = []
+        for ax in ("roll", "pitch", "yaw"):
+            paths = []
+            for lab in labels:
+                c = colour(lab)
+                base = f"/attitude/{lab}/error"
+                paths += [(f"{base}.err_deg.{ax}", f"{lab} error", c),
+                          (f"{base}.sigma3_deg.{ax}", f"{lab} +3 sigma", c + "80"),
+                          (f"{base}.neg_sigma3_deg.{ax}", f"{lab} -3 sigma", c + "80")]
+            pid = f"Plot!uavest_err_{ax}"
+            cfg[pid] = _plot(f"{ax} error vs reference (deg), +-3 sigma", paths, "deg")
+            plots.append(pid)
+        cfg["Plot!uavest_nees"] = _plot(
+            "attitude NEES (3 dof; 95% band of one step 0.22..9.35)",
+            [(f"/attitude/{lab}/error.nees", lab, colour(lab)) for lab in labels],
+            "NEES", 0.0, 30.0)
+        cfg["Plot!uavest_nis"] = _plot(
+            "NIS of the step's updates (dof in .nis_dof)",
+            [(f"/attitude/{lab}/health.nis", lab, colour(lab)) for lab in labels],
+            "NIS", 0.0, 50.0)
+        cfg["RosOut!uavest_log"] = {"searchTerms": [], "minLogLevel": 1,
+                                    "foxglovePanelTitle": "events (/log)"}
+        right = _column(plots + ["Plot!uavest_nees", "Plot!uavest_nis"])
+        left = _split("column", "3D!uavest3d", "RosOut!uavest_log", 75.0)
+        layout = _split("row", left, right, 45.0)
+    elif kind == "radar":
+        topics = ["/radar/detections", "/radar/truth"] + [f"/tracks/{lab}" for lab in labels]
+        td = _three_d(follow or "world", topics, 15000.0)
+        td["followMode"] = "follow-none"
+        cfg["3D!uavest3d"] = td
+        cfg["Plot!uavest_tracks"] = _plot(
+            "confirmed tracks per tracker (truth: /radar/truth/state.n)",
+            [(f"/tracks/{lab}/state.n_confirmed", lab, colour(lab)) for lab in labels]
+            + [("/radar/truth/state.n", "truth", REFERENCE_COLOUR)], "tracks")
+        cfg["RosOut!uavest_log"] = {"searchTerms": [], "minLogLevel": 1,
+                                    "foxglovePanelTitle": "events (/log)"}
+        layout = _split("row", "3D!uavest3d",
+                        _split("column", "Plot!uavest_tracks", "RosOut!uavest_log", 60.0),
+                        65.0)
+    else:
+        raise ValueError(f"layout kind must be attitude or radar, not {kind!r}")
+    return {
+        "configById": cfg,
+        "globalVariables": {},
+        "userNodes": {},
+        "linkedGlobalVariables": [],
+        "playbackConfig": {"speed": 1.0, "messageOrder": "receiveTime"},
+        "layout": layout,
+    }
+
+
+def layout_text(labels, kind: str = "attitude", follow: str | None = None) -> str:
+    """:func:`build_layout` as indented JSON text."""
+    return json.dumps(build_layout(labels, kind, follow), indent=2) + "\n"
+
+
+def shipped(kind: str = "attitude") -> str:
+    """Text of the layout shipped as package data (``attitude.json`` / ``radar.json``)."""
+    return resources.files(__package__).joinpath(f"{kind}.json").read_text()

@@ -1,0 +1,631 @@
+"""Metrics and figures of a recording, and the HTML / Markdown pages.
+
+Everything is recomputed from what the recording holds (never from the recorder's
+memory): attitude runs score every filter's ``/attitude/<label>/estimate`` (q, P) against
+the chosen reference channel ``/reference/<source>`` exactly as the replay's scorer does
+(slerp at the step times, :func:`uavest.eval.attitude.rmse_deg` /
+:func:`~uavest.eval.attitude.nees_attitude`), NIS from ``/attitude/<label>/health``;
+radar runs score ``/tracks/<label>/state`` against ``/radar/truth/state`` with GOSPA and
+the track-quality counts of :mod:`uavest.eval.tracking`.
+
+Figures (``<figure class="report-figure" id="fig-...">`` in the HTML): see
+:data:`ATTITUDE_FIGURES` / :data:`RADAR_FIGURES`. Each estimator has one colour
+(:func:`uavest.layouts.colour`) in every figure; the reference/truth is black.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..layouts import REFERENCE_COLOUR, colour
+from ..sinks.foxglove_channels import b64_floats, triu_to_full
+from .read import Recording, read_recording
+
+Array = np.ndarray
+
+__all__ = ["ATTITUDE_FIGURES", "RADAR_FIGURES", "attitude_data", "write_report"]
+
+#: Figure ids of an attitude report, in page order.
+ATTITUDE_FIGURES = ("fig-attitude", "fig-errors", "fig-nees", "fig-nis", "fig-trajectory",
+                    "fig-timing", "fig-resets")
+#: Figure ids of a radar report, in page order.
+RADAR_FIGURES = ("fig-tracks-top", "fig-gospa", "fig-track-count", "fig-timing",
+                 "fig-resets")
+
+_AX = ("roll", "pitch", "yaw")
+
+
+# ------------------------------------------------------------------------------- data
+
+
+def _labels(rec: Recording, kind: str) -> list[str]:
+    if kind == "attitude":
+        found = [t.split("/")[2] for t in rec.topics("/attitude/", "/estimate")]
+    else:
+        found = [t.split("/")[2] for t in rec.topics("/tracks/", "/state")]
+    info = rec.json.get("/run/info") or [{}]
+    order = list(info[0].get("filters") or rec.metadata.get("filters", {}))
+    return [lab for lab in order if lab in found] + [lab for lab in found if lab not in order]
+
+
+def _stack(msgs: list[dict], key: str, width: int | None = None) -> Array:
+    """Field ``key`` of every message as floats (None -> NaN): (K,) or (K, width)."""
+    if width is None:
+        return np.array([np.nan if m.get(key) is None else m[key] for m in msgs], float)
+    return np.array([[np.nan if v is None else v for v in (m.get(key) or [None] * width)]
+                     for m in msgs], float).reshape(len(msgs), width)
+
+
+def attitude_data(rec: Recording) -> dict:
+    """Per-filter arrays from the recording: ``t`` (K,) s, ``q`` (K, 4), ``P`` (K, 6, 6),
+    ``nis`` (K,), ``nis_dof`` (K,), ``reset`` (K,), ``resets`` (K,), ``wall_us`` (K,); and
+    the references ``refs[source] = (kind, t, q)``."""
+    out: dict = {"filters": {}, "refs": {}, "positions": {}}
+    for lab in _labels(rec, "attitude"):
+        est = rec.json.get(f"/attitude/{lab}/estimate", [])
+        hl = rec.json.get(f"/attitude/{lab}/health", [])
+        n = min(len(est), len(hl))
+        est, hl = est[:n], hl[:n]
+        P = (triu_to_full(b64_floats([m["P_triu_b64"] for m in est]), 6) if n
+             else np.zeros((0, 6, 6)))
+        out["filters"][lab] = {
+            "t": _stack(est, "t"), "k": _stack(est, "k"), "q": _stack(est, "q", 4),
+            "P": P, "nis": _stack(hl, "nis"), "nis_dof": _stack(hl, "nis_dof"),
+            "reset": np.array([bool(m.get("reset")) for m in hl]),
+            "resets": _stack(hl, "resets"), "wall_us": _stack(hl, "wall_us"),
+        }
+    for topic in rec.topics("/reference/"):
+        msgs = rec.json.get(topic, [])
+        if msgs:
+            out["refs"][topic.split("/", 2)[2]] = (
+                msgs[0]["kind"], _stack(msgs, "t"), _stack(msgs, "q", 4))
+    for topic in rec.topics("/position/"):
+        msgs = [m for m in rec.json.get(topic, []) if m.get("ned_m")]
+        if msgs:
+            out["positions"][topic.split("/", 2)[2]] = (_stack(msgs, "t"),
+                                                       _stack(msgs, "ned_m", 3))
+    return out
+
+
+class _Ref:
+    def __init__(self, kind, t):
+        self.kind, self.t = kind, t
+
+    def __len__(self):
+        return len(self.t)
+
+
+def attitude_metrics(data: dict) -> tuple[dict, dict]:
+    """(rows per filter, per-step series per filter) recomputed from the recording."""
+    from ..eval.attitude import euler_errors_deg, nees_attitude, rmse_deg, select_reference
+    from ..geometry.rotation import quat_slerp_interp, quat_to_euler
+    from ..sinks.foxglove_channels import euler_sigma_deg
+
+    refs = data["refs"]
+    ref, _ = select_reference({k: _Ref(v[0], v[1]) for k, v in refs.items()})
+    rows, series = {}, {}
+    for lab, f in data["filters"].items():
+        row: dict = {"steps": int(len(f["t"]))}
+        s: dict = {"t": f["t"], "rpy": np.degrees(quat_to_euler(f["q"])) if len(f["t"])
+                   else np.zeros((0, 3))}
+        if ref is not None and len(f["t"]):
+            kind, tr, qr = refs[ref]
+            q_ref, mask = quat_slerp_interp(tr, qr, f["t"])
+            row.update(rmse_deg(f["q"], q_ref, mask))
+            s["mask"] = mask
+            s["err"] = euler_errors_deg(f["q"], q_ref)
+            s["sig3"] = 3.0 * euler_sigma_deg(f["q"], f["P"])
+            if kind == "truth" and mask.any():
+                ne = np.full(len(f["t"]), np.nan)
+                ne[mask] = nees_attitude(f["q"][mask], f["P"][mask], q_ref[mask])
+                s["nees"] = ne
+                row["nees_mean"] = float(np.nanmean(ne))
+                row["frac_in_3sigma"] = float(np.mean(np.all(
+                    np.abs(s["err"][mask]) <= s["sig3"][mask], axis=1)))
+        nis = f["nis"]
+        ok = np.isfinite(nis)
+        if ok.any():
+            row["nis_mean"] = float(np.mean(nis[ok]))
+            row["nis_dof_mean"] = float(np.mean(f["nis_dof"][ok]))
+        row["resets"] = int(np.nanmax(f["resets"])) if len(f["resets"]) else 0
+        row["us_per_step"] = float(np.nanmean(f["wall_us"])) if len(f["wall_us"]) else math.nan
+        rows[lab] = row
+        series[lab] = s
+    return rows, {"series": series, "reference": ref,
+                  "reference_kind": refs[ref][0] if ref else None}
+
+
+def _moving_mean(x: Array, w: int) -> Array:
+    """Mean over the last ``w`` finite samples' window (NaN-aware), same length as x."""
+    ok = np.isfinite(x)
+    c = np.concatenate([[0.0], np.cumsum(np.where(ok, x, 0.0))])
+    n = np.concatenate([[0], np.cumsum(ok)])
+    i = np.arange(1, len(x) + 1)
+    j = np.maximum(i - w, 0)
+    cnt = n[i] - n[j]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(cnt > 0, (c[i] - c[j]) / np.maximum(cnt, 1), np.nan)
+
+
+# ------------------------------------------------------------------------------ radar
+
+
+def radar_data(rec: Recording) -> dict:
+    """Per scan: truths {id: x}, per tracker the tracks, detections (world ENU)."""
+    truth = {m["k"]: (m["t"], {int(g["id"]): np.array(g["x"], float) for g in m["targets"]})
+             for m in rec.json.get("/radar/truth/state", [])}
+    scans = rec.json.get("/radar/scan", [])
+    det = np.array([p for m in scans for p in m.get("xyz", [])], float).reshape(-1, 3)
+    trackers = {}
+    for lab in _labels(rec, "radar"):
+        trackers[lab] = rec.json.get(f"/tracks/{lab}/state", [])
+    return {"truth": truth, "detections": det, "trackers": trackers}
+
+
+def radar_metrics(data: dict, c: float = 100.0) -> tuple[dict, dict]:
+    from ..eval.tracking import gospa, track_quality
+
+    rows, series = {}, {}
+    truth = data["truth"]
+    for lab, msgs in data["trackers"].items():
+        t = np.array([m["t"] for m in msgs], float)
+        ks = [m["k"] for m in msgs]
+        d = None
+        tr_steps, tk_steps, g = [], [], []
+        for m in msgs:
+            conf = {int(x["id"]): np.array(x["x"], float) for x in m["tracks"] if x["confirmed"]}
+            tv = truth.get(m["k"], (None, {}))[1]
+            if d is None:
+                any_x = next(iter(conf.values()), None)
+                any_t = next(iter(tv.values()), None)
+                v = any_x if any_x is not None else any_t
+                if v is not None:
+                    d = 3 if v.size >= 6 else 2
+            dd = d or 2
+            tr_steps.append({i: x[:dd] for i, x in tv.items()})
+            tk_steps.append({i: x[:dd] for i, x in conf.items()})
+            if truth:
+                X = np.array(list(tr_steps[-1].values())).reshape(-1, dd)
+                Y = np.array(list(tk_steps[-1].values())).reshape(-1, dd)
+                g.append(gospa(X, Y, c)[0])
+        row: dict = {"scans": len(msgs),
+                     "confirmed_mean": float(np.mean([len(s) for s in tk_steps]))
+                     if tk_steps else 0.0,
+                     "resets": int(sum(m.get("resets", 0) for m in msgs)),
+                     "us_per_scan": float(np.mean([m["wall_us"] for m in msgs]))
+                     if msgs else math.nan}
+        if truth and msgs:
+            dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+            q = track_quality(tr_steps, tk_steps, c, dt=dt)
+            row.update({"gospa_mean": q.gospa, "track_breaks": q.track_breaks,
+                        "id_swaps": q.id_swaps, "false_tracks": q.false_tracks,
+                        "confirmed_tracks": q.confirmed_tracks,
+                        "time_to_confirm_s": q.time_to_confirm})
+        rows[lab] = row
+        series[lab] = {"t": t, "k": ks, "gospa": np.array(g, float),
+                       "n_conf": np.array([len(s) for s in tk_steps]),
+                       "n_truth": np.array([len(s) for s in tr_steps]),
+                       "wall_us": np.array([m["wall_us"] for m in msgs], float),
+                       "resets": np.cumsum([m.get("resets", 0) for m in msgs]),
+                       "msgs": msgs}
+    return rows, {"series": series, "gospa_c": c}
+
+
+# ---------------------------------------------------------------------------- figures
+
+
+def _fig_png(fig) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _attitude_figures(data: dict, rows: dict, m: dict, events: list) -> list[tuple]:
+    from scipy.stats import chi2
+
+    plt = _plt()
+    S = m["series"]
+    ref = m["reference"]
+    figs = []
+    # attitude angles
+    fig, axs = plt.subplots(3, 1, figsize=(12, 7.5), sharex=True)
+    if ref:
+        from ..geometry.rotation import quat_to_euler
+
+        _, tr, qr = data["refs"][ref]
+        rpy = np.degrees(quat_to_euler(qr))
+        for i, ax in enumerate(axs):
+            ax.plot(tr, rpy[:, i], color=REFERENCE_COLOUR, lw=1.2, label=f"reference {ref}")
+    for lab, s in S.items():
+        for i, ax in enumerate(axs):
+            ax.plot(s["t"], s["rpy"][:, i], color=colour(lab), lw=0.9, label=lab)
+    for i, ax in enumerate(axs):
+        ax.set_ylabel(f"{_AX[i]} (deg)")
+        ax.grid(alpha=0.3)
+    axs[0].legend(loc="upper right", fontsize=8, ncol=4)
+    axs[-1].set_xlabel("time t (s, source clock)")
+    fig.suptitle("Attitude (ZYX Euler, body FRD -> NED) of every filter and the reference")
+    figs.append(("fig-attitude", "Attitude", _fig_png(fig),
+                 "Roll, pitch, yaw of each filter and the reference (black)."))
+    # errors with own 3 sigma
+    fig, axs = plt.subplots(3, 1, figsize=(12, 8.5), sharex=True)
+    for lab, s in S.items():
+        if "err" not in s:
+            continue
+        mk = s["mask"]
+        c = colour(lab)
+        for i, ax in enumerate(axs):
+            t = s["t"][mk]
+            ax.plot(t, s["err"][mk, i], color=c, lw=0.9,
+                    label=f"{lab} error (RMSE {rows[lab].get(_AX[i] + '_rmse_deg', math.nan):.2f})")
+            ax.plot(t, s["sig3"][mk, i], color=c, lw=0.8, ls="--")
+            ax.plot(t, -s["sig3"][mk, i], color=c, lw=0.8, ls="--",
+                    label=f"{lab} +-3 sigma" if i == 0 else None)
+    for i, ax in enumerate(axs):
+        ax.set_ylabel(f"{_AX[i]} error (deg)")
+        ax.grid(alpha=0.3)
+        lim = [np.nanpercentile(np.abs(s["err"][s["mask"], i]), 99.5) * 3
+               for s in S.values() if "err" in s and s["mask"].any()]
+        if lim and np.isfinite(max(lim)) and max(lim) > 0:
+            ax.set_ylim(-max(lim), max(lim))
+        ax.legend(loc="upper right", fontsize=7, ncol=3)
+    axs[-1].set_xlabel("time t (s)")
+    fig.suptitle(f"Error vs {ref} (estimate - reference, wrapped) with each filter's own "
+                 "+-3 sigma (dashed)")
+    figs.append(("fig-errors", "Errors with +-3 sigma", _fig_png(fig),
+                 "Per-axis error (solid) and the filter's own +-3 sigma bound (dashed, from "
+                 "its covariance, linearised to Euler angles)."))
+    # NEES
+    fig, ax = plt.subplots(figsize=(12, 4))
+    dt = _dt(S)
+    w = max(1, int(round(1.0 / dt))) if dt else 1
+    have = False
+    for lab, s in S.items():
+        if "nees" not in s:
+            continue
+        have = True
+        ax.plot(s["t"], s["nees"], ".", ms=1.5, color=colour(lab), alpha=0.25)
+        ax.plot(s["t"], _moving_mean(s["nees"], w), color=colour(lab), lw=1.2,
+                label=f"{lab} ({w}-step mean; overall {rows[lab]['nees_mean']:.2f})")
+    if have:
+        lo, hi = chi2.ppf([0.025, 0.975], 3 * w) / w
+        ax.axhspan(lo, hi, color="grey", alpha=0.2, label=f"95% band of a {w}-step mean")
+        ax.axhline(3.0, color="k", lw=0.8, ls=":", label="expected 3")
+        ax.set_yscale("log")
+        ax.legend(loc="upper right", fontsize=8)
+    else:
+        ax.text(0.5, 0.5, "no truth reference in this recording: NEES needs truth",
+                ha="center", va="center", transform=ax.transAxes)
+    ax.set_xlabel("time t (s)")
+    ax.set_ylabel("attitude NEES (3 dof)")
+    ax.grid(alpha=0.3)
+    ax.set_title("NEES against truth: dots per step, lines the moving mean, band chi-square")
+    figs.append(("fig-nees", "NEES", _fig_png(fig),
+                 "Attitude NEES (3 dof) per step and its 1 s moving mean with the chi-square "
+                 "95% band of that mean."))
+    # NIS
+    fig, ax = plt.subplots(figsize=(12, 4))
+    dofm = []
+    for lab, f in data["filters"].items():
+        nis, dof = f["nis"], f["nis_dof"]
+        ok = np.isfinite(nis) & (dof > 0)
+        if not ok.any():
+            continue
+        r = np.where(ok, nis / np.where(dof > 0, dof, 1), np.nan)
+        ax.plot(f["t"], _moving_mean(r, w), color=colour(lab), lw=1.2,
+                label=f"{lab} (mean NIS {rows[lab]['nis_mean']:.2f}, dof "
+                      f"{rows[lab]['nis_dof_mean']:.1f})")
+        dofm.append(float(np.mean(dof[ok])))
+    if dofm:
+        dm = float(np.mean(dofm))
+        lo, hi = chi2.ppf([0.025, 0.975], dm * w) / (dm * w)
+        ax.axhspan(lo, hi, color="grey", alpha=0.2, label=f"95% band ({w} steps x {dm:.1f} dof)")
+        ax.axhline(1.0, color="k", lw=0.8, ls=":")
+        ax.set_yscale("log")
+        ax.legend(loc="upper right", fontsize=8)
+    ax.set_xlabel("time t (s)")
+    ax.set_ylabel("NIS / dof (moving mean)")
+    ax.grid(alpha=0.3)
+    ax.set_title("NIS of the updates divided by their dof, with the chi-square band")
+    figs.append(("fig-nis", "NIS", _fig_png(fig),
+                 "Normalised innovation squared per degree of freedom (1 s moving mean)."))
+    # trajectory
+    fig, ax = plt.subplots(figsize=(7, 7))
+    if data["positions"]:
+        for src, (_t, ned) in data["positions"].items():
+            ax.plot(ned[:, 1], ned[:, 0], color=REFERENCE_COLOUR, lw=1.0, label=src)
+            ax.plot(ned[:1, 1], ned[:1, 0], "o", color="g", label="start")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.legend(fontsize=8)
+    else:
+        ax.text(0.5, 0.5, "no position in this recording", ha="center", va="center",
+                transform=ax.transAxes)
+    ax.set_xlabel("east (m)")
+    ax.set_ylabel("north (m)")
+    ax.grid(alpha=0.3)
+    ax.set_title("Vehicle trajectory, top view (local NED origin)")
+    figs.append(("fig-trajectory", "Trajectory", _fig_png(fig),
+                 "Vehicle position from the log (top view, east/north in m)."))
+    figs.append(_timing_fig({lab: (f["t"], f["wall_us"]) for lab, f in data["filters"].items()},
+                            "filter step"))
+    figs.append(_resets_fig({lab: (f["t"], f["resets"]) for lab, f in data["filters"].items()},
+                            events))
+    return figs
+
+
+def _dt(S: dict) -> float:
+    for s in S.values():
+        if len(s["t"]) > 1:
+            return float(np.median(np.diff(s["t"])))
+    return 0.0
+
+
+def _timing_fig(series: dict, what: str) -> tuple:
+    plt = _plt()
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 3.8), gridspec_kw={"width_ratios": [3, 1]})
+    for lab, (t, us) in series.items():
+        if len(us) == 0:
+            continue
+        a1.plot(t, us, color=colour(lab), lw=0.6, alpha=0.8,
+                label=f"{lab} (mean {np.nanmean(us):.0f} us)")
+        a2.hist(us[np.isfinite(us)], bins=50, color=colour(lab), alpha=0.5, label=lab)
+    a1.set_xlabel("time t (s)")
+    a1.set_ylabel(f"wall time per {what} (us)")
+    a1.set_yscale("log")
+    a1.grid(alpha=0.3)
+    a1.legend(fontsize=8)
+    a2.set_xlabel("wall time (us)")
+    a2.set_ylabel("count")
+    a2.grid(alpha=0.3)
+    fig.suptitle(f"Per-{what} wall time")
+    return ("fig-timing", "Timing", _fig_png(fig), f"Wall time of each {what} (us).")
+
+
+def _resets_fig(series: dict, events: list) -> tuple:
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(12, 3.2))
+    total = 0
+    for lab, (t, r) in series.items():
+        r = np.nan_to_num(np.asarray(r, float))
+        total += int(r[-1]) if len(r) else 0
+        ax.step(t, r, where="post", color=colour(lab), lw=1.5, label=lab)
+    for ev in events:
+        if ev["level"] >= 3:
+            ax.axvline(ev["t"], color="r", lw=0.6, alpha=0.5)
+    ax.set_ylim(-0.05, max(total, 1) * 1.15)
+    ax.yaxis.get_major_locator().set_params(integer=True)
+    ax.set_xlabel("time t (s)")
+    ax.set_ylabel("resets (cumulative)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(f"Divergence-guard resets: {total} in total (red lines: warnings in /log)")
+    return ("fig-resets", "Resets", _fig_png(fig), "Cumulative resets per estimator.")
+
+
+def _radar_figures(data: dict, rows: dict, m: dict, events: list) -> list[tuple]:
+    plt = _plt()
+    S = m["series"]
+    figs = []
+    fig, ax = plt.subplots(figsize=(9, 9))
+    det = data["detections"]
+    if len(det):
+        ax.plot(det[:, 0], det[:, 1], ".", ms=2, color="#aaaaaa", label="detections")
+    paths: dict[int, list] = {}
+    for k in sorted(data["truth"]):
+        for i, x in data["truth"][k][1].items():
+            paths.setdefault(i, []).append(x[:2])
+    for j, (i, p) in enumerate(sorted(paths.items())):
+        p = np.array(p)
+        ax.plot(p[:, 0], p[:, 1], color=REFERENCE_COLOUR, lw=2.2,
+                label="truth" if j == 0 else None)
+        ax.text(p[0, 0], p[0, 1], f"target {i}", fontsize=8)
+    for lab, s in S.items():
+        tp: dict[int, list] = {}
+        for msg in s["msgs"]:
+            for x in msg["tracks"]:
+                if x["confirmed"]:
+                    tp.setdefault(int(x["id"]), []).append(x["x"][:2])
+        for j, (i, p) in enumerate(sorted(tp.items())):
+            p = np.array(p)
+            ax.plot(p[:, 0], p[:, 1], color=colour(lab), lw=1.0,
+                    label=f"{lab} tracks" if j == 0 else None)
+            ax.text(p[-1, 0], p[-1, 1], f"#{i}", color=colour(lab), fontsize=7)
+    pts = [np.array(p)[:, :2] for p in paths.values()]
+    if pts:  # zoom on the targets (clutter far away is cut off)
+        a = np.vstack(pts)
+        lo, hi = a.min(axis=0), a.max(axis=0)
+        pad = 0.25 * max(float(np.max(hi - lo)), 500.0)
+        ax.set_xlim(lo[0] - pad, hi[0] + pad)
+        ax.set_ylim(lo[1] - pad, hi[1] + pad)
+    ax.set_xlabel("east (m, world ENU)")
+    ax.set_ylabel("north (m)")
+    ax.set_aspect("equal", adjustable="box")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title("Confirmed tracks (per tracker) and truth, top view")
+    figs.append(("fig-tracks-top", "Tracks, top view", _fig_png(fig),
+                 "Truth paths (black), confirmed track paths with their ids (one colour per "
+                 "tracker), detections (grey)."))
+    fig, ax = plt.subplots(figsize=(12, 3.8))
+    for lab, s in S.items():
+        if len(s["gospa"]):
+            ax.plot(s["t"], s["gospa"], color=colour(lab), lw=1.2,
+                    label=f"{lab} (mean {rows[lab].get('gospa_mean', math.nan):.1f} m)")
+    if not any(len(s["gospa"]) for s in S.values()):
+        ax.text(0.5, 0.5, "no truth recorded", ha="center", va="center",
+                transform=ax.transAxes)
+    else:
+        ax.legend(fontsize=8)
+    ax.set_xlabel("time t (s)")
+    ax.set_ylabel(f"GOSPA (m, c = {m['gospa_c']:g})")
+    ax.grid(alpha=0.3)
+    ax.set_title("GOSPA of the confirmed tracks against the truth per scan")
+    figs.append(("fig-gospa", "GOSPA", _fig_png(fig), "GOSPA per scan (m)."))
+    fig, ax = plt.subplots(figsize=(12, 3.5))
+    for j, (lab, s) in enumerate(S.items()):
+        ax.step(s["t"], s["n_conf"], where="post", color=colour(lab), lw=1.3, label=lab)
+        if j == 0 and data["truth"]:
+            ax.step(s["t"], s["n_truth"], where="post", color=REFERENCE_COLOUR, lw=2,
+                    ls="--", label="truth targets")
+    ax.set_xlabel("time t (s)")
+    ax.set_ylabel("confirmed tracks")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title("Number of confirmed tracks vs the number of true targets")
+    figs.append(("fig-track-count", "Track count", _fig_png(fig), "Confirmed tracks per scan."))
+    figs.append(_timing_fig({lab: (s["t"], s["wall_us"]) for lab, s in S.items()}, "scan"))
+    figs.append(_resets_fig({lab: (s["t"], s["resets"]) for lab, s in S.items()}, events))
+    return figs
+
+
+# ------------------------------------------------------------------------------ pages
+
+
+def _events(rec: Recording) -> list[dict]:
+    if "/log" not in rec.raw:
+        return []
+    out = []
+    for m in rec.decode("/log"):
+        ts = m.get("timestamp", {})
+        out.append({"t": ts.get("seconds", 0) + 1e-9 * ts.get("nanos", 0),
+                    "level": int(m.get("level", 0)), "name": m.get("name", ""),
+                    "message": m.get("message", "")})
+    return out
+
+
+def _fmt(v) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            return "nan"
+        return f"{v:.4g}" if abs(v) < 1e5 else f"{v:.3e}"
+    return str(v)
+
+
+def _table_md(rows: dict, cols: list[str]) -> str:
+    head = "| filter | " + " | ".join(cols) + " |"
+    sep = "|---|" + "---|" * len(cols)
+    body = ["| " + lab + " | " + " | ".join(_fmt(r.get(c)) for c in cols) + " |"
+            for lab, r in rows.items()]
+    return "\n".join([head, sep] + body)
+
+
+def _table_html(rows: dict, cols: list[str]) -> str:
+    h = "".join(f"<th>{html.escape(c)}</th>" for c in cols)
+    b = "".join(
+        f"<tr><td style='color:{colour(lab)};font-weight:bold'>{html.escape(lab)}</td>"
+        + "".join(f"<td>{_fmt(r.get(c))}</td>" for c in cols) + "</tr>"
+        for lab, r in rows.items())
+    return f"<table class='comparison'><tr><th>filter</th>{h}</tr>{b}</table>"
+
+
+_CSS = """body{font-family:sans-serif;margin:2em;max-width:1400px}
+table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:4px 8px;
+text-align:right}th{background:#f3f3f3}figure{margin:1.5em 0}img{max-width:100%}
+figcaption{color:#444;font-size:90%}.meta td{text-align:left}"""
+
+
+def write_report(mcap_path: str | Path, out_dir: str | Path | None = None) -> dict[str, Path]:
+    """Read the recording ``mcap_path``, recompute the metrics from it and write
+    ``<out_dir>/<stem>.html`` (self-contained: figures as base64 PNG) and
+    ``<out_dir>/<stem>.md`` (figures as ``<stem>_figures/<id>.png``). ``out_dir``
+    defaults to the recording's directory. Returns ``{"html", "markdown", "metrics",
+    "figures": [png paths]}``; ``metrics`` is ``<stem>.metrics.json``."""
+    mcap_path = Path(mcap_path)
+    out = Path(out_dir) if out_dir is not None else mcap_path.parent
+    out.mkdir(parents=True, exist_ok=True)
+    rec = read_recording(mcap_path)
+    events = _events(rec)
+    kind = "radar" if rec.topics("/tracks/") else "attitude"
+    if kind == "attitude":
+        data = attitude_data(rec)
+        rows, m = attitude_metrics(data)
+        figs = _attitude_figures(data, rows, m, events)
+        cols = ["roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg", "n", "nees_mean",
+                "frac_in_3sigma", "nis_mean", "nis_dof_mean", "resets", "us_per_step"]
+        extra = {"reference": m["reference"], "reference_kind": m["reference_kind"]}
+    else:
+        data = radar_data(rec)
+        cfg = rec.metadata.get("config", {})
+        c = 100.0
+        for key in ("gospa_c", "metrics"):
+            if key in cfg:
+                try:
+                    v = json.loads(cfg[key])
+                    c = float(v["gospa_c"] if isinstance(v, dict) else v)
+                except (ValueError, KeyError, TypeError):
+                    pass
+        rows, m = radar_metrics(data, c)
+        figs = _radar_figures(data, rows, m, events)
+        cols = ["gospa_mean", "confirmed_tracks", "false_tracks", "track_breaks", "id_swaps",
+                "time_to_confirm_s", "confirmed_mean", "resets", "us_per_scan", "scans"]
+        extra = {"gospa_c": c}
+    stem = mcap_path.stem
+    figdir = out / f"{stem}_figures"
+    figdir.mkdir(exist_ok=True)
+    pngs = []
+    for fid, _, png, _ in figs:
+        p = figdir / f"{fid}.png"
+        p.write_bytes(png)
+        pngs.append(p)
+    run = rec.metadata.get("run", {})
+    meta_rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(str(v))}</td></tr>"
+                        for k, v in [("recording", mcap_path.name), ("kind", kind),
+                                     *run.items(), *extra.items(),
+                                     ("truncated (writer killed)", rec.truncated),
+                                     ("chunks", rec.chunks)])
+    ev_rows = "".join(
+        f"<tr><td>{e['t']:.3f}</td><td>{e['level']}</td><td>{html.escape(e['name'])}</td>"
+        f"<td style='text-align:left'>{html.escape(e['message'])}</td></tr>" for e in events)
+    fig_html = "".join(
+        f"<figure class='report-figure' id='{fid}'><h2>{html.escape(title)}</h2>"
+        f"<img alt='{html.escape(title)}' src='data:image/png;base64,"
+        f"{base64.b64encode(png).decode()}'><figcaption>{html.escape(cap)}</figcaption>"
+        "</figure>" for fid, title, png, cap in figs)
+    page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>uavest report "
+            f"{html.escape(stem)}</title><style>{_CSS}</style></head><body>"
+            f"<h1>uavest report: {html.escape(stem)}</h1><table class='meta'>{meta_rows}"
+            f"</table><h2>Comparison</h2>{_table_html(rows, cols)}{fig_html}"
+            f"<h2>Events (/log)</h2><table><tr><th>t (s)</th><th>level</th><th>name</th>"
+            f"<th>message</th></tr>{ev_rows}</table></body></html>")
+    html_path = out / f"{stem}.html"
+    html_path.write_text(page)
+    md = [f"# uavest report: {stem}", "", f"- recording: `{mcap_path.name}` ({kind})"]
+    md += [f"- {k}: {v}" for k, v in [*run.items(), *extra.items()]]
+    md += [f"- truncated: {rec.truncated}; chunks: {rec.chunks}", "", "## Comparison", "",
+           _table_md(rows, cols), "", "## Figures", ""]
+    md += [f"![{title}]({figdir.name}/{fid}.png)\n\n{cap}\n" for fid, title, _, cap in figs]
+    md += ["## Events", ""] + [f"- t = {e['t']:.3f} s [{e['name']}] {e['message']}"
+                               for e in events]
+    md_path = out / f"{stem}.md"
+    md_path.write_text("\n".join(md) + "\n")
+    metrics_path = out / f"{stem}.metrics.json"
+    metrics_path.write_text(json.dumps({"kind": kind, **extra, "filters": rows},
+                                       indent=2, default=_jsonnum))
+    return {"html": html_path, "markdown": md_path, "metrics": metrics_path, "figures": pngs}
+
+
+def _jsonnum(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    return str(o)
