@@ -48,6 +48,7 @@ from ..models.motion import NearlyConstantVelocity
 from ..models.radar import RadarMeasurement, SensorPose
 from ..seeding import filter_stream, rng
 from ..sinks.base import Sink
+from ..sinks.foxglove_channels import RadarScanSample
 from ..tracking.tracker import Tracker, TrackerConfig
 from .replay import _Score
 
@@ -190,8 +191,12 @@ class TrackLane:
         self.t_last = t
         self.k += 1
         Z = np.array([d.rae for d in dets]).reshape(-1, 3)
-        self.truth.append((t, self.truth_src.at(t, self.cfg.radar.max_range)))
-        out.append(Step(self.k, t, dt, self.motion, ((Z, self.model.with_pose(self.pose)),)))
+        truth = self.truth_src.at(t, self.cfg.radar.max_range)
+        self.truth.append((t, truth))
+        model = self.model.with_pose(self.pose)
+        X = np.array([truth[i] for i in sorted(truth)]).reshape(-1, 6)
+        smp = RadarScanSample(t, self.k, Z, model, None, X)
+        out.append(Step(self.k, t, dt, self.motion, ((Z, model),), info={"samples": (smp,)}))
         return out
 
 

@@ -93,6 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "name resolves to in each command")
     pl.set_defaults(func=cmd_list)
     from .replay import add_replay_parser
+    from .report_cmd import add_report_parser
     from .run import add_demo_parser, add_run_parser
     from .sim import add_sim_parser
     from .track import add_track_parser
@@ -102,6 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_track_parser(sub)
     add_replay_parser(sub)
     add_sim_parser(sub)
+    add_report_parser(sub)
     return ap
 
 

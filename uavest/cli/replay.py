@@ -12,6 +12,7 @@ from ..engine.attitude import DEFAULT_MAX_RATE_HZ
 from ..models.attitude import AttitudeNoise
 from ..sinks.base import ResetLog, Sink
 from ..sinks.jsonout import write_json
+from .record import add_recording_options, finish_recording, recording_sinks
 from .report import progress, table
 
 __all__ = ["add_replay_parser", "cmd_replay", "format_doc"]
@@ -103,12 +104,14 @@ def cmd_replay(args: argparse.Namespace) -> int:
         noise=_parse_noise(args.noise), imu=args.imu, use_mag=not args.no_mag,
         accel_comp=args.accel_comp, mag_mode=args.mag_mode, mag_delay=args.mag_delay,
     )
-    sinks = [_Progress(False if args.no_progress else None), ResetLog()]
+    sinks = [_Progress(False if args.no_progress else None), ResetLog(),
+             *recording_sinks(args)]
     doc = replay(args.log, cfg, sinks=sinks, command=" ".join(sys.argv))
     print(format_doc(doc))
     if args.json:
         write_json(args.json, doc)
         print(f"wrote {args.json}")
+    finish_recording(args)
     return 0
 
 
@@ -153,5 +156,9 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
                    help="magnetometer sample age in s, compensated with the gyro (default 0)")
     p.add_argument("--no-mag", action="store_true", help="do not use the magnetometer")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_replay, filters_preset="attitude")
+    add_recording_options(p)
+    p.add_argument("--speed", type=float, default=1.0,
+                   help="with --foxglove: replay paced at this many times real time "
+                   "(default 1)")
+    p.set_defaults(func=cmd_replay, filters_preset="attitude", paced=True)
     return p

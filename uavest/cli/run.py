@@ -13,6 +13,7 @@ import threading
 from ..apps.live import LiveConfig, run_live
 from ..ingest.adsb_radar import RadarConfig
 from ..sinks.jsonout import write_json
+from .record import add_recording_options, finish_recording, recording_sinks
 from .report import table
 
 __all__ = ["add_demo_parser", "add_run_parser", "format_live"]
@@ -78,6 +79,7 @@ def add_run_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--heartbeat-timeout", type=float, default=30.0,
                    help="s to wait for the vehicle's heartbeat (default 30)")
     _common(p)
+    add_recording_options(p, report=False)
     p.set_defaults(func=cmd_run, filters_preset="attitude")
     return p
 
@@ -148,11 +150,12 @@ def cmd_run(args) -> int:
     cfg = _cfg(args, args.connect)
     doc = run_live(cfg, command=" ".join(sys.argv), status=False if args.no_status else None,
                    on_wait=_wait, publish=args.publish, publish_sysid=args.publish_sysid,
-                   stop=_stop_on_signals())
+                   stop=_stop_on_signals(), sinks=recording_sinks(args))
     print(format_live(doc))
     if args.json:
         write_json(args.json, doc)
         print(f"wrote {args.json}")
+    finish_recording(args)
     return 0
 
 
@@ -171,6 +174,8 @@ def add_demo_parser(sub) -> argparse.ArgumentParser:
                    help="simulated seconds per wall second (default 1: real time)")
     p.add_argument("--imu-rate", type=float, default=200.0, help="simulated IMU rate, Hz")
     _common(p)
+    add_recording_options(p, mcap_default="uavest-demo.mcap")
+    p.add_argument("--no-record", action="store_true", help="do not write the recording")
     p.set_defaults(func=cmd_demo, filters_preset="attitude", duration=30.0)
     return p
 
@@ -208,9 +213,11 @@ def demo(args) -> dict:
     print(f"uavest demo: simulator '{args.scenario}' -> udp 127.0.0.1:{port} -> live "
           f"estimator, {args.duration:g} s", file=sys.stderr)
     try:
+        if args.no_record:
+            args.mcap = None
         doc = run_live(cfg, command=" ".join(sys.argv),
                        status=False if args.no_status else None, on_wait=_wait,
-                       stop=_stop_on_signals())
+                       stop=_stop_on_signals(), sinks=recording_sinks(args))
     finally:
         stop.set()
         th.join(timeout=10)
@@ -227,4 +234,5 @@ def cmd_demo(args) -> int:
     if args.json:
         write_json(args.json, doc)
         print(f"wrote {args.json}")
+    finish_recording(args)
     return 0

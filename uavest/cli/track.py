@@ -6,6 +6,7 @@ Registered by ``uavest/cli.py`` through :func:`add_track_parser`.
 from __future__ import annotations
 
 import argparse
+import sys
 
 import numpy as np
 
@@ -14,9 +15,10 @@ from ..scenarios import load_scenario
 from ..sinks.jsonout import write_json
 from ..tracking.scenario import generate_run
 from ..tracking.tracker import Tracker
+from .record import add_recording_options, finish_recording, recording_sinks
 
 
-def track_table(sc: dict, filters: list[str], seed: int) -> dict:
+def track_table(sc: dict, filters: list[str], seed: int, sinks=(), command: str = "") -> dict:
     """Run ``sc`` once (run 0 of ``seed``) with every filter's tracker on the same
     detections. Returns {"scenario", "seed", "tracks": [rows], "summary": {filter: {...}}}.
 
@@ -27,7 +29,13 @@ def track_table(sc: dict, filters: list[str], seed: int) -> dict:
     ndim = int(sc.get("ndim", 2))
     c = float(sc.get("metrics", {}).get("gospa_c", 200.0))
     run = generate_run(sc, data_rng(seed, 0))  # filter-mode scenarios: tracker too
-    trackers: dict[str, Tracker] = run_trackers(sc, filters, run, seed, 0)
+    from ..engine.records import RunInfo, package_versions
+
+    info = RunInfo(command, f"scenario:{sc.get('name')}", seed,
+                   filters={lab: {"spec": lab, "preset": "radar"} for lab in filters},
+                   config={"scenario": sc.get("name"), "dt": dt, "gospa_c": c},
+                   versions=package_versions())
+    trackers: dict[str, Tracker] = run_trackers(sc, filters, run, seed, 0, sinks, info)
     rows, summary = [], {}
     for lab, tr in trackers.items():
         q, _ = tracker_errors(tr, run, ndim, c, dt)
@@ -116,10 +124,12 @@ def cmd_track(args: argparse.Namespace) -> int:
         raise ValueError(f"scenario {args.scenario!r} is not a radar scenario "
                          "(radar scenarios: see 'uavest list')")
     filters = args.filter_specs or list(sc.get("filters", []))
-    res = track_table(sc, filters or ["ekf", "ukf", "hybrid"], args.seed)
+    res = track_table(sc, filters or ["ekf", "ukf", "hybrid"], args.seed,
+                      recording_sinks(args), " ".join(sys.argv))
     print_table(res)
     if args.json:
         write_json(args.json, res)
+    finish_recording(args)
     return 0
 
 
@@ -138,6 +148,7 @@ def add_track_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a scenario parameter (dotted keys), repeatable")
     p.add_argument("--json", default=None, metavar="PATH", help="also write the table as JSON")
+    add_recording_options(p, live_view=False)
     p.set_defaults(func=cmd_track, filters_preset="radar")
     return p
 

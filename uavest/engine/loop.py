@@ -31,6 +31,10 @@ def _dispatch(items, estimators, sinks) -> int:
     n = 0
     for it in items:
         if isinstance(it, Step):
+            if it.info and "samples" in it.info:  # what the builder derived (radar scans)
+                for smp in it.info["samples"]:
+                    for s in sinks:
+                        s.sample(smp)
             for e in estimators:
                 rec = e.step(it)
                 for s in sinks:

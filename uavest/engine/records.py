@@ -48,8 +48,10 @@ class Start:
 class Step:
     """One filter step: predict from the previous step's time to ``t`` over ``dt`` s with
     input ``u`` through ``transition``, then update with each ``(z, model)`` of
-    ``updates`` in order. ``k`` counts steps from 1. ``info`` carries what the step was
-    built from (e.g. the raw samples), for sinks; filters never read it."""
+    ``updates`` in order. ``k`` counts steps from 1. ``info`` is for sinks, never for filters:
+    ``info["samples"]``, samples the step builder derived (e.g. a radar scan as a
+    :class:`uavest.sinks.foxglove_channels.RadarScanSample`), is handed to every sink's
+    ``sample`` before the estimators step."""
 
     k: int
     t: float

@@ -217,15 +217,22 @@ def bench_filter_mode(sc: dict, filters: list[str], runs: int, seed: int, steps:
 
 
 def scan_steps(run, radar, motion, dt: float) -> Iterator[Start | Step]:
-    """Engine items of one tracker-mode run: a start, then every scan's detections."""
+    """Engine items of one tracker-mode run: a start, then every scan's detections (with
+    the scan and the truths as a sample for recorders)."""
+    from ..sinks.foxglove_channels import RadarScanSample
+
     yield Start(0.0, None, motion.space)
     for k, model in enumerate(_scan_models(radar, run), start=1):
-        yield Step(k, k * dt, dt, motion, ((run.scans[k - 1], model),))
+        Z = run.scans[k - 1]
+        X = np.where(run.alive[:, k, None], run.truths[:, k], np.nan)
+        smp = RadarScanSample(k * dt, k, Z, model, run.origins[k - 1], X)
+        yield Step(k, k * dt, dt, motion, ((Z, model),), info={"samples": (smp,)})
 
 
-def run_trackers(sc: dict, filters: list[str], run, seed: int, r: int) -> dict[str, Tracker]:
+def run_trackers(sc: dict, filters: list[str], run, seed: int, r: int, sinks=(),
+                 info=None) -> dict[str, Tracker]:
     """All filters' trackers on the same run (same detections), one tracker per filter,
-    side by side through the engine."""
+    side by side through the engine (records and scans to ``sinks``)."""
     motion, radar = build_models(sc)
     dt = float(sc.get("dt", 1.0))
     lo, hi = clutter_box(sc, radar)
@@ -236,7 +243,7 @@ def run_trackers(sc: dict, filters: list[str], run, seed: int, r: int) -> dict[s
         for label, f in ((sp.label, f)
                          for sp, f in build_filters(filters, "radar", dim=motion.space.dim))
     ]
-    run_engine(scan_steps(run, radar, motion, dt), runners)
+    run_engine(scan_steps(run, radar, motion, dt), runners, sinks, info)
     return {tr.label: tr.tracker for tr in runners}
 
 

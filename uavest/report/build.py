@@ -556,30 +556,44 @@ def write_report(mcap_path: str | Path, out_dir: str | Path | None = None) -> di
     out.mkdir(parents=True, exist_ok=True)
     rec = read_recording(mcap_path)
     events = _events(rec)
-    kind = "radar" if rec.topics("/tracks/") else "attitude"
-    if kind == "attitude":
-        data = attitude_data(rec)
-        rows, m = attitude_metrics(data)
-        figs = _attitude_figures(data, rows, m, events)
-        cols = ["roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg", "n", "nees_mean",
-                "frac_in_3sigma", "nis_mean", "nis_dof_mean", "resets", "us_per_step"]
-        extra = {"reference": m["reference"], "reference_kind": m["reference_kind"]}
-    else:
-        data = radar_data(rec)
-        cfg = rec.metadata.get("config", {})
-        c = 100.0
-        for key in ("gospa_c", "metrics"):
-            if key in cfg:
-                try:
-                    v = json.loads(cfg[key])
-                    c = float(v["gospa_c"] if isinstance(v, dict) else v)
-                except (ValueError, KeyError, TypeError):
-                    pass
-        rows, m = radar_metrics(data, c)
-        figs = _radar_figures(data, rows, m, events)
-        cols = ["gospa_mean", "confirmed_tracks", "false_tracks", "track_breaks", "id_swaps",
-                "time_to_confirm_s", "confirmed_mean", "resets", "us_per_scan", "scans"]
-        extra = {"gospa_c": c}
+    kinds = [k for k, topic in (("attitude", "/attitude/"), ("radar", "/tracks/"))
+             if rec.topics(topic)] or ["attitude"]
+    kind = "+".join(kinds)  # a live run (uavest demo) records both
+    sections = []  # (title, rows, cols)
+    figs: list = []
+    extra: dict = {}
+    all_rows: dict = {}
+    for kd in kinds:
+        if kd == "attitude":
+            data = attitude_data(rec)
+            rows, m = attitude_metrics(data)
+            kf = _attitude_figures(data, rows, m, events)
+            cols = ["roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg", "n", "nees_mean",
+                    "frac_in_3sigma", "nis_mean", "nis_dof_mean", "resets", "us_per_step"]
+            extra.update(reference=m["reference"], reference_kind=m["reference_kind"])
+        else:
+            data = radar_data(rec)
+            cfg = rec.metadata.get("config", {})
+            c = 100.0
+            for key in ("gospa_c", "metrics"):
+                if key in cfg:
+                    try:
+                        v = json.loads(cfg[key])
+                        c = float(v["gospa_c"] if isinstance(v, dict) else v)
+                    except (ValueError, KeyError, TypeError):
+                        pass
+            rows, m = radar_metrics(data, c)
+            kf = _radar_figures(data, rows, m, events)
+            if len(kinds) > 1:  # ids unique on the page: the radar's timing, resets...
+                kf = [(f"radar-{fid}", t, png, cap) for fid, t, png, cap in kf]
+            cols = ["gospa_mean", "confirmed_tracks", "false_tracks", "track_breaks",
+                    "id_swaps", "time_to_confirm_s", "confirmed_mean", "resets",
+                    "us_per_scan", "scans"]
+            extra["gospa_c"] = c
+        sections.append((kd, rows, cols))
+        figs += kf
+        all_rows.update(rows)
+    rows = all_rows
     stem = mcap_path.stem
     figdir = out / f"{stem}_figures"
     figdir.mkdir(exist_ok=True)
@@ -605,15 +619,18 @@ def write_report(mcap_path: str | Path, out_dir: str | Path | None = None) -> di
     page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>uavest report "
             f"{html.escape(stem)}</title><style>{_CSS}</style></head><body>"
             f"<h1>uavest report: {html.escape(stem)}</h1><table class='meta'>{meta_rows}"
-            f"</table><h2>Comparison</h2>{_table_html(rows, cols)}{fig_html}"
+            f"</table>" + "".join(f"<h2>Comparison ({k})</h2>{_table_html(r, c)}"
+                                  for k, r, c in sections) + f"{fig_html}"
             f"<h2>Events (/log)</h2><table><tr><th>t (s)</th><th>level</th><th>name</th>"
             f"<th>message</th></tr>{ev_rows}</table></body></html>")
     html_path = out / f"{stem}.html"
     html_path.write_text(page)
     md = [f"# uavest report: {stem}", "", f"- recording: `{mcap_path.name}` ({kind})"]
     md += [f"- {k}: {v}" for k, v in [*run.items(), *extra.items()]]
-    md += [f"- truncated: {rec.truncated}; chunks: {rec.chunks}", "", "## Comparison", "",
-           _table_md(rows, cols), "", "## Figures", ""]
+    md += [f"- truncated: {rec.truncated}; chunks: {rec.chunks}", ""]
+    for k, r, c in sections:
+        md += [f"## Comparison ({k})", "", _table_md(r, c), ""]
+    md += ["## Figures", ""]
     md += [f"![{title}]({figdir.name}/{fid}.png)\n\n{cap}\n" for fid, title, _, cap in figs]
     md += ["## Events", ""] + [f"- t = {e['t']:.3f} s [{e['name']}] {e['message']}"
                                for e in events]
