@@ -35,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out")
     args = ap.parse_args(argv)
-    from uavest.engine.replay import ReplayConfig, replay
+    from uavest.apps.replay import ReplayConfig, replay
     from uavest.report.radar_demo import run_radar_demo
     from uavest.sinks.mcap import McapSink
 

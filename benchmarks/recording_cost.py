@@ -24,7 +24,7 @@ import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from uavest.engine.replay import ReplayConfig, replay  # noqa: E402
+from uavest.apps.replay import ReplayConfig, replay  # noqa: E402
 from uavest.sinks.base import Sink  # noqa: E402
 from uavest.sinks.mcap import McapSink  # noqa: E402
 

@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     rec = Path(args.recording) if args.recording else out / "vtol.mcap"
     if not args.recording:
-        from uavest.engine.replay import ReplayConfig, replay
+        from uavest.apps.replay import ReplayConfig, replay
         from uavest.sinks.mcap import McapSink
 
         replay(VTOL, ReplayConfig(end=700.0), sinks=[McapSink(rec)],

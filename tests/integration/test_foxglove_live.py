@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from uavest.engine.replay import ReplayConfig, replay
+from uavest.apps.replay import ReplayConfig, replay
 from uavest.sinks.base import Sink
 from uavest.sinks.foxglove_channels import b64_floats
 from uavest.sinks.foxglove_live import FoxgloveLiveSink

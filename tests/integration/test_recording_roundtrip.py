@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from uavest.engine.replay import ReplayConfig, replay
+from uavest.apps.replay import ReplayConfig, replay
 from uavest.ingest.types import AttitudeRef, ImuSample, MagSample
 from uavest.report import read_recording, write_report
 from uavest.report.build import ATTITUDE_FIGURES, RADAR_FIGURES

@@ -19,7 +19,7 @@ pytestmark = pytest.mark.skipif(not VTOL.exists(), reason="needs /work/shared/lo
 
 SCRIPT = r"""
 import sys, time
-from uavest.engine.replay import ReplayConfig, replay
+from uavest.apps.replay import ReplayConfig, replay
 from uavest.sinks.base import Sink
 from uavest.sinks.mcap import McapSink
 

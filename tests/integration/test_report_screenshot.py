@@ -16,7 +16,7 @@ VTOL = Path("/work/shared/logs/vtol.tlog")
 def recording(tmp_path_factory):
     if not VTOL.exists():
         pytest.skip("needs /work/shared/logs/vtol.tlog")
-    from uavest.engine.replay import ReplayConfig, replay
+    from uavest.apps.replay import ReplayConfig, replay
     from uavest.sinks.mcap import McapSink
 
     path = tmp_path_factory.mktemp("shot") / "short.mcap"
