@@ -151,38 +151,46 @@ class PoolBackend:
         self._new()
         try:
             while queue or suspects or inflight:
-                if suspects:  # isolation: a suspect runs with nothing beside it
-                    if not inflight:
-                        t = suspects.popleft()
-                        inflight[self._submit(t)] = t
-                else:
-                    while queue and len(inflight) < self.workers:
-                        t = queue.popleft()
-                        inflight[self._submit(t)] = t
-                finished, _ = wait(list(inflight), return_when=FIRST_COMPLETED)
                 dead: list[Task] = []
-                for f in finished:
-                    t = inflight.pop(f)
-                    n = attempts.get(t.key, 0) + 1
-                    try:
-                        value = f.result()
-                    except BrokenProcessPool:
-                        dead.append(t)
-                    except Exception as e:  # noqa: BLE001
-                        done(t, _error(e, n))
+                broken = False
+                try:
+                    if suspects:  # isolation: a suspect runs with nothing beside it
+                        if not inflight:
+                            t = suspects.popleft()
+                            inflight[self._submit(t)] = t
                     else:
-                        done(t, _ok(value, n))
-                if not dead:
+                        while queue and len(inflight) < self.workers:
+                            t = queue.popleft()
+                            inflight[self._submit(t)] = t
+                except BrokenProcessPool:  # a worker died since the last wait
+                    (suspects if attempts.get(t.key) else queue).appendleft(t)
+                    broken = True
+                if not broken:
+                    finished, _ = wait(list(inflight), return_when=FIRST_COMPLETED)
+                    for f in finished:
+                        t = inflight.pop(f)
+                        n = attempts.get(t.key, 0) + 1
+                        try:
+                            value = f.result()
+                        except BrokenProcessPool:
+                            dead.append(t)
+                        except Exception as e:  # noqa: BLE001
+                            done(t, _error(e, n))
+                        else:
+                            done(t, _ok(value, n))
+                    broken = bool(dead)
+                if not broken:
                     continue
                 # the pool is broken: every other future fails too; collect them
                 wait(list(inflight))
                 for f, t in list(inflight.items()):
+                    n = attempts.get(t.key, 0) + 1
                     try:
-                        done(t, _ok(f.result(), attempts.get(t.key, 0) + 1))
+                        done(t, _ok(f.result(), n))
                     except BrokenProcessPool:
                         dead.append(t)
                     except Exception as e:  # noqa: BLE001
-                        done(t, _error(e, attempts.get(t.key, 0) + 1))
+                        done(t, _error(e, n))
                 inflight.clear()
                 reason = self._death_reason() if len(dead) == 1 else "worker died"
                 self._ex.shutdown(wait=True, cancel_futures=True)
@@ -323,8 +331,8 @@ def _killed_text(e: BaseException) -> str:
 
     m = re.search(r"on (\d+) different workers", s)
     if m:
-        return f"every attempt, {m.group(1)} workers lost; KilledWorker"
-    return "KilledWorker"
+        return f"on {m.group(1)} attempts, Dask KilledWorker"
+    return "Dask KilledWorker"
 
 
 def make_backend(workers: int | None, scheduler: str | None = None, ship: bool = True):

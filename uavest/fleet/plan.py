@@ -99,6 +99,7 @@ class Input:
     content_hash: str | None
     task: Task | None = None
     error: str | None = None
+    duplicate_of: str | None = None  # an earlier input with the same content (run once)
 
 
 @dataclass
@@ -143,6 +144,7 @@ def plan_logs(paths: list[Path], filters: tuple[str, ...] | list[str] | None = N
     ch = sha256_text(canonical(config))
     plan = Plan(configs={"logs": config}, config_hashes={"logs": ch})
     task_replay = {**opts, "filters": list(filters)}
+    first: dict[str, str] = {}
     for p in paths:
         name = str(p)
         try:
@@ -154,7 +156,8 @@ def plan_logs(paths: list[Path], filters: tuple[str, ...] | list[str] | None = N
         key = _key(h, ch)
         plan.inputs.append(Input(name, "log", "logs", key, h, Task(
             key, "log", name, path=os.path.abspath(p), sha256=h, suffix=p.suffix.lower(),
-            replay=task_replay)))
+            replay=task_replay), duplicate_of=first.get(key)))
+        first.setdefault(key, name)
     return plan
 
 

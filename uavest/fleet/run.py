@@ -163,6 +163,8 @@ def terminal_report(summary: dict) -> str:
     for g, s in summary["groups"].items():
         if g == "logs":
             head = f"{s['ok']} log(s) evaluated, {s['failed']} failed"
+            if s["duplicates"]:
+                head += f" ({s['duplicates']} identical copies counted once)"
             cols = LOG_COLUMNS
         else:
             head = (f"{g[3:]}: {s['trials_evaluated']} of {s['trials_requested']} trials "

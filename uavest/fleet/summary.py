@@ -37,12 +37,12 @@ def _att(r: dict):
 def log_row(inp, doc: dict | None, labels: list[str]) -> dict:
     """One log's row from its stored document (or its failure)."""
     row = {"input": inp.name, "kind": "log", "key": inp.key, "status": "failed",
-           "reason": None, "filters": {}, "winner": None}
+           "reason": None, "filters": {}, "winner": None, "duplicate_of": inp.duplicate_of}
     if doc is None:
         row["reason"] = inp.error or "not evaluated"
         return row
     row["status"] = doc["status"]
-    row["reason"] = doc.get("reason")
+    row["reason"] = _strip_path(doc.get("reason"), inp)
     row["attempts"] = doc.get("attempts")
     if doc["status"] != "ok":
         return row
@@ -74,6 +74,20 @@ def log_row(inp, doc: dict | None, labels: list[str]) -> dict:
     return row
 
 
+def _strip_path(reason: str | None, inp) -> str | None:
+    """An input error without the file name it starts with (the row names the input)."""
+    if not reason:
+        return reason
+    import os
+
+    for p in (inp.name, inp.task.path if inp.task else None):
+        if p:
+            for q in {p, os.path.abspath(p)}:
+                if reason.startswith(q + ": "):
+                    return reason[len(q) + 2:]
+    return reason
+
+
 def _stats(vals: list) -> dict:
     v = [x for x in vals if x is not None]
     if not v:
@@ -83,7 +97,8 @@ def _stats(vals: list) -> dict:
 
 def _log_aggregate(rows: list[dict], labels: list[str]) -> dict:
     out = {}
-    ok = [r for r in rows if r["status"] == "ok"]
+    # identical copies were evaluated once and count once
+    ok = [r for r in rows if r["status"] == "ok" and not r.get("duplicate_of")]
     for lab in labels:
         fr = [r["filters"][lab] for r in ok if lab in r["filters"]]
         a: dict = {"logs": len(fr), "scored": sum(f["att_rmse_deg"] is not None for f in fr)}
@@ -155,11 +170,13 @@ def group_summary(group: str, inputs: list, docs: dict[str, dict | None], config
     return {"config": config, "config_hash": config_hash, "filters": labels,
             "aggregate": agg, "rows": rows,
             "ok": sum(r["status"] == "ok" for r in rows),
+            "duplicates": sum(bool(r.get("duplicate_of")) for r in rows),
             "failed": sum(r["status"] != "ok" for r in rows), **extra}
 
 
-ROW_FIELDS = ("group", "input", "status", "reason", "format", "duration_s", "imu_source",
-              "imu_rate_hz", "reference", "reference_kind", "bad_total", "realtime_factor",
+ROW_FIELDS = ("group", "input", "status", "reason", "duplicate_of", "format", "duration_s",
+              "imu_source", "imu_rate_hz", "reference", "reference_kind", "bad_total",
+              "realtime_factor",
               "trials", "filter", "roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg",
               "att_rmse_deg", "nees_mean", "rmse_mean", "rmse_median", "diverged_fraction",
               "resets", "us_per_step", "winner")
