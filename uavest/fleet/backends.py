@@ -26,7 +26,7 @@ import signal
 from collections import deque
 from collections.abc import Callable
 
-from .worker import BLAS_ENV, Task, init_worker, run_task
+from .worker import BLAS_ENV, Task, init_worker, run_task, worker_env
 
 __all__ = ["DaskBackend", "PoolBackend", "SerialBackend", "make_backend", "reason_of"]
 
@@ -115,7 +115,7 @@ class PoolBackend:
             os.environ.setdefault(k, v)
         self._procs = {}
         self._ex = ProcessPoolExecutor(self.workers, mp_context=mp.get_context(self.context),
-                                       initializer=init_worker)
+                                       initializer=init_worker, initargs=(worker_env(),))
         return self._ex
 
     def _submit(self, t: Task):

@@ -60,9 +60,23 @@ class Task:
         return replace(self, data=data)
 
 
-def init_worker() -> None:
-    """Process-pool initializer: BLAS env (inherited already; kept for clarity), and
-    Ctrl-C goes to the driver only (it decides; workers do not print tracebacks)."""
+def worker_env() -> dict:
+    """The driver's settings a pool worker takes (a forkserver started earlier would
+    otherwise keep the environment it started with)."""
+    env = {k: os.environ.get(k, v) for k, v in BLAS_ENV.items()}
+    env[CRASH_ENV] = os.environ.get(CRASH_ENV)
+    return env
+
+
+def init_worker(env: dict | None = None) -> None:
+    """Process-pool initializer: the driver's BLAS settings (numpy in a worker started by
+    spawn loads after this; with forkserver the server itself was started with them),
+    and Ctrl-C goes to the driver only (it decides; workers print no tracebacks)."""
+    for k, v in (env or {}).items():
+        if v is None:
+            os.environ.pop(k, None)
+        else:
+            os.environ[k] = v
     for k, v in BLAS_ENV.items():
         os.environ.setdefault(k, v)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
