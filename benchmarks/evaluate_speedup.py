@@ -38,13 +38,21 @@ sys.path.insert(0, str(REPO))
 from uavest.fleet import PoolBackend, build_plan, execute, summarize  # noqa: E402
 from uavest.fleet.tools import cut_tlog  # noqa: E402
 
+CPU: dict[str, list] = {}
 
-def _timed(plan, out: Path, backend) -> tuple[float, dict]:
+
+def _timed(plan, out: Path, backend, tag: str | None = None) -> tuple[float, dict]:
+    """Wall time of one evaluation; with ``tag`` also records (sum of the tasks' wall
+    times / run wall = how many tasks ran at once, sum of the tasks' CPU seconds)."""
     shutil.rmtree(out, ignore_errors=True)
     t0 = time.perf_counter()
     docs, stats = execute(plan, out, backend)
     wall = time.perf_counter() - t0
     assert stats.failed == 0, "a task failed"
+    if tag:
+        el = sum(d["elapsed_s"] for d in docs.values())
+        cpu = sum(d["cpu_s"] for d in docs.values())
+        CPU.setdefault(tag, []).append((el / wall, cpu))
     return wall, summarize(plan, docs, stats)
 
 
@@ -101,9 +109,9 @@ def main() -> int:
         _timed(warm, tmp / "warm", dask_b)  # import uavest on the Dask workers once
         for rep in range(a.repeats):
             for name, plan in plans.items():
-                t1, s1 = _timed(plan, tmp / "p1", PoolBackend(1))
-                t2, s2 = _timed(plan, tmp / "p2", PoolBackend(2))
-                td, sd = _timed(plan, tmp / "d2", dask_b)
+                t1, s1 = _timed(plan, tmp / "p1", PoolBackend(1), f"{name}|pool-1")
+                t2, s2 = _timed(plan, tmp / "p2", PoolBackend(2), f"{name}|pool-2")
+                td, sd = _timed(plan, tmp / "d2", dask_b, f"{name}|dask-2")
                 same = _numbers(s1["groups"]) == _numbers(s2["groups"]) == _numbers(sd["groups"])
                 assert same, "numbers differ between backends"
                 for lst, t in zip(times[name], (t1, t2, td), strict=True):
@@ -138,6 +146,9 @@ def main() -> int:
     print(f"best of {a.repeats}; every run: " + "; ".join(
         f"{name}: " + " / ".join(",".join(f"{t:.1f}" for t in lst) for lst in ts)
         for name, ts in times.items()) + "  (pool-1 / pool-2 / dask-2 s)")
+    print("\nconcurrency (sum of task walls / run wall) and CPU s of all tasks, per run:")
+    for tag, v in CPU.items():
+        print(f"  {tag:36s} " + "; ".join(f"{c:.2f} at once, {cpu:.1f} CPU s" for c, cpu in v))
     print(f"load average after: {os.getloadavg()} (shared machine: figures are noisy)")
     print("numbers: every aggregate identical across pool-1, pool-2 and dask-2")
     return 0

@@ -14,7 +14,7 @@ REPO = Path(__file__).resolve().parents[2]
 SIM = REPO / "logs" / "sim_200hz.tlog"
 SHARED = REPO.parent / "shared" / "logs"
 
-TIMING = {"wall_s", "realtime_factor", "us_per_step", "seconds", "elapsed_s", "pid",
+TIMING = {"wall_s", "realtime_factor", "us_per_step", "seconds", "elapsed_s", "cpu_s", "pid",
           "host", "run_id", "finished_at", "backend", "attempts"}
 
 

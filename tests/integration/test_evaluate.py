@@ -225,3 +225,15 @@ def test_scheduler_without_dask_installed_is_a_clear_error(tmp_path):
     assert r.returncode == 2
     assert r.stderr.strip() == ("uavest evaluate: error: --scheduler needs Dask: "
                                 "pip install 'uavest[dask]'")
+
+
+@pytest.mark.slow
+def test_cli_on_a_local_dask_cluster_prints_the_dashboard(tmp_path):
+    pytest.importorskip("distributed")
+    r = run_cli(["ungm", "--trials", "4", "--shard-size", "2", "--steps", "10", "--filters",
+                 "ekf,ukf", "--scheduler", "local", "--workers", "1", "--out",
+                 str(tmp_path), "--no-progress"])
+    assert r.returncode == 0, r.stderr
+    assert "dask dashboard: http://127.0.0.1:" in r.stdout
+    assert "ungm: 4 of 4 trials" in r.stdout
+    assert (tmp_path / "report.html").is_file() and (tmp_path / "aggregate.csv").is_file()

@@ -89,8 +89,8 @@ def execute(plan: Plan, out: str | Path, backend, *, recompute: bool = False,
                "version": __version__}
         if outcome["status"] == "ok":
             v = outcome["value"]
-            doc.update(elapsed_s=v["elapsed_s"], pid=v["pid"], host=v["host"],
-                       result=v["result"])
+            doc.update(elapsed_s=v["elapsed_s"], cpu_s=v.get("cpu_s"), pid=v["pid"],
+                       host=v["host"], result=v["result"])
         else:
             stats.failed += 1
         store.save(t.key, doc)
@@ -105,7 +105,8 @@ def execute(plan: Plan, out: str | Path, backend, *, recompute: bool = False,
 
     if bar is not None and hasattr(bar, "reset"):
         bar.reset(total=len(todo))
-    backend.run(todo, done)
+    if todo:
+        backend.run(todo, done)
     stats.wall_s = time.perf_counter() - t0
     return docs, stats
 

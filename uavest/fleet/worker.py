@@ -117,12 +117,12 @@ def _run_shard(task: Task) -> dict:
 
 
 def run_task(task: Task) -> dict:
-    """Run one task; returns {"result": ..., "elapsed_s", "pid", "host"}. Raises on a bad
-    input (the driver records the reason)."""
+    """Run one task; returns {"result": ..., "elapsed_s", "cpu_s", "pid", "host"}. Raises
+    on a bad input (the driver records the reason)."""
     import socket
 
     _crash_hook(task.name)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.thread_time()
     res = _replay_log(task) if task.kind == "log" else _run_shard(task)
-    return {"result": res, "elapsed_s": time.perf_counter() - t0, "pid": os.getpid(),
-            "host": socket.gethostname()}
+    return {"result": res, "elapsed_s": time.perf_counter() - t0,
+            "cpu_s": time.thread_time() - c0, "pid": os.getpid(), "host": socket.gethostname()}
