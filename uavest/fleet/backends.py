@@ -200,11 +200,13 @@ class PoolBackend:
                 for f, t in list(inflight.items()):
                     n = attempts.get(t.key, 0) + 1
                     try:
-                        done(t, _ok(f.result(), n))
+                        value = f.result()
                     except BrokenProcessPool:
                         dead.append(t)
                     except Exception as e:  # noqa: BLE001
                         done(t, _error(e, n))
+                    else:
+                        done(t, _ok(value, n))
                 inflight.clear()
                 reason = self._death_reason() if len(dead) == 1 else "worker died"
                 self._ex.shutdown(wait=True, cancel_futures=True)
