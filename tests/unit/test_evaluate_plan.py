@@ -212,3 +212,40 @@ def test_failure_reasons():
     assert reason_of(RuntimeError()) == "RuntimeError"
     assert _signal_text(-9) == "worker died (signal 9, SIGKILL)"
     assert _signal_text(3) == "worker died (exit code 3)"
+
+
+class _Bar:
+    def __init__(self):
+        self.n, self.total, self.posts = 0, None, []
+
+    def reset(self, total):
+        self.total = total
+
+    def update(self, k):
+        self.n += k
+
+    def set_postfix_str(self, s):
+        self.posts.append(s)
+
+
+def test_progress_counts_done_failed_remaining(tmp_path, monkeypatch):
+    from uavest.fleet import SerialBackend, execute
+
+    plan = plan_trials("ungm", 3, shard_size=1, steps=2, filters=["ekf"])
+    execute(plan_trials("ungm", 1, shard_size=1, steps=2, filters=["ekf"]), tmp_path,
+            SerialBackend())  # trial 0 stored already
+    import uavest.fleet.worker as w
+
+    real = w._run_shard
+
+    def flaky(task):
+        if task.lo == 2:
+            raise RuntimeError("boom")
+        return real(task)
+
+    monkeypatch.setattr(w, "_run_shard", flaky)
+    bar = _Bar()
+    _, st = execute(plan, tmp_path, SerialBackend(), bar=bar)
+    assert (bar.total, bar.n, st.skipped, st.computed, st.failed) == (2, 2, 1, 2, 1)
+    assert bar.posts[0] == "done 0, failed 0, remaining 2, reused 1"
+    assert bar.posts[-1] == "done 1, failed 1, remaining 0, reused 1"
