@@ -15,7 +15,9 @@ fails every pending future). The pool is rebuilt and each suspect is re-run *alo
 innocent neighbour then finishes, and a task whose worker dies again alone is the one
 that kills it. Dask: the scheduler reschedules a task whose worker died, up to its
 ``distributed.scheduler.allowed-failures`` (default 3; a LocalCluster started here uses
-1 = retry once), then reports ``KilledWorker``.
+1 = retry once), then reports ``KilledWorker``; since a task merely queued on the dying
+worker is counted too, every KilledWorker task is run once more alone after the others,
+and only one that kills its worker again then is reported as failed.
 """
 
 from __future__ import annotations
@@ -265,8 +267,11 @@ class DaskBackend:
         except ImportError:
             raise ValueError("--scheduler needs Dask: pip install 'uavest[dask]'") from None
         if address == "local":
-            # retry a task whose worker died once (the default allows 3 more attempts)
-            dask.config.set({"distributed.scheduler.allowed-failures": 1})
+            # retry a task whose worker died once (the default allows 3 more attempts),
+            # and give a worker only as many tasks as it has threads, so that when it
+            # dies only the task it was running is a suspect (default saturation 1.1)
+            dask.config.set({"distributed.scheduler.allowed-failures": 1,
+                             "distributed.scheduler.worker-saturation": 1.0})
             cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1,
                                    threads_per_worker=1, processes=True,
                                    host="127.0.0.1", dashboard_address=dashboard)
@@ -315,9 +320,25 @@ class DaskBackend:
 
         first = [submit(queue.popleft()) for _ in range(min(window, len(queue)))]
         ac = as_completed(first)
+        killed: list[Task] = []
         try:
             for f in ac:
                 t = fmap.pop(f)
+                try:
+                    value = f.result()
+                except KilledWorker:
+                    # a task queued on a worker that died counts as a suspect too: run
+                    # each such task once more alone, after the others (as the pool does)
+                    killed.append(t)
+                except Exception as e:  # noqa: BLE001
+                    done(t, _error(e))
+                else:
+                    done(t, _ok(value))
+                f.release()
+                if queue:
+                    ac.add(submit(queue.popleft()))
+            for t in killed:
+                f = submit(t)
                 try:
                     value = f.result()
                 except KilledWorker as e:
@@ -326,9 +347,8 @@ class DaskBackend:
                     done(t, _error(e))
                 else:
                     done(t, _ok(value))
+                fmap.pop(f, None)
                 f.release()
-                if queue:
-                    ac.add(submit(queue.popleft()))
         except BaseException:
             self.client.cancel(list(fmap))
             raise
