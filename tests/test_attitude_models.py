@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from uavest.core.model import fd_jacobian
 from uavest.apps.replay import replay_arrays
+from uavest.core.model import fd_jacobian
 from uavest.eval.attitude import euler_errors_deg, rmse_deg
 from uavest.geometry.rotation import (
     AttitudeSpace,

@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from uavest.apps.replay import ReplayConfig, replay
 from uavest.engine.attitude import AttitudeOptions, AttitudeStream
 from uavest.engine.records import Start, Step
-from uavest.apps.replay import ReplayConfig, replay
 from uavest.eval.attitude import rmse_deg
 from uavest.geometry.rotation import quat_slerp_interp
 from uavest.ingest import open_source, read_log

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from uavest.apps.replay import samples_from_arrays
 from uavest.core import EKF, Gaussian
 from uavest.engine.attitude import AttitudeOptions, AttitudeStream, _StepBuilder
 from uavest.engine.records import Step
-from uavest.apps.replay import samples_from_arrays
 from uavest.geometry.rotation import euler_to_quat, quat_exp, quat_log, quat_mul
 from uavest.ingest.types import ImuSample, PositionSample
 from uavest.models.attitude import AttitudeNoise, GravityDirection, MagField, Stacked

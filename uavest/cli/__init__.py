@@ -92,6 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
     pl = sub.add_parser("list", help="list scenarios, filters and what each filter "
                         "name resolves to in each command")
     pl.set_defaults(func=cmd_list)
+    from .evaluate import add_evaluate_parser
     from .replay import add_replay_parser
     from .report_cmd import add_report_parser
     from .run import add_demo_parser, add_run_parser
@@ -104,6 +105,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_replay_parser(sub)
     add_sim_parser(sub)
     add_report_parser(sub)
+    add_evaluate_parser(sub)
     return ap
 
 
