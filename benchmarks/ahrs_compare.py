@@ -20,7 +20,6 @@ has velocity; ``--accel-comp none`` turns it off for an like-for-like input set)
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 import warnings
@@ -31,7 +30,9 @@ from uavest.eval.attitude import rmse_deg, select_reference
 from uavest.geometry.rotation import euler_to_quat, quat_conj, quat_mul, quat_slerp_interp
 from uavest.ingest import read_log
 from uavest.models.attitude import declination_from_params, initial_attitude
-from uavest.pipeline.replay import ReplayConfig, format_table, replay
+from uavest.apps.replay import ReplayConfig, replay
+from uavest.cli.replay import format_doc
+from uavest.sinks.jsonout import write_json
 
 
 def run_ahrs(name: str, t, gyro, accel, mag, decl: float) -> np.ndarray:
@@ -102,10 +103,9 @@ def main(argv: list[str] | None = None) -> int:
     doc["filters"].update(rows)
     print(f"{args.log}: IMU {data.imu.source} {data.imu_rate_hz:.1f} Hz, reference {ref_name} "
           f"({ref.kind}); accel compensation: {doc['accel_compensation']}")
-    print(format_table(doc))
+    print(format_doc(doc))
     if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(doc, fh, indent=2, default=float)
+        write_json(args.json, doc)
     return 0
 
 

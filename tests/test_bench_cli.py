@@ -92,3 +92,15 @@ def test_scenario_files_match_builtin_defaults(name):
     for k, v in BUILTIN[name].items():
         if k != "name":
             assert sc[k] == v, k
+
+
+def test_bench_radar_scenario_checks_filters_in_the_radar_preset(capsys):
+    # under the radar preset "hybrid" is the local update, so these are two filters
+    # (the bench preset would call them the same one and refuse the list)
+    from uavest.cli import main
+
+    rc = main(["bench", "radar_far", "--runs", "1", "--steps", "2", "--no-progress",
+               "--filters", "hybrid(n_cloud=2),hybrid(update_mode=shift, n_cloud=2)"])
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "hybrid(update_mode=shift, n_cloud=2)" in out

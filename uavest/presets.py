@@ -46,7 +46,7 @@ from typing import Any
 from .core.contract import Filter
 from .core.hybrid import default_gamma
 from .core.registry import build as _build
-from .core.registry import filter_class, parse_filter_list, parse_spec
+from .core.registry import filter_class, parse_spec
 from .core.spec import FilterSpec, SpecError, split_filter_list
 
 #: A dimension-dependent preset value: f(dim, preset name) -> value.
@@ -140,7 +140,13 @@ def resolve_list(
     p = preset(preset_name)
     items = split_filter_list(text) if isinstance(text, str) else list(text)
     texts = [i if isinstance(i, str) else i.label for i in items]
-    parse_filter_list(texts)  # empty list / duplicate labels
+    # empty list / empty entry / the same label twice; whether two different labels are
+    # the same filter is decided below, in this preset (not with the core's defaults:
+    # under the attitude preset "hybrid" and "hybrid(tau=0.3)" are different filters)
+    if not any(texts):
+        raise SpecError("the filter list is empty")
+    if not all(texts):
+        raise SpecError(f"the filter list {text!r} has an empty entry")
     specs = [resolve(i, preset_name, dim) for i in items]
     if p.match_members and dim is not None:
         hybrids = [s for s in specs if s.base == "hybrid"]
@@ -154,6 +160,8 @@ def resolve_list(
     seen: dict[tuple, str] = {}
     for s in specs:
         key = (s.name, tuple(sorted(s.params.items())))
+        if s.label in seen.values():
+            raise SpecError(f"the filter list names {s.label} more than once")
         if key in seen:
             raise SpecError(f"the filter list names {seen[key]} and {s.label}, which resolve "
                             f"to the same filter in preset {p.name}")

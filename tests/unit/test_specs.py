@@ -210,6 +210,23 @@ def test_unknown_preset_and_filter_are_named():
         presets.resolve_list("ekf,ekf", "bench", dim=1)
 
 
+def test_duplicates_are_judged_in_the_preset_not_with_core_defaults():
+    # "hybrid(tau=0.3)" writes the core default, but under the attitude preset "hybrid"
+    # is tau = 0.9 (and under radar update_mode=local): different filters, both allowed
+    specs = presets.resolve_list("hybrid,hybrid(tau=0.3)", "attitude", dim=6)
+    assert [s.params["tau"] for s in specs] == [0.9, 0.3]
+    specs = presets.resolve_list("hybrid,hybrid(update_mode=shift, n_cloud=32)", "radar",
+                                 dim=4)
+    assert [s.params["update_mode"] for s in specs] == ["local", "shift"]
+    # the same filter in the preset is still refused, as is the same label
+    with pytest.raises(SpecError, match="resolve to the same filter in preset attitude"):
+        presets.resolve_list("hybrid,hybrid(tau=0.9)", "attitude", dim=6)
+    with pytest.raises(SpecError, match="hybrid and hybrid\\(tau=0.3\\), which resolve"):
+        presets.resolve_list("hybrid,hybrid(tau=0.3)", "bench", dim=1)
+    with pytest.raises(SpecError, match="empty entry"):
+        presets.resolve_list("ekf,,ukf", "bench", dim=1)
+
+
 def test_describe_presets_says_what_hybrid_is_in_each_command():
     text = presets.describe_presets()
     lines = text.splitlines()

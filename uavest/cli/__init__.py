@@ -125,6 +125,22 @@ def _setup_logging(verbose: int, quiet: bool) -> None:
     root.propagate = False
 
 
+def _preset_for(args) -> str:
+    """The preset the command will resolve ``--filters`` in: ``uavest bench`` on a radar
+    scenario runs the radar preset (``experiments.radar``), not the bench one."""
+    preset = args.filters_preset
+    if preset == "bench" and getattr(args, "scenario", None):
+        from ..scenarios import load_scenario
+
+        try:
+            kind = load_scenario(args.scenario, getattr(args, "sets", None) or ()).get("kind")
+        except Exception:  # a bad scenario is reported by the command itself
+            return preset
+        if kind == "radar":
+            return "radar"
+    return preset
+
+
 def _check_filters(args) -> None:
     """Parse ``--filters`` once into ``args.filter_specs``; bad specs fail here."""
     if not hasattr(args, "filters_preset"):
@@ -136,7 +152,7 @@ def _check_filters(args) -> None:
     from ..presets import resolve_list
 
     # one-line SpecError (exit 2) before any work; the dimension is the job's (any works here)
-    resolve_list(text, args.filters_preset, dim=1)
+    resolve_list(text, _preset_for(args), dim=1)
     from ..core.spec import split_filter_list
 
     args.filter_specs = split_filter_list(text)

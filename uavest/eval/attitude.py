@@ -151,7 +151,7 @@ class AttitudeScorer:
 
     def __init__(self, max_pending: int = 50_000) -> None:
         self.refs: dict[str, _RefTrack] = {}
-        self.pending: list = []  # [t, {label: (q, P3)}, {ref: q or None}]
+        self.pending: list = []  # [t, {label: (q, P3)}, {ref: q or None}, score refs]
         self.head = 0  # index of the first unfinished pending entry
         self.max_pending = max_pending
         self.acc: dict[tuple[str, str], list] = {}
@@ -163,11 +163,16 @@ class AttitudeScorer:
         """One estimator's attitude ``q`` (4,) and tangent covariance ``P`` at step
         time ``t``; estimators of the same step share ``t``."""
         p = self.pending
-        self.t_new = t
         if len(p) > self.head and p[-1][0] == t:
             p[-1][1][label] = (q, P[:3, :3])
+            self.t_new = t
             return
-        e = [t, {label: (q, P[:3, :3])}, {}]
+        # the step's first entry may already be finished (every reference had reached t
+        # when the first estimator's estimate came): this entry then carries only the
+        # estimators, and the references are not scored against each other a second time
+        first = self.t_new != t
+        self.t_new = t
+        e = [t, {label: (q, P[:3, :3])}, {}, first]
         p.append(e)
         for name, r in self.refs.items():
             v = r.at(t)
@@ -230,7 +235,8 @@ class AttitudeScorer:
             qr = np.array([done[i][2][rname] for i in rows])
             cands = [(lab, 1) for lab in labels] + [(o, 2) for o in refs if o != rname]
             for name, where in cands:
-                sel = [(j, done[i][where].get(name)) for j, i in enumerate(rows)]
+                sel = [(j, done[i][where].get(name)) for j, i in enumerate(rows)
+                       if where == 1 or done[i][3]]
                 sel = [(j, v) for j, v in sel if v is not None]
                 if not sel:
                     continue
