@@ -30,7 +30,6 @@ from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
-from scipy.special import chdtri
 
 from ..geometry.spaces import Space
 from .base import Innovation
@@ -46,6 +45,8 @@ NUMERICAL_ERRORS = (np.linalg.LinAlgError, FloatingPointError)
 def nis_gate(m: int, prob: float) -> float:
     """The ``prob`` quantile of chi-square with ``m`` degrees of freedom
     (chi2.ppf(prob, m) == chdtri(m, 1 - prob), without importing scipy.stats)."""
+    from scipy.special import chdtri  # at the first gate, not at import (start-up)
+
     return float(chdtri(m, 1.0 - prob))
 
 

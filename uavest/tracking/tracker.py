@@ -54,11 +54,9 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
-from scipy.special import chdtri
 
 from ..core.gaussian import Gaussian
-from ..core.guard import Guarded
+from ..core.guard import Guarded, nis_gate
 from ..core.linalg import chol
 from ..core.unscented import sigma_weights
 from ..models.radar import RadarMeasurement
@@ -239,7 +237,7 @@ class Tracker:
         T, N = len(tracks), len(Z)
         d2 = np.full((T, N), np.inf)
         cost = np.full((T, N), np.inf)
-        g = float(chdtri(meas.dim, 1.0 - self.cfg.gate_prob))
+        g = nis_gate(meas.dim, self.cfg.gate_prob)
         for i, tr in enumerate(tracks):
             zhat, S = predicted_measurement(tr.pred, meas)
             L = chol(S)
@@ -282,6 +280,8 @@ class Tracker:
             return []
         big = 1e12
         C = np.where(np.isfinite(cost), cost, big)
+        from scipy.optimize import linear_sum_assignment  # lazily: start-up time
+
         r, c = linear_sum_assignment(C)
         return [(int(i), int(j)) for i, j in zip(r, c, strict=True) if C[i, j] < big]
 
