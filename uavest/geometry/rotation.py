@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import numpy as np
 
-
 Array = np.ndarray
 
 #: Standard gravity (m/s^2 per g), also MAVLink's "milli-g" unit.
