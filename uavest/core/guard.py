@@ -25,6 +25,7 @@ unscented prediction of the filtered estimate and its cross-covariance).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from functools import lru_cache
@@ -32,10 +33,10 @@ from functools import lru_cache
 import numpy as np
 
 from ..geometry.spaces import Space
+from . import linalg as _linalg
 from .base import Innovation
 from .contract import FilterBase
 from .gaussian import Gaussian
-from .linalg import is_pd
 
 #: What the guard recovers from (numerical failures only; see the module docstring).
 NUMERICAL_ERRORS = (np.linalg.LinAlgError, FloatingPointError)
@@ -90,15 +91,20 @@ class Guarded(FilterBase):
         return GuardState(inner, g, 0, s.resets + 1, True, reason, s.var_limit)
 
     def _check(self, inner, var_limit: float = np.inf) -> tuple[Gaussian | None, str]:
+        """(estimate, "") or (None, why). One Cholesky does the finite and the PD check:
+        LAPACK's factor of a lower triangle holding a NaN or an infinity has a NaN on its
+        diagonal (or fails), so a finite factor diagonal and a finite mean mean a finite,
+        PD estimate (the upper triangle, which no consumer reads, is not summed)."""
         try:
             g = self.filter.estimate(inner)
         except NUMERICAL_ERRORS as e:
             return None, f"estimate failed: {e}"
-        if not g.finite():
-            return None, "non-finite estimate"
-        if not is_pd(g.P):
-            return None, "covariance not positive definite"
-        if float(np.max(np.diag(g.P))) > var_limit:
+        P = g.P
+        L, info = _linalg.dpotrf(P, lower=1)
+        if info != 0 or not math.isfinite(float(g.x.sum()) + float(L.trace())):
+            return None, ("non-finite estimate" if not g.finite()
+                          else "covariance not positive definite")
+        if var_limit < np.inf and float(P.diagonal().max()) > var_limit:
             return None, "covariance exploded"
         return g, ""
 
