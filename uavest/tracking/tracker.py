@@ -130,6 +130,34 @@ def predicted_measurement(g: Gaussian, meas: RadarMeasurement) -> tuple[Array, A
     return zhat, 0.5 * (S + S.T)
 
 
+def predicted_measurements(gs: list[Gaussian], meas: RadarMeasurement
+                           ) -> tuple[Array, Array]:
+    """:func:`predicted_measurement` of every Gaussian of ``gs`` at once: (zhat (T, m),
+    S (T, m, m)). One batched Cholesky of the covariances, one call of ``meas.h`` on all
+    T (2n+1) sigma points; the azimuth mean is circular as in
+    :meth:`RadarMeasurement.mean`. Measurement models without the radar's layout go
+    through :func:`predicted_measurement` one Gaussian at a time."""
+    if not isinstance(meas, RadarMeasurement):
+        out = [predicted_measurement(g, meas) for g in gs]
+        return np.stack([o[0] for o in out]), np.stack([o[1] for o in out])
+    x = np.stack([g.x for g in gs])
+    P = np.stack([g.P for g in gs])
+    T, n = x.shape
+    _, Wm, Wc, U = sigma_weights(n, 1.0, 2.0, 0.0, "merwe")
+    try:
+        L = np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        L = np.stack([chol(Pi) for Pi in P])
+    X = x[:, None, :] + U @ L.transpose(0, 2, 1)  # (T, 2n+1, n)
+    Z = meas.h(X.reshape(-1, n)).reshape(T, U.shape[0], -1)
+    zhat = np.einsum("j,tjm->tm", Wm, Z)
+    az = meas._az
+    zhat[:, az] = np.arctan2(np.sin(Z[:, :, az]) @ Wm, np.cos(Z[:, :, az]) @ Wm)
+    E = meas.residual(Z, zhat[:, None, :])
+    S = np.einsum("tjm,j,tjk->tmk", E, Wc, E) + meas.R
+    return zhat, 0.5 * (S + S.transpose(0, 2, 1))
+
+
 def jpda_betas(lik: Array, miss: Array, max_cluster: int = 8) -> Array:
     """JPDA association probabilities.
 
@@ -233,21 +261,23 @@ class Tracker:
         return Gaussian(x, P)
 
     def _gate(self, tracks: list[Track], Z: Array, meas) -> tuple[Array, Array]:
-        """(d2 (T, N), cost (T, N)) with inf outside the gate."""
+        """(d2 (T, N), cost (T, N)) with inf outside the gate: one unscented transform of
+        all tracks' predicted Gaussians, one batched Cholesky of their S and one batched
+        solve for every (track, detection) residual (:func:`predicted_measurements`)."""
         T, N = len(tracks), len(Z)
-        d2 = np.full((T, N), np.inf)
-        cost = np.full((T, N), np.inf)
         g = nis_gate(meas.dim, self.cfg.gate_prob)
-        for i, tr in enumerate(tracks):
-            zhat, S = predicted_measurement(tr.pred, meas)
-            L = chol(S)
-            nu = meas.residual(Z, zhat)
-            u = np.linalg.solve(L, nu.T)
-            di = np.einsum("ij,ij->j", u, u)
-            ok = di <= g
-            d2[i, ok] = di[ok]
-            cost[i, ok] = di[ok] + 2.0 * np.log(np.diag(L)).sum()
-        return d2, cost
+        zhat, S = predicted_measurements([tr.pred for tr in tracks], meas)
+        try:
+            L = np.linalg.cholesky(S)
+        except np.linalg.LinAlgError:  # a track's S not numerically PD: jittered, per track
+            L = np.stack([chol(Si) for Si in S])
+        nu = meas.residual(Z[None, :, :], zhat[:, None, :])  # (T, N, m)
+        u = np.linalg.solve(L, nu.transpose(0, 2, 1))  # (T, m, N): L^-1 nu
+        d2 = np.einsum("tmj,tmj->tj", u, u)
+        logdet = 2.0 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
+        ok = d2 <= g
+        cost = np.where(ok, d2 + logdet[:, None], np.inf)
+        return np.where(ok, d2, np.inf), cost
 
     def _jpda(self, group: list[Track], cost: Array, free: Array, m: int):
         """{track id: [(detection index, beta), ..., (-1, beta_none)]} for tracks with at
