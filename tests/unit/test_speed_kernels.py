@@ -136,3 +136,26 @@ def test_gyro_propagation_equals_the_composed_code(M):
     X[:, 4:] = 0.0
     np.testing.assert_allclose(tr.f(X, 0.0, 0.01, np.zeros(3)), ref_gyro_f(X, 0.01, np.zeros(3)),
                                rtol=0, atol=1e-12)  # zero rotation: the Taylor branch
+
+
+def test_radar_closed_form_jacobian_equals_the_batched_one():
+    from uavest.models.radar import RadarMeasurement, SensorPose
+
+    rng = np.random.default_rng(5)
+    for pose in (None, SensorPose.fixed(2, [100.0, -50.0], 0.7)):
+        m = RadarMeasurement(2, pose=pose)
+        for x in [np.zeros(4), *rng.normal(0, 5000, (50, 4))]:
+            np.testing.assert_allclose(m.H(x), m.H_rows(x[None, :])[0], rtol=0, atol=1e-15)
+
+
+def test_radar_single_state_h_equals_the_batched_one():
+    from uavest.models.radar import RadarMeasurement, SensorPose
+
+    rng = np.random.default_rng(6)
+    for pose in (None, SensorPose.fixed(2, [100.0, -50.0], 0.7)):
+        m = RadarMeasurement(2, pose=pose)
+        X = rng.normal(0, 5000, (50, 4))
+        X[0] = 0.0
+        batch = m.h(X)
+        for i in range(len(X)):
+            np.testing.assert_allclose(m.h(X[i:i + 1]), batch[i:i + 1], rtol=0, atol=1e-12)
