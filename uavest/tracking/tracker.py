@@ -264,7 +264,6 @@ class Tracker:
         """(d2 (T, N), cost (T, N)) with inf outside the gate: one unscented transform of
         all tracks' predicted Gaussians, one batched Cholesky of their S and one batched
         solve for every (track, detection) residual (:func:`predicted_measurements`)."""
-        T, N = len(tracks), len(Z)
         g = nis_gate(meas.dim, self.cfg.gate_prob)
         zhat, S = predicted_measurements([tr.pred for tr in tracks], meas)
         try:
