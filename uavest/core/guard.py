@@ -113,16 +113,55 @@ class Guarded(FilterBase):
             inner = self.filter.predict(s.inner, model, t, dt, u, rng)
         except NUMERICAL_ERRORS as e:
             return self._recover(s, model.space, rng, f"predict failed: {e}")
-        g, why = self._check(inner, s.var_limit)
-        if g is None:
-            return self._recover(s, model.space, rng, why)
-        return GuardState(inner, s.last_good, s.strikes, s.resets, var_limit=s.var_limit, est=g)
+        return self._after_predict(s, inner, model, rng)
 
     def update(self, s: GuardState, z, model, rng=None) -> tuple[GuardState, Innovation | None]:
         try:
             inner, inn = self.filter.update(s.inner, z, model, rng)
         except NUMERICAL_ERRORS as e:
             return self._recover(s, model.space, rng, f"update failed: {e}"), None
+        return self._after_update(s, inner, inn, model, rng)
+
+    # -- many states at once (the tracker) -------------------------------------------
+    def predict_many(self, states: Sequence[GuardState], model, t, dt, u=None, rng=None
+                     ) -> list[GuardState]:
+        """:meth:`predict` of every state; the inner filter's ``predict_many`` (one batched
+        computation) when it has one and every state is fine, each result then checked as
+        :meth:`predict` checks it. Any numerical failure of the batch: one at a time."""
+        many = getattr(self.filter, "predict_many", None)
+        if many is not None and len(states) > 1:
+            try:
+                inners = many([s.inner for s in states], model, t, dt, u, rng)
+            except NUMERICAL_ERRORS:
+                inners = None
+            if inners is not None:
+                return [self._after_predict(s, inner, model, rng)
+                        for s, inner in zip(states, inners, strict=True)]
+        return [self.predict(s, model, t, dt, u, rng) for s in states]
+
+    def update_many(self, states: Sequence[GuardState], zs, model, rng=None
+                    ) -> list[tuple[GuardState, Innovation | None]]:
+        """:meth:`update` of every state with its measurement; batched through the inner
+        filter's ``update_many`` as :meth:`predict_many`."""
+        many = getattr(self.filter, "update_many", None)
+        if many is not None and len(states) > 1:
+            try:
+                res = many([s.inner for s in states], zs, model, rng)
+            except NUMERICAL_ERRORS:
+                res = None
+            if res is not None:
+                return [self._after_update(s, inner, inn, model, rng)
+                        for s, (inner, inn) in zip(states, res, strict=True)]
+        return [self.update(s, z, model, rng) for s, z in zip(states, zs, strict=True)]
+
+    def _after_predict(self, s: GuardState, inner, model, rng) -> GuardState:
+        g, why = self._check(inner, s.var_limit)
+        if g is None:
+            return self._recover(s, model.space, rng, why)
+        return GuardState(inner, s.last_good, s.strikes, s.resets, var_limit=s.var_limit, est=g)
+
+    def _after_update(self, s: GuardState, inner, inn, model, rng
+                      ) -> tuple[GuardState, Innovation | None]:
         g, why = self._check(inner, s.var_limit)
         if g is None or not np.isfinite(inn.nis):
             return self._recover(s, model.space, rng, why or "non-finite NIS"), inn

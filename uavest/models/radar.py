@@ -243,6 +243,13 @@ class RadarMeasurement(Measurement):
         m[self._az] = np.arctan2(w @ np.sin(Y[:, self._az]), w @ np.cos(Y[:, self._az]))
         return m
 
+    def mean_rows(self, Y: Array, w: Array) -> Array:
+        """:meth:`mean` of every stack ``Y[t]`` (T, M, m) with the weights ``w`` (M,)."""
+        m = np.einsum("j,tjm->tm", w, Y)
+        a = Y[:, :, self._az]
+        m[:, self._az] = np.arctan2(np.sin(a) @ w, np.cos(a) @ w)
+        return m
+
     # -- inverse (track initiation) -------------------------------------------------------
     def to_cartesian(self, z: Array) -> tuple[Array, Array]:
         """World position (d,) of measurement ``z`` and its linearised covariance (d, d).

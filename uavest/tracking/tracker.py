@@ -319,9 +319,12 @@ class Tracker:
         """Process scan ``k`` at time ``t`` (s) with detections ``Z`` (N, m)."""
         t0 = time.perf_counter()
         f, rng = self.filter, self.rng
-        for tr in self.tracks:
-            tr.state = f.predict(tr.state, self.motion, t, dt, None, rng)
-            tr.pred = f.estimate(tr.state)
+        # all tracks at once (the filter's batched predict when it has one)
+        for tr, st in zip(self.tracks, f.predict_many([tr.state for tr in self.tracks],
+                                                      self.motion, t, dt, None, rng),
+                          strict=True):
+            tr.state = st
+            tr.pred = f.estimate(st)
         used = np.zeros(len(Z), bool)
         in_conf_gate = np.zeros(len(Z), bool)
         assigned: dict[int, int] = {}
@@ -341,12 +344,22 @@ class Tracker:
             for i, j in self._assign(cost):
                 assigned[group[i].id] = int(free[j])
                 used[free[j]] = True
+        # the assigned tracks' updates at once (the filter's batched update when it has
+        # one), in track order; with JPDA mixtures in the scan the updates stay interleaved
+        # with the mixtures in track order, so an ensemble's random draws keep their order
+        batched = not mixed and bool(assigned)
+        if batched:
+            upd = [tr for tr in self.tracks if tr.id in assigned]
+            res = f.update_many([tr.state for tr in upd], Z[[assigned[tr.id] for tr in upd]],
+                                meas, rng)
+            for tr, (st, _) in zip(upd, res, strict=True):
+                tr.state = st
         for tr in self.tracks:
             j = assigned.get(tr.id)
             hyps = mixed.get(tr.id)  # JPDA: a detection in the gate is a hit
             if hyps:
                 tr.state = self._mix(tr.state, hyps, Z, meas)
-            elif j is not None:
+            elif j is not None and not batched:
                 tr.state, _ = f.update(tr.state, Z[j], meas, rng)
             hit = bool(hyps) or j is not None
             tr.est = f.estimate(tr.state)
