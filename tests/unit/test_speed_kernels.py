@@ -159,3 +159,16 @@ def test_radar_single_state_h_equals_the_batched_one():
         batch = m.h(X)
         for i in range(len(X)):
             np.testing.assert_allclose(m.h(X[i:i + 1]), batch[i:i + 1], rtol=0, atol=1e-12)
+
+
+def test_accel_update_weight_scales_R_and_is_exact_at_the_reference_rate():
+    from uavest.models.attitude import AttitudeNoise, GravityDirection
+
+    a = np.array([0.3, -0.2, -9.7])
+    z1, m1 = GravityDirection.from_accel(a, AttitudeNoise())
+    z2, m2 = GravityDirection.from_accel(a, AttitudeNoise(), weight=1.0)
+    z8, m8 = GravityDirection.from_accel(a, AttitudeNoise(), weight=1.0 / 8)
+    assert np.array_equal(m1.R, m2.R) and np.array_equal(z1, z8)
+    np.testing.assert_allclose(m8.R, 8.0 * m1.R, rtol=1e-15)
+    with pytest.raises(ValueError):
+        GravityDirection.from_accel(a, AttitudeNoise(), weight=0.0)

@@ -199,13 +199,22 @@ class GravityDirection(Measurement):
 
     @staticmethod
     def from_accel(
-        accel: Array, noise: AttitudeNoise, g: float = G0, accel_ned: Array | None = None
+        accel: Array, noise: AttitudeNoise, g: float = G0, accel_ned: Array | None = None,
+        weight: float = 1.0,
     ) -> tuple[Array, GravityDirection] | None:
         """(z, model) for one accel sample, or None if gated / degenerate.
 
         ``accel_ned`` (m/s^2, NED), the vehicle's own acceleration if known (e.g. from
         differentiated GPS/EKF velocity): the reference direction becomes the apparent
         gravity ``g_ned - accel_ned`` and the gate / de-weighting use its norm.
+
+        ``weight`` (0, 1]: the share of a reference step this update stands for, R is
+        divided by it. ``accel_noise`` / ``accel_deweight`` describe the accelerometer
+        averaged over a reference step (the default 25 Hz filter rate); its errors
+        (vibration, unmodelled dynamics) are correlated over such a step, so k times more
+        updates per second must each carry 1/k of the information: a step builder running
+        at k times the reference rate passes ``weight = 1 / k`` (1: the reference rate,
+        R unchanged bit for bit).
         """
         a = np.asarray(accel, float)
         na = float(np.linalg.norm(a))
@@ -217,7 +226,12 @@ class GravityDirection(Measurement):
         if not np.isfinite(na) or na < 1e-6 or nr < 1e-6 or dev > noise.accel_gate:
             return None
         sd = np.hypot(noise.accel_noise, noise.accel_deweight * dev) / nr
-        return -a / na, GravityDirection(np.eye(3) * sd * sd, ref / nr)
+        R = np.eye(3) * sd * sd
+        if weight != 1.0:
+            if not 0.0 < weight <= 1.0:
+                raise ValueError(f"accel update weight must be in (0, 1], got {weight}")
+            R = R / weight
+        return -a / na, GravityDirection(R, ref / nr)
 
     def h(self, X: Array) -> Array:
         if self.ref is not None:
