@@ -172,3 +172,52 @@ def test_accel_update_weight_scales_R_and_is_exact_at_the_reference_rate():
     np.testing.assert_allclose(m8.R, 8.0 * m1.R, rtol=1e-15)
     with pytest.raises(ValueError):
         GravityDirection.from_accel(a, AttitudeNoise(), weight=0.0)
+
+
+def _ref_quat_mul(p, q):
+    pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    out = np.empty(np.broadcast_shapes(p.shape, q.shape))
+    out[..., 0] = pw * qw - px * qx - py * qy - pz * qz
+    out[..., 1] = pw * qx + px * qw + py * qz - pz * qy
+    out[..., 2] = pw * qy - px * qz + py * qw + pz * qx
+    out[..., 3] = pw * qz + px * qy - py * qx + pz * qw
+    return out
+
+
+def _ref_quat_exp(v):
+    th = np.sqrt(np.einsum("...i,...i->...", v, v))
+    out = np.empty(v.shape[:-1] + (4,))
+    h = 0.5 * th
+    out[..., 0] = np.cos(h)
+    small = th < 1e-5
+    s = np.where(small, 0.5 - th * th / 48.0, np.sin(h) / np.where(small, 1.0, th))
+    out[..., 1:] = s[..., None] * v
+    return out
+
+
+def _ref_quat_log(q):
+    w = q[..., 0]
+    sgn = np.where(w < 0.0, -1.0, 1.0)
+    w = np.abs(w)
+    xyz = q[..., 1:] * sgn[..., None]
+    n = np.sqrt(np.einsum("...i,...i->...", xyz, xyz))
+    small = n < 1e-8
+    k = np.where(small, 2.0 / np.maximum(w, 1e-300),
+                 2.0 * np.arctan2(n, w) / np.where(small, 1.0, n))
+    return k[..., None] * xyz
+
+
+def test_quaternion_functions_fast_paths_are_bit_identical():
+    rng = np.random.default_rng(9)
+    Q = _points(rng, 40, 0.0)[:, :4]
+    V = rng.standard_normal((40, 3)) * np.logspace(-9, 0.5, 40)[:, None]
+    V[0] = 0.0
+    for i in range(len(Q) - 1):
+        assert np.array_equal(quat_mul(Q[i], Q[i + 1]), _ref_quat_mul(Q[i], Q[i + 1]))
+    assert np.array_equal(quat_exp(V), _ref_quat_exp(V))
+    assert np.array_equal(quat_log(Q), _ref_quat_log(Q))
+    assert np.array_equal(quat_log(quat_exp(V)), _ref_quat_log(_ref_quat_exp(V)))
+    for i in range(3):
+        assert np.array_equal(quat_exp(V[i]), _ref_quat_exp(V[i]))
+        assert np.array_equal(quat_log(Q[i]), _ref_quat_log(Q[i]))
