@@ -221,3 +221,15 @@ def test_quaternion_functions_fast_paths_are_bit_identical():
     for i in range(3):
         assert np.array_equal(quat_exp(V[i]), _ref_quat_exp(V[i]))
         assert np.array_equal(quat_log(Q[i]), _ref_quat_log(Q[i]))
+
+
+def test_mag_update_weight_scales_R_and_is_exact_at_the_reference_rate():
+    from uavest.models.attitude import AttitudeNoise, MagField, MagHeading
+
+    f = np.array([0.2, 0.05, 0.4])
+    ref = np.array([0.5, 0.0, 0.86])
+    for make in (lambda w: MagField.from_field(f, AttitudeNoise(), ref, weight=w),
+                 lambda w: MagHeading.from_field(f, AttitudeNoise(), 0.1, weight=w)):
+        (z1, m1), (z8, m8) = make(1.0), make(0.125)
+        assert np.array_equal(z1, z8)
+        np.testing.assert_allclose(m8.R, 8.0 * m1.R, rtol=1e-15)

@@ -143,6 +143,16 @@ def declination_from_params(params: dict[str, float]) -> float | None:
     return None
 
 
+def _weighted(R: Array, weight: float) -> Array:
+    """R / weight for an update standing for ``weight`` (0, 1] of a reference step
+    (:meth:`GravityDirection.from_accel`); weight 1 returns R itself."""
+    if weight == 1.0:
+        return R
+    if not 0.0 < weight <= 1.0:
+        raise ValueError(f"update weight must be in (0, 1], got {weight}")
+    return R / weight
+
+
 class GyroTransition(Transition):
     """q <- q * Exp((u - b) dt), b <- b. ``u`` gyro rate (rad/s, body FRD, bias not
     removed). Analytic tangent Jacobian for the right error:
@@ -226,12 +236,7 @@ class GravityDirection(Measurement):
         if not np.isfinite(na) or na < 1e-6 or nr < 1e-6 or dev > noise.accel_gate:
             return None
         sd = np.hypot(noise.accel_noise, noise.accel_deweight * dev) / nr
-        R = np.eye(3) * sd * sd
-        if weight != 1.0:
-            if not 0.0 < weight <= 1.0:
-                raise ValueError(f"accel update weight must be in (0, 1], got {weight}")
-            R = R / weight
-        return -a / na, GravityDirection(R, ref / nr)
+        return -a / na, GravityDirection(_weighted(np.eye(3) * sd * sd, weight), ref / nr)
 
     def h(self, X: Array) -> Array:
         if self.ref is not None:
@@ -264,13 +269,15 @@ class MagHeading(Measurement):
 
     @staticmethod
     def from_field(
-        field: Array, noise: AttitudeNoise, declination: float = 0.0
+        field: Array, noise: AttitudeNoise, declination: float = 0.0, weight: float = 1.0
     ) -> tuple[Array, MagHeading] | None:
-        """(z, model) for one magnetometer sample (gauss, body FRD), or None."""
+        """(z, model) for one magnetometer sample (gauss, body FRD), or None. ``weight``
+        as :meth:`GravityDirection.from_accel` (R / weight; 1: unchanged)."""
         f = np.asarray(field, float)
         if not np.isfinite(f).all() or np.linalg.norm(f) < 1e-6:
             return None
-        return np.array([declination]), MagHeading(f, np.array([[noise.mag_noise**2]]))
+        R = _weighted(np.array([[noise.mag_noise**2]]), weight)
+        return np.array([declination]), MagHeading(f, R)
 
     def h(self, X: Array) -> Array:
         m = quat_rotate(X[..., :4], self.field)
@@ -310,14 +317,15 @@ class MagField(Measurement):
 
     @staticmethod
     def from_field(
-        field: Array, noise: AttitudeNoise, ref: Array
+        field: Array, noise: AttitudeNoise, ref: Array, weight: float = 1.0
     ) -> tuple[Array, MagField] | None:
-        """(z, model) for one magnetometer sample (gauss, body FRD), or None."""
+        """(z, model) for one magnetometer sample (gauss, body FRD), or None. ``weight``
+        as :meth:`GravityDirection.from_accel` (R / weight; 1: unchanged)."""
         f = np.asarray(field, float)
         nf = float(np.linalg.norm(f))
         if not np.isfinite(nf) or nf < 1e-6:
             return None
-        return f / nf, MagField(ref, np.eye(3) * noise.mag_noise**2)
+        return f / nf, MagField(ref, _weighted(np.eye(3) * noise.mag_noise**2, weight))
 
     def h(self, X: Array) -> Array:
         return quat_rotate_inv(X[..., :4], self.ref)
