@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -32,6 +32,11 @@ class Ensemble:
     X: Array
     space: Space
     w: Array | None = None
+    # memo of ensemble_moments / ensemble_estimate (pure functions of this immutable
+    # value): the guard's check, the filter's update and the caller's estimate of one
+    # state share one computation instead of repeating the manifold mean
+    moments: tuple | None = field(default=None, compare=False, repr=False)
+    gaussian: Gaussian | None = field(default=None, compare=False, repr=False)
 
     @property
     def M(self) -> int:
@@ -44,6 +49,8 @@ def ensemble_moments(E: Ensemble) -> tuple[Array, Array, Array, Array]:
     Equal weights use the unbiased 1/(M-1) covariance; unequal weights the
     reliability-weighted unbiased form 1/(1 - sum w^2).
     """
+    if E.moments is not None:
+        return E.moments
     M = E.M
     w = np.full(M, 1.0 / M) if E.w is None else E.w
     x = E.space.mean(E.X, w, mean_start(E.space, E.X, w))
@@ -51,7 +58,9 @@ def ensemble_moments(E: Ensemble) -> tuple[Array, Array, Array, Array]:
     dX = dX - w @ dX  # centre exactly (tangent linearisation on manifolds)
     denom = 1.0 - float(w @ w)
     P = (dX.T * w) @ dX / max(denom, 1e-12)
-    return x, dX, w, P
+    out = (x, dX, w, P)
+    object.__setattr__(E, "moments", out)  # memo (see Ensemble); callers never mutate
+    return out
 
 
 def mean_start(space: Space, X: Array, w: Array) -> Array | None:
@@ -63,8 +72,12 @@ def mean_start(space: Space, X: Array, w: Array) -> Array | None:
 
 
 def ensemble_estimate(E: Ensemble) -> Gaussian:
+    if E.gaussian is not None:
+        return E.gaussian
     x, _, _, P = ensemble_moments(E)
-    return Gaussian(x, 0.5 * (P + P.T))
+    g = Gaussian(x, 0.5 * (P + P.T))
+    object.__setattr__(E, "gaussian", g)
+    return g
 
 
 def sample_gaussian(g: Gaussian, space: Space, M: int, rng: np.random.Generator) -> Array:

@@ -25,18 +25,18 @@ unscented prediction of the filtered estimate and its cross-covariance).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
-from scipy.special import chdtri
 
 from ..geometry.spaces import Space
+from . import linalg as _linalg
 from .base import Innovation
 from .contract import FilterBase
 from .gaussian import Gaussian
-from .linalg import is_pd
 
 #: What the guard recovers from (numerical failures only; see the module docstring).
 NUMERICAL_ERRORS = (np.linalg.LinAlgError, FloatingPointError)
@@ -46,6 +46,8 @@ NUMERICAL_ERRORS = (np.linalg.LinAlgError, FloatingPointError)
 def nis_gate(m: int, prob: float) -> float:
     """The ``prob`` quantile of chi-square with ``m`` degrees of freedom
     (chi2.ppf(prob, m) == chdtri(m, 1 - prob), without importing scipy.stats)."""
+    from scipy.special import chdtri  # at the first gate, not at import (start-up)
+
     return float(chdtri(m, 1.0 - prob))
 
 
@@ -89,15 +91,20 @@ class Guarded(FilterBase):
         return GuardState(inner, g, 0, s.resets + 1, True, reason, s.var_limit)
 
     def _check(self, inner, var_limit: float = np.inf) -> tuple[Gaussian | None, str]:
+        """(estimate, "") or (None, why). One Cholesky does the finite and the PD check:
+        LAPACK's factor of a lower triangle holding a NaN or an infinity has a NaN on its
+        diagonal (or fails), so a finite factor diagonal and a finite mean mean a finite,
+        PD estimate (the upper triangle, which no consumer reads, is not summed)."""
         try:
             g = self.filter.estimate(inner)
         except NUMERICAL_ERRORS as e:
             return None, f"estimate failed: {e}"
-        if not g.finite():
-            return None, "non-finite estimate"
-        if not is_pd(g.P):
-            return None, "covariance not positive definite"
-        if float(np.max(np.diag(g.P))) > var_limit:
+        P = g.P
+        L, info = _linalg.dpotrf(P, lower=1)
+        if info != 0 or not math.isfinite(float(g.x.sum()) + float(L.trace())):
+            return None, ("non-finite estimate" if not g.finite()
+                          else "covariance not positive definite")
+        if var_limit < np.inf and float(P.diagonal().max()) > var_limit:
             return None, "covariance exploded"
         return g, ""
 
@@ -106,16 +113,55 @@ class Guarded(FilterBase):
             inner = self.filter.predict(s.inner, model, t, dt, u, rng)
         except NUMERICAL_ERRORS as e:
             return self._recover(s, model.space, rng, f"predict failed: {e}")
-        g, why = self._check(inner, s.var_limit)
-        if g is None:
-            return self._recover(s, model.space, rng, why)
-        return GuardState(inner, s.last_good, s.strikes, s.resets, var_limit=s.var_limit, est=g)
+        return self._after_predict(s, inner, model, rng)
 
     def update(self, s: GuardState, z, model, rng=None) -> tuple[GuardState, Innovation | None]:
         try:
             inner, inn = self.filter.update(s.inner, z, model, rng)
         except NUMERICAL_ERRORS as e:
             return self._recover(s, model.space, rng, f"update failed: {e}"), None
+        return self._after_update(s, inner, inn, model, rng)
+
+    # -- many states at once (the tracker) -------------------------------------------
+    def predict_many(self, states: Sequence[GuardState], model, t, dt, u=None, rng=None
+                     ) -> list[GuardState]:
+        """:meth:`predict` of every state; the inner filter's ``predict_many`` (one batched
+        computation) when it has one and every state is fine, each result then checked as
+        :meth:`predict` checks it. Any numerical failure of the batch: one at a time."""
+        many = getattr(self.filter, "predict_many", None)
+        if many is not None and len(states) > 1:
+            try:
+                inners = many([s.inner for s in states], model, t, dt, u, rng)
+            except NUMERICAL_ERRORS:
+                inners = None
+            if inners is not None:
+                return [self._after_predict(s, inner, model, rng)
+                        for s, inner in zip(states, inners, strict=True)]
+        return [self.predict(s, model, t, dt, u, rng) for s in states]
+
+    def update_many(self, states: Sequence[GuardState], zs, model, rng=None
+                    ) -> list[tuple[GuardState, Innovation | None]]:
+        """:meth:`update` of every state with its measurement; batched through the inner
+        filter's ``update_many`` as :meth:`predict_many`."""
+        many = getattr(self.filter, "update_many", None)
+        if many is not None and len(states) > 1:
+            try:
+                res = many([s.inner for s in states], zs, model, rng)
+            except NUMERICAL_ERRORS:
+                res = None
+            if res is not None:
+                return [self._after_update(s, inner, inn, model, rng)
+                        for s, (inner, inn) in zip(states, res, strict=True)]
+        return [self.update(s, z, model, rng) for s, z in zip(states, zs, strict=True)]
+
+    def _after_predict(self, s: GuardState, inner, model, rng) -> GuardState:
+        g, why = self._check(inner, s.var_limit)
+        if g is None:
+            return self._recover(s, model.space, rng, why)
+        return GuardState(inner, s.last_good, s.strikes, s.resets, var_limit=s.var_limit, est=g)
+
+    def _after_update(self, s: GuardState, inner, inn, model, rng
+                      ) -> tuple[GuardState, Innovation | None]:
         g, why = self._check(inner, s.var_limit)
         if g is None or not np.isfinite(inn.nis):
             return self._recover(s, model.space, rng, why or "non-finite NIS"), inn

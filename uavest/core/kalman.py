@@ -12,6 +12,7 @@ update:   nu = z (-) h(x-),     S = H P- H^T + R,      K = P- H^T S^-1 (solve)
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -22,6 +23,13 @@ from .linalg import gain_factor, nis_from_factor, symmetrize
 from .model import Measurement, Transition
 
 Array = np.ndarray
+
+
+@lru_cache(maxsize=16)
+def _eye(n: int) -> Array:
+    I = np.eye(n)
+    I.flags.writeable = False
+    return I
 
 
 @dataclass(frozen=True)
@@ -57,7 +65,7 @@ class EKF(FilterBase):
         S = symmetrize(H @ PHt + model.R)
         K, cS = gain_factor(PHt, S)
         x = model.space.retract(g.x, K @ nu)
-        IKH = np.eye(g.P.shape[0]) - K @ H
+        IKH = _eye(g.P.shape[0]) - K @ H
         P = symmetrize(IKH @ g.P @ IKH.T + K @ model.R @ K.T)
         return Gaussian(x, P), Innovation(nu, S, nis_from_factor(cS, nu))
 

@@ -10,9 +10,31 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.linalg.lapack import dposv, dpotrf, dpotrs
 
 Array = np.ndarray
+
+
+def _lapack(name: str):
+    """LAPACK routine ``name`` through scipy, imported at its first call rather than at
+    import (importing scipy.linalg costs 0.3-0.8 s, which every command, even ``--help``,
+    paid). The stub replaces itself in this module's globals, so later calls go straight
+    to LAPACK with no per-call overhead."""
+
+    def stub(*args, **kwargs):
+        from scipy.linalg import lapack
+
+        fn = getattr(lapack, name)
+        globals()[name] = fn
+        return fn(*args, **kwargs)
+
+    stub.__name__ = name
+    return stub
+
+
+dposv = _lapack("dposv")
+dpotrf = _lapack("dpotrf")
+dpotrs = _lapack("dpotrs")
+dtrtrs = _lapack("dtrtrs")
 
 
 class NumericalError(np.linalg.LinAlgError):

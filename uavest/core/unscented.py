@@ -22,6 +22,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from ..geometry.spaces import VectorSpace
 from .base import Innovation, innovation
 from .contract import FilterBase
 from .gaussian import Gaussian
@@ -142,6 +143,67 @@ class UKF(FilterBase):
 
     def estimate(self, g: Gaussian) -> Gaussian:
         return g
+
+    # -- many states at once (the tracker: every track of a scan) ------------------------
+    def predict_many(self, gs: list[Gaussian], model: Transition, t, dt, u=None, rng=None
+                     ) -> list[Gaussian]:
+        """:meth:`predict` of every Gaussian of ``gs`` with one batched Cholesky and one
+        call of ``model.f`` on all sigma points (vector state spaces; the same numbers as
+        one at a time up to rounding). Other spaces: one at a time."""
+        space = model.space
+        if not isinstance(space, VectorSpace) or len(gs) < 2:
+            return [self.predict(g, model, t, dt, u, rng) for g in gs]
+        _, Wm, Wc, U = self._w(space.dim)
+        x = np.stack([g.x for g in gs])
+        L = _chol_many(np.stack([g.P for g in gs]))
+        T, n = x.shape
+        Y = model.f((x[:, None, :] + U @ L.transpose(0, 2, 1)).reshape(-1, n), t, dt, u)
+        Y = Y.reshape(T, U.shape[0], n)
+        xm = np.einsum("j,tjn->tn", Wm, Y)
+        dY = Y - xm[:, None, :]
+        P = np.einsum("tjn,j,tjk->tnk", dY, Wc, dY) + model.Q(t, dt, u)
+        return [Gaussian(xm[i], P[i]) for i in range(T)]
+
+    def update_many(self, gs: list[Gaussian], zs: Array, model: Measurement, rng=None
+                    ) -> list[tuple[Gaussian, Innovation]]:
+        """:meth:`update` of every Gaussian of ``gs`` with its measurement ``zs[i]``: one
+        batched Cholesky of the covariances, one call of ``model.h`` on all sigma points,
+        one batched solve for the gains (vector state spaces and measurement models with a
+        batched ``mean_rows``, e.g. the radar; else one at a time)."""
+        space = model.space
+        if (not isinstance(space, VectorSpace) or not hasattr(model, "mean_rows")
+                or len(gs) < 2):
+            return [self.update(g, z, model, rng) for g, z in zip(gs, zs, strict=True)]
+        _, Wm, Wc, U = self._w(space.dim)
+        x = np.stack([g.x for g in gs])
+        P = np.stack([g.P for g in gs])
+        T, n = x.shape
+        D = U @ _chol_many(P).transpose(0, 2, 1)  # (T, J, n)
+        Z = model.h((x[:, None, :] + D).reshape(-1, n)).reshape(T, U.shape[0], -1)
+        zhat = model.mean_rows(Z, Wm)
+        E = model.residual(Z, zhat[:, None, :])
+        S = np.einsum("tjm,j,tjk->tmk", E, Wc, E) + model.R
+        Pxz = np.einsum("tjn,j,tjm->tnm", D, Wc, E)
+        cS = _chol_many(S)
+        # K = Pxz S^-1 through the factor: S^-1 = L^-T L^-1
+        Kt = np.linalg.solve(cS.transpose(0, 2, 1), np.linalg.solve(cS, Pxz.transpose(0, 2, 1)))
+        K = Kt.transpose(0, 2, 1)
+        nu = model.residual(np.asarray(zs, float), zhat)
+        xn = x + np.einsum("tnm,tm->tn", K, nu)
+        Pn = P - K @ Pxz.transpose(0, 2, 1)
+        v = np.linalg.solve(cS, nu[:, :, None])[:, :, 0]
+        nis = np.einsum("tm,tm->t", v, v)
+        return [(Gaussian(xn[i], Pn[i]), Innovation(nu[i], S[i], float(nis[i])))
+                for i in range(T)]
+
+
+def _chol_many(P: Array) -> Array:
+    """Lower Cholesky factors of a stack (T, n, n); any that numpy refuses through
+    :func:`chol` (jitter) one at a time."""
+    try:
+        return np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        return np.stack([chol(Pi) for Pi in P])
 
 
 @dataclass(frozen=True)

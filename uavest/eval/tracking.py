@@ -30,7 +30,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from .metrics import nees, nees_band  # noqa: F401  (re-exported for tracking callers)
 
@@ -51,6 +50,8 @@ def gospa(
         return float((c**p / 2 * (m + n)) ** (1 / p)), [], 0.0, m, n
     D = np.linalg.norm(X[:, None, :] - Y[None, :, :], axis=2)
     C = np.minimum(D, c) ** p
+    from scipy.optimize import linear_sum_assignment  # lazily: start-up time
+
     ri, ci = linear_sum_assignment(C)
     pairs = [(int(i), int(j)) for i, j in zip(ri, ci, strict=True) if D[i, j] < c]
     loc = float(sum(D[i, j] ** p for i, j in pairs))

@@ -20,8 +20,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from .spaces import manifold_mean
-
 Array = np.ndarray
 
 #: Standard gravity (m/s^2 per g), also MAVLink's "milli-g" unit.
@@ -42,6 +40,9 @@ __all__ = [
     "quat_slerp_interp",
     "quat_to_dcm",
     "quat_to_euler",
+    "gyro_propagate",
+    "local_rows",
+    "retract_rows",
     "right_jacobian",
     "skew",
     "wrap_pi",
@@ -58,6 +59,13 @@ def quat_mul(p: Array, q: Array) -> Array:
 
     When one side is a single quaternion the product is one (M, 4) @ (4, 4) matmul.
     """
+    if p.ndim == 1 and q.ndim == 1:  # one product (the step builder's pre-integration)
+        pw, px, py, pz = p.tolist()
+        qw, qx, qy, qz = q.tolist()
+        return np.array([pw * qw - px * qx - py * qy - pz * qz,
+                         pw * qx + px * qw + py * qz - pz * qy,
+                         pw * qy - px * qz + py * qw + pz * qx,
+                         pw * qz + px * qy - py * qx + pz * qw])
     if p.ndim == 1 and q.ndim > 1:
         w, x, y, z = p
         L = np.array([[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]])
@@ -90,6 +98,8 @@ def quat_exp(v: Array) -> Array:
     """Unit quaternion of rotation vector(s) ``v`` (rad): ``[cos(|v|/2), sin(|v|/2) v/|v|]``
     (Taylor series below 1e-5 rad, so smooth at zero)."""
     v = np.asarray(v, dtype=float)
+    if v.ndim == 2:
+        return _exp_rows(v)  # the same formula, fewer calls
     th = np.sqrt(np.einsum("...i,...i->...", v, v))
     out = np.empty(v.shape[:-1] + (4,))
     h = 0.5 * th
@@ -105,6 +115,10 @@ def quat_log(q: Array) -> Array:
 
     ``q`` and ``-q`` give the same result (double cover handled here).
     """
+    if q.ndim == 2:
+        out = np.empty((q.shape[0], 3))
+        _log_rows_into(q, out)  # the same formula, fewer calls
+        return out
     w = q[..., 0]
     sgn = np.where(w < 0.0, -1.0, 1.0)
     w = np.abs(w)
@@ -225,6 +239,103 @@ def quat_slerp_interp(t_ref: Array, q_ref: Array, t: Array) -> tuple[Array, Arra
     return q, valid
 
 
+# ------------------------------------------------------------------ fused manifold kernels
+#
+# The attitude filters call retract / local / mean / the gyro propagation on arrays of
+# members (13 sigma points, 221 ensemble members) many times per step; the cost is numpy's
+# per-call floor, not arithmetic. These kernels compute exactly what quat_mul / quat_exp /
+# quat_log compose to, with a handful of numpy calls instead of ~30: the quaternion
+# product as a gathered 4x4 (Hamilton) matrix, exp/log without the broadcasting machinery,
+# results written into one preallocated array. Equal to the composed functions to 1e-15
+# (tests/unit/test_speed_kernels.py keeps the composed form as the reference).
+# Fused numpy was chosen over a compiled (numba) kernel: see docs/speed.md.
+
+#: Gather indices and signs of the left-multiplication matrix: p * q = L(p) q with
+#: L(p) = p[_LI] * _LS, [[w,-x,-y,-z],[x,w,-z,y],[y,z,w,-x],[z,-y,x,w]].
+_LI = np.array([[0, 1, 2, 3], [1, 0, 3, 2], [2, 3, 0, 1], [3, 2, 1, 0]])
+_LS = np.array([[1.0, -1, -1, -1], [1, 1, -1, 1], [1, 1, 1, -1], [1, -1, 1, 1]])
+_CONJ = np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def _exp_rows(v: Array) -> Array:
+    """quat_exp of rows ``v`` (M, 3) -> (M, 4), the same formula in fewer calls."""
+    th = np.sqrt(np.einsum("ij,ij->i", v, v))
+    h = 0.5 * th
+    out = np.empty((v.shape[0], 4))
+    np.cos(h, out=out[:, 0])
+    small = th < 1e-5
+    if small.any():
+        s = np.where(small, 0.5 - th * th / 48.0, np.sin(h) / np.where(small, 1.0, th))
+    else:
+        s = np.sin(h)
+        s /= th
+    np.multiply(s[:, None], v, out=out[:, 1:])
+    return out
+
+
+def _log_rows_into(q: Array, out: Array) -> None:
+    """quat_log of rows ``q`` (M, 4) written into ``out`` (M, 3). The sign flip of the
+    double cover is a multiplication by +-1 (exact), folded into the scale factor."""
+    w = q[:, 0]
+    xyz = q[:, 1:]
+    sgn = np.where(w < 0.0, -1.0, 1.0)
+    aw = np.abs(w)
+    n = np.sqrt(np.einsum("ij,ij->i", xyz, xyz))
+    small = n < 1e-8
+    if small.any():
+        k = np.where(small, 2.0 / np.maximum(aw, 1e-300),
+                     2.0 * np.arctan2(n, aw) / np.where(small, 1.0, n))
+    else:
+        k = 2.0 * np.arctan2(n, aw) / n
+    k *= sgn
+    np.multiply(k[:, None], xyz, out=out)
+
+
+def _normalise_into(q: Array, out: Array) -> None:
+    np.divide(q, np.sqrt(np.einsum("ij,ij->i", q, q))[:, None], out=out)
+
+
+def _qmul_rows(p: Array, q: Array) -> Array:
+    """Row-wise Hamilton product of (M, 4) arrays (one gather and one einsum)."""
+    return np.einsum("mij,mj->mi", p[:, _LI] * _LS, q)
+
+
+def retract_rows(x: Array, dx: Array) -> Array:
+    """:meth:`AttitudeSpace.retract` for ``x`` (7,) or (M, 7) and ``dx`` (M, 6)."""
+    M = dx.shape[0]
+    E = _exp_rows(dx[:, :3])
+    if x.ndim == 1:
+        qe = E @ (x[:4][_LI] * _LS).T
+    else:
+        qe = _qmul_rows(x[:, :4], E)
+    out = np.empty((M, 7))
+    _normalise_into(qe, out[:, :4])
+    np.add(x[..., 4:], dx[:, 3:], out=out[:, 4:])
+    return out
+
+
+def local_rows(x: Array, y: Array) -> Array:
+    """:meth:`AttitudeSpace.local` for ``x`` (7,) or (M, 7) and ``y`` (M, 7)."""
+    if x.ndim == 1:
+        qq = y[:, :4] @ ((x[:4] * _CONJ)[_LI] * _LS).T
+    else:
+        qq = _qmul_rows(x[:, :4] * _CONJ, y[:, :4])
+    out = np.empty((y.shape[0], 6))
+    _log_rows_into(qq, out[:, :3])
+    np.subtract(y[:, 4:], x[..., 4:], out=out[:, 3:])
+    return out
+
+
+def gyro_propagate(X: Array, w: Array, dt: float) -> Array:
+    """q <- q * Exp((w - b) dt), b <- b for every row of ``X`` (M, 7) (the gyro
+    transition), ``w`` (3,) rad/s."""
+    E = _exp_rows((w - X[:, 4:]) * dt)
+    out = np.empty(X.shape)
+    _normalise_into(_qmul_rows(X[:, :4], E), out[:, :4])
+    out[:, 4:] = X[:, 4:]
+    return out
+
+
 class AttitudeSpace:
     """State ``x = [q (4), b (3)]``: attitude quaternion (body FRD -> NED, scalar-first)
     and gyro bias ``b`` (rad/s, body FRD). ``size`` 7, tangent ``dim`` 6.
@@ -240,6 +351,22 @@ class AttitudeSpace:
     size = 7
 
     def retract(self, x: Array, dx: Array) -> Array:
+        if dx.ndim == 2 and x.ndim <= 2 and (x.ndim == 1 or x.shape[0] == dx.shape[0]):
+            return retract_rows(x, dx)
+        if dx.ndim == 1 and x.ndim == 1:
+            return retract_rows(x, dx[None, :])[0]
+        return self._retract_broadcast(x, dx)
+
+    def local(self, x: Array, y: Array) -> Array:
+        if y.ndim == 2 and x.ndim <= 2 and (x.ndim == 1 or x.shape[0] == y.shape[0]):
+            return local_rows(x, y)
+        if y.ndim == 1 and x.ndim == 1:
+            return local_rows(x, y[None, :])[0]
+        return self._local_broadcast(x, y)
+
+    # general broadcasting forms (any leading axes); the fused kernels above cover the
+    # filters' shapes, (7,) or (M, 7) against (M, .)
+    def _retract_broadcast(self, x: Array, dx: Array) -> Array:
         q = quat_mul(x[..., :4], quat_exp(dx[..., :3]))
         q /= np.sqrt(np.einsum("...i,...i->...", q, q))[..., None]
         b = x[..., 4:] + dx[..., 3:]
@@ -248,7 +375,7 @@ class AttitudeSpace:
             [np.broadcast_to(q, lead + (4,)), np.broadcast_to(b, lead + (3,))], axis=-1
         )
 
-    def local(self, x: Array, y: Array) -> Array:
+    def _local_broadcast(self, x: Array, y: Array) -> Array:
         d = quat_log(quat_mul(quat_conj(x[..., :4]), y[..., :4]))
         db = y[..., 4:] - x[..., 4:]
         d, db = np.broadcast_arrays(d, db)
@@ -259,11 +386,14 @@ class AttitudeSpace:
         q = X[:, :4]
         sgn = np.where(q @ ref[:4] < 0.0, -1.0, 1.0)
         qm = (w * sgn) @ q
-        nq = np.linalg.norm(qm)
-        start = np.concatenate([qm / nq if nq > 1e-9 else ref[:4], w @ X[:, 4:]])
+        nq = float(np.sqrt(qm @ qm))  # = np.linalg.norm(qm)
+        start = np.empty(7)
+        start[:4] = qm / nq if nq > 1e-9 else ref[:4]
+        start[4:] = w @ X[:, 4:]
         # one Gauss-Newton (Karcher) step after the chordal start: its error is third
-        # order in the spread, far below sensor noise at filter spreads (tested)
-        return manifold_mean(self, X, w, start, iters=1)
+        # order in the spread, far below sensor noise at filter spreads (tested);
+        # = manifold_mean(self, X, w, start, iters=1), inlined on the fused kernels
+        return retract_rows(start, (w @ local_rows(start, X))[None, :])[0]
 
     def __repr__(self) -> str:
         return "AttitudeSpace(q*Exp(dtheta), b+db)"

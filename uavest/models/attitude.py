@@ -35,6 +35,7 @@ from ..geometry.rotation import (
     G0,
     AttitudeSpace,
     euler_to_quat,
+    gyro_propagate,
     quat_exp,
     quat_mul,
     quat_rotate,
@@ -142,6 +143,16 @@ def declination_from_params(params: dict[str, float]) -> float | None:
     return None
 
 
+def _weighted(R: Array, weight: float) -> Array:
+    """R / weight for an update standing for ``weight`` (0, 1] of a reference step
+    (:meth:`GravityDirection.from_accel`); weight 1 returns R itself."""
+    if weight == 1.0:
+        return R
+    if not 0.0 < weight <= 1.0:
+        raise ValueError(f"update weight must be in (0, 1], got {weight}")
+    return R / weight
+
+
 class GyroTransition(Transition):
     """q <- q * Exp((u - b) dt), b <- b. ``u`` gyro rate (rad/s, body FRD, bias not
     removed). Analytic tangent Jacobian for the right error:
@@ -154,6 +165,8 @@ class GyroTransition(Transition):
 
     def f(self, X: Array, t: float, dt: float, u: Array | None = None) -> Array:
         w = np.zeros(3) if u is None else np.asarray(u, float)
+        if X.ndim == 2:
+            return gyro_propagate(X, w, dt)  # fused kernel, same numbers
         phi = (w - X[..., 4:]) * dt
         q = quat_mul(X[..., :4], quat_exp(phi))
         q = q / np.linalg.norm(q, axis=-1, keepdims=True)
@@ -196,13 +209,22 @@ class GravityDirection(Measurement):
 
     @staticmethod
     def from_accel(
-        accel: Array, noise: AttitudeNoise, g: float = G0, accel_ned: Array | None = None
+        accel: Array, noise: AttitudeNoise, g: float = G0, accel_ned: Array | None = None,
+        weight: float = 1.0,
     ) -> tuple[Array, GravityDirection] | None:
         """(z, model) for one accel sample, or None if gated / degenerate.
 
         ``accel_ned`` (m/s^2, NED), the vehicle's own acceleration if known (e.g. from
         differentiated GPS/EKF velocity): the reference direction becomes the apparent
         gravity ``g_ned - accel_ned`` and the gate / de-weighting use its norm.
+
+        ``weight`` (0, 1]: the share of a reference step this update stands for, R is
+        divided by it. ``accel_noise`` / ``accel_deweight`` describe the accelerometer
+        averaged over a reference step (the default 25 Hz filter rate); its errors
+        (vibration, unmodelled dynamics) are correlated over such a step, so k times more
+        updates per second must each carry 1/k of the information: a step builder running
+        at k times the reference rate passes ``weight = 1 / k`` (1: the reference rate,
+        R unchanged bit for bit).
         """
         a = np.asarray(accel, float)
         na = float(np.linalg.norm(a))
@@ -214,7 +236,7 @@ class GravityDirection(Measurement):
         if not np.isfinite(na) or na < 1e-6 or nr < 1e-6 or dev > noise.accel_gate:
             return None
         sd = np.hypot(noise.accel_noise, noise.accel_deweight * dev) / nr
-        return -a / na, GravityDirection(np.eye(3) * sd * sd, ref / nr)
+        return -a / na, GravityDirection(_weighted(np.eye(3) * sd * sd, weight), ref / nr)
 
     def h(self, X: Array) -> Array:
         if self.ref is not None:
@@ -247,13 +269,15 @@ class MagHeading(Measurement):
 
     @staticmethod
     def from_field(
-        field: Array, noise: AttitudeNoise, declination: float = 0.0
+        field: Array, noise: AttitudeNoise, declination: float = 0.0, weight: float = 1.0
     ) -> tuple[Array, MagHeading] | None:
-        """(z, model) for one magnetometer sample (gauss, body FRD), or None."""
+        """(z, model) for one magnetometer sample (gauss, body FRD), or None. ``weight``
+        as :meth:`GravityDirection.from_accel` (R / weight; 1: unchanged)."""
         f = np.asarray(field, float)
         if not np.isfinite(f).all() or np.linalg.norm(f) < 1e-6:
             return None
-        return np.array([declination]), MagHeading(f, np.array([[noise.mag_noise**2]]))
+        R = _weighted(np.array([[noise.mag_noise**2]]), weight)
+        return np.array([declination]), MagHeading(f, R)
 
     def h(self, X: Array) -> Array:
         m = quat_rotate(X[..., :4], self.field)
@@ -293,14 +317,15 @@ class MagField(Measurement):
 
     @staticmethod
     def from_field(
-        field: Array, noise: AttitudeNoise, ref: Array
+        field: Array, noise: AttitudeNoise, ref: Array, weight: float = 1.0
     ) -> tuple[Array, MagField] | None:
-        """(z, model) for one magnetometer sample (gauss, body FRD), or None."""
+        """(z, model) for one magnetometer sample (gauss, body FRD), or None. ``weight``
+        as :meth:`GravityDirection.from_accel` (R / weight; 1: unchanged)."""
         f = np.asarray(field, float)
         nf = float(np.linalg.norm(f))
         if not np.isfinite(nf) or nf < 1e-6:
             return None
-        return f / nf, MagField(ref, np.eye(3) * noise.mag_noise**2)
+        return f / nf, MagField(ref, _weighted(np.eye(3) * noise.mag_noise**2, weight))
 
     def h(self, X: Array) -> Array:
         return quat_rotate_inv(X[..., :4], self.ref)

@@ -33,6 +33,7 @@ arithmetically.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,6 +45,7 @@ Array = np.ndarray
 
 COMPONENTS = ("range", "azimuth", "elevation", "range_rate")
 _EPS = 1e-9  # m, floor of range / horizontal range in divisions
+_I2 = np.eye(2)
 
 
 def wrap_angle(a: Array | float) -> Array:
@@ -166,6 +168,10 @@ class RadarMeasurement(Measurement):
     def h(self, X: Array) -> Array:
         """Noise-free measurements of states ``X`` (M, n) -> (M, m)."""
         X = np.atleast_2d(X)
+        if X.shape[0] == 1 and self.ndim == 2 and self._rr is None:
+            # one state (the EKF): the same expressions on scalars
+            dx, dy = ((X[0, :2] - self.pose.position) @ self.pose.R_ws).tolist()
+            return np.array([[math.sqrt(dx * dx + dy * dy), math.atan2(dy, dx)]])
         D, V = self._los(X)
         r = np.sqrt(np.einsum("ij,ij->i", D, D))
         cols = [r, np.arctan2(D[:, 1], D[:, 0])]
@@ -176,8 +182,23 @@ class RadarMeasurement(Measurement):
         return np.stack(cols, axis=1)
 
     def H(self, x: Array) -> Array:
-        """Analytic Jacobian (m, n) w.r.t. the world-frame state."""
-        return self.H_rows(np.asarray(x, float)[None, :])[0]
+        """Analytic Jacobian (m, n) w.r.t. the world-frame state. Range / azimuth (2-D, no
+        range rate: the EKF's single-detection case) in closed form on scalars, the same
+        expressions as :meth:`H_rows`; every other layout through :meth:`H_rows`."""
+        x = np.asarray(x, float)
+        if self.ndim != 2 or self._rr is not None:
+            return self.H_rows(x[None, :])[0]
+        R = self.pose.R_ws
+        dx, dy = ((x[:2] - self.pose.position) @ R).tolist()  # D = R^T (p - s)
+        r2 = max(dx * dx + dy * dy, _EPS**2)
+        r = math.sqrt(r2)
+        Hm = np.zeros((2, self.space.dim))
+        if R is _I2 or (R[0, 1] == 0.0 and R[1, 0] == 0.0 and R[0, 0] == 1.0
+                        and R[1, 1] == 1.0):  # sensor axes = world axes: R gD = gD
+            Hm[0, 0], Hm[0, 1], Hm[1, 0], Hm[1, 1] = dx / r, dy / r, -dy / r2, dx / r2
+        else:
+            Hm[:, :2] = np.array([[dx / r, dy / r], [-dy / r2, dx / r2]]) @ R.T
+        return Hm
 
     def H_rows(self, X: Array) -> Array:
         """Analytic Jacobians at every row of ``X`` (M, n) -> (M, m, n), vectorised."""
@@ -220,6 +241,13 @@ class RadarMeasurement(Measurement):
         """Weighted mean of measurements ``Y`` (M, m); circular for the azimuth."""
         m = w @ Y
         m[self._az] = np.arctan2(w @ np.sin(Y[:, self._az]), w @ np.cos(Y[:, self._az]))
+        return m
+
+    def mean_rows(self, Y: Array, w: Array) -> Array:
+        """:meth:`mean` of every stack ``Y[t]`` (T, M, m) with the weights ``w`` (M,)."""
+        m = np.einsum("j,tjm->tm", w, Y)
+        a = Y[:, :, self._az]
+        m[:, self._az] = np.arctan2(np.sin(a) @ w, np.cos(a) @ w)
         return m
 
     # -- inverse (track initiation) -------------------------------------------------------

@@ -54,11 +54,9 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
-from scipy.special import chdtri
 
 from ..core.gaussian import Gaussian
-from ..core.guard import Guarded
+from ..core.guard import Guarded, nis_gate
 from ..core.linalg import chol
 from ..core.unscented import sigma_weights
 from ..models.radar import RadarMeasurement
@@ -130,6 +128,34 @@ def predicted_measurement(g: Gaussian, meas: RadarMeasurement) -> tuple[Array, A
     E = meas.residual(Z, zhat)
     S = (E.T * Wc) @ E + meas.R
     return zhat, 0.5 * (S + S.T)
+
+
+def predicted_measurements(gs: list[Gaussian], meas: RadarMeasurement
+                           ) -> tuple[Array, Array]:
+    """:func:`predicted_measurement` of every Gaussian of ``gs`` at once: (zhat (T, m),
+    S (T, m, m)). One batched Cholesky of the covariances, one call of ``meas.h`` on all
+    T (2n+1) sigma points; the azimuth mean is circular as in
+    :meth:`RadarMeasurement.mean`. Measurement models without the radar's layout go
+    through :func:`predicted_measurement` one Gaussian at a time."""
+    if not isinstance(meas, RadarMeasurement):
+        out = [predicted_measurement(g, meas) for g in gs]
+        return np.stack([o[0] for o in out]), np.stack([o[1] for o in out])
+    x = np.stack([g.x for g in gs])
+    P = np.stack([g.P for g in gs])
+    T, n = x.shape
+    _, Wm, Wc, U = sigma_weights(n, 1.0, 2.0, 0.0, "merwe")
+    try:
+        L = np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        L = np.stack([chol(Pi) for Pi in P])
+    X = x[:, None, :] + U @ L.transpose(0, 2, 1)  # (T, 2n+1, n)
+    Z = meas.h(X.reshape(-1, n)).reshape(T, U.shape[0], -1)
+    zhat = np.einsum("j,tjm->tm", Wm, Z)
+    az = meas._az
+    zhat[:, az] = np.arctan2(np.sin(Z[:, :, az]) @ Wm, np.cos(Z[:, :, az]) @ Wm)
+    E = meas.residual(Z, zhat[:, None, :])
+    S = np.einsum("tjm,j,tjk->tmk", E, Wc, E) + meas.R
+    return zhat, 0.5 * (S + S.transpose(0, 2, 1))
 
 
 def jpda_betas(lik: Array, miss: Array, max_cluster: int = 8) -> Array:
@@ -235,21 +261,22 @@ class Tracker:
         return Gaussian(x, P)
 
     def _gate(self, tracks: list[Track], Z: Array, meas) -> tuple[Array, Array]:
-        """(d2 (T, N), cost (T, N)) with inf outside the gate."""
-        T, N = len(tracks), len(Z)
-        d2 = np.full((T, N), np.inf)
-        cost = np.full((T, N), np.inf)
-        g = float(chdtri(meas.dim, 1.0 - self.cfg.gate_prob))
-        for i, tr in enumerate(tracks):
-            zhat, S = predicted_measurement(tr.pred, meas)
-            L = chol(S)
-            nu = meas.residual(Z, zhat)
-            u = np.linalg.solve(L, nu.T)
-            di = np.einsum("ij,ij->j", u, u)
-            ok = di <= g
-            d2[i, ok] = di[ok]
-            cost[i, ok] = di[ok] + 2.0 * np.log(np.diag(L)).sum()
-        return d2, cost
+        """(d2 (T, N), cost (T, N)) with inf outside the gate: one unscented transform of
+        all tracks' predicted Gaussians, one batched Cholesky of their S and one batched
+        solve for every (track, detection) residual (:func:`predicted_measurements`)."""
+        g = nis_gate(meas.dim, self.cfg.gate_prob)
+        zhat, S = predicted_measurements([tr.pred for tr in tracks], meas)
+        try:
+            L = np.linalg.cholesky(S)
+        except np.linalg.LinAlgError:  # a track's S not numerically PD: jittered, per track
+            L = np.stack([chol(Si) for Si in S])
+        nu = meas.residual(Z[None, :, :], zhat[:, None, :])  # (T, N, m)
+        u = np.linalg.solve(L, nu.transpose(0, 2, 1))  # (T, m, N): L^-1 nu
+        d2 = np.einsum("tmj,tmj->tj", u, u)
+        logdet = 2.0 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
+        ok = d2 <= g
+        cost = np.where(ok, d2 + logdet[:, None], np.inf)
+        return np.where(ok, d2, np.inf), cost
 
     def _jpda(self, group: list[Track], cost: Array, free: Array, m: int):
         """{track id: [(detection index, beta), ..., (-1, beta_none)]} for tracks with at
@@ -282,6 +309,8 @@ class Tracker:
             return []
         big = 1e12
         C = np.where(np.isfinite(cost), cost, big)
+        from scipy.optimize import linear_sum_assignment  # lazily: start-up time
+
         r, c = linear_sum_assignment(C)
         return [(int(i), int(j)) for i, j in zip(r, c, strict=True) if C[i, j] < big]
 
@@ -290,9 +319,12 @@ class Tracker:
         """Process scan ``k`` at time ``t`` (s) with detections ``Z`` (N, m)."""
         t0 = time.perf_counter()
         f, rng = self.filter, self.rng
-        for tr in self.tracks:
-            tr.state = f.predict(tr.state, self.motion, t, dt, None, rng)
-            tr.pred = f.estimate(tr.state)
+        # all tracks at once (the filter's batched predict when it has one)
+        for tr, st in zip(self.tracks, f.predict_many([tr.state for tr in self.tracks],
+                                                      self.motion, t, dt, None, rng),
+                          strict=True):
+            tr.state = st
+            tr.pred = f.estimate(st)
         used = np.zeros(len(Z), bool)
         in_conf_gate = np.zeros(len(Z), bool)
         assigned: dict[int, int] = {}
@@ -312,12 +344,22 @@ class Tracker:
             for i, j in self._assign(cost):
                 assigned[group[i].id] = int(free[j])
                 used[free[j]] = True
+        # the assigned tracks' updates at once (the filter's batched update when it has
+        # one), in track order; with JPDA mixtures in the scan the updates stay interleaved
+        # with the mixtures in track order, so an ensemble's random draws keep their order
+        batched = not mixed and bool(assigned)
+        if batched:
+            upd = [tr for tr in self.tracks if tr.id in assigned]
+            res = f.update_many([tr.state for tr in upd], Z[[assigned[tr.id] for tr in upd]],
+                                meas, rng)
+            for tr, (st, _) in zip(upd, res, strict=True):
+                tr.state = st
         for tr in self.tracks:
             j = assigned.get(tr.id)
             hyps = mixed.get(tr.id)  # JPDA: a detection in the gate is a hit
             if hyps:
                 tr.state = self._mix(tr.state, hyps, Z, meas)
-            elif j is not None:
+            elif j is not None and not batched:
                 tr.state, _ = f.update(tr.state, Z[j], meas, rng)
             hit = bool(hyps) or j is not None
             tr.est = f.estimate(tr.state)

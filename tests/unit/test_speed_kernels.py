@@ -1,0 +1,235 @@
+"""The fused attitude-manifold kernels (issue 13) equal the composed implementation they
+replaced to 1e-12; the composed form is kept here verbatim as the reference."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from uavest.geometry.rotation import (
+    AttitudeSpace,
+    gyro_propagate,
+    local_rows,
+    quat_conj,
+    quat_exp,
+    quat_log,
+    quat_mul,
+    retract_rows,
+)
+from uavest.geometry.spaces import manifold_mean
+from uavest.models.attitude import GyroTransition
+
+
+# ---------------------------------------------------------------- the pre-change code
+def ref_retract(x, dx):
+    q = quat_mul(x[..., :4], quat_exp(dx[..., :3]))
+    q /= np.sqrt(np.einsum("...i,...i->...", q, q))[..., None]
+    b = x[..., 4:] + dx[..., 3:]
+    lead = np.broadcast_shapes(q.shape[:-1], b.shape[:-1])
+    return np.concatenate(
+        [np.broadcast_to(q, lead + (4,)), np.broadcast_to(b, lead + (3,))], axis=-1)
+
+
+def ref_local(x, y):
+    d = quat_log(quat_mul(quat_conj(x[..., :4]), y[..., :4]))
+    db = y[..., 4:] - x[..., 4:]
+    d, db = np.broadcast_arrays(d, db)
+    return np.concatenate([d, db], axis=-1)
+
+
+class RefSpace:
+    dim, size = 6, 7
+    retract = staticmethod(ref_retract)
+    local = staticmethod(ref_local)
+
+    def mean(self, X, w, x0=None):
+        ref = X[0] if x0 is None else x0
+        q = X[:, :4]
+        sgn = np.where(q @ ref[:4] < 0.0, -1.0, 1.0)
+        qm = (w * sgn) @ q
+        nq = np.linalg.norm(qm)
+        start = np.concatenate([qm / nq if nq > 1e-9 else ref[:4], w @ X[:, 4:]])
+        return manifold_mean(self, X, w, start, iters=1)
+
+
+def ref_gyro_f(X, dt, u):
+    phi = (u - X[..., 4:]) * dt
+    q = quat_mul(X[..., :4], quat_exp(phi))
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.concatenate([q, X[..., 4:]], axis=-1)
+
+
+# ---------------------------------------------------------------- cases
+def _points(rng, M, spread):
+    """M states: random attitudes (some with w < 0, the double cover), biases."""
+    q = rng.standard_normal((M, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    return np.concatenate([q, spread * rng.standard_normal((M, 3))], axis=1)
+
+
+def _offsets(rng, M, scale):
+    D = scale * rng.standard_normal((M, 6))
+    D[0] = 0.0  # a zero offset (the sigma-point centre): the small-angle branches
+    if M > 2:
+        D[1, :3] = 1e-7  # below the exp Taylor threshold
+    return D
+
+
+SCALES = [1e-9, 1e-3, 0.3, 2.5]  # rad: tiny, filter spread, large, beyond pi/2
+
+
+@pytest.mark.parametrize("M", [1, 13, 221])
+@pytest.mark.parametrize("scale", SCALES)
+def test_retract_and_local_equal_the_composed_code(M, scale):
+    rng = np.random.default_rng(M + int(1e3 * scale))
+    sp = AttitudeSpace()
+    x = _points(rng, 1, 0.01)[0]
+    X = _points(rng, M, 0.01)
+    D = _offsets(rng, M, scale)
+    np.testing.assert_allclose(sp.retract(x, D), ref_retract(x, D), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(sp.retract(X, D), ref_retract(X, D), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(sp.retract(x, D[-1]), ref_retract(x, D[-1]), rtol=0,
+                               atol=1e-12)
+    Y = ref_retract(x, D)  # points near x (and X itself: far ones)
+    for a, b in ((x, Y), (x, X), (X, Y), (Y, X)):
+        np.testing.assert_allclose(sp.local(a, b), ref_local(a, b), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(sp.local(x, Y[0]), ref_local(x, Y[0]), rtol=0, atol=1e-12)
+    # the kernels themselves
+    np.testing.assert_allclose(retract_rows(x, D), ref_retract(x, D), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(local_rows(X, Y), ref_local(X, Y), rtol=0, atol=1e-12)
+
+
+def test_local_is_exact_at_identity_and_for_antipodal_quaternions():
+    sp = AttitudeSpace()
+    X = _points(np.random.default_rng(1), 5, 0.01)
+    np.testing.assert_allclose(sp.local(X, X), ref_local(X, X), rtol=0, atol=1e-12)
+    Xm = X.copy()
+    Xm[:, :4] *= -1.0  # the same rotations
+    np.testing.assert_allclose(sp.local(X, Xm), ref_local(X, Xm), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(sp.local(X[0], Xm), ref_local(X[0], Xm), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("M", [13, 221])
+@pytest.mark.parametrize("scale", [1e-4, 0.05, 0.5])
+def test_manifold_mean_equals_the_composed_code(M, scale):
+    rng = np.random.default_rng(7 * M)
+    x = _points(rng, 1, 0.01)[0]
+    X = ref_retract(x, scale * rng.standard_normal((M, 6)))
+    X[::3, :4] *= -1.0  # double cover inside the ensemble
+    w = rng.random(M)
+    w /= w.sum()
+    for x0 in (None, X[3]):
+        np.testing.assert_allclose(AttitudeSpace().mean(X, w, x0), RefSpace().mean(X, w, x0),
+                                   rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("M", [1, 13, 221])
+def test_gyro_propagation_equals_the_composed_code(M):
+    rng = np.random.default_rng(M)
+    X = _points(rng, M, 0.02)
+    tr = GyroTransition()
+    for u, dt in ((rng.standard_normal(3), 0.004), (np.zeros(3), 0.04), (5 * np.ones(3), 1.0)):
+        np.testing.assert_allclose(tr.f(X, 0.0, dt, u), ref_gyro_f(X, dt, u), rtol=0,
+                                   atol=1e-12)
+        np.testing.assert_allclose(gyro_propagate(X, u, dt), ref_gyro_f(X, dt, u), rtol=0,
+                                   atol=1e-12)
+    X[:, 4:] = 0.0
+    np.testing.assert_allclose(tr.f(X, 0.0, 0.01, np.zeros(3)), ref_gyro_f(X, 0.01, np.zeros(3)),
+                               rtol=0, atol=1e-12)  # zero rotation: the Taylor branch
+
+
+def test_radar_closed_form_jacobian_equals_the_batched_one():
+    from uavest.models.radar import RadarMeasurement, SensorPose
+
+    rng = np.random.default_rng(5)
+    for pose in (None, SensorPose.fixed(2, [100.0, -50.0], 0.7)):
+        m = RadarMeasurement(2, pose=pose)
+        for x in [np.zeros(4), *rng.normal(0, 5000, (50, 4))]:
+            np.testing.assert_allclose(m.H(x), m.H_rows(x[None, :])[0], rtol=0, atol=1e-15)
+
+
+def test_radar_single_state_h_equals_the_batched_one():
+    from uavest.models.radar import RadarMeasurement, SensorPose
+
+    rng = np.random.default_rng(6)
+    for pose in (None, SensorPose.fixed(2, [100.0, -50.0], 0.7)):
+        m = RadarMeasurement(2, pose=pose)
+        X = rng.normal(0, 5000, (50, 4))
+        X[0] = 0.0
+        batch = m.h(X)
+        for i in range(len(X)):
+            np.testing.assert_allclose(m.h(X[i:i + 1]), batch[i:i + 1], rtol=0, atol=1e-12)
+
+
+def test_accel_update_weight_scales_R_and_is_exact_at_the_reference_rate():
+    from uavest.models.attitude import AttitudeNoise, GravityDirection
+
+    a = np.array([0.3, -0.2, -9.7])
+    z1, m1 = GravityDirection.from_accel(a, AttitudeNoise())
+    z2, m2 = GravityDirection.from_accel(a, AttitudeNoise(), weight=1.0)
+    z8, m8 = GravityDirection.from_accel(a, AttitudeNoise(), weight=1.0 / 8)
+    assert np.array_equal(m1.R, m2.R) and np.array_equal(z1, z8)
+    np.testing.assert_allclose(m8.R, 8.0 * m1.R, rtol=1e-15)
+    with pytest.raises(ValueError):
+        GravityDirection.from_accel(a, AttitudeNoise(), weight=0.0)
+
+
+def _ref_quat_mul(p, q):
+    pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    out = np.empty(np.broadcast_shapes(p.shape, q.shape))
+    out[..., 0] = pw * qw - px * qx - py * qy - pz * qz
+    out[..., 1] = pw * qx + px * qw + py * qz - pz * qy
+    out[..., 2] = pw * qy - px * qz + py * qw + pz * qx
+    out[..., 3] = pw * qz + px * qy - py * qx + pz * qw
+    return out
+
+
+def _ref_quat_exp(v):
+    th = np.sqrt(np.einsum("...i,...i->...", v, v))
+    out = np.empty(v.shape[:-1] + (4,))
+    h = 0.5 * th
+    out[..., 0] = np.cos(h)
+    small = th < 1e-5
+    s = np.where(small, 0.5 - th * th / 48.0, np.sin(h) / np.where(small, 1.0, th))
+    out[..., 1:] = s[..., None] * v
+    return out
+
+
+def _ref_quat_log(q):
+    w = q[..., 0]
+    sgn = np.where(w < 0.0, -1.0, 1.0)
+    w = np.abs(w)
+    xyz = q[..., 1:] * sgn[..., None]
+    n = np.sqrt(np.einsum("...i,...i->...", xyz, xyz))
+    small = n < 1e-8
+    k = np.where(small, 2.0 / np.maximum(w, 1e-300),
+                 2.0 * np.arctan2(n, w) / np.where(small, 1.0, n))
+    return k[..., None] * xyz
+
+
+def test_quaternion_functions_fast_paths_are_bit_identical():
+    rng = np.random.default_rng(9)
+    Q = _points(rng, 40, 0.0)[:, :4]
+    V = rng.standard_normal((40, 3)) * np.logspace(-9, 0.5, 40)[:, None]
+    V[0] = 0.0
+    for i in range(len(Q) - 1):
+        assert np.array_equal(quat_mul(Q[i], Q[i + 1]), _ref_quat_mul(Q[i], Q[i + 1]))
+    assert np.array_equal(quat_exp(V), _ref_quat_exp(V))
+    assert np.array_equal(quat_log(Q), _ref_quat_log(Q))
+    assert np.array_equal(quat_log(quat_exp(V)), _ref_quat_log(_ref_quat_exp(V)))
+    for i in range(3):
+        assert np.array_equal(quat_exp(V[i]), _ref_quat_exp(V[i]))
+        assert np.array_equal(quat_log(Q[i]), _ref_quat_log(Q[i]))
+
+
+def test_mag_update_weight_scales_R_and_is_exact_at_the_reference_rate():
+    from uavest.models.attitude import AttitudeNoise, MagField, MagHeading
+
+    f = np.array([0.2, 0.05, 0.4])
+    ref = np.array([0.5, 0.0, 0.86])
+    for make in (lambda w: MagField.from_field(f, AttitudeNoise(), ref, weight=w),
+                 lambda w: MagHeading.from_field(f, AttitudeNoise(), 0.1, weight=w)):
+        (z1, m1), (z8, m8) = make(1.0), make(0.125)
+        assert np.array_equal(z1, z8)
+        np.testing.assert_allclose(m8.R, 8.0 * m1.R, rtol=1e-15)
