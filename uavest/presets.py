@@ -22,7 +22,8 @@ them; a *preset* names such a tuning so that users can see it (``uavest list`` p
     update keeps the information of a 10 m range that the single EnKF shift loses
     against a wide prior: radar_far 5 deg PCRLB ratio, seeds 0 / 1 of 100 runs, 1.517 /
     1.830 -> 1.413 / 1.333, radar_multitarget GOSPA 117.5 -> 103.5 m (docs/tracking.md;
-    the local update's result varies with its own random draws, as documented there). Write ``hybrid(update_mode=shift, n_cloud=32)`` for the core default.
+    the local update's result varies with its own random draws, as documented there).
+    Write ``hybrid(update_mode=shift, n_cloud=32)`` for the core default.
 
 A preset's values apply to the registry name and its ``_sh`` variant; parameters the
 user writes in the spec always win; preset values that have no effect in the mode the

@@ -146,9 +146,12 @@ class _Raw:
 class _StepBuilder:
     """Streaming pre-integration and grouping (see the module docstring)."""
 
-    def __init__(self, integration: str, factor: int, use_pos: bool) -> None:
+    def __init__(self, integration: str, factor: int, use_pos: bool, ref: int = 1) -> None:
+        from collections import deque
+
         self.integration = integration
         self.factor = factor
+        self.acc_hist = deque(maxlen=max(ref, factor))  # accel of the last reference step
         self.use_pos = use_pos
         self.t_edge: float | None = None  # end of the last closed step (t_{k-1})
         self.g_edge: Array | None = None  # gyro at that edge (trapezoid)
@@ -218,7 +221,11 @@ class _StepBuilder:
             for d in dq:
                 q = quat_mul(q, d)
             w = quat_log(q) / max(t1 - t0, 1e-12)
-            a = np.sum([s.accel for s in b], axis=0) / len(b)
+            if self.acc_hist.maxlen > self.factor:  # faster than the reference rate
+                self.acc_hist.extend(s.accel for s in b)
+                a = np.sum(list(self.acc_hist), axis=0) / len(self.acc_hist)
+            else:
+                a = np.sum([s.accel for s in b], axis=0) / len(b)
         self.t_edge, self.g_edge = t1, b[-1].gyro
         self.block = []
         return _Raw(t1, t0, w, a, len(b))
@@ -347,6 +354,16 @@ class AttitudeStream:
             integ = "trapezoid" if rate < 20.0 else "hold"
         cap = DEFAULT_MAX_RATE_HZ if o.rate_hz is None else float(o.rate_hz)
         factor = 1 if cap <= 0 or integ == "trapezoid" else max(1, round(rate / cap))
+        ref = 1 if integ == "trapezoid" else max(1, round(rate / DEFAULT_MAX_RATE_HZ))
+        self._accel_weight = min(1.0, factor / ref)  # 1.0 at the default rate
+        # the magnetometer: its updates per second now against those at the default rate
+        # (each step uses its latest sample): 1 when it is slower than both filter rates
+        span = (ti[-1] - ti[0]) if len(ti) > 1 else 0.0
+        mrate = mag_counts.get(mag, 0) / span if mag and span > 0 else 0.0
+        frate = rate / factor if factor else rate
+        ref_rate = rate / ref
+        self._mag_weight = (min(1.0, min(mrate, ref_rate) / min(mrate, frate))
+                            if mrate > 0 else 1.0)
         self.noise = noise_for_source(imu).with_(**o.noise)
         self._model = GyroTransition(self.noise)
         self.summary.update(
@@ -354,7 +371,7 @@ class AttitudeStream:
             integration=integ, preintegrated_samples_per_step=factor, align_rate_hz=rate,
         )
         self._imu, self._mag, self._pos = imu, mag, pos
-        self._builder = _StepBuilder(integ, factor, pos is not None)
+        self._builder = _StepBuilder(integ, factor, pos is not None, ref)
         # the first IMU sample, the magnetometer at/before it (else the first one held)
         self._first = first = next(s for s in held if isinstance(s, ImuSample)
                                    and s.source == imu)
@@ -414,15 +431,17 @@ class AttitudeStream:
     def _updates(self, r: _Raw, mref: Array | None) -> tuple:
         o, noise = self.opts, self.noise
         meas = []
-        a = GravityDirection.from_accel(r.a, noise, accel_ned=r.accel_ned)
+        a = GravityDirection.from_accel(r.a, noise, accel_ned=r.accel_ned,
+                                        weight=self._accel_weight)
         if a is not None:
             meas.append(a)
         if r.mag is not None:
             fld = r.mag
             if o.mag_delay:
                 fld = quat_rotate(quat_exp(-o.mag_delay * r.w), fld)
-            m = (MagField.from_field(fld, noise, mref) if mref is not None
-                 else MagHeading.from_field(fld, noise, self.declination))
+            m = (MagField.from_field(fld, noise, mref, weight=self._mag_weight)
+                 if mref is not None else MagHeading.from_field(
+                     fld, noise, self.declination, weight=self._mag_weight))
             if m is not None:
                 meas.append(m)
         if len(meas) > 1:
