@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .convert import Raw, check, convert_dataflash, convert_mavlink, stat_key
-from .timebase import StreamGate, VehicleClock
+from .timebase import RxFilter, StreamGate, VehicleClock
 from .types import (
     AdsbSample,
     AttitudeRef,
@@ -146,7 +146,13 @@ class MavlinkSource:
             ) from e
 
     def _messages(self) -> Iterator[tuple[object, float | None]]:
-        """Yield (message, receive time or None) with bad frames counted, never hanging."""
+        """Yield (message, receive time or None) with bad frames counted, never hanging;
+        tlog receive times checked against their neighbours (:class:`RxFilter`)."""
+        if self.format == "tlog":
+            return RxFilter(self.stats).filter(self._read())
+        return self._read()
+
+    def _read(self) -> Iterator[tuple[object, float | None]]:
         conn = self._open()
         st = self.stats
         is_df = self.format.startswith("dataflash")

@@ -230,3 +230,54 @@ def _same(a: tuple, b: tuple) -> bool:
         elif not np.array_equal(x, y):
             return False
     return True
+
+
+RX_TOL = 1.0  # s, receive-time step beyond which a message's receive time is examined
+RX_LOOKAHEAD = 4  # messages after it that decide whether a receive-time step is real
+
+
+class RxFilter:
+    """Receive times (a tlog's 8-byte record times) checked against their neighbours.
+
+    A receive time more than :data:`RX_TOL` s away from the previous good one is a real
+    step (a link gap, a concatenated log) when the next :data:`RX_LOOKAHEAD` messages
+    agree with it, and an **outlier** (one corrupted record time: one flipped bit of the
+    top byte moves it by centuries) when they agree with the previous one instead: it is
+    then replaced by the previous good receive time and counted ``time_outlier`` (the
+    message itself is kept; its vehicle time is not affected). Non-finite or negative
+    receive times are outliers too. ``filter(pairs)`` wraps an iterator of
+    ``(message, rx)``; it delays messages by at most :data:`RX_LOOKAHEAD` messages.
+    """
+
+    def __init__(self, stats: IngestStats) -> None:
+        self.stats = stats
+        self.prev: float | None = None
+
+    def _decide(self, rx: float | None, nxt: list[float]) -> float | None:
+        if rx is None:
+            return None
+        bad = not (rx >= 0.0 and rx < 1e11)  # NaN, negative, beyond the year 5000
+        if not bad and self.prev is not None and abs(rx - self.prev) > RX_TOL:
+            agree_self = sum(abs(x - rx) <= RX_TOL for x in nxt)
+            agree_prev = sum(abs(x - self.prev) <= RX_TOL for x in nxt)
+            bad = agree_prev > agree_self
+        if bad:
+            self.stats.bad("time_outlier", "rx")
+            return self.prev
+        self.prev = rx
+        return rx
+
+    def filter(self, pairs):
+        from collections import deque
+
+        buf: deque = deque()
+        for msg, rx in pairs:
+            buf.append((msg, rx))
+            if len(buf) > RX_LOOKAHEAD:
+                m, r = buf.popleft()
+                nxt = [x for _, x in buf if x is not None]
+                yield m, self._decide(r, nxt)
+        while buf:
+            m, r = buf.popleft()
+            nxt = [x for _, x in buf if x is not None]
+            yield m, self._decide(r, nxt)

@@ -66,6 +66,8 @@ BAD_KINDS = (
     "unsigned",  # live link with signing on: unsigned (or MAVLink 1) packet
     "bad_signature",  # live link with signing on: wrong key, or replayed/old timestamp
     "queue_overflow",  # live link: reader queue full (consumer too slow), message dropped
+    "time_outlier",  # one time stamp far from its neighbours' (a corrupted receive or
+    # vehicle time): a receive time is repaired (the item kept), a vehicle time dropped
 )
 
 #: Events counted by :class:`IngestStats` that are not bad data.
@@ -281,6 +283,7 @@ class IngestStats:
     unsigned: int = 0
     bad_signature: int = 0
     queue_overflow: int = 0
+    time_outlier: int = 0
     time_reset: int = 0  # vehicle reboots detected (not bad data; time continued)
     time_wrap: int = 0  # 32-bit time_boot_ms wraps unwrapped
     non_mavlink: int = 0  # printable text runs between frames (SITL banner), bytes ignored

@@ -1,0 +1,133 @@
+"""Hostile inputs, built from the shared logs: seeded truncations, byte flips, splices,
+duplicated and reordered sections, random bytes after a valid header, and targeted
+corruptions of one timestamp. Used by ``tests/hostile`` and ``benchmarks/hostile_sweep.py``.
+"""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+
+LOGS = Path(__file__).resolve().parents[3] / "shared" / "logs"
+
+
+def logs_dir() -> Path:
+    """The shared logs (``repo_root/../shared/logs``)."""
+    return LOGS
+
+
+def tlog_records(data: bytes) -> list[tuple[int, int, int]]:
+    """(offset, length, msgid) of each record of a tlog: 8-byte BE time + MAVLink frame."""
+    out = []
+    pos, n = 0, len(data)
+    while pos + 8 + 8 <= n:
+        stx = data[pos + 8]
+        if stx == 0xFE:
+            ln = 8 + 6 + data[pos + 9] + 2
+            mid = data[pos + 13]
+        elif stx == 0xFD:
+            sig = 13 if data[pos + 10] & 1 else 0
+            ln = 8 + 10 + data[pos + 9] + 2 + sig
+            mid = data[pos + 15] | data[pos + 16] << 8 | data[pos + 17] << 16
+        else:  # not at a record: resync byte by byte
+            pos += 1
+            continue
+        out.append((pos, ln, mid))
+        pos += ln
+    return out
+
+
+def flip_tlog_rx_top_bit(data: bytes, msgid: int = 30, which: int = 100) -> bytes:
+    """Set the top bit of the 8-byte receive time of the ``which``-th record of ``msgid``
+    (30 = ATTITUDE)."""
+    recs = [r for r in tlog_records(data) if r[2] == msgid]
+    off = recs[which][0]
+    b = bytearray(data)
+    b[off] |= 0x80
+    return bytes(b)
+
+
+def flip_bits(data: bytes, rate: float, seed: int, skip: int = 0) -> bytes:
+    """Flip one random bit in a fraction ``rate`` of the bytes after the first ``skip``."""
+    rng = np.random.default_rng(seed)
+    a = np.frombuffer(data, dtype=np.uint8).copy()
+    n = a.size - skip
+    k = max(1, int(round(rate * n)))
+    idx = skip + rng.choice(n, size=k, replace=False)
+    a[idx] ^= (1 << rng.integers(0, 8, size=k)).astype(np.uint8)
+    return a.tobytes()
+
+
+def truncate(data: bytes, frac: float) -> bytes:
+    return data[: int(len(data) * frac)]
+
+
+def splice(a: bytes, b: bytes, cut_a: float, cut_b: float) -> bytes:
+    """The first ``cut_a`` of ``a`` then ``b`` from ``cut_b`` on (a cut mid-record)."""
+    return a[: int(len(a) * cut_a)] + b[int(len(b) * cut_b):]
+
+
+def duplicate_section(data: bytes, lo: float, hi: float) -> bytes:
+    i, j = int(len(data) * lo), int(len(data) * hi)
+    return data[:j] + data[i:j] + data[j:]
+
+
+def swap_sections(data: bytes, lo: float, mid: float, hi: float) -> bytes:
+    i, m, j = (int(len(data) * f) for f in (lo, mid, hi))
+    return data[:i] + data[m:j] + data[i:m] + data[j:]
+
+
+def random_after_header(data: bytes, header: int, size: int, seed: int) -> bytes:
+    rng = np.random.default_rng(seed)
+    return data[:header] + rng.integers(0, 256, size=size, dtype=np.uint8).tobytes()
+
+
+def ulog_data_start(data: bytes) -> int:
+    """Offset of the first data-section record of a ULog (after definitions)."""
+    pos = 16
+    while pos + 3 <= len(data):
+        size, typ = struct.unpack_from("<HB", data, pos)
+        if typ in (ord("A"), ord("D"), ord("L"), ord("C"), ord("S"), ord("O")):
+            return pos
+        pos += 3 + size
+    return pos
+
+
+def ulog_records(data: bytes):
+    """(offset, size, type) of each ULog record after the 16-byte header."""
+    pos, out = 16, []
+    while pos + 3 <= len(data):
+        size, typ = struct.unpack_from("<HB", data, pos)
+        out.append((pos, size, typ))
+        pos += 3 + size
+    return out
+
+
+def ulog_msg_ids(data: bytes) -> dict[int, str]:
+    """msg_id -> topic name from the 'A' (add logged message) records."""
+    out = {}
+    for pos, size, typ in ulog_records(data):
+        if typ == ord("A"):
+            _multi, mid = struct.unpack_from("<BH", data, pos + 3)
+            out[mid] = data[pos + 6: pos + 3 + size].decode("ascii", "replace")
+    return out
+
+
+def ulog_set_timestamp(data: bytes, topic: str, which: int, value: int) -> bytes:
+    """Set the 8-byte ``timestamp`` (first field) of the ``which``-th message of ``topic``."""
+    ids = {m for m, n in ulog_msg_ids(data).items() if n == topic}
+    recs = [r for r in ulog_records(data)
+            if r[2] == ord("D") and struct.unpack_from("<H", data, r[0] + 3)[0] in ids]
+    pos = recs[which][0] + 5
+    b = bytearray(data)
+    struct.pack_into("<Q", b, pos, value)
+    return bytes(b)
+
+
+def ulog_timestamp(data: bytes, topic: str, which: int) -> int:
+    ids = {m for m, n in ulog_msg_ids(data).items() if n == topic}
+    recs = [r for r in ulog_records(data)
+            if r[2] == ord("D") and struct.unpack_from("<H", data, r[0] + 3)[0] in ids]
+    return struct.unpack_from("<Q", data, recs[which][0] + 5)[0]
