@@ -131,3 +131,33 @@ def ulog_timestamp(data: bytes, topic: str, which: int) -> int:
     recs = [r for r in ulog_records(data)
             if r[2] == ord("D") and struct.unpack_from("<H", data, r[0] + 3)[0] in ids]
     return struct.unpack_from("<Q", data, recs[which][0] + 5)[0]
+
+
+def df_records(data: bytes) -> list[tuple[int, int, str]]:
+    """(offset, length, name) of each DataFlash record (A3 95 id + payload, FMT lengths)."""
+    fmts: dict[int, tuple[int, str]] = {128: (89, "FMT")}
+    out, pos, n = [], 0, len(data)
+    while pos + 3 <= n:
+        if data[pos] != 0xA3 or data[pos + 1] != 0x95 or data[pos + 2] not in fmts:
+            pos += 1
+            continue
+        ln, name = fmts[data[pos + 2]]
+        if data[pos + 2] == 128 and pos + 89 <= n:
+            typ, length = data[pos + 3], data[pos + 4]
+            fmts[typ] = (length, data[pos + 5: pos + 9].rstrip(b"\0").decode("ascii", "replace"))
+        out.append((pos, ln, name))
+        pos += ln
+    return out
+
+
+def df_set_time(data: bytes, name: str, which: int, value: int) -> bytes:
+    """Set the TimeUS (first field, uint64) of the ``which``-th ``name`` record."""
+    recs = [r for r in df_records(data) if r[2] == name]
+    b = bytearray(data)
+    struct.pack_into("<Q", b, recs[which][0] + 3, value)
+    return bytes(b)
+
+
+def df_time(data: bytes, name: str, which: int) -> int:
+    recs = [r for r in df_records(data) if r[2] == name]
+    return struct.unpack_from("<Q", data, recs[which][0] + 3)[0]

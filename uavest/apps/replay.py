@@ -25,7 +25,7 @@ from ..engine.loop import Lane, run_lanes
 from ..engine.records import RunInfo, StepRecord, package_versions
 from ..engine.runner import FilterRunner
 from ..engine.smooth import smooth_records
-from ..eval.attitude import AttitudeScorer, nees_attitude, rmse_deg, select_reference
+from ..eval.attitude import AttitudeScorer, choose_reference, nees_attitude, rmse_deg
 from ..geometry.rotation import quat_slerp_interp
 from ..ingest.types import AttitudeRef, ImuSample, MagSample
 from ..seeding import filter_stream, rng
@@ -223,7 +223,7 @@ def replay(
         src, cfg, params=src.params, sinks=sinks, info=info, rng_for=rng_for)
     sm = stream.summary
     refs = scorer.refs
-    ref_name, ap_name = select_reference(refs)
+    ref_name, ap_name, rejected = choose_reference(refs, scorer.window)
     truth = ref_name is not None and refs[ref_name].kind == "truth"
     wall = out["wall_s"]
     doc: dict = {
@@ -234,6 +234,7 @@ def replay(
         "mag_source": sm.get("mag_source"),
         "reference": ref_name,
         "reference_kind": None if ref_name is None else refs[ref_name].kind,
+        "references_rejected": rejected,
         "imu_rate_hz": sm.get("imu_rate_hz"),
         "filter_rate_hz": sm.get("filter_rate_hz"),
         "integration": sm.get("integration"),
@@ -269,11 +270,51 @@ def replay(
             doc["filters"].setdefault(label, row)
     bad = src.stats.as_dict()
     doc["bad_data"] = bad
+    doc["repaired"] = {k: bad[k] for k in ("time_outlier",) if bad.get(k)}
     doc["guard_resets"] = {r.label: r.resets for r in runners}
+    doc["unreliable"] = reliability(doc, sm)
     doc["wall_s"] = wall
     dur = float(sm.get("duration_s") or 0.0)
     doc["realtime_factor"] = dur / wall if wall > 0 else None
     return doc
+
+
+#: Fraction of the log's records that may be bad before a result is flagged unreliable.
+MAX_BAD_FRACTION = 0.01
+#: Mean NEES against truth beyond which the filter is flagged inconsistent (3 is ideal).
+MAX_NEES = 30.0
+
+
+def reliability(doc: dict, summary: dict) -> list[str]:
+    """Reasons the result ``doc`` should not be trusted as it stands (empty: none):
+    nothing to score against, a large share of bad data, filters reset by their guard,
+    dropped IMU samples, steps left unscored, inconsistent NEES against truth."""
+    out: list[str] = []
+    if doc["reference"] is None:
+        why = "; ".join(f"{k}: {v}" for k, v in doc["references_rejected"].items())
+        out.append("no usable reference: nothing scored" + (f" ({why})" if why else ""))
+    bad = doc["bad_data"]
+    total = sum(bad["messages"].values()) + bad["corrupt"] + bad["unknown_message"]
+    # bad items other than the re-sent/duplicate messages every log has
+    damage = bad["bad_total"] - bad["duplicate"] - bad["time_backwards"]
+    if total and damage / total > MAX_BAD_FRACTION:
+        out.append(f"{100 * damage / total:.1f} % of the log's records were bad "
+                   f"(> {100 * MAX_BAD_FRACTION:g} %)")
+    resets = {k: v for k, v in doc["guard_resets"].items() if v}
+    if resets:
+        out.append("filter guard resets: " + ", ".join(f"{k} {v}" for k, v in resets.items()))
+    dropped = int(summary.get("imu_dropped") or 0)
+    if dropped:
+        out.append(f"{dropped} IMU samples dropped by the step builder")
+    steps = int(summary.get("steps") or 0)
+    if doc["reference"] is not None and steps:
+        for label, row in doc["filters"].items():
+            if label in doc["guard_resets"] and row.get("n", 0) < 0.5 * steps:
+                out.append(f"{label}: only {row.get('n', 0)} of {steps} steps scored")
+            nees = row.get("nees_mean")
+            if nees is not None and label in doc["guard_resets"] and nees > MAX_NEES:
+                out.append(f"{label}: NEES {nees:.3g} against truth (consistent: 3)")
+    return out
 
 
 def _config_dict(cfg: ReplayConfig) -> dict:

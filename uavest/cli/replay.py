@@ -58,11 +58,17 @@ def format_doc(doc: dict) -> str:
         f"{doc['filter_rate_hz']:.1f} Hz ({doc['integration']})"
     ]
     ref, kind = doc["reference"], doc["reference_kind"]
+    rejected = doc.get("references_rejected") or {}
     if ref is None:
-        lines.append("reference: none in this log (RMSE not available)")
+        lines.append("reference: none usable in this log (RMSE not available)")
     else:
         what = "truth" if kind == "truth" else f"{kind} estimate, not truth"
         lines.append(f"reference: {ref} ({what}); RMSE in degrees, Euler ZYX, wrapped")
+    for name, why in rejected.items():
+        lines.append(f"  not used as reference: {name}: {why}")
+    if doc.get("declination_source"):
+        lines.append(f"declination: {math.degrees(doc['declination_rad'] or 0.0):.2f} deg "
+                     f"({doc['declination_source']})")
     rows = {}
     for name, row in doc["filters"].items():
         rows[name] = row
@@ -75,6 +81,12 @@ def format_doc(doc: dict) -> str:
     parts = [f"{k} {bad[k]}" for k in bad
              if isinstance(bad[k], int) and bad[k] and k not in ("bad_total",)]
     lines.append(f"bad data: {bad['bad_total']}" + (f" ({', '.join(parts)})" if parts else ""))
+    rep = doc.get("repaired") or {}
+    if rep.get("time_outlier"):
+        lines.append(f"repaired: {rep['time_outlier']} time stamps that were outliers against "
+                     "their neighbours (kept with a time from their neighbours)")
+    for why in doc.get("unreliable") or []:
+        lines.append(f"UNRELIABLE: {why}")
     rt = doc["realtime_factor"]
     lines.append(f"replay speed: {rt:.1f}x real time ({len(doc['guard_resets'])} filters "
                  f"together, {doc['wall_s']:.2f} s)" if rt else "replay speed: -")
@@ -109,6 +121,13 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if args.json:
         write_json(args.json, doc)
         print(f"wrote {args.json}")
+    if doc["reference"] is None:
+        why = "; ".join(f"{k}: {v}" for k, v in doc["references_rejected"].items())
+        print(f"uavest replay: error: {args.log}: nothing to score against: "
+              + (f"no usable attitude reference ({why})" if why else
+                 "the log has no attitude reference (truth, autopilot or AHRS2)"),
+              file=sys.stderr)
+        return 2
     return 0
 
 

@@ -12,8 +12,11 @@ from .types import IngestStats
 
 WRAP_MS32 = 2**32 * 1e-3  # s, period of a uint32 millisecond counter (~49.7 days)
 RESET_JUMP = 2.0  # s, backwards jump (vs. newest time of the system) that may be a reboot
-FORWARD_JUMP_NO_RX = 60.0  # s, forward jump that is suspicious when no receive time
+FORWARD_JUMP_NO_RX = 2.0  # s, forward jump held for confirmation when no receive time
+# (one corrupted DataFlash TimeUS must not move the clock: a real gap is confirmed by the
+# next messages)
 FORWARD_JUMP_RX = 10.0  # s, forward jump beyond the receive-time elapsed
+CONFIRM_SPAN = 60.0  # s, largest step between held messages that still confirm each other
 CONFIRM = 3  # consecutive consistent messages needed to accept a reset/jump
 JITTER = 1.0  # s, allowed disorder between message types of one system
 
@@ -115,7 +118,7 @@ class VehicleClock:
         if self._pending:
             last = self._pending[-1].raw
             lo = min(p.raw for p in self._pending)
-            if kind == self._pending_kind and lo - JITTER <= raw <= last + FORWARD_JUMP_NO_RX:
+            if kind == self._pending_kind and lo - JITTER <= raw <= last + CONFIRM_SPAN:
                 self._pending.append(_Pending(raw, rx, payload))
                 if len(self._pending) >= CONFIRM and max(p.raw for p in self._pending) > lo:
                     return self._confirm_pending()
