@@ -217,6 +217,8 @@ def replay(
 
     cfg = cfg or ReplayConfig()
     src = open_source(path)
+    if cfg.declination is None and src.format in ("tlog", "dataflash", "dataflash-text"):
+        src.prescan_geo()  # the GPS fix and date, for the magnetic model if needed
     info = RunInfo(command, str(path), cfg.seed, config=_config_dict(cfg),
                    versions=package_versions())
     out, stream, runners, scorer, coll = replay_samples(

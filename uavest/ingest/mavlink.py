@@ -23,6 +23,7 @@ from .types import (
     ImuSample,
     IngestError,
     IngestStats,
+    LogParams,
     MagSample,
     PositionSample,
     Sample,
@@ -100,6 +101,28 @@ def _source_key(m) -> str:
     return m.source + (".mag" if isinstance(m, MagSample) else "")
 
 
+_GPS_EPOCH = 315964800.0  # UNIX time of the GPS epoch (1980-01-06)
+_LEAP_S = 18.0  # GPS - UTC since 2017
+
+
+def _gps_geo(msg, params: LogParams, unix_offset: float | None) -> None:
+    """Record the first 3-D GPS fix with a date (MAVLink GPS_RAW_INT, DataFlash GPS)."""
+    with contextlib.suppress(Exception):
+        if msg.get_type() == "GPS_RAW_INT":
+            if msg.fix_type < 3:
+                return
+            tu = float(msg.time_usec)
+            utc = tu * 1e-6 if tu > 1e15 else (
+                None if unix_offset is None else unix_offset + tu * 1e-6)
+            if utc is not None:
+                params.set_geo(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3, utc)
+            return
+        if getattr(msg, "Status", 0) < 3 or not getattr(msg, "GWk", 0):
+            return
+        utc = _GPS_EPOCH + msg.GWk * 604800.0 + msg.GMS * 1e-3 - _LEAP_S
+        params.set_geo(msg.Lat, msg.Lng, getattr(msg, "Alt", 0.0), utc)
+
+
 class MavlinkSource:
     """Iterable of measurements from a tlog or a DataFlash log (live links: ``LiveLink``).
 
@@ -126,7 +149,7 @@ class MavlinkSource:
         self.reorder_window = reorder_window
         self.sysid = sysid  # MAVLink: only this system (others counted wrong_sysid)
         self.stats = IngestStats()
-        self.params: dict[str, float] = {}
+        self.params = LogParams()
 
     # ----------------------------------------------------------------- readers
     def _open(self):
@@ -273,6 +296,8 @@ class MavlinkSource:
                     yield dataclasses.replace(rx, t=t_ev)
                 continue
             name = msg.get_type()
+            if name in ("GPS", "GPS_RAW_INT") and self.params.geo is None:
+                _gps_geo(msg, self.params, systime.get(0 if is_df else msg.get_srcSystem()))
             if is_df:
                 if name == "PARM":
                     self._param(getattr(msg, "Name", None), getattr(msg, "Value", None))
@@ -323,6 +348,29 @@ class MavlinkSource:
             finish(clock.flush())
             drain(clock)
         yield from reorder.pop_ready(flush=True)
+
+    def prescan_geo(self, max_messages: int = 100_000) -> None:
+        """Find the first GPS fix with its date before the replay (``params.geo``): a
+        DataFlash log records its boot parameters (``COMPASS_DEC`` 0 with auto-declination)
+        long before the GPS lock. Reads at most ``max_messages`` messages; counts nothing."""
+        keep = self.stats
+        self.stats = IngestStats()
+        systime: dict[int, float] = {}
+        try:
+            for i, (msg, _rx) in enumerate(self._read()):
+                if msg is None or i >= max_messages or self.params.geo is not None:
+                    break
+                name = msg.get_type()
+                if name == "SYSTEM_TIME" and msg.time_boot_ms and msg.time_unix_usec:
+                    systime[msg.get_srcSystem()] = (msg.time_unix_usec * 1e-6
+                                                    - msg.time_boot_ms * 1e-3)
+                elif name in ("GPS", "GPS_RAW_INT"):
+                    sysid = 0 if self.format.startswith("dataflash") else msg.get_srcSystem()
+                    _gps_geo(msg, self.params, systime.get(sysid))
+        except Exception:  # noqa: BLE001 - a pre-scan never fails the replay
+            pass
+        finally:
+            self.stats = keep
 
     def _param(self, name, value) -> None:
         if isinstance(name, bytes):

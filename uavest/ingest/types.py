@@ -31,6 +31,7 @@ __all__ = [
     "AdsbSample",
     "LinkEvent",
     "IngestStats",
+    "LogParams",
     "ImuSeries",
     "MagSeries",
     "RefSeries",
@@ -256,6 +257,31 @@ class LinkEvent:
 Sample = (
     ImuSample | MagSample | AttitudeRef | PositionSample | DetectionSample | AdsbSample
 )
+
+
+class LogParams(dict):
+    """A log's parameters (name -> float), and ``geo``: the first GPS fix with its date,
+    ``{"lat": deg, "lon": deg, "alt": m AMSL, "utc": UNIX s}`` or None, which the sources
+    fill as they read (for the World Magnetic Model declination when the log's own is
+    unknown, :func:`uavest.models.attitude.declination_and_source`)."""
+
+    geo: dict | None = None
+
+    def set_geo(self, lat, lon, alt, utc) -> None:
+        """Keep the first plausible fix (later calls are ignored)."""
+        import math
+
+        if self.geo is not None:
+            return
+        try:
+            v = [float(lat), float(lon), float(alt), float(utc)]
+        except (TypeError, ValueError):
+            return
+        if not all(math.isfinite(x) for x in v) or abs(v[0]) > 90 or abs(v[1]) > 180:
+            return
+        if (v[0], v[1]) == (0.0, 0.0) or not 1.0e9 < v[3] < 4.1e9:  # no fix, or no date
+            return
+        self.geo = {"lat": v[0], "lon": v[1], "alt": v[2], "utc": v[3]}
 
 
 @dataclass(slots=True)

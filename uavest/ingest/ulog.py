@@ -18,6 +18,7 @@ from .types import (
     ImuSample,
     IngestError,
     IngestStats,
+    LogParams,
     MagSample,
     PositionSample,
     Sample,
@@ -32,6 +33,7 @@ _TOPICS = [
     "vehicle_attitude_groundtruth",
     "vehicle_local_position",
     "vehicle_global_position",
+    "vehicle_gps_position",  # only the first fix with its date (declination model)
 ]
 _REF_TOPICS = {"vehicle_attitude": "autopilot", "vehicle_attitude_groundtruth": "truth"}
 _INVALID_REL = 0x7FFFFFFF  # PX4 RELATIVE_TIMESTAMP_INVALID
@@ -93,9 +95,11 @@ class ULogData:
             stats.bad("truncated")
         if corrupt or getattr(ul, "file_corruption", False):
             stats.bad("corrupt")
-        self.params: dict[str, float] = {
-            k: float(v) for k, v in ul.initial_parameters.items() if np.isfinite(float(v))
-        }
+        self.params = LogParams()
+        for k, v in ul.initial_parameters.items():
+            with contextlib.suppress(TypeError, ValueError):
+                if np.isfinite(float(v)):
+                    self.params[k] = float(v)
         self.imu: dict[str, tuple] = {}
         self.mag: dict[str, tuple] = {}
         self.refs: dict[str, tuple] = {}
@@ -142,6 +146,12 @@ class ULogData:
                 keep[idx[bad]] = False
         st.accepted[src] += int(keep.sum())
         return keep
+
+    def _gps(self, data: dict) -> None:
+        with contextlib.suppress(KeyError, TypeError, ValueError):
+            fix = _first_fix(data)
+            if fix is not None:
+                self.params.set_geo(*fix)
 
     @staticmethod
     def _vec(data: dict, fmt: str, n: int = 3) -> np.ndarray:
@@ -222,6 +232,8 @@ class ULogData:
             }
             k = self._filter(src, t, [ned, vel], oor)
             self.pos[src] = (t[k], ned[k], vel[k], np.full((int(k.sum()), 3), np.nan))
+        elif name == "vehicle_gps_position":
+            self._gps(data)
         elif name == "vehicle_global_position":
             t = self._time(data, src)
             lla = np.stack(
@@ -231,6 +243,27 @@ class ULogData:
             k = self._filter(src, t, [lla], oor)
             nan3 = np.full((int(k.sum()), 3), np.nan)
             self.pos[src] = (t[k], nan3, nan3.copy(), lla[k])
+
+
+def _first_fix(data: dict):
+    """(lat deg, lon deg, alt m, UNIX s) of the first 3-D fix with a date, or None."""
+    fix = np.asarray(data.get("fix_type", []))
+    utc = np.asarray(data.get("time_utc_usec", []), dtype=float)
+    if fix.size == 0 or utc.size != fix.size:
+        return None
+    if "latitude_deg" in data:
+        lat, lon = np.asarray(data["latitude_deg"], float), np.asarray(data["longitude_deg"], float)
+        alt = np.asarray(data.get("altitude_msl_m", np.zeros(fix.size)), float)
+    elif "lat" in data:
+        lat, lon = np.asarray(data["lat"], float) * 1e-7, np.asarray(data["lon"], float) * 1e-7
+        alt = np.asarray(data.get("alt", np.zeros(fix.size)), float) * 1e-3
+    else:
+        return None
+    ok = np.flatnonzero((fix >= 3) & (utc > 1e15) & np.isfinite(lat) & (np.abs(lat) <= 90))
+    if ok.size == 0:
+        return None
+    i = ok[0]
+    return lat[i], lon[i], alt[i], utc[i] * 1e-6
 
 
 class ULogSource:
