@@ -6,6 +6,7 @@ import contextlib
 import dataclasses
 import heapq
 import io
+import logging
 import math
 import os
 import re
@@ -33,6 +34,62 @@ from .types import (
 _UNTIMED = {"SIMSTATE", "AHRS2", "ADSB_VEHICLE"}
 _MAX_STALL = 1000  # reads without file progress before giving up (hang guard)
 _SKIPPED_RE = re.compile(r"Skipped (\d+) bad bytes")
+_BADHDR_RE = re.compile(r"bad header 0x[0-9a-f]+ 0x[0-9a-f]+ at (\d+)")
+_log = logging.getLogger("uavest.ingest")
+
+
+def _chatter(text: str, stats: IngestStats, what: str) -> int:
+    """Count what pymavlink printed (kept off the terminal; shown with -v through
+    ``logging``): runs of "bad header" bytes and "Skipped N bad bytes" as corrupt, "unknown
+    msg type" as unknown_message. Returns the corrupt runs counted."""
+    if not text:
+        return 0
+    runs, last = 0, None
+    for m in _BADHDR_RE.finditer(text):
+        o = int(m.group(1))
+        if last is None or o != last + 1:
+            runs += 1
+        last = o
+    runs += len(_SKIPPED_RE.findall(text)) + text.count("Failed to parse")
+    runs += text.count("bad msg at offset")
+    stats.bad("corrupt", n=runs)
+    stats.bad("unknown_message", n=text.count("unknown msg type"))
+    lines = [ln for ln in text.splitlines() if ln.strip() and "dfindexer" not in ln
+             and "PYMAVLINK_FAST_INDEX" not in ln]
+    for ln in lines[:5]:
+        _log.info("%s: pymavlink: %s", what, ln[:200])
+    if len(lines) > 5:
+        _log.info("%s: pymavlink: ... %d more lines", what, len(lines) - 5)
+    return runs
+
+
+@contextlib.contextmanager
+def _quiet():
+    """pymavlink's prints (stdout and stderr, Python's and its C indexer's at the file
+    descriptor level) into a buffer."""
+    import sys
+    import tempfile
+
+    buf = io.StringIO()
+    with tempfile.TemporaryFile(mode="w+b") as tmp:
+        saved = []
+        try:
+            for fd, stream in ((1, sys.stdout), (2, sys.stderr)):
+                with contextlib.suppress(Exception):
+                    stream.flush()
+                try:
+                    saved.append((fd, os.dup(fd)))
+                    os.dup2(tmp.fileno(), fd)
+                except OSError:
+                    pass
+            with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
+                yield buf
+        finally:
+            for fd, old in saved:
+                os.dup2(old, fd)
+                os.close(old)
+            tmp.seek(0)
+            buf.write(tmp.read(1 << 20).decode("utf-8", "replace"))
 
 
 def build(raw: Raw, t: float) -> Sample:
@@ -158,11 +215,13 @@ class MavlinkSource:
         try:
             if self.format == "tlog":
                 return mavutil.mavlogfile(str(self.path), robust_parsing=True)
-            if self.format == "dataflash":
-                with contextlib.redirect_stdout(io.StringIO()):
-                    return DFReader.DFReader_binary(str(self.path), zero_time_base=False)
-            with contextlib.redirect_stdout(io.StringIO()):
-                return DFReader.DFReader_text(str(self.path), zero_time_base=False)
+            with _quiet() as buf:
+                if self.format == "dataflash":
+                    conn = DFReader.DFReader_binary(str(self.path), zero_time_base=False)
+                else:
+                    conn = DFReader.DFReader_text(str(self.path), zero_time_base=False)
+            _chatter(buf.getvalue(), self.stats, str(self.path))
+            return conn
         except Exception as e:  # pymavlink raises many kinds on garbage
             raise IngestError(
                 f"{self.path}: cannot open as {self.format} ({type(e).__name__}: {e})"
@@ -186,7 +245,7 @@ class MavlinkSource:
                 buf = io.StringIO()
                 try:
                     if is_df:
-                        with contextlib.redirect_stdout(buf):
+                        with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
                             msg = conn.recv_msg()
                     else:
                         msg = conn.recv_msg()
@@ -196,9 +255,7 @@ class MavlinkSource:
                     if not is_df and self._at_eof(conn):
                         break
                 if is_df and buf.tell():
-                    text = buf.getvalue()
-                    st.bad("corrupt", n=len(_SKIPPED_RE.findall(text)))
-                    st.bad("unknown_message", n=text.count("unknown msg type"))
+                    _chatter(buf.getvalue(), st, str(self.path))
                 pos = self._position(conn)
                 if pos == last_pos:
                     stall += 1
