@@ -17,6 +17,20 @@ from .report import progress, table
 __all__ = ["add_replay_parser", "cmd_replay", "format_doc"]
 
 
+#: Filters that need linear models (the attitude and radar models are nonlinear).
+LINEAR_ONLY = ("kf",)
+
+
+def reject_linear_only(specs, command: str, models: str) -> None:
+    """One-line ValueError for a filter that cannot run on ``command``'s models."""
+    for sp in specs or ():
+        name = str(sp).split("(")[0].strip().lower()
+        if name in LINEAR_ONLY:
+            raise ValueError(
+                f"--filters {sp}: the linear Kalman filter needs linear models; {command} "
+                f"uses {models} (use ekf, ukf, srukf, enkf, hybrid, pf...)")
+
+
 def _parse_noise(items: list[str]) -> dict:
     known = set(AttitudeNoise.__dataclass_fields__)
     out = {}
@@ -95,11 +109,9 @@ def format_doc(doc: dict) -> str:
 
 def cmd_replay(args: argparse.Namespace) -> int:
     """Entry point of ``uavest replay`` (errors reach ``uavest.cli.main``: exit 2)."""
-    p = Path(args.log)
-    if p.is_dir():
-        raise ValueError(f"{args.log} is a directory, not a log file")
-    if not p.exists():
-        raise ValueError(f"no such log file: {args.log}")
+    from ..ingest import detect_format
+
+    detect_format(Path(args.log))  # one-line IngestError for missing/special/unknown files
     if args.declination is not None and not math.isfinite(args.declination):
         raise ValueError(
             f"--declination must be a finite number of degrees, got {args.declination}")
@@ -108,6 +120,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             f"--mag-delay must be a finite number of seconds >= 0, got {args.mag_delay}")
     if args.rate is not None and (args.rate < 0 or not math.isfinite(args.rate)):
         raise ValueError(f"--rate must be >= 0 Hz (0 = every IMU sample), got {args.rate}")
+    reject_linear_only(args.filter_specs, "replay", "nonlinear attitude models")
     cfg = ReplayConfig(
         filters=tuple(args.filter_specs), start=args.start, end=args.end, smooth=args.smooth,
         seed=args.seed, rate_hz=args.rate, integration=args.integration,

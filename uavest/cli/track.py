@@ -116,6 +116,11 @@ def cmd_track(args: argparse.Namespace) -> int:
         raise ValueError(f"scenario {args.scenario!r} is not a radar scenario "
                          "(radar scenarios: see 'uavest list')")
     filters = args.filter_specs or list(sc.get("filters", []))
+    from ..experiments.resources import check
+    from .replay import reject_linear_only
+
+    reject_linear_only(filters, "track", "the nonlinear radar measurement model")
+    check(sc, filters or ["ekf", "ukf", "hybrid"], 1, int(sc.get("steps", 100)), "track")
     res = track_table(sc, filters or ["ekf", "ukf", "hybrid"], args.seed)
     print_table(res)
     if args.json:
@@ -138,6 +143,8 @@ def add_track_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a scenario parameter (dotted keys), repeatable")
     p.add_argument("--json", default=None, metavar="PATH", help="also write the table as JSON")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bar (accepted for symmetry with bench and replay)")
     p.set_defaults(func=cmd_track, filters_preset="radar")
     return p
 
