@@ -161,3 +161,18 @@ def df_set_time(data: bytes, name: str, which: int, value: int) -> bytes:
 def df_time(data: bytes, name: str, which: int) -> int:
     recs = [r for r in df_records(data) if r[2] == name]
     return struct.unpack_from("<Q", data, recs[which][0] + 3)[0]
+
+
+def ulog_corrupt_param(data: bytes, which: int = 0) -> bytes:
+    """Make the ``which``-th parameter record's type unreadable ('float' -> 'flXat'):
+    pyulog then returns its value as raw bytes."""
+    recs = [r for r in ulog_records(data) if r[2] == ord("P")]
+    pos = recs[which][0] + 3
+    b = bytearray(data)
+    key_len = b[pos]
+    key = bytes(b[pos + 1: pos + 1 + key_len])
+    i = key.find(b"float")
+    if i < 0:
+        i = key.find(b"int32_t")
+    b[pos + 1 + i + 2] = ord("X")
+    return bytes(b)

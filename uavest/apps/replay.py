@@ -221,8 +221,20 @@ def replay(
         src.prescan_geo()  # the GPS fix and date, for the magnetic model if needed
     info = RunInfo(command, str(path), cfg.seed, config=_config_dict(cfg),
                    versions=package_versions())
-    out, stream, runners, scorer, coll = replay_samples(
-        src, cfg, params=src.params, sinks=sinks, info=info, rng_for=rng_for)
+    try:
+        out, stream, runners, scorer, coll = replay_samples(
+            src, cfg, params=src.params, sinks=sinks, info=info, rng_for=rng_for)
+    except ValueError as e:
+        if "no samples" not in str(e) and "no IMU samples" not in str(e):
+            raise
+        st = src.stats.as_dict()
+        dmg = ", ".join(f"{k} {st[k]}" for k in st
+                        if isinstance(st[k], int) and st[k] and k != "bad_total")
+        window = (f" in the window {cfg.start}..{cfg.end} s"
+                  if cfg.start is not None or cfg.end is not None else "")
+        raise ValueError(f"{path}: no IMU samples could be read{window} "
+                         f"({dmg or 'no bad data counted'}; "
+                         f"{sum(st['messages'].values())} records decoded)") from None
     sm = stream.summary
     refs = scorer.refs
     ref_name, ap_name, rejected = choose_reference(refs, scorer.window)

@@ -97,9 +97,11 @@ class ULogData:
             stats.bad("corrupt")
         self.params = LogParams()
         for k, v in ul.initial_parameters.items():
-            with contextlib.suppress(TypeError, ValueError):
+            try:
                 if np.isfinite(float(v)):
                     self.params[k] = float(v)
+            except (TypeError, ValueError):  # an unreadable parameter: the rest is kept
+                stats.bad("corrupt", "parameter")
         self.imu: dict[str, tuple] = {}
         self.mag: dict[str, tuple] = {}
         self.refs: dict[str, tuple] = {}
