@@ -176,3 +176,13 @@ def ulog_corrupt_param(data: bytes, which: int = 0) -> bytes:
         i = key.find(b"int32_t")
     b[pos + 1 + i + 2] = ord("X")
     return bytes(b)
+
+
+def ulog_set_all_timestamps(data: bytes, topic: str, value: int) -> bytes:
+    """Set the ``timestamp`` of every message of ``topic`` to ``value``."""
+    ids = {m for m, n in ulog_msg_ids(data).items() if n == topic}
+    b = bytearray(data)
+    for pos, _size, typ in ulog_records(data):
+        if typ == ord("D") and struct.unpack_from("<H", data, pos + 3)[0] in ids:
+            struct.pack_into("<Q", b, pos + 5, value)
+    return bytes(b)

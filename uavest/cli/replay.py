@@ -112,9 +112,18 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from ..ingest import detect_format
 
     detect_format(Path(args.log))  # one-line IngestError for missing/special/unknown files
-    if args.declination is not None and not math.isfinite(args.declination):
+    if args.declination is not None and not (
+            math.isfinite(args.declination) and -180.0 <= args.declination <= 180.0):
         raise ValueError(
-            f"--declination must be a finite number of degrees, got {args.declination}")
+            f"--declination must be a number of degrees from -180 to 180, got {args.declination}")
+    for name in ("start", "end"):
+        v = getattr(args, name)
+        if v is not None and not math.isfinite(v):
+            raise ValueError(f"--{name} must be a finite time in s, got {v}")
+    if args.start is not None and args.end is not None and args.end <= args.start:
+        raise ValueError(f"--end ({args.end}) must be after --start ({args.start})")
+    if args.mag_delay > 10.0:
+        raise ValueError(f"--mag-delay must be at most 10 s, got {args.mag_delay}")
     if args.mag_delay < 0 or not math.isfinite(args.mag_delay):
         raise ValueError(
             f"--mag-delay must be a finite number of seconds >= 0, got {args.mag_delay}")
