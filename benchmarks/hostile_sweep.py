@@ -34,6 +34,7 @@ def main() -> int:
     ap.add_argument("--json", help="write every case's outcome here")
     ap.add_argument("--only", help="only cases whose name contains this")
     ap.add_argument("--timeout", type=float, default=120.0)
+    ap.add_argument("--jobs", type=int, default=2, help="cases run at once (default 2)")
     a = ap.parse_args()
     cases = H.all_cases(full=not a.quick)
     if a.only:
@@ -42,22 +43,36 @@ def main() -> int:
     rows = []
     clean: dict[str, dict] = {}
     t0 = time.monotonic()
+    from concurrent.futures import ThreadPoolExecutor
+
     with tempfile.TemporaryDirectory() as tmp:
-        for i, c in enumerate(cases):
+        def one(ic):
+            i, c = ic
             wd = Path(tmp) / f"c{i}"
             res = H.run(c, wd, a.timeout)
-            if c["name"].endswith(":clean") and res["doc"]:
-                clean[c["fmt"]] = res["doc"]
-            base = clean.get(c.get("base", ""))
-            out = H.classify(c, res, base)
+            for f in wd.glob("input*"):
+                f.unlink()
+            return i, c, res
+
+        def record(i, c, res):
+            out = H.classify(c, res, clean.get(c.get("base", "")))
             last = [ln for ln in res["stderr"].splitlines() if ln.strip()][-1:] or [""]
             rows.append({"name": c["name"], "cls": c["cls"], "outcome": out, "rc": res["rc"],
                          "secs": round(res["secs"], 2), "maxrss_mb": res["maxrss"] >> 20,
                          "message": last[0][:300]})
-            print(f"[{i + 1}/{len(cases)}] {out:16s} rc={res['rc']} {res['secs']:5.1f}s "
-                  f"{c['name']}  {last[0][:120]}", flush=True)
-            for f in wd.glob("input*"):
-                f.unlink()
+            print(f"[{len(rows)}/{len(cases)}] {out:16s} rc={res['rc']} {res['secs']:5.1f}s "
+                  f"{res['maxrss'] >> 20:5d}MB {c['name']}  {last[0][:110]}", flush=True)
+
+        first = [(i, c) for i, c in enumerate(cases) if c["name"].endswith(":clean")]
+        rest = [(i, c) for i, c in enumerate(cases) if not c["name"].endswith(":clean")]
+        for ic in first:  # the clean bases first: the damaged logs are compared with them
+            i, c, res = one(ic)
+            if res["doc"]:
+                clean[c["fmt"]] = res["doc"]
+            record(i, c, res)
+        with ThreadPoolExecutor(max(1, a.jobs)) as ex:
+            for i, c, res in ex.map(one, rest):
+                record(i, c, res)
     by: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
     for r in rows:
         by[r["cls"]][r["outcome"]] += 1

@@ -227,6 +227,19 @@ def all_cases(full: bool = True) -> list[dict]:
 # ------------------------------------------------------------------------------ running
 
 
+# the child: ``python -m uavest ARGS`` that writes its own peak RSS (KiB) on the way out
+_CHILD = """
+import os, resource, runpy, sys
+def _rss():
+    with open(os.environ["UAVEST_HOSTILE_RSS"], "w") as f:
+        f.write(str(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss))
+import atexit
+atexit.register(_rss)
+sys.argv = ["uavest"] + sys.argv[1:]
+runpy.run_module("uavest", run_name="__main__")
+"""
+
+
 def _limit():
     resource.setrlimit(resource.RLIMIT_AS, (4 * GB, 4 * GB))  # a safety net; RSS is measured
 
@@ -244,10 +257,11 @@ def run(case: dict, workdir: Path, timeout: float = 120.0) -> dict:
     if sp == "symlink loop" and not (workdir / "loop.tlog").is_symlink():
         os.symlink(workdir / "loop.tlog", workdir / "loop.tlog")
     argv = [a.replace("{f}", str(f)).replace("{d}", str(workdir)) for a in case["argv"]]
+    rss_file = workdir / "maxrss"
     env = dict(os.environ, PYTHONPATH=str(ROOT), OPENBLAS_NUM_THREADS="1",
-               OMP_NUM_THREADS="1")
+               OMP_NUM_THREADS="1", UAVEST_HOSTILE_RSS=str(rss_file))
     t0 = time.monotonic()
-    p = subprocess.Popen([sys.executable, "-m", "uavest", *argv], stdout=subprocess.PIPE,
+    p = subprocess.Popen([sys.executable, "-c", _CHILD, *argv], stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, env=env,
                          cwd=str(workdir), preexec_fn=_limit)
     try:
@@ -257,7 +271,11 @@ def run(case: dict, workdir: Path, timeout: float = 120.0) -> dict:
         p.kill()
         out, err = p.communicate()
         hang = True
-    ru = resource.getrusage(resource.RUSAGE_CHILDREN)  # max over children so far
+    try:
+        maxrss = int(rss_file.read_text()) * 1024
+        rss_file.unlink()
+    except (OSError, ValueError):
+        maxrss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024
     doc = None
     j = workdir / "out.json"
     if j.exists():
@@ -268,7 +286,7 @@ def run(case: dict, workdir: Path, timeout: float = 120.0) -> dict:
         j.unlink()
     return {"rc": p.returncode, "stdout": out.decode("utf-8", "replace"),
             "stderr": err.decode("utf-8", "replace"), "hang": hang,
-            "maxrss": ru.ru_maxrss * 1024, "secs": time.monotonic() - t0, "doc": doc}
+            "maxrss": maxrss, "secs": time.monotonic() - t0, "doc": doc}
 
 
 def _errors_one_line(stderr: str) -> bool:

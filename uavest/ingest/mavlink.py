@@ -257,6 +257,18 @@ class MavlinkSource:
                 if is_df and buf.tell():
                     _chatter(buf.getvalue(), st, str(self.path))
                 pos = self._position(conn)
+                if not is_df and last_pos >= 0 and not (msg is not None
+                                                        and msg.get_type() == "BAD_DATA"):
+                    # bytes the parser skipped without a frame (random runs) are counted
+                    # in frames' worth (271 bytes: the largest tlog record), which pymavlink
+                    # itself does not report
+                    size = 0
+                    if msg is not None:
+                        with contextlib.suppress(Exception):
+                            size = len(msg.get_msgbuf()) + 8
+                    skipped = pos - last_pos - size
+                    if skipped > 8:
+                        st.bad("corrupt", "skipped_bytes", -(-skipped // 271))
                 if pos == last_pos:
                     stall += 1
                     if stall > _MAX_STALL:
