@@ -210,13 +210,17 @@ def replay(
     sinks: tuple | list = (),
     command: str = "",
     rng_for: Callable[[str], np.random.Generator] | None = None,
+    on_source: Callable | None = None,
 ) -> dict:
     """Replay the log at ``path`` with ``cfg``; returns the JSON-ready result document
-    (strict JSON through :func:`uavest.sinks.jsonout.dumps`)."""
+    (strict JSON through :func:`uavest.sinks.jsonout.dumps`). ``on_source(src)`` is
+    called with the opened source (progress bars read ``src.bytes_read``)."""
     from ..ingest import open_source
 
     cfg = cfg or ReplayConfig()
     src = open_source(path)
+    if on_source is not None:
+        on_source(src)
     if cfg.declination is None and src.format in ("tlog", "dataflash", "dataflash-text"):
         src.prescan_geo()  # the GPS fix and date, for the magnetic model if needed
     info = RunInfo(command, str(path), cfg.seed, config=_config_dict(cfg),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import sys
 from pathlib import Path
@@ -51,14 +52,33 @@ def _parse_noise(items: list[str]) -> dict:
 
 
 class _Progress(Sink):
-    def __init__(self, enabled: bool) -> None:
+    """Progress while the log is read and replayed: bytes of the file for MAVLink logs
+    (their reader streams), steps for ULog (read whole first); only on a terminal."""
+
+    def __init__(self, enabled: bool | None, path: str | None = None) -> None:
+        self.enabled, self.path = enabled, path
         self.bar = progress(None, "replay", enabled)
         self.k = 0
+        self.src = None
+
+    def source(self, src) -> None:
+        if hasattr(src, "bytes_read") and self.path:
+            import os
+
+            with contextlib.suppress(OSError):
+                size = os.path.getsize(self.path)
+                self.bar.close()
+                self.bar = progress(size, f"reading {Path(self.path).name}", self.enabled)
+                self.bar.unit, self.bar.unit_scale = "B", True
+                self.src = src
 
     def record(self, rec) -> None:
         if rec.k != self.k:
             self.k = rec.k
-            self.bar.update(1)
+            if self.src is None:
+                self.bar.update(1)
+            elif rec.k % 20 == 0:
+                self.bar.update(self.src.bytes_read - self.bar.n)
 
     def close(self) -> None:
         self.bar.close()
@@ -137,8 +157,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
         noise=_parse_noise(args.noise), imu=args.imu, use_mag=not args.no_mag,
         accel_comp=args.accel_comp, mag_mode=args.mag_mode, mag_delay=args.mag_delay,
     )
-    sinks = [_Progress(False if args.no_progress else None), ResetLog()]
-    doc = replay(args.log, cfg, sinks=sinks, command=" ".join(sys.argv))
+    bar = _Progress(False if args.no_progress else None, args.log)
+    sinks = [bar, ResetLog()]
+    doc = replay(args.log, cfg, sinks=sinks, command=" ".join(sys.argv), on_source=bar.source)
     print(format_doc(doc))
     if args.json:
         write_json(args.json, doc)

@@ -207,6 +207,7 @@ class MavlinkSource:
         self.sysid = sysid  # MAVLink: only this system (others counted wrong_sysid)
         self.stats = IngestStats()
         self.params = LogParams()
+        self.bytes_read = 0  # file position of the reader (progress while reading)
 
     # ----------------------------------------------------------------- readers
     def _open(self):
@@ -257,6 +258,7 @@ class MavlinkSource:
                 if is_df and buf.tell():
                     _chatter(buf.getvalue(), st, str(self.path))
                 pos = self._position(conn)
+                self.bytes_read = pos
                 if not is_df and last_pos >= 0 and not (msg is not None
                                                         and msg.get_type() == "BAD_DATA"):
                     # bytes the parser skipped without a frame (random runs) are counted
