@@ -131,3 +131,14 @@ def test_track_exits_2_like_every_command(tmp_path):
     p = subprocess.run([sys.executable, "-m", "uavest", "track", "radar_multitarget", "--set",
                         "radar.pd=7.5"], capture_output=True, text=True, env=env, timeout=60)
     assert p.returncode == 2 and "Traceback" not in p.stderr
+
+
+def test_progress_follows_the_bytes_read(logs):
+    """Issue: no progress while a log is read (a 50 MB tlog read for 83 s in silence)."""
+    from uavest.apps.replay import ReplayConfig, replay
+    from uavest.cli.replay import _Progress
+
+    bar = _Progress(False, str(logs / "test.BIN"))
+    replay(logs / "test.BIN", ReplayConfig(filters=("ekf",)), sinks=[bar], on_source=bar.source)
+    assert bar.src is not None and bar.bar.total == (logs / "test.BIN").stat().st_size
+    assert bar.src.bytes_read > 0.9 * bar.bar.total

@@ -108,3 +108,22 @@ def test_flipped_vtol_rmse_within_one_percent(tmp_path, logs):
     assert b["bad_data"]["time_outlier"] == 1 and b["repaired"] == {"time_outlier": 1}
     for k in ("roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg"):
         assert b["filters"]["ekf"][k] == pytest.approx(a["filters"]["ekf"][k], rel=0.01)
+
+
+def test_light_byte_flips_within_10_percent_or_flagged(tmp_path, logs):
+    """Issue: byte flips at 1e-4 wrecked a tlog replay silently (yaw 3.68 -> 93.7, exit 0)."""
+    from uavest.apps.replay import ReplayConfig, replay
+
+    from .cases import RMSE_ABS, RMSE_REL
+
+    d = _cut(logs, 0.2)
+    cfg = ReplayConfig(filters=("ekf",))
+    a = replay(_write(tmp_path / "c.tlog", d), cfg)["filters"]["ekf"]
+    for seed in (0, 2):
+        doc = replay(_write(tmp_path / f"f{seed}.tlog", C.flip_bits(d, 1e-4, seed)), cfg)
+        assert doc["bad_data"]["corrupt"] > 0  # counted
+        if doc["unreliable"]:
+            continue
+        b = doc["filters"]["ekf"]
+        for k in ("roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg"):
+            assert abs(b[k] - a[k]) <= max(RMSE_REL * a[k], RMSE_ABS)
