@@ -96,6 +96,41 @@ class _Refs(Sink):
                 self.q.setdefault(s.source, []).append(s.q)
 
 
+class _ImuGaps(Sink):
+    """Time lost in IMU gaps per source (intervals > 3x the median of the first 200), for
+    the reliability flags: corruption a format cannot detect (ULog resync) shows as gaps."""
+
+    def __init__(self) -> None:
+        self.last: dict[str, float] = {}
+        self.first: dict[str, float] = {}
+        self.dts: dict[str, list] = {}
+        self.gap: dict[str, float] = {}
+
+    def sample(self, s) -> None:
+        if not isinstance(s, ImuSample):
+            return
+        src, t = s.source, s.t
+        prev = self.last.get(src)
+        self.last[src] = t
+        if prev is None:
+            self.first[src] = t
+            return
+        dt = t - prev
+        d = self.dts.setdefault(src, [])
+        if len(d) < 200:
+            d.append(dt)
+            return
+        med = float(np.median(d))
+        if dt > 3.0 * med:
+            self.gap[src] = self.gap.get(src, 0.0) + dt - med
+
+    def fraction(self, src: str | None) -> float:
+        if src is None or src not in self.last:
+            return 0.0
+        span = self.last[src] - self.first[src]
+        return self.gap.get(src, 0.0) / span if span > 0 else 0.0
+
+
 def _windowed(samples: Iterable, window: Callable[[float], bool]) -> Iterator:
     """The samples inside the replay's time window."""
     for s in samples:
@@ -139,16 +174,18 @@ def replay_samples(
     ]
     scorer = AttitudeScorer()
     score = _Score(scorer)
+    gaps = _ImuGaps()
     coll = Collector() if cfg.smooth else None
     refs = _Refs() if cfg.smooth else None
     stream = AttitudeStream(opts=opts, params=params)
     info = info or RunInfo("", "", cfg.seed)
     info.filters = {sp.label: sp.as_dict() for sp, _ in specs}
-    all_sinks = [score] + ([refs] if refs else []) + ([coll] if coll else []) + list(sinks)
+    all_sinks = [score, gaps] + ([refs] if refs else []) + ([coll] if coll else []) + list(sinks)
     wall0 = time.perf_counter()
     run_lanes(_windowed(samples, opts.in_window), [Lane(stream, runners)], all_sinks, info)
     wall = time.perf_counter() - wall0 - sum(r.smooth_seconds for r in runners)
     scorer.finish()
+    stream.summary["imu_gap_fraction"] = gaps.fraction(stream.summary.get("imu_source"))
     return {"wall_s": wall, "refs": refs}, stream, runners, scorer, coll
 
 
@@ -301,6 +338,8 @@ def replay(
 #: (0.1 %: at the 4 Hz of a telemetry IMU one lost record is a 0.5 s gap in the gyro; a
 #: 1e-4 byte-flip rate loses ~0.3 % of tlog frames and moved an RMSE by 17 %).
 MAX_BAD_FRACTION = 0.001
+#: Share of the IMU time in gaps (high-rate IMUs) beyond which a result is flagged.
+MAX_IMU_GAP = 0.02
 #: Mean NEES against truth beyond which the filter is flagged inconsistent (3 is ideal).
 MAX_NEES = 30.0
 
@@ -323,6 +362,10 @@ def reliability(doc: dict, summary: dict) -> list[str]:
     resets = {k: v for k, v in doc["guard_resets"].items() if v}
     if resets:
         out.append("filter guard resets: " + ", ".join(f"{k} {v}" for k, v in resets.items()))
+    gapf = float(summary.get("imu_gap_fraction") or 0.0)
+    if gapf > MAX_IMU_GAP and float(summary.get("imu_rate_hz") or 0.0) >= 20.0:
+        out.append(f"{100 * gapf:.1f} % of the IMU time is in gaps (> {100 * MAX_IMU_GAP:g} %): "
+                   "records were lost")
     dropped = int(summary.get("imu_dropped") or 0)
     if dropped:
         out.append(f"{dropped} IMU samples dropped by the step builder")
