@@ -108,7 +108,12 @@ def load_scenario(name_or_path: str, sets: list[str] | tuple[str, ...] = ()) -> 
     if "kind" not in sc:
         raise ScenarioError(f"scenario {sc.get('name')!r} has no 'kind' key")
     sc = apply_sets(sc, sets)
-    validate_scenario(sc)
+    try:
+        validate_scenario(sc)
+    except ScenarioError as e:
+        if sets:
+            raise ScenarioError(f"{e} (after --set {' '.join(sets)})") from None
+        raise
     return sc
 
 
