@@ -121,7 +121,7 @@ def test_special_files_child_process(special, tmp_path):
     res = H.run(case, tmp_path, timeout=60)
     assert H.classify(case, res) == "clear_error", res["stderr"]
     want = {"FIFO": "FIFO", "/dev/zero": "character device", "directory": "directory",
-            "missing": "no such file"}[special]
+            "missing": "no such log file"}[special]
     assert want in res["stderr"]
 
 
