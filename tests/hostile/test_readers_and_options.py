@@ -113,7 +113,16 @@ def test_bad_scenario_file(case, tmp_path, capsys):
     assert rc == 2 and len(err) == 1 and str(f) in err[0], err
 
 
-@pytest.mark.parametrize("special", ["FIFO", "/dev/zero", "directory", "missing"])
+def test_directory_and_missing_file(tmp_path):
+    from uavest.ingest import IngestError, detect_format
+
+    with pytest.raises(IngestError, match="is a directory"):
+        detect_format(tmp_path)
+    with pytest.raises(IngestError, match="no such log file"):
+        detect_format(tmp_path / "missing.tlog")
+
+
+@pytest.mark.parametrize("special", ["FIFO", "/dev/zero"])
 def test_special_files_child_process(special, tmp_path):
     """Issue: FIFO and /dev/zero reported as 'no such log file' (and /dev/zero a
     traceback); a FIFO must not hang the reader."""
