@@ -297,6 +297,7 @@ class MavlinkSource:
                     rx = getattr(msg, "_timestamp", None)
                     if rx is not None and not math.isfinite(rx):
                         rx = None
+                self._good_end = pos
                 yield msg, rx
         finally:
             self._check_truncated(conn)
@@ -326,6 +327,14 @@ class MavlinkSource:
         else:
             mav = getattr(conn, "mav", None)
             left = len(getattr(mav, "buf", b"")) - getattr(mav, "buf_index", 0) if mav else 0
+        if left <= 0:
+            # a cut inside the last record: a few bytes after the end of the last good one
+            # that the reader skipped silently (less than one record, so not 'corrupt')
+            with contextlib.suppress(Exception):
+                size = os.path.getsize(self.path)
+                tail = size - getattr(self, "_good_end", size)
+                if 0 < tail < 512 and self.stats.corrupt == 0:
+                    left = tail
         if left > 0:
             self.stats.bad("truncated")
 
