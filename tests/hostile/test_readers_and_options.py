@@ -118,7 +118,7 @@ def test_directory_and_missing_file(tmp_path):
 
     with pytest.raises(IngestError, match="is a directory"):
         detect_format(tmp_path)
-    with pytest.raises(IngestError, match="no such log file"):
+    with pytest.raises(IngestError, match="no such file"):
         detect_format(tmp_path / "missing.tlog")
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -131,6 +132,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     """Entry point of ``uavest replay`` (errors reach ``uavest.cli.main``: exit 2)."""
     from ..ingest import detect_format
 
+    if not os.path.lexists(args.log):
+        raise ValueError(f"no such log file: {args.log}")
     detect_format(Path(args.log))  # one-line IngestError for missing/special/unknown files
     if args.declination is not None and not (
             math.isfinite(args.declination) and -180.0 <= args.declination <= 180.0):

@@ -42,7 +42,7 @@ def detect_format(path: str | Path) -> str:
     try:
         mode = os.stat(p).st_mode
     except FileNotFoundError:
-        raise IngestError(f"{p}: no such log file (expected a .tlog, .bin or .ulg)") from None
+        raise IngestError(f"{p}: no such file (expected a .tlog, .bin or .ulg log)") from None
     except OSError as e:
         raise IngestError(f"{p}: cannot be read ({e.strerror})") from None
     if st.S_ISDIR(mode):
