@@ -26,12 +26,12 @@ import warnings
 
 import numpy as np
 
+from uavest.apps.replay import ReplayConfig, replay
+from uavest.cli.replay import format_doc
 from uavest.eval.attitude import rmse_deg, select_reference
 from uavest.geometry.rotation import euler_to_quat, quat_conj, quat_mul, quat_slerp_interp
 from uavest.ingest import read_log
 from uavest.models.attitude import declination_from_params, initial_attitude
-from uavest.apps.replay import ReplayConfig, replay
-from uavest.cli.replay import format_doc
 from uavest.sinks.jsonout import write_json
 
 

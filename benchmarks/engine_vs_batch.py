@@ -167,8 +167,9 @@ def main(argv: list[str] | None = None) -> int:
                 for tree in ("old", "new"):
                     rep[tree].append(child(tree, trees[tree], _REPLAY, str(path.resolve())))
                     r = rep[tree][-1]
-                    print(f"round {i + 1} replay {log} {tree}: realtime {r['realtime_factor']:.1f}x,"
-                          f" total {r['total_s']:.2f} s", flush=True)
+                    print(f"round {i + 1} replay {log} {tree}: realtime "
+                          f"{r['realtime_factor']:.1f}x, total {r['total_s']:.2f} s",
+                          flush=True)
             result[log] = {"rounds": rep, "median": {t: medians(v) for t, v in rep.items()}}
     print()
     print(f"UKF on the UNGM, us per step (median over {args.rounds} rounds of best-of-5; "

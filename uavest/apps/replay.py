@@ -25,7 +25,7 @@ from ..engine.loop import Lane, run_lanes
 from ..engine.records import RunInfo, StepRecord, package_versions
 from ..engine.runner import FilterRunner
 from ..engine.smooth import smooth_records
-from ..eval.attitude import AttitudeScorer, nees_attitude, rmse_deg, select_reference
+from ..eval.attitude import AttitudeScorer, choose_reference, nees_attitude, rmse_deg
 from ..geometry.rotation import quat_slerp_interp
 from ..ingest.types import AttitudeRef, ImuSample, MagSample
 from ..seeding import filter_stream, rng
@@ -97,6 +97,41 @@ class _Refs(Sink):
                 self.q.setdefault(s.source, []).append(s.q)
 
 
+class _ImuGaps(Sink):
+    """Time lost in IMU gaps per source (intervals > 3x the median of the first 200), for
+    the reliability flags: corruption a format cannot detect (ULog resync) shows as gaps."""
+
+    def __init__(self) -> None:
+        self.last: dict[str, float] = {}
+        self.first: dict[str, float] = {}
+        self.dts: dict[str, list] = {}
+        self.gap: dict[str, float] = {}
+
+    def sample(self, s) -> None:
+        if not isinstance(s, ImuSample):
+            return
+        src, t = s.source, s.t
+        prev = self.last.get(src)
+        self.last[src] = t
+        if prev is None:
+            self.first[src] = t
+            return
+        dt = t - prev
+        d = self.dts.setdefault(src, [])
+        if len(d) < 200:
+            d.append(dt)
+            return
+        med = float(np.median(d))
+        if dt > 3.0 * med:
+            self.gap[src] = self.gap.get(src, 0.0) + dt - med
+
+    def fraction(self, src: str | None) -> float:
+        if src is None or src not in self.last:
+            return 0.0
+        span = self.last[src] - self.first[src]
+        return self.gap.get(src, 0.0) / span if span > 0 else 0.0
+
+
 def _windowed(samples: Iterable, window: Callable[[float], bool]) -> Iterator:
     """The samples inside the replay's time window."""
     for s in samples:
@@ -140,16 +175,18 @@ def replay_samples(
     ]
     scorer = AttitudeScorer()
     score = _Score(scorer)
+    gaps = _ImuGaps()
     coll = Collector() if cfg.smooth else None
     refs = _Refs() if cfg.smooth else None
     stream = AttitudeStream(opts=opts, params=params)
     info = info or RunInfo("", "", cfg.seed)
     info.filters = {sp.label: sp.as_dict() for sp, _ in specs}
-    all_sinks = [score] + ([refs] if refs else []) + ([coll] if coll else []) + list(sinks)
+    all_sinks = [score, gaps] + ([refs] if refs else []) + ([coll] if coll else []) + list(sinks)
     wall0 = time.perf_counter()
     run_lanes(_windowed(samples, opts.in_window), [Lane(stream, runners)], all_sinks, info)
     wall = time.perf_counter() - wall0 - sum(r.smooth_seconds for r in runners)
     scorer.finish()
+    stream.summary["imu_gap_fraction"] = gaps.fraction(stream.summary.get("imu_source"))
     return {"wall_s": wall, "refs": refs}, stream, runners, scorer, coll
 
 
@@ -211,20 +248,38 @@ def replay(
     sinks: tuple | list = (),
     command: str = "",
     rng_for: Callable[[str], np.random.Generator] | None = None,
+    on_source: Callable | None = None,
 ) -> dict:
     """Replay the log at ``path`` with ``cfg``; returns the JSON-ready result document
-    (strict JSON through :func:`uavest.sinks.jsonout.dumps`)."""
+    (strict JSON through :func:`uavest.sinks.jsonout.dumps`). ``on_source(src)`` is
+    called with the opened source (progress bars read ``src.bytes_read``)."""
     from ..ingest import open_source
 
     cfg = cfg or ReplayConfig()
     src = open_source(path)
+    if on_source is not None:
+        on_source(src)
+    if cfg.declination is None and src.format in ("tlog", "dataflash", "dataflash-text"):
+        src.prescan_geo()  # the GPS fix and date, for the magnetic model if needed
     info = RunInfo(command, str(path), cfg.seed, config=_config_dict(cfg),
                    versions=package_versions())
-    out, stream, runners, scorer, coll = replay_samples(
-        src, cfg, params=src.params, sinks=sinks, info=info, rng_for=rng_for)
+    try:
+        out, stream, runners, scorer, coll = replay_samples(
+            src, cfg, params=src.params, sinks=sinks, info=info, rng_for=rng_for)
+    except ValueError as e:
+        if "no samples" not in str(e) and "no IMU samples" not in str(e):
+            raise
+        st = src.stats.as_dict()
+        dmg = ", ".join(f"{k} {st[k]}" for k in st
+                        if isinstance(st[k], int) and st[k] and k != "bad_total")
+        window = (f" in the window {cfg.start}..{cfg.end} s"
+                  if cfg.start is not None or cfg.end is not None else "")
+        raise ValueError(f"{path}: no IMU samples could be read{window} "
+                         f"({dmg or 'no bad data counted'}; "
+                         f"{sum(st['messages'].values())} records decoded)") from None
     sm = stream.summary
     refs = scorer.refs
-    ref_name, ap_name = select_reference(refs)
+    ref_name, ap_name, rejected = choose_reference(refs, scorer.window)
     truth = ref_name is not None and refs[ref_name].kind == "truth"
     wall = out["wall_s"]
     doc: dict = {
@@ -235,6 +290,7 @@ def replay(
         "mag_source": sm.get("mag_source"),
         "reference": ref_name,
         "reference_kind": None if ref_name is None else refs[ref_name].kind,
+        "references_rejected": rejected,
         "imu_rate_hz": sm.get("imu_rate_hz"),
         "filter_rate_hz": sm.get("filter_rate_hz"),
         "integration": sm.get("integration"),
@@ -270,11 +326,59 @@ def replay(
             doc["filters"].setdefault(label, row)
     bad = src.stats.as_dict()
     doc["bad_data"] = bad
+    doc["repaired"] = {k: bad[k] for k in ("time_outlier",) if bad.get(k)}
     doc["guard_resets"] = {r.label: r.resets for r in runners}
+    doc["unreliable"] = reliability(doc, sm)
     doc["wall_s"] = wall
     dur = float(sm.get("duration_s") or 0.0)
     doc["realtime_factor"] = dur / wall if wall > 0 else None
     return doc
+
+
+#: Fraction of the log's records that may be bad before a result is flagged unreliable
+#: (0.1 %: at the 4 Hz of a telemetry IMU one lost record is a 0.5 s gap in the gyro; a
+#: 1e-4 byte-flip rate loses ~0.3 % of tlog frames and moved an RMSE by 17 %).
+MAX_BAD_FRACTION = 0.001
+#: Share of the IMU time in gaps (high-rate IMUs) beyond which a result is flagged.
+MAX_IMU_GAP = 0.02
+#: Mean NEES against truth beyond which the filter is flagged inconsistent (3 is ideal).
+MAX_NEES = 30.0
+
+
+def reliability(doc: dict, summary: dict) -> list[str]:
+    """Reasons the result ``doc`` should not be trusted as it stands (empty: none):
+    nothing to score against, a large share of bad data, filters reset by their guard,
+    dropped IMU samples, steps left unscored, inconsistent NEES against truth."""
+    out: list[str] = []
+    if doc["reference"] is None:
+        why = "; ".join(f"{k}: {v}" for k, v in doc["references_rejected"].items())
+        out.append("no usable reference: nothing scored" + (f" ({why})" if why else ""))
+    bad = doc["bad_data"]
+    total = sum(bad["messages"].values()) + bad["corrupt"] + bad["unknown_message"]
+    # bad items other than the re-sent/duplicate messages every log has and the cut end
+    damage = bad["bad_total"] - bad["duplicate"] - bad["time_backwards"] - bad["truncated"]
+    if total and damage / total > MAX_BAD_FRACTION:
+        out.append(f"{100 * damage / total:.2g} % of the log's records were bad "
+                   f"(> {100 * MAX_BAD_FRACTION:g} %): the numbers may be off")
+    resets = {k: v for k, v in doc["guard_resets"].items() if v}
+    if resets:
+        out.append("filter guard resets: " + ", ".join(f"{k} {v}" for k, v in resets.items()))
+    gapf = float(summary.get("imu_gap_fraction") or 0.0)
+    if gapf > MAX_IMU_GAP and float(summary.get("imu_rate_hz") or 0.0) >= 20.0:
+        out.append(f"{100 * gapf:.1f} % of the IMU time is in gaps (> {100 * MAX_IMU_GAP:g} %): "
+                   "records were lost")
+    dropped = int(summary.get("imu_dropped") or 0)
+    if dropped:
+        out.append(f"{dropped} IMU samples dropped by the step builder")
+    steps = int(summary.get("steps") or 0)
+    if doc["reference"] is not None and steps:
+        for label, row in doc["filters"].items():
+            if label in doc["guard_resets"] and row.get("n", 0) < 0.5 * steps:
+                out.append(f"{label}: only {row.get('n', 0)} of {steps} steps scored")
+            nees = row.get("nees_mean")
+            if nees is not None and label in doc["guard_resets"] and nees > MAX_NEES:
+                out.append(f"{label}: NEES {nees:.3g} against truth (consistent: 3)")
+    return out
 
 
 def _config_dict(cfg: ReplayConfig) -> dict:

@@ -24,6 +24,13 @@ def cmd_bench(args) -> int:
         sc["steps"] = args.steps
     runs = args.runs if args.runs is not None else int(sc.get("runs", 100))
     specs = args.filter_specs or list(sc.get("filters", []))
+    from ..experiments.resources import check
+
+    if sc["kind"] != "linear_cv":
+        from .replay import reject_linear_only
+
+        reject_linear_only(specs, f"bench {sc['name']}", "a nonlinear model")
+    check(sc, specs, runs, int(sc.get("steps", 100)), "bench")
     doc = {"run": {"command": " ".join(sys.argv), "seed": args.seed},
            "scenario": sc["name"], "source": sc.get("source"), "runs": runs,
            "seed": args.seed, "steps": sc.get("steps"), "overrides": args.sets}

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -16,6 +18,20 @@ from .record import add_recording_options, finish_recording, recording_sinks
 from .report import progress, table
 
 __all__ = ["add_replay_parser", "cmd_replay", "format_doc"]
+
+
+#: Filters that need linear models (the attitude and radar models are nonlinear).
+LINEAR_ONLY = ("kf",)
+
+
+def reject_linear_only(specs, command: str, models: str) -> None:
+    """One-line ValueError for a filter that cannot run on ``command``'s models."""
+    for sp in specs or ():
+        name = str(sp).split("(")[0].strip().lower()
+        if name in LINEAR_ONLY:
+            raise ValueError(
+                f"--filters {sp}: the linear Kalman filter needs linear models; {command} "
+                f"uses {models} (use ekf, ukf, srukf, enkf, hybrid, pf...)")
 
 
 def _parse_noise(items: list[str]) -> dict:
@@ -38,14 +54,33 @@ def _parse_noise(items: list[str]) -> dict:
 
 
 class _Progress(Sink):
-    def __init__(self, enabled: bool) -> None:
+    """Progress while the log is read and replayed: bytes of the file for MAVLink logs
+    (their reader streams), steps for ULog (read whole first); only on a terminal."""
+
+    def __init__(self, enabled: bool | None, path: str | None = None) -> None:
+        self.enabled, self.path = enabled, path
         self.bar = progress(None, "replay", enabled)
         self.k = 0
+        self.src = None
+
+    def source(self, src) -> None:
+        if hasattr(src, "bytes_read") and self.path:
+            import os
+
+            with contextlib.suppress(OSError):
+                size = os.path.getsize(self.path)
+                self.bar.close()
+                self.bar = progress(size, f"reading {Path(self.path).name}", self.enabled)
+                self.bar.unit, self.bar.unit_scale = "B", True
+                self.src = src
 
     def record(self, rec) -> None:
         if rec.k != self.k:
             self.k = rec.k
-            self.bar.update(1)
+            if self.src is None:
+                self.bar.update(1)
+            elif rec.k % 20 == 0:
+                self.bar.update(self.src.bytes_read - self.bar.n)
 
     def close(self) -> None:
         self.bar.close()
@@ -59,11 +94,17 @@ def format_doc(doc: dict) -> str:
         f"{doc['filter_rate_hz']:.1f} Hz ({doc['integration']})"
     ]
     ref, kind = doc["reference"], doc["reference_kind"]
+    rejected = doc.get("references_rejected") or {}
     if ref is None:
-        lines.append("reference: none in this log (RMSE not available)")
+        lines.append("reference: none usable in this log (RMSE not available)")
     else:
         what = "truth" if kind == "truth" else f"{kind} estimate, not truth"
         lines.append(f"reference: {ref} ({what}); RMSE in degrees, Euler ZYX, wrapped")
+    for name, why in rejected.items():
+        lines.append(f"  not used as reference: {name}: {why}")
+    if doc.get("declination_source"):
+        lines.append(f"declination: {math.degrees(doc['declination_rad'] or 0.0):.2f} deg "
+                     f"({doc['declination_source']})")
     rows = {}
     for name, row in doc["filters"].items():
         rows[name] = row
@@ -76,6 +117,12 @@ def format_doc(doc: dict) -> str:
     parts = [f"{k} {bad[k]}" for k in bad
              if isinstance(bad[k], int) and bad[k] and k not in ("bad_total",)]
     lines.append(f"bad data: {bad['bad_total']}" + (f" ({', '.join(parts)})" if parts else ""))
+    rep = doc.get("repaired") or {}
+    if rep.get("time_outlier"):
+        lines.append(f"repaired: {rep['time_outlier']} time stamps that were outliers against "
+                     "their neighbours (kept with a time from their neighbours)")
+    for why in doc.get("unreliable") or []:
+        lines.append(f"UNRELIABLE: {why}")
     rt = doc["realtime_factor"]
     lines.append(f"replay speed: {rt:.1f}x real time ({len(doc['guard_resets'])} filters "
                  f"together, {doc['wall_s']:.2f} s)" if rt else "replay speed: -")
@@ -84,19 +131,29 @@ def format_doc(doc: dict) -> str:
 
 def cmd_replay(args: argparse.Namespace) -> int:
     """Entry point of ``uavest replay`` (errors reach ``uavest.cli.main``: exit 2)."""
-    p = Path(args.log)
-    if p.is_dir():
-        raise ValueError(f"{args.log} is a directory, not a log file")
-    if not p.exists():
+    from ..ingest import detect_format
+
+    if not os.path.lexists(args.log):
         raise ValueError(f"no such log file: {args.log}")
-    if args.declination is not None and not math.isfinite(args.declination):
+    detect_format(Path(args.log))  # one-line IngestError for missing/special/unknown files
+    if args.declination is not None and not (
+            math.isfinite(args.declination) and -180.0 <= args.declination <= 180.0):
         raise ValueError(
-            f"--declination must be a finite number of degrees, got {args.declination}")
+            f"--declination must be a number of degrees from -180 to 180, got {args.declination}")
+    for name in ("start", "end"):
+        v = getattr(args, name)
+        if v is not None and not math.isfinite(v):
+            raise ValueError(f"--{name} must be a finite time in s, got {v}")
+    if args.start is not None and args.end is not None and args.end <= args.start:
+        raise ValueError(f"--end ({args.end}) must be after --start ({args.start})")
+    if args.mag_delay > 10.0:
+        raise ValueError(f"--mag-delay must be at most 10 s, got {args.mag_delay}")
     if args.mag_delay < 0 or not math.isfinite(args.mag_delay):
         raise ValueError(
             f"--mag-delay must be a finite number of seconds >= 0, got {args.mag_delay}")
     if args.rate is not None and (args.rate < 0 or not math.isfinite(args.rate)):
         raise ValueError(f"--rate must be >= 0 Hz (0 = every IMU sample), got {args.rate}")
+    reject_linear_only(args.filter_specs, "replay", "nonlinear attitude models")
     cfg = ReplayConfig(
         filters=tuple(args.filter_specs), start=args.start, end=args.end, smooth=args.smooth,
         seed=args.seed, rate_hz=args.rate, integration=args.integration,
@@ -104,14 +161,21 @@ def cmd_replay(args: argparse.Namespace) -> int:
         noise=_parse_noise(args.noise), imu=args.imu, use_mag=not args.no_mag,
         accel_comp=args.accel_comp, mag_mode=args.mag_mode, mag_delay=args.mag_delay,
     )
-    sinks = [_Progress(False if args.no_progress else None), ResetLog(),
-             *recording_sinks(args)]
-    doc = replay(args.log, cfg, sinks=sinks, command=" ".join(sys.argv))
+    bar = _Progress(False if args.no_progress else None, args.log)
+    sinks = [bar, ResetLog(), *recording_sinks(args)]
+    doc = replay(args.log, cfg, sinks=sinks, command=" ".join(sys.argv), on_source=bar.source)
     print(format_doc(doc))
     if args.json:
         write_json(args.json, doc)
         print(f"wrote {args.json}")
     finish_recording(args)
+    if doc["reference"] is None:
+        why = "; ".join(f"{k}: {v}" for k, v in doc["references_rejected"].items())
+        print(f"uavest replay: error: {args.log}: nothing to score against: "
+              + (f"no usable attitude reference ({why})" if why else
+                 "the log has no attitude reference (truth, autopilot or AHRS2)"),
+              file=sys.stderr)
+        return 2
     return 0
 
 

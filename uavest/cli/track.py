@@ -124,6 +124,11 @@ def cmd_track(args: argparse.Namespace) -> int:
         raise ValueError(f"scenario {args.scenario!r} is not a radar scenario "
                          "(radar scenarios: see 'uavest list')")
     filters = args.filter_specs or list(sc.get("filters", []))
+    from ..experiments.resources import check
+    from .replay import reject_linear_only
+
+    reject_linear_only(filters, "track", "the nonlinear radar measurement model")
+    check(sc, filters or ["ekf", "ukf", "hybrid"], 1, int(sc.get("steps", 100)), "track")
     res = track_table(sc, filters or ["ekf", "ukf", "hybrid"], args.seed,
                       recording_sinks(args), " ".join(sys.argv))
     print_table(res)
@@ -149,6 +154,8 @@ def add_track_parser(subparsers) -> argparse.ArgumentParser:
                    help="override a scenario parameter (dotted keys), repeatable")
     p.add_argument("--json", default=None, metavar="PATH", help="also write the table as JSON")
     add_recording_options(p, live_view=False)
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bar (accepted for symmetry with bench and replay)")
     p.set_defaults(func=cmd_track, filters_preset="radar")
     return p
 

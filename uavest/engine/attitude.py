@@ -56,7 +56,7 @@ from ..models.attitude import (
     MagField,
     MagHeading,
     Stacked,
-    declination_from_params,
+    declination_and_source,
     inclination_from_samples,
     initial_attitude,
     mag_reference,
@@ -395,8 +395,7 @@ class AttitudeStream:
         align, self._align = self._align, None
         decl, src = o.declination, "option"
         if decl is None:
-            decl = declination_from_params(self.params)
-            src = "log parameters" if decl is not None else "none (0)"
+            decl, src = declination_and_source(self.params)
             decl = decl or 0.0
         self.declination = decl
         self.summary.update(declination_rad=decl, declination_source=src)

@@ -33,6 +33,8 @@ __all__ = [
     "euler_errors_deg",
     "nees_attitude",
     "rmse_deg",
+    "choose_reference",
+    "reference_problem",
     "select_reference",
 ]
 
@@ -41,25 +43,79 @@ AUTOPILOT_SOURCES = ("ATTITUDE_QUATERNION", "ATTITUDE", "ATT", "vehicle_attitude
 TRUTH_SOURCES = ("SIMSTATE", "SIM")
 
 
-def select_reference(refs: dict) -> tuple[str | None, str | None]:
-    """(reference source, autopilot source) from ``LogData.references``.
+MIN_REF_SAMPLES = 10  # a reference with fewer samples cannot score a run
+MIN_REF_RATE_HZ = 0.2  # ... nor one slower than this (or faster than MAX_REF_RATE_HZ)
+MAX_REF_RATE_HZ = 20_000.0
+MIN_REF_COVERAGE = 0.5  # fraction of the scored window the reference must span
 
-    The reference is truth when the log has it (``kind == "truth"``), else the
-    autopilot's estimate, else AHRS2; the autopilot source is the preferred autopilot
-    estimate (None if absent). Either may be None.
+
+def _span(r) -> tuple[int, float, float]:
+    """(samples, first time, last time) of a reference (RefSeries or the scorer's track)."""
+    n = len(r)
+    t0 = getattr(r, "t_first", None)
+    t1 = getattr(r, "t_last", None)
+    if t0 is None or t1 is None:
+        t = np.asarray(r.t, dtype=float)
+        t0, t1 = (float(t[0]), float(t[-1])) if t.size else (np.nan, np.nan)
+    return n, float(t0), float(t1)
+
+
+def reference_problem(r, window: tuple[float, float] | None = None) -> str | None:
+    """Why reference ``r`` cannot score a run over ``window`` (s, the first and last
+    step), or None if it can: at least :data:`MIN_REF_SAMPLES` samples, a rate between
+    :data:`MIN_REF_RATE_HZ` and :data:`MAX_REF_RATE_HZ`, and (with a window) spanning at
+    least :data:`MIN_REF_COVERAGE` of it."""
+    n, t0, t1 = _span(r)
+    if n < MIN_REF_SAMPLES:
+        return f"{n} usable sample{'s' if n != 1 else ''} (needs >= {MIN_REF_SAMPLES})"
+    span = t1 - t0
+    rate = (n - 1) / span if span > 0 else float("inf")
+    if not (MIN_REF_RATE_HZ <= rate <= MAX_REF_RATE_HZ):
+        return f"implausible rate {rate:.3g} Hz ({n} samples over {span:.3g} s)"
+    if window is not None:
+        w0, w1 = window
+        if w1 > w0:
+            cover = max(0.0, min(t1, w1) - max(t0, w0)) / (w1 - w0)
+            if cover < MIN_REF_COVERAGE:
+                return (f"covers {100 * cover:.0f} % of the scored window "
+                        f"{w0:.1f}-{w1:.1f} s (needs >= {100 * MIN_REF_COVERAGE:.0f} %)")
+    return None
+
+
+def choose_reference(
+    refs: dict, window: tuple[float, float] | None = None
+) -> tuple[str | None, str | None, dict[str, str]]:
+    """(reference source, autopilot source, {rejected source: reason}).
+
+    Preference: truth (``kind == "truth"``), then the autopilot's estimate, then AHRS2;
+    the first candidate that qualifies (:func:`reference_problem`) is the reference, the
+    ones before it that did not are returned with the reason. The autopilot source is the
+    preferred autopilot estimate that qualifies (None if none).
     """
     truth = [k for k in TRUTH_SOURCES if k in refs and refs[k].kind == "truth"]
     truth += [k for k, v in refs.items() if v.kind == "truth" and k not in truth]
     auto = [k for k in AUTOPILOT_SOURCES if k in refs]
     auto += [k for k, v in refs.items() if v.kind == "autopilot" and k not in auto]
     other = [k for k, v in refs.items() if v.kind == "ahrs2"]
-    ap = auto[0] if auto else None
-    for cand in (truth, auto, other):
-        usable = [k for k in cand if len(refs[k]) > 0]
-        if usable:
-            return usable[0], ap
-    return None, ap
+    rejected: dict[str, str] = {}
+    chosen = None
+    for k in truth + auto + other:
+        why = reference_problem(refs[k], window)
+        if why is None:
+            chosen = k
+            break
+        rejected[k] = why
+    ap = next((k for k in auto if reference_problem(refs[k], window) is None), None)
+    return chosen, ap, rejected
 
+
+def select_reference(
+    refs: dict, window: tuple[float, float] | None = None
+) -> tuple[str | None, str | None]:
+    """(reference source, autopilot source) from ``LogData.references`` (or the scorer's
+    references): :func:`choose_reference` without the reasons. Either may be None."""
+    ref, ap, _ = choose_reference(refs, window)
+    return ref, ap
 
 
 def euler_errors_deg(q_est: Array, q_ref: Array) -> Array:
@@ -101,11 +157,13 @@ class _RefTrack:
     samples from just before the oldest step still waiting (times ``t``, quaternions
     ``q``)."""
 
-    __slots__ = ("kind", "n", "t", "q")
+    __slots__ = ("kind", "n", "t", "q", "t_first", "t_last")
 
     def __init__(self, kind: str) -> None:
         self.kind = kind
         self.n = 0
+        self.t_first: float | None = None
+        self.t_last: float | None = None
         self.t: list[float] = []
         self.q: list[Array] = []
 
@@ -157,12 +215,15 @@ class AttitudeScorer:
         self.acc: dict[tuple[str, str], list] = {}
         self.unscored = 0
         self.t_new: float | None = None
+        self.t_first: float | None = None  # first step time (the scored window's start)
         self._done: list = []
 
     def add_estimate(self, t: float, label: str, q: Array, P: Array) -> None:
         """One estimator's attitude ``q`` (4,) and tangent covariance ``P`` at step
         time ``t``; estimators of the same step share ``t``."""
         p = self.pending
+        if self.t_first is None:
+            self.t_first = t
         if len(p) > self.head and p[-1][0] == t:
             p[-1][1][label] = (q, P[:3, :3])
             self.t_new = t
@@ -191,6 +252,9 @@ class AttitudeScorer:
         r.t.append(t)
         r.q.append(q)
         r.n += 1
+        if r.t_first is None:
+            r.t_first = t
+        r.t_last = t
         for e in self.pending[self.head:]:
             if name in e[2]:
                 continue
@@ -256,6 +320,11 @@ class AttitudeScorer:
                     ne = nees_attitude(q, P, qr[idx])
                     a[2] += float(np.sum(ne))
                     a[3] += ne.shape[0]
+
+    @property
+    def window(self) -> tuple[float, float] | None:
+        """(first, last) step time scored, or None before any step."""
+        return None if self.t_first is None else (self.t_first, self.t_new)
 
     def finish(self) -> None:
         """Score what is still waiting (no later reference sample will come)."""

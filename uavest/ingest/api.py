@@ -35,11 +35,26 @@ def detect_format(path: str | Path) -> str:
 
     Raises :class:`IngestError` if the file is missing, empty or none of these.
     """
+    import os
+    import stat as st
+
     p = Path(path)
-    if p.is_dir():
+    try:
+        mode = os.stat(p).st_mode
+    except FileNotFoundError:
+        raise IngestError(f"{p}: no such file (expected a .tlog, .bin or .ulg log)") from None
+    except OSError as e:
+        raise IngestError(f"{p}: cannot be read ({e.strerror})") from None
+    if st.S_ISDIR(mode):
         raise IngestError(f"{p}: is a directory, not a log file (expected a .tlog, .bin or .ulg)")
-    if not p.is_file():
-        raise IngestError(f"{p}: no such file (expected a .tlog, .bin or .ulg log)")
+    if not st.S_ISREG(mode):
+        kind = ("a FIFO (named pipe)" if st.S_ISFIFO(mode) else
+                "a character device" if st.S_ISCHR(mode) else
+                "a block device" if st.S_ISBLK(mode) else
+                "a socket" if st.S_ISSOCK(mode) else "not a regular file")
+        raise IngestError(f"{p}: is {kind}, not a log file: logs are read from regular "
+                          "files (.tlog, .bin, .ulg); live links take a connection string "
+                          "such as udpin:0.0.0.0:14550")
     with open(p, "rb") as f:
         head = f.read(_SNIFF)
     if not head:

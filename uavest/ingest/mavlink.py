@@ -6,6 +6,7 @@ import contextlib
 import dataclasses
 import heapq
 import io
+import logging
 import math
 import os
 import re
@@ -15,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .convert import Raw, check, convert_dataflash, convert_mavlink, stat_key
-from .timebase import StreamGate, VehicleClock
+from .timebase import RxFilter, StreamGate, VehicleClock
 from .types import (
     AdsbSample,
     AttitudeRef,
@@ -23,6 +24,7 @@ from .types import (
     ImuSample,
     IngestError,
     IngestStats,
+    LogParams,
     MagSample,
     PositionSample,
     Sample,
@@ -32,6 +34,62 @@ from .types import (
 _UNTIMED = {"SIMSTATE", "AHRS2", "ADSB_VEHICLE"}
 _MAX_STALL = 1000  # reads without file progress before giving up (hang guard)
 _SKIPPED_RE = re.compile(r"Skipped (\d+) bad bytes")
+_BADHDR_RE = re.compile(r"bad header 0x[0-9a-f]+ 0x[0-9a-f]+ at (\d+)")
+_log = logging.getLogger("uavest.ingest")
+
+
+def _chatter(text: str, stats: IngestStats, what: str) -> int:
+    """Count what pymavlink printed (kept off the terminal; shown with -v through
+    ``logging``): runs of "bad header" bytes and "Skipped N bad bytes" as corrupt, "unknown
+    msg type" as unknown_message. Returns the corrupt runs counted."""
+    if not text:
+        return 0
+    runs, last = 0, None
+    for m in _BADHDR_RE.finditer(text):
+        o = int(m.group(1))
+        if last is None or o != last + 1:
+            runs += 1
+        last = o
+    runs += len(_SKIPPED_RE.findall(text)) + text.count("Failed to parse")
+    runs += text.count("bad msg at offset")
+    stats.bad("corrupt", n=runs)
+    stats.bad("unknown_message", n=text.count("unknown msg type"))
+    lines = [ln for ln in text.splitlines() if ln.strip() and "dfindexer" not in ln
+             and "PYMAVLINK_FAST_INDEX" not in ln]
+    for ln in lines[:5]:
+        _log.info("%s: pymavlink: %s", what, ln[:200])
+    if len(lines) > 5:
+        _log.info("%s: pymavlink: ... %d more lines", what, len(lines) - 5)
+    return runs
+
+
+@contextlib.contextmanager
+def _quiet():
+    """pymavlink's prints (stdout and stderr, Python's and its C indexer's at the file
+    descriptor level) into a buffer."""
+    import sys
+    import tempfile
+
+    buf = io.StringIO()
+    with tempfile.TemporaryFile(mode="w+b") as tmp:
+        saved = []
+        try:
+            for fd, stream in ((1, sys.stdout), (2, sys.stderr)):
+                with contextlib.suppress(Exception):
+                    stream.flush()
+                try:
+                    saved.append((fd, os.dup(fd)))
+                    os.dup2(tmp.fileno(), fd)
+                except OSError:
+                    pass
+            with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
+                yield buf
+        finally:
+            for fd, old in saved:
+                os.dup2(old, fd)
+                os.close(old)
+            tmp.seek(0)
+            buf.write(tmp.read(1 << 20).decode("utf-8", "replace"))
 
 
 def build(raw: Raw, t: float) -> Sample:
@@ -100,6 +158,28 @@ def _source_key(m) -> str:
     return m.source + (".mag" if isinstance(m, MagSample) else "")
 
 
+_GPS_EPOCH = 315964800.0  # UNIX time of the GPS epoch (1980-01-06)
+_LEAP_S = 18.0  # GPS - UTC since 2017
+
+
+def _gps_geo(msg, params: LogParams, unix_offset: float | None) -> None:
+    """Record the first 3-D GPS fix with a date (MAVLink GPS_RAW_INT, DataFlash GPS)."""
+    with contextlib.suppress(Exception):
+        if msg.get_type() == "GPS_RAW_INT":
+            if msg.fix_type < 3:
+                return
+            tu = float(msg.time_usec)
+            utc = tu * 1e-6 if tu > 1e15 else (
+                None if unix_offset is None else unix_offset + tu * 1e-6)
+            if utc is not None:
+                params.set_geo(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3, utc)
+            return
+        if getattr(msg, "Status", 0) < 3 or not getattr(msg, "GWk", 0):
+            return
+        utc = _GPS_EPOCH + msg.GWk * 604800.0 + msg.GMS * 1e-3 - _LEAP_S
+        params.set_geo(msg.Lat, msg.Lng, getattr(msg, "Alt", 0.0), utc)
+
+
 class MavlinkSource:
     """Iterable of measurements from a tlog or a DataFlash log (live links: ``LiveLink``).
 
@@ -126,7 +206,8 @@ class MavlinkSource:
         self.reorder_window = reorder_window
         self.sysid = sysid  # MAVLink: only this system (others counted wrong_sysid)
         self.stats = IngestStats()
-        self.params: dict[str, float] = {}
+        self.params = LogParams()
+        self.bytes_read = 0  # file position of the reader (progress while reading)
 
     # ----------------------------------------------------------------- readers
     def _open(self):
@@ -135,18 +216,26 @@ class MavlinkSource:
         try:
             if self.format == "tlog":
                 return mavutil.mavlogfile(str(self.path), robust_parsing=True)
-            if self.format == "dataflash":
-                with contextlib.redirect_stdout(io.StringIO()):
-                    return DFReader.DFReader_binary(str(self.path), zero_time_base=False)
-            with contextlib.redirect_stdout(io.StringIO()):
-                return DFReader.DFReader_text(str(self.path), zero_time_base=False)
+            with _quiet() as buf:
+                if self.format == "dataflash":
+                    conn = DFReader.DFReader_binary(str(self.path), zero_time_base=False)
+                else:
+                    conn = DFReader.DFReader_text(str(self.path), zero_time_base=False)
+            _chatter(buf.getvalue(), self.stats, str(self.path))
+            return conn
         except Exception as e:  # pymavlink raises many kinds on garbage
             raise IngestError(
                 f"{self.path}: cannot open as {self.format} ({type(e).__name__}: {e})"
             ) from e
 
     def _messages(self) -> Iterator[tuple[object, float | None]]:
-        """Yield (message, receive time or None) with bad frames counted, never hanging."""
+        """Yield (message, receive time or None) with bad frames counted, never hanging;
+        tlog receive times checked against their neighbours (:class:`RxFilter`)."""
+        if self.format == "tlog":
+            return RxFilter(self.stats).filter(self._read())
+        return self._read()
+
+    def _read(self) -> Iterator[tuple[object, float | None]]:
         conn = self._open()
         st = self.stats
         is_df = self.format.startswith("dataflash")
@@ -157,7 +246,7 @@ class MavlinkSource:
                 buf = io.StringIO()
                 try:
                     if is_df:
-                        with contextlib.redirect_stdout(buf):
+                        with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
                             msg = conn.recv_msg()
                     else:
                         msg = conn.recv_msg()
@@ -167,10 +256,21 @@ class MavlinkSource:
                     if not is_df and self._at_eof(conn):
                         break
                 if is_df and buf.tell():
-                    text = buf.getvalue()
-                    st.bad("corrupt", n=len(_SKIPPED_RE.findall(text)))
-                    st.bad("unknown_message", n=text.count("unknown msg type"))
+                    _chatter(buf.getvalue(), st, str(self.path))
                 pos = self._position(conn)
+                self.bytes_read = pos
+                if not is_df and last_pos >= 0 and not (msg is not None
+                                                        and msg.get_type() == "BAD_DATA"):
+                    # bytes the parser skipped without a frame (random runs) are counted
+                    # in frames' worth (271 bytes: the largest tlog record), which pymavlink
+                    # itself does not report
+                    size = 0
+                    if msg is not None:
+                        with contextlib.suppress(Exception):
+                            size = len(msg.get_msgbuf()) + 8
+                    skipped = pos - last_pos - size
+                    if skipped > 8:
+                        st.bad("corrupt", "skipped_bytes", -(-skipped // 271))
                 if pos == last_pos:
                     stall += 1
                     if stall > _MAX_STALL:
@@ -197,6 +297,7 @@ class MavlinkSource:
                     rx = getattr(msg, "_timestamp", None)
                     if rx is not None and not math.isfinite(rx):
                         rx = None
+                self._good_end = pos
                 yield msg, rx
         finally:
             self._check_truncated(conn)
@@ -226,6 +327,14 @@ class MavlinkSource:
         else:
             mav = getattr(conn, "mav", None)
             left = len(getattr(mav, "buf", b"")) - getattr(mav, "buf_index", 0) if mav else 0
+        if left <= 0:
+            # a cut inside the last record: a few bytes after the end of the last good one
+            # that the reader skipped silently (less than one record, so not 'corrupt')
+            with contextlib.suppress(Exception):
+                size = os.path.getsize(self.path)
+                tail = size - getattr(self, "_good_end", size)
+                if 0 < tail < 512 and self.stats.corrupt == 0:
+                    left = tail
         if left > 0:
             self.stats.bad("truncated")
 
@@ -267,6 +376,8 @@ class MavlinkSource:
                     yield dataclasses.replace(rx, t=t_ev)
                 continue
             name = msg.get_type()
+            if name in ("GPS", "GPS_RAW_INT") and self.params.geo is None:
+                _gps_geo(msg, self.params, systime.get(0 if is_df else msg.get_srcSystem()))
             if is_df:
                 if name == "PARM":
                     self._param(getattr(msg, "Name", None), getattr(msg, "Value", None))
@@ -317,6 +428,29 @@ class MavlinkSource:
             finish(clock.flush())
             drain(clock)
         yield from reorder.pop_ready(flush=True)
+
+    def prescan_geo(self, max_messages: int = 100_000) -> None:
+        """Find the first GPS fix with its date before the replay (``params.geo``): a
+        DataFlash log records its boot parameters (``COMPASS_DEC`` 0 with auto-declination)
+        long before the GPS lock. Reads at most ``max_messages`` messages; counts nothing."""
+        keep = self.stats
+        self.stats = IngestStats()
+        systime: dict[int, float] = {}
+        try:
+            for i, (msg, _rx) in enumerate(self._read()):
+                if msg is None or i >= max_messages or self.params.geo is not None:
+                    break
+                name = msg.get_type()
+                if name == "SYSTEM_TIME" and msg.time_boot_ms and msg.time_unix_usec:
+                    systime[msg.get_srcSystem()] = (msg.time_unix_usec * 1e-6
+                                                    - msg.time_boot_ms * 1e-3)
+                elif name in ("GPS", "GPS_RAW_INT"):
+                    sysid = 0 if self.format.startswith("dataflash") else msg.get_srcSystem()
+                    _gps_geo(msg, self.params, systime.get(sysid))
+        except Exception:  # noqa: BLE001 - a pre-scan never fails the replay
+            pass
+        finally:
+            self.stats = keep
 
     def _param(self, name, value) -> None:
         if isinstance(name, bytes):

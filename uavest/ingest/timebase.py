@@ -12,8 +12,11 @@ from .types import IngestStats
 
 WRAP_MS32 = 2**32 * 1e-3  # s, period of a uint32 millisecond counter (~49.7 days)
 RESET_JUMP = 2.0  # s, backwards jump (vs. newest time of the system) that may be a reboot
-FORWARD_JUMP_NO_RX = 60.0  # s, forward jump that is suspicious when no receive time
+FORWARD_JUMP_NO_RX = 2.0  # s, forward jump held for confirmation when no receive time
+# (one corrupted DataFlash TimeUS must not move the clock: a real gap is confirmed by the
+# next messages)
 FORWARD_JUMP_RX = 10.0  # s, forward jump beyond the receive-time elapsed
+CONFIRM_SPAN = 60.0  # s, largest step between held messages that still confirm each other
 CONFIRM = 3  # consecutive consistent messages needed to accept a reset/jump
 JITTER = 1.0  # s, allowed disorder between message types of one system
 
@@ -115,7 +118,7 @@ class VehicleClock:
         if self._pending:
             last = self._pending[-1].raw
             lo = min(p.raw for p in self._pending)
-            if kind == self._pending_kind and lo - JITTER <= raw <= last + FORWARD_JUMP_NO_RX:
+            if kind == self._pending_kind and lo - JITTER <= raw <= last + CONFIRM_SPAN:
                 self._pending.append(_Pending(raw, rx, payload))
                 if len(self._pending) >= CONFIRM and max(p.raw for p in self._pending) > lo:
                     return self._confirm_pending()
@@ -230,3 +233,54 @@ def _same(a: tuple, b: tuple) -> bool:
         elif not np.array_equal(x, y):
             return False
     return True
+
+
+RX_TOL = 1.0  # s, receive-time step beyond which a message's receive time is examined
+RX_LOOKAHEAD = 4  # messages after it that decide whether a receive-time step is real
+
+
+class RxFilter:
+    """Receive times (a tlog's 8-byte record times) checked against their neighbours.
+
+    A receive time more than :data:`RX_TOL` s away from the previous good one is a real
+    step (a link gap, a concatenated log) when the next :data:`RX_LOOKAHEAD` messages
+    agree with it, and an **outlier** (one corrupted record time: one flipped bit of the
+    top byte moves it by centuries) when they agree with the previous one instead: it is
+    then replaced by the previous good receive time and counted ``time_outlier`` (the
+    message itself is kept; its vehicle time is not affected). Non-finite or negative
+    receive times are outliers too. ``filter(pairs)`` wraps an iterator of
+    ``(message, rx)``; it delays messages by at most :data:`RX_LOOKAHEAD` messages.
+    """
+
+    def __init__(self, stats: IngestStats) -> None:
+        self.stats = stats
+        self.prev: float | None = None
+
+    def _decide(self, rx: float | None, nxt: list[float]) -> float | None:
+        if rx is None:
+            return None
+        bad = not (rx >= 0.0 and rx < 1e11)  # NaN, negative, beyond the year 5000
+        if not bad and self.prev is not None and abs(rx - self.prev) > RX_TOL:
+            agree_self = sum(abs(x - rx) <= RX_TOL for x in nxt)
+            agree_prev = sum(abs(x - self.prev) <= RX_TOL for x in nxt)
+            bad = agree_prev > agree_self
+        if bad:
+            self.stats.bad("time_outlier", "rx")
+            return self.prev
+        self.prev = rx
+        return rx
+
+    def filter(self, pairs):
+        from collections import deque
+
+        buf: deque = deque()
+        for msg, rx in pairs:
+            buf.append((msg, rx))
+            if len(buf) > RX_LOOKAHEAD:
+                m, r = buf.popleft()
+                nxt = [x for _, x in buf if x is not None]
+                yield m, self._decide(r, nxt)
+        while buf:
+            m, r = buf.popleft()
+            nxt = [x for _, x in buf if x is not None]
+            yield m, self._decide(r, nxt)

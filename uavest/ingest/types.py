@@ -31,6 +31,7 @@ __all__ = [
     "AdsbSample",
     "LinkEvent",
     "IngestStats",
+    "LogParams",
     "ImuSeries",
     "MagSeries",
     "RefSeries",
@@ -66,6 +67,8 @@ BAD_KINDS = (
     "unsigned",  # live link with signing on: unsigned (or MAVLink 1) packet
     "bad_signature",  # live link with signing on: wrong key, or replayed/old timestamp
     "queue_overflow",  # live link: reader queue full (consumer too slow), message dropped
+    "time_outlier",  # one time stamp far from its neighbours' (a corrupted receive or
+    # vehicle time): a receive time is repaired (the item kept), a vehicle time dropped
 )
 
 #: Events counted by :class:`IngestStats` that are not bad data.
@@ -256,6 +259,31 @@ Sample = (
 )
 
 
+class LogParams(dict):
+    """A log's parameters (name -> float), and ``geo``: the first GPS fix with its date,
+    ``{"lat": deg, "lon": deg, "alt": m AMSL, "utc": UNIX s}`` or None, which the sources
+    fill as they read (for the World Magnetic Model declination when the log's own is
+    unknown, :func:`uavest.models.attitude.declination_and_source`)."""
+
+    geo: dict | None = None
+
+    def set_geo(self, lat, lon, alt, utc) -> None:
+        """Keep the first plausible fix (later calls are ignored)."""
+        import math
+
+        if self.geo is not None:
+            return
+        try:
+            v = [float(lat), float(lon), float(alt), float(utc)]
+        except (TypeError, ValueError):
+            return
+        if not all(math.isfinite(x) for x in v) or abs(v[0]) > 90 or abs(v[1]) > 180:
+            return
+        if (v[0], v[1]) == (0.0, 0.0) or not 1.0e9 < v[3] < 4.1e9:  # no fix, or no date
+            return
+        self.geo = {"lat": v[0], "lon": v[1], "alt": v[2], "utc": v[3]}
+
+
 @dataclass(slots=True)
 class IngestStats:
     """Counts of bad data per kind (skipped) and of good data per type.
@@ -281,6 +309,7 @@ class IngestStats:
     unsigned: int = 0
     bad_signature: int = 0
     queue_overflow: int = 0
+    time_outlier: int = 0
     time_reset: int = 0  # vehicle reboots detected (not bad data; time continued)
     time_wrap: int = 0  # 32-bit time_boot_ms wraps unwrapped
     non_mavlink: int = 0  # printable text runs between frames (SITL banner), bytes ignored

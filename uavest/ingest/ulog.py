@@ -18,6 +18,7 @@ from .types import (
     ImuSample,
     IngestError,
     IngestStats,
+    LogParams,
     MagSample,
     PositionSample,
     Sample,
@@ -32,6 +33,7 @@ _TOPICS = [
     "vehicle_attitude_groundtruth",
     "vehicle_local_position",
     "vehicle_global_position",
+    "vehicle_gps_position",  # only the first fix with its date (declination model)
 ]
 _REF_TOPICS = {"vehicle_attitude": "autopilot", "vehicle_attitude_groundtruth": "truth"}
 _INVALID_REL = 0x7FFFFFFF  # PX4 RELATIVE_TIMESTAMP_INVALID
@@ -52,6 +54,29 @@ def _walk_ok(path: Path) -> tuple[bool, bool]:
     return pos == n, False
 
 
+OUTLIER_MIN_S = 1.0  # s, a time this far from its neighbours' median may be an outlier
+OUTLIER_DT = 50.0  # ... and more than this many typical sample intervals away
+
+
+def time_outliers(t: np.ndarray) -> np.ndarray:
+    """Mask of times that are outliers against their neighbours: farther than
+    max(:data:`OUTLIER_MIN_S`, :data:`OUTLIER_DT` x the median interval) from the median
+    of the 5 samples around them. One or two corrupted stamps in a row are caught; a real
+    step of the clock (every later sample moved) is not, since the running median
+    follows it."""
+    n = t.shape[0]
+    if n < 5:
+        return np.zeros(n, dtype=bool)
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    pad = np.concatenate([t[:1].repeat(2), t, t[-1:].repeat(2)])
+    med = np.median(sliding_window_view(pad, 5), axis=1)
+    d = np.diff(t)
+    d = d[np.isfinite(d) & (d > 0)]
+    typ = float(np.median(d)) if d.size else 0.0
+    return np.abs(t - med) > max(OUTLIER_MIN_S, OUTLIER_DT * typ)
+
+
 class ULogData:
     """All measurements of a ULog as numpy arrays (see ``read_log``)."""
 
@@ -70,9 +95,13 @@ class ULogData:
             stats.bad("truncated")
         if corrupt or getattr(ul, "file_corruption", False):
             stats.bad("corrupt")
-        self.params: dict[str, float] = {
-            k: float(v) for k, v in ul.initial_parameters.items() if np.isfinite(float(v))
-        }
+        self.params = LogParams()
+        for k, v in ul.initial_parameters.items():
+            try:
+                if np.isfinite(float(v)):
+                    self.params[k] = float(v)
+            except (TypeError, ValueError):  # an unreadable parameter: the rest is kept
+                stats.bad("corrupt", "parameter")
         self.imu: dict[str, tuple] = {}
         self.mag: dict[str, tuple] = {}
         self.refs: dict[str, tuple] = {}
@@ -120,21 +149,44 @@ class ULogData:
         st.accepted[src] += int(keep.sum())
         return keep
 
+    def _gps(self, data: dict) -> None:
+        with contextlib.suppress(KeyError, TypeError, ValueError):
+            fix = _first_fix(data)
+            if fix is not None:
+                self.params.set_geo(*fix)
+
     @staticmethod
     def _vec(data: dict, fmt: str, n: int = 3) -> np.ndarray:
         return np.stack([np.asarray(data[fmt.format(i)], dtype=float) for i in range(n)], axis=1)
 
-    @staticmethod
-    def _time(data: dict) -> np.ndarray:
-        ts = data.get("timestamp_sample", data["timestamp"])
-        return np.asarray(ts, dtype=float) * 1e-6
+    def _time(self, data: dict, src: str = "") -> np.ndarray:
+        """Sample time (s): ``timestamp_sample``, where it is set (> 0), else
+        ``timestamp`` (SITL ground truth logs ``timestamp_sample = 0``); outliers
+        against the neighbours repaired (:meth:`_robust`)."""
+        ts = np.asarray(data["timestamp"], dtype=np.int64)
+        if "timestamp_sample" in data:
+            smp = np.asarray(data["timestamp_sample"], dtype=np.int64)
+            ts = np.where(smp > 0, smp, ts)
+        return self._robust(ts * 1e-6, src)
+
+    def _robust(self, t: np.ndarray, src: str) -> np.ndarray:
+        """``t`` with its outliers (:func:`time_outliers`) repaired: interpolated between
+        the good neighbours (the sample's data are intact; only its stamp was bad)."""
+        bad = time_outliers(t)
+        n = int(bad.sum())
+        if n:
+            self.stats.bad("time_outlier", src, n)
+            t = t.copy()
+            good = np.flatnonzero(~bad)
+            t[bad] = np.interp(np.flatnonzero(bad), good, t[good])
+        return t
 
     def _topic(self, d) -> None:
         name, data, inst = d.name, d.data, int(d.multi_id)
         src = name if inst == 0 else f"{name}[{inst}]"
         if name == "sensor_combined":
             t_us = np.asarray(data["timestamp"], dtype=np.int64)
-            t = t_us * 1e-6
+            t = self._robust(t_us * 1e-6, src)
             gyro = self._vec(data, "gyro_rad[{}]")
             acc = self._vec(data, "accelerometer_m_s2[{}]")
             oor = {
@@ -150,13 +202,13 @@ class ULogData:
                 tm_us = t_us + rel  # integer microseconds: exact repeats stay equal
                 # sensor_combined repeats the latest mag sample: keep new ones only
                 newer = np.concatenate([[True], np.diff(tm_us) != 0]) & valid
-                tm, fld = tm_us[newer] * 1e-6, fld[newer]
+                tm, fld = self._robust(tm_us[newer] * 1e-6, src + ".mag"), fld[newer]
                 k = self._filter(
                     src + ".mag", tm, [fld], {"m": np.linalg.norm(fld, axis=1) > MAX_MAG}
                 )
                 self.mag[src] = (tm[k], fld[k], inst)
         elif name in ("vehicle_magnetometer", "sensor_mag"):
-            t = self._time(data)
+            t = self._time(data, src)
             fmt = "magnetometer_ga[{}]" if name == "vehicle_magnetometer" else None
             fld = (
                 self._vec(data, fmt)
@@ -166,14 +218,14 @@ class ULogData:
             k = self._filter(src, t, [fld], {"m": np.linalg.norm(fld, axis=1) > MAX_MAG})
             self.mag[src] = (t[k], fld[k], inst)
         elif name in _REF_TOPICS:
-            t = self._time(data)
+            t = self._time(data, src)
             q = self._vec(data, "q[{}]", 4)
             nrm = np.linalg.norm(q, axis=1)
             k = self._filter(src, t, [q], {"q": np.abs(nrm - 1.0) > QUAT_NORM_TOL})
             q = quat_canonical(q[k] / nrm[k, None])
             self.refs[src] = (t[k], q, _REF_TOPICS[name])
         elif name == "vehicle_local_position":
-            t = self._time(data)
+            t = self._time(data, src)
             ned = np.stack([np.asarray(data[c], dtype=float) for c in "xyz"], axis=1)
             vel = np.stack([np.asarray(data[c], dtype=float) for c in ("vx", "vy", "vz")], axis=1)
             oor = {
@@ -182,8 +234,10 @@ class ULogData:
             }
             k = self._filter(src, t, [ned, vel], oor)
             self.pos[src] = (t[k], ned[k], vel[k], np.full((int(k.sum()), 3), np.nan))
+        elif name == "vehicle_gps_position":
+            self._gps(data)
         elif name == "vehicle_global_position":
-            t = self._time(data)
+            t = self._time(data, src)
             lla = np.stack(
                 [np.asarray(data[c], dtype=float) for c in ("lat", "lon", "alt")], axis=1
             )
@@ -191,6 +245,27 @@ class ULogData:
             k = self._filter(src, t, [lla], oor)
             nan3 = np.full((int(k.sum()), 3), np.nan)
             self.pos[src] = (t[k], nan3, nan3.copy(), lla[k])
+
+
+def _first_fix(data: dict):
+    """(lat deg, lon deg, alt m, UNIX s) of the first 3-D fix with a date, or None."""
+    fix = np.asarray(data.get("fix_type", []))
+    utc = np.asarray(data.get("time_utc_usec", []), dtype=float)
+    if fix.size == 0 or utc.size != fix.size:
+        return None
+    if "latitude_deg" in data:
+        lat, lon = np.asarray(data["latitude_deg"], float), np.asarray(data["longitude_deg"], float)
+        alt = np.asarray(data.get("altitude_msl_m", np.zeros(fix.size)), float)
+    elif "lat" in data:
+        lat, lon = np.asarray(data["lat"], float) * 1e-7, np.asarray(data["lon"], float) * 1e-7
+        alt = np.asarray(data.get("alt", np.zeros(fix.size)), float) * 1e-3
+    else:
+        return None
+    ok = np.flatnonzero((fix >= 3) & (utc > 1e15) & np.isfinite(lat) & (np.abs(lat) <= 90))
+    if ok.size == 0:
+        return None
+    i = ok[0]
+    return lat[i], lon[i], alt[i], utc[i] * 1e-6
 
 
 class ULogSource:

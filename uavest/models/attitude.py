@@ -131,16 +131,100 @@ def noise_for_source(source: str) -> AttitudeNoise:
 
 
 def declination_from_params(params: dict[str, float]) -> float | None:
-    """Magnetic declination (rad, east positive) from log parameters, or None.
+    """Magnetic declination (rad, east positive) from the log, or None if unknown
+    (:func:`declination_and_source` without the source)."""
+    return declination_and_source(params)[0]
 
-    ArduPilot ``COMPASS_DEC`` is in radians; PX4 ``ATT_MAG_DECL`` in degrees (PX4 logs
-    usually keep it 0 with auto-declination on, in which case None is returned).
+
+def _on(params: dict, name: str, default: bool) -> bool:
+    v = params.get(name)
+    return default if v is None else bool(int(v) & 1)
+
+
+def declination_and_source(params: dict) -> tuple[float | None, str]:
+    """Magnetic declination (rad, east positive) and where it came from, or (None, why).
+
+    In order: ArduPilot ``COMPASS_DEC`` (rad); PX4 ``EKF2_MAG_DECL`` (degrees; modern
+    EKF2) then ``ATT_MAG_DECL`` (degrees; old attitude estimator). A 0 with the
+    autopilot's automatic declination on (ArduPilot ``COMPASS_AUTODEC``, default on;
+    PX4 ``EKF2_DECL_TYPE`` bit 0, ``ATT_MAG_DECL_A``) is the value *before* the GPS lock
+    (DataFlash PARM records keep that boot value), so unknown: then the World Magnetic
+    Model at the log's first GPS fix and its date (``params.geo``, set by the sources on
+    a :class:`~uavest.ingest.types.LogParams`), else None (the caller uses 0).
     """
-    if "COMPASS_DEC" in params:
-        return float(params["COMPASS_DEC"])
-    if "ATT_MAG_DECL" in params and float(params["ATT_MAG_DECL"]) != 0.0:
-        return float(np.deg2rad(params["ATT_MAG_DECL"]))
-    return None
+    unknown = []
+    for name, unit, auto, default in (
+        ("COMPASS_DEC", "rad", "COMPASS_AUTODEC", True),
+        ("EKF2_MAG_DECL", "deg", "EKF2_DECL_TYPE", True),
+        ("ATT_MAG_DECL", "deg", "ATT_MAG_DECL_A", True),
+    ):
+        if name not in params:
+            continue
+        v = float(params[name])
+        if not np.isfinite(v):
+            continue
+        if v == 0.0 and _on(params, auto, default):
+            unknown.append(f"{name} = 0 with {auto} on")
+            continue
+        rad = v if unit == "rad" else float(np.deg2rad(v))
+        if abs(rad) > np.pi:
+            unknown.append(f"{name} = {v:g} {unit} out of range")
+            continue
+        return rad, f"log parameter {name} ({v:.4g} {unit})"
+    geo = getattr(params, "geo", None)
+    if geo:
+        try:
+            d, what = wmm_declination(geo["lat"], geo["lon"], geo.get("alt", 0.0), geo["utc"])
+            return d, what + (f"; {', '.join(unknown)}" if unknown else "")
+        except ValueError as e:
+            unknown.append(str(e))
+    why = "; ".join(unknown) if unknown else "no declination parameter or GPS fix in the log"
+    return None, f"none (0): {why}"
+
+
+_WMM_EPOCHS = (2010, 2015, 2020, 2025)
+
+
+def wmm_declination(lat: float, lon: float, alt: float, utc_s: float) -> tuple[float, str]:
+    """World Magnetic Model declination (rad) at a position (deg, deg, m AMSL) and UNIX
+    time ``utc_s``, with a description. The WMM epoch of the date is used (2010, 2015,
+    2020, 2025, each valid 5 years); dates outside 2010-2030 use the nearest epoch's end
+    and say so. For 2025-2030 this is :func:`uavest.geometry.magnetic.declination`."""
+    from datetime import UTC, datetime
+
+    from ..geometry.magnetic import decimal_year
+
+    if not all(np.isfinite([lat, lon, alt, utc_s])) or abs(lat) > 90 or abs(lon) > 360:
+        raise ValueError(f"no usable GPS position for the magnetic model ({lat}, {lon})")
+    when = datetime.fromtimestamp(float(utc_s), tz=UTC)
+    year = decimal_year(when)
+    note = ""
+    y = min(max(year, 2010.0), 2029.999)
+    if y != year:
+        note = f", the log's date {year:.1f} clamped to the model's span"
+    epoch = max(e for e in _WMM_EPOCHS if e <= y)
+    r = _geomag(epoch).calculate(glat=float(lat), glon=float(lon), alt=float(alt) / 1000.0,
+                                 time=y)
+    d = float(np.deg2rad(r.d))
+    return d, (f"World Magnetic Model WMM{epoch} at {lat:.4f}, {lon:.4f} on "
+               f"{when:%Y-%m-%d}{note}: {np.rad2deg(d):.2f} deg")
+
+
+_GEOMAG: dict = {}
+
+
+def _geomag(epoch: int):
+    if epoch not in _GEOMAG:
+        import os
+
+        import pygeomag
+        from pygeomag import GeoMag
+
+        name = "WMM_2015v2.COF" if epoch == 2015 else f"WMM_{epoch}.COF"
+        path = os.path.join(os.path.dirname(pygeomag.__file__), "wmm", name)
+        _GEOMAG[epoch] = GeoMag(coefficients_file=path) if os.path.exists(path) else GeoMag(
+            base_year=epoch)
+    return _GEOMAG[epoch]
 
 
 def _weighted(R: Array, weight: float) -> Array:

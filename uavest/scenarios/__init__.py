@@ -107,7 +107,73 @@ def load_scenario(name_or_path: str, sets: list[str] | tuple[str, ...] = ()) -> 
         )
     if "kind" not in sc:
         raise ScenarioError(f"scenario {sc.get('name')!r} has no 'kind' key")
-    return apply_sets(sc, sets)
+    sc = apply_sets(sc, sets)
+    try:
+        validate_scenario(sc)
+    except ScenarioError as e:
+        if sets:
+            raise ScenarioError(f"{e} (after --set {' '.join(sets)})") from None
+        raise
+    return sc
+
+
+#: Keys whose numbers must be >= 0 (noise levels, variances, standard deviations).
+_NONNEG = ("Q", "R", "q", "q_omega", "truth_q", "sigma_range", "sigma_az_deg", "sigma_el_deg",
+           "sigma_rr", "truth_var", "filter_var", "std", "omega_std", "init_vel_std",
+           "max_pos_std", "r_max", "rr_max", "gospa_c")
+MAX_RUNS = 1_000_000  # Monte Carlo runs a scenario may ask for
+MAX_STEPS = 1_000_000
+
+
+def validate_scenario(sc: dict) -> None:
+    """Types and ranges of a scenario's values, with a one-line :class:`ScenarioError`
+    naming the file, the key, the value and what is allowed: every number finite,
+    ``runs``/``steps`` integers >= 1, ``filters`` a list of spec strings, noise levels and
+    standard deviations >= 0, and for radar scenarios the checks of
+    :func:`uavest.tracking.scenario.check_radar`."""
+    where = f"{sc.get('source', sc.get('name'))}: " if sc.get("source") else ""
+
+    def fail(msg: str):
+        raise ScenarioError(msg)
+
+    def walk(node, path):
+        if isinstance(node, dict):
+            for k, v in node.items():
+                walk(v, f"{path}.{k}" if path else str(k))
+        elif isinstance(node, list):
+            for i, v in enumerate(node):
+                walk(v, f"{path}[{i}]")
+        elif isinstance(node, float) and (node != node or (
+                node in (float("inf"), -float("inf")) and "turns" not in path)):
+            # (a turn's end step may be inf: "until the end")
+            fail(f"{where}{path} = {node!r}: must be a finite number")
+        elif isinstance(node, int | float) and not isinstance(node, bool):
+            leaf = path.rsplit(".", 1)[-1].split("[")[0]
+            if leaf in _NONNEG and node < 0:
+                fail(f"{where}{path} = {node!r}: must be >= 0")
+
+    walk(sc, "")
+    for key, top in (("runs", MAX_RUNS), ("steps", MAX_STEPS)):
+        if key in sc:
+            v = sc[key]
+            if not isinstance(v, int) or isinstance(v, bool) or not 1 <= v <= top:
+                fail(f"{where}{key} = {v!r}: must be an integer from 1 to {top:,}")
+    if "filters" in sc:
+        f = sc["filters"]
+        if isinstance(f, str):
+            fail(f"{where}filters = {f!r}: must be a list of filter specs, e.g. "
+                 f"filters = [{f!r}]")
+        if not isinstance(f, list) or not f or not all(isinstance(x, str) and x.strip()
+                                                        for x in f):
+            fail(f"{where}filters = {f!r}: must be a non-empty list of filter spec strings")
+    if "divergence_rmse" in sc:
+        d = sc["divergence_rmse"]
+        if not isinstance(d, int | float) or isinstance(d, bool) or d <= 0:
+            fail(f"{where}divergence_rmse = {d!r}: must be a number > 0")
+    if sc.get("kind") == "radar":
+        from ..tracking.scenario import check_radar
+
+        check_radar(sc, where, fail)
 
 
 def parse_value(v: str):

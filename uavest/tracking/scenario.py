@@ -248,3 +248,58 @@ __all__ = [
     "RunData", "build_models", "generate_run", "motion_model", "prior", "radar_model",
     "state_dim",
 ]
+
+
+# ------------------------------------------------------------------------------ checks
+MOTION_MODELS = ("ncv", "ct")
+MAX_CLUTTER_PER_SCAN = 1e4  # mean false alarms per scan beyond which a run would not fit
+MAX_DETECTIONS = 2e7  # mean detections (clutter) over the whole job that are allowed
+
+
+def check_radar(sc: dict, where: str, fail) -> None:
+    """Ranges and shapes of a radar scenario's values (``fail(msg)`` raises)."""
+    ndim = sc.get("ndim", 2)
+    if ndim not in (2, 3) or isinstance(ndim, bool):
+        fail(f"{where}ndim = {ndim!r}: must be 2 or 3")
+    m = sc.get("motion", {})
+    if not isinstance(m, dict):
+        fail(f"{where}motion must be a table")
+    model = m.get("model", "ncv")
+    if model not in MOTION_MODELS:
+        fail(f"{where}motion.model = {model!r}: unknown motion model; known: "
+             f"{', '.join(MOTION_MODELS)}")
+    r = sc.get("radar", {})
+    if not isinstance(r, dict):
+        fail(f"{where}radar must be a table")
+    pd = r.get("pd", 1.0)
+    if not (isinstance(pd, int | float) and 0.0 < pd <= 1.0) or isinstance(pd, bool):
+        fail(f"{where}radar.pd = {pd!r}: must be a probability in (0, 1]")
+    lam = r.get("clutter_rate", 0.0)
+    if not isinstance(lam, int | float) or isinstance(lam, bool) or lam < 0:
+        fail(f"{where}radar.clutter_rate = {lam!r}: must be a number >= 0 (false alarms "
+             "per scan)")
+    if lam > MAX_CLUTTER_PER_SCAN:
+        gb = lam * 8 * 8 / 1e9
+        fail(f"{where}radar.clutter_rate = {lam:g}: about {gb:.2g} GB of detections per "
+             f"scan before association; at most {MAX_CLUTTER_PER_SCAN:g} per scan is "
+             "supported")
+    n = 2 * ndim
+    p = sc.get("prior", {})
+    if isinstance(p, dict):
+        for key in ("mean", "std"):
+            if key in p:
+                v = p[key]
+                if not isinstance(v, list) or len(v) not in (n, n + 1):
+                    fail(f"{where}prior.{key} = {v!r}: must be a list of {n} numbers "
+                         f"(the state [position, velocity] in {ndim}-D)")
+        if "std" in p and any(x < 0 for x in p["std"] if isinstance(x, int | float)):
+            fail(f"{where}prior.std = {p['std']!r}: standard deviations must be >= 0")
+    t = sc.get("tracker", {})
+    if isinstance(t, dict):
+        for k in ("confirm_m", "confirm_n", "delete_misses"):
+            v = t.get(k, 1)
+            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
+                fail(f"{where}tracker.{k} = {v!r}: must be an integer >= 1")
+        gp = t.get("gate_prob", 0.5)
+        if not (isinstance(gp, int | float) and 0.0 < gp < 1.0):
+            fail(f"{where}tracker.gate_prob = {gp!r}: must be a probability in (0, 1)")
