@@ -19,7 +19,7 @@ from uavest.eval.attitude import rmse_deg
 from uavest.geometry.rotation import quat_slerp_interp
 from uavest.ingest import open_source, read_log
 
-LOGS = Path(__file__).resolve().parents[1].parent / "shared" / "logs"
+LOGS = Path(__file__).resolve().parents[2].parent / "shared" / "logs"
 VTOL = LOGS / "vtol.tlog"
 BIN = LOGS / "test.BIN"
 

@@ -87,7 +87,7 @@ def test_scenario_files_match_builtin_defaults(name):
 
     from uavest.scenarios import BUILTIN
 
-    f = Path(__file__).resolve().parents[1] / "uavest" / "scenarios" / f"{name}.toml"
+    f = Path(__file__).resolve().parents[2] / "uavest" / "scenarios" / f"{name}.toml"
     sc = load_scenario(str(f))
     for k, v in BUILTIN[name].items():
         if k != "name":

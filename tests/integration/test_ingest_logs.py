@@ -10,7 +10,7 @@ import pytest
 
 from uavest.ingest import IngestError, open_source, read_log
 
-LOGS = Path(__file__).resolve().parents[1] / ".." / "shared" / "logs"
+LOGS = Path(__file__).resolve().parents[2] / ".." / "shared" / "logs"
 
 
 def shared(name: str) -> Path:
