@@ -164,10 +164,25 @@ class PoolBackend:
         suspects: deque[Task] = deque()
         attempts: dict[str, int] = {}
         inflight: dict = {}
+        dead: list[Task] = []
+
+        def settle(f, t: Task) -> None:
+            """A finished future's result (or error) to ``done``; a dead worker's task to
+            ``dead``."""
+            n = attempts.get(t.key, 0) + 1
+            try:
+                value = f.result()
+            except BrokenProcessPool:
+                dead.append(t)
+            except Exception as e:  # noqa: BLE001
+                done(t, _error(e, n))
+            else:
+                done(t, _ok(value, n))
+
         self._new()
         try:
             while queue or suspects or inflight:
-                dead: list[Task] = []
+                dead.clear()
                 broken = False
                 try:
                     if suspects:  # isolation: a suspect runs with nothing beside it
@@ -184,31 +199,14 @@ class PoolBackend:
                 if not broken:
                     finished, _ = wait(list(inflight), return_when=FIRST_COMPLETED)
                     for f in finished:
-                        t = inflight.pop(f)
-                        n = attempts.get(t.key, 0) + 1
-                        try:
-                            value = f.result()
-                        except BrokenProcessPool:
-                            dead.append(t)
-                        except Exception as e:  # noqa: BLE001
-                            done(t, _error(e, n))
-                        else:
-                            done(t, _ok(value, n))
+                        settle(f, inflight.pop(f))
                     broken = bool(dead)
                 if not broken:
                     continue
                 # the pool is broken: every other future fails too; collect them
                 wait(list(inflight))
                 for f, t in list(inflight.items()):
-                    n = attempts.get(t.key, 0) + 1
-                    try:
-                        value = f.result()
-                    except BrokenProcessPool:
-                        dead.append(t)
-                    except Exception as e:  # noqa: BLE001
-                        done(t, _error(e, n))
-                    else:
-                        done(t, _ok(value, n))
+                    settle(f, t)
                 inflight.clear()
                 reason = self._death_reason() if len(dead) == 1 else "worker died"
                 self._ex.shutdown(wait=True, cancel_futures=True)
