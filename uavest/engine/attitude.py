@@ -48,6 +48,7 @@ import numpy as np
 
 from ..core.gaussian import Gaussian
 from ..geometry.rotation import AttitudeSpace, quat_exp, quat_log, quat_mul, quat_rotate
+from ..ingest.api import choose_source
 from ..ingest.types import ImuSample, MagSample, PositionSample
 from ..models.attitude import (
     AttitudeNoise,
@@ -69,25 +70,6 @@ Array = np.ndarray
 __all__ = ["DEFAULT_MAX_RATE_HZ", "AttitudeOptions", "AttitudeStream"]
 
 DEFAULT_MAX_RATE_HZ = 25.0
-_IMU_PREF = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "IMU[0]", "sensor_combined")
-
-
-def _rank(name: str, count: int, best: int) -> tuple:
-    # most samples wins; within 2 % (or one sample, for the short alignment window) of the
-    # best, prefer the primary (instance 0) sources
-    near = count >= 0.98 * best - 1
-    pref = _IMU_PREF.index(name) if name in _IMU_PREF else len(_IMU_PREF)
-    return (not near, pref, -count, name)
-
-
-def choose_source(counts: dict[str, int]) -> str | None:
-    """The IMU (or magnetometer) source to use among ``counts`` (name -> samples)."""
-    if not counts:
-        return None
-    best = max(counts.values())
-    return min(counts, key=lambda s: _rank(s, counts[s], best))
-
-
 @dataclass(frozen=True)
 class AttitudeOptions:
     """How samples become steps (see the module docstring and ``uavest replay --help``).
@@ -332,14 +314,14 @@ class AttitudeStream:
                 imu_counts[s.source] = imu_counts.get(s.source, 0) + 1
             elif isinstance(s, MagSample):
                 mag_counts[s.source] = mag_counts.get(s.source, 0) + 1
-        imu = o.imu if o.imu is not None else choose_source(imu_counts)
+        imu = o.imu if o.imu is not None else choose_source(imu_counts, slack=1)
         if imu is None or imu not in imu_counts:
             have = ", ".join(sorted(imu_counts)) or "none"
             what = f"IMU source {imu!r} not in the stream" if imu else "no IMU samples"
             raise ValueError(f"{what} (IMU sources seen: {have})")
         mag = None
         if o.use_mag and mag_counts:
-            mag = imu if imu in mag_counts else choose_source(mag_counts)
+            mag = imu if imu in mag_counts else choose_source(mag_counts, slack=1)
         pos = None
         if o.accel_comp == "auto":
             for s in held:

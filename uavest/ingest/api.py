@@ -148,11 +148,21 @@ def open_source(
 _IMU_PREF = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "IMU[0]", "sensor_combined")
 
 
-def _imu_rank(name: str, count: int, best: int) -> tuple:
-    # most samples wins; within 2 % of the best, prefer the primary (instance 0) sources
-    near = count >= 0.98 * best
-    pref = _IMU_PREF.index(name) if name in _IMU_PREF else len(_IMU_PREF)
-    return (not near, pref, -count, name)
+def choose_source(counts: dict[str, int], slack: int = 0) -> str | None:
+    """The IMU (or magnetometer) source to use among ``counts`` (name -> samples): most
+    samples wins; within 2 % of the best (and ``slack`` samples more, for short windows
+    such as the streaming engine's alignment) the primary sources by preference win.
+    None when ``counts`` is empty."""
+    if not counts:
+        return None
+    best = max(counts.values())
+
+    def rank(name: str) -> tuple:
+        near = counts[name] >= 0.98 * best - slack
+        pref = _IMU_PREF.index(name) if name in _IMU_PREF else len(_IMU_PREF)
+        return (not near, pref, -counts[name], name)
+
+    return min(counts, key=rank)
 
 
 def _sort_dedup(t: np.ndarray, *arrays: np.ndarray):
@@ -249,11 +259,8 @@ def read_log(
         if imu not in imu_d:
             raise IngestError(f"{p}: IMU source {imu!r} not in log (available: {sorted(counts)})")
         chosen = imu
-    elif counts:
-        best = max(counts.values())
-        chosen = min(counts, key=lambda s: _imu_rank(s, counts[s], best))
     else:
-        chosen = None
+        chosen = choose_source(counts)
     if chosen is None:
         z3 = np.zeros((0, 3))
         imu_series = ImuSeries(np.zeros(0), z3, z3.copy(), "", 0)
@@ -269,8 +276,7 @@ def read_log(
         if chosen in mag_counts:
             mname = chosen
         else:
-            best = max(mag_counts.values())
-            mname = min(mag_counts, key=lambda s: _imu_rank(s, mag_counts[s], best))
+            mname = choose_source(mag_counts)
         t, f, inst = mag_d[mname]
         t, f = _sort_dedup(t, f)
         k = _window(t, start, end)
