@@ -306,8 +306,6 @@ def _live_samples(link, stop: threading.Event | None, duration: float | None,
                 log.warning("link lost at t = %.1f s (no message for the gap timeout)", s.t)
             elif s.kind == "link_restored":
                 log.warning("link restored after %.1f s", s.duration or float("nan"))
-            yield s
-            continue
         yield s
 
 
