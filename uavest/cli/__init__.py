@@ -114,15 +114,25 @@ class _OneLine(logging.Formatter):
         return f"uavest: {record.levelname.lower()}: {record.getMessage()}"
 
 
-def _setup_logging(verbose: int, quiet: bool) -> None:
+def _setup_logging(verbose: int, quiet: bool) -> tuple:
+    """One-line messages on stderr for the ``uavest`` loggers; returns what it replaced,
+    for :func:`_restore_logging` (``main`` called in-process must leave logging as it was)."""
     level = logging.ERROR if quiet else (logging.WARNING if verbose == 0 else
                                          logging.INFO if verbose == 1 else logging.DEBUG)
     h = logging.StreamHandler(sys.stderr)
     h.setFormatter(_OneLine())
     root = logging.getLogger("uavest")
+    saved = (root.handlers[:], root.level, root.propagate)
     root.handlers[:] = [h]
     root.setLevel(level)
     root.propagate = False
+    return saved
+
+
+def _restore_logging(saved: tuple) -> None:
+    root = logging.getLogger("uavest")
+    root.handlers[:], level, root.propagate = saved
+    root.setLevel(level)
 
 
 def _preset_for(args) -> str:
@@ -169,10 +179,18 @@ def main(argv: list[str] | None = None) -> int:
         args = ap.parse_args(argv)
     except SystemExit as e:  # argparse: usage errors exit 2 with a message already
         return int(e.code or 0)
-    _setup_logging(args.verbose, args.quiet)
     if not hasattr(args, "func"):
         ap.print_help()
         return 2
+    saved = _setup_logging(args.verbose, args.quiet)
+    try:
+        return _call(args)
+    finally:
+        _restore_logging(saved)
+
+
+def _call(args) -> int:
+    """Run the command; bad usage or input -> one line on stderr and 2."""
     from ..ingest.types import IngestError
     from ..scenarios import ScenarioError
 
