@@ -81,3 +81,64 @@ def test_stacked_update_matches_sequential_for_ekf():
     # equal up to the relinearisation between the sequential updates
     np.testing.assert_allclose(both.x, seq.x, atol=1e-4)
     np.testing.assert_allclose(both.P, seq.P, rtol=0.05, atol=1e-4)  # P entries ~1e-3
+
+
+def _imu_mag_stream(n: int = 2001, rate: float = 250.0):
+    """A 250 Hz IMU with a 50 Hz magnetometer, noisy accelerometer, slow rotation."""
+    import heapq
+
+    from uavest.ingest.types import MagSample
+
+    rng = np.random.default_rng(3)
+    t = np.arange(n) / rate
+    gyro = np.tile([0.02, -0.01, 0.05], (n, 1)) + rng.normal(0, 0.01, (n, 3))
+    accel = np.tile([0.0, 0.0, -9.81], (n, 1)) + rng.normal(0, 0.3, (n, 3))
+    imu = [ImuSample(float(a), g, f, "I") for a, g, f in zip(t, gyro, accel, strict=True)]
+    mags = [MagSample(float(a), np.array([0.2, 0.0, 0.4]) + rng.normal(0, 0.005, 3), "I")
+            for a in t[::5]]
+    return list(heapq.merge(imu, mags, key=lambda s: s.t)), accel
+
+
+def test_full_rate_updates_once_per_reference_step_on_the_block_mean():
+    """--rate 0 on a 250 Hz IMU: a step per sample, the accelerometer/magnetometer update
+    every 10th step (the 25 Hz reference rate) on the mean specific force of the 10
+    samples since the last update, with weight 1 (R as at the default rate); the steps
+    between predict only."""
+    samples, accel = _imu_mag_stream()
+    st = AttitudeStream(samples, AttitudeOptions(rate_hz=0))
+    steps = [x for x in st if isinstance(x, Step)]
+    assert st.summary["steps_per_update"] == 10
+    assert st.summary["preintegrated_samples_per_step"] == 1
+    with_upd = [i for i, s in enumerate(steps) if s.updates]
+    assert len(steps) == 2000 and len(with_upd) == 200
+    assert set(np.diff(with_upd)) == {10}
+    ref = AttitudeStream(samples, AttitudeOptions())  # the default 25 Hz steps
+    ref_steps = [x for x in ref if isinstance(x, Step)]
+    for i, s in zip(with_upd, ref_steps, strict=True):
+        (m,) = s.updates
+        (m0,) = ref_steps[with_upd.index(i)].updates
+        assert s.t == ref_steps[with_upd.index(i)].t
+        # the same stacked accel+mag update as the default rate's step ending there
+        np.testing.assert_array_equal(m[0], m0[0])
+        np.testing.assert_array_equal(m[1].R, m0[1].R)
+    del accel
+
+
+def test_update_rate_zero_updates_every_step_with_weighted_noise():
+    samples, _ = _imu_mag_stream()
+    st = AttitudeStream(samples, AttitudeOptions(rate_hz=0, update_hz=0))
+    steps = [x for x in st if isinstance(x, Step)]
+    assert st.summary["steps_per_update"] == 1
+    assert all(s.updates for s in steps)
+    ref = [x for x in AttitudeStream(samples, AttitudeOptions(rate_hz=0)) if isinstance(x, Step)]
+    # R of an every-step accelerometer update is 10x that of a reference-step update
+    ra = steps[-1].updates[0][1].R
+    rb = next(s for s in reversed(ref) if s.updates).updates[0][1].R
+    assert ra.shape == rb.shape and ra[0, 0] > rb[0, 0]
+
+
+def test_update_rate_is_checked():
+    import pytest
+
+    with pytest.raises(ValueError, match="update rate"):
+        AttitudeOptions(update_hz=-1.0)

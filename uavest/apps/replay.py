@@ -53,6 +53,7 @@ class ReplayConfig:
     smooth: bool = False
     seed: int = 0
     rate_hz: float | None = None
+    update_hz: float | None = None
     integration: str = "auto"
     declination: float | None = None  # rad; None -> log params, else 0
     noise: dict = field(default_factory=dict)

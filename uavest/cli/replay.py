@@ -153,10 +153,15 @@ def cmd_replay(args: argparse.Namespace) -> int:
             f"--mag-delay must be a finite number of seconds >= 0, got {args.mag_delay}")
     if args.rate is not None and (args.rate < 0 or not math.isfinite(args.rate)):
         raise ValueError(f"--rate must be >= 0 Hz (0 = every IMU sample), got {args.rate}")
+    if args.update_rate is not None and (args.update_rate < 0
+                                         or not math.isfinite(args.update_rate)):
+        raise ValueError(f"--update-rate must be >= 0 Hz (0 = every step), got "
+                         f"{args.update_rate}")
     reject_linear_only(args.filter_specs, "replay", "nonlinear attitude models")
     cfg = ReplayConfig(
         filters=tuple(args.filter_specs), start=args.start, end=args.end, smooth=args.smooth,
-        seed=args.seed, rate_hz=args.rate, integration=args.integration,
+        seed=args.seed, rate_hz=args.rate, update_hz=args.update_rate,
+        integration=args.integration,
         declination=None if args.declination is None else math.radians(args.declination),
         noise=_parse_noise(args.noise), imu=args.imu, use_mag=not args.no_mag,
         accel_comp=args.accel_comp, mag_mode=args.mag_mode, mag_delay=args.mag_delay,
@@ -202,6 +207,11 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--rate", type=float, default=None,
                    help=f"max filter rate in Hz (default {DEFAULT_MAX_RATE_HZ:g}; gyro is "
                    "pre-integrated exactly between steps); 0 = every IMU sample")
+    p.add_argument("--update-rate", type=float, default=None, metavar="HZ",
+                   help=f"above {DEFAULT_MAX_RATE_HZ:g} Hz filter rate: accelerometer and "
+                   f"magnetometer updates at most this often, on the mean specific force "
+                   f"since the last one (default {DEFAULT_MAX_RATE_HZ:g}); 0 = every step, "
+                   "each weighted by its share of a reference step")
     p.add_argument("--integration", default="auto", choices=("auto", "hold", "trapezoid"),
                    help="gyro sample interpretation (default auto: trapezoid below 20 Hz)")
     p.add_argument("--declination", type=float, default=None,

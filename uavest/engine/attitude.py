@@ -75,7 +75,10 @@ class AttitudeOptions:
     """How samples become steps (see the module docstring and ``uavest replay --help``).
 
     ``start``/``end`` s (vehicle clock) clip the stream; ``rate_hz`` None -> the
-    :data:`DEFAULT_MAX_RATE_HZ` cap, 0 -> every IMU sample; ``declination`` rad east
+    :data:`DEFAULT_MAX_RATE_HZ` cap, 0 -> every IMU sample; ``update_hz`` caps the rate
+    of the accelerometer/magnetometer updates when the filter runs faster than
+    :data:`DEFAULT_MAX_RATE_HZ` (None -> that rate, 0 -> an update every step, weighted
+    and averaged over a reference step); ``declination`` rad east
     positive, None -> the source's parameters at the end of the alignment
     (``COMPASS_DEC``, ``ATT_MAG_DECL``), else 0; ``noise`` overrides of
     :class:`~uavest.models.attitude.AttitudeNoise`;
@@ -87,6 +90,7 @@ class AttitudeOptions:
     start: float | None = None
     end: float | None = None
     rate_hz: float | None = None
+    update_hz: float | None = None
     integration: str = "auto"
     declination: float | None = None
     noise: dict = field(default_factory=dict)
@@ -107,6 +111,8 @@ class AttitudeOptions:
                 f"integration must be auto, hold or trapezoid, not {self.integration!r}")
         if self.mag_mode not in ("field", "heading"):
             raise ValueError(f"mag_mode must be field or heading, not {self.mag_mode!r}")
+        if self.update_hz is not None and not self.update_hz >= 0:
+            raise ValueError(f"update rate must be >= 0 Hz, got {self.update_hz}")
         if self.accel_comp not in ("auto", "none"):
             raise ValueError(f"accel_comp must be auto or none, not {self.accel_comp!r}")
 
@@ -114,12 +120,13 @@ class AttitudeOptions:
 @dataclass
 class _Raw:
     """A closed step before its measurement models: end time ``t``, start ``t0``, rate
-    ``w`` rad/s, mean specific force ``a``, the samples it holds (``n``)."""
+    ``w`` rad/s, mean specific force ``a`` (None: a prediction-only step), the samples it
+    holds (``n``)."""
 
     t: float
     t0: float
     w: Array
-    a: Array
+    a: Array | None
     n: int
     mag: Array | None = None
     accel_ned: Array | None = None
@@ -128,12 +135,17 @@ class _Raw:
 class _StepBuilder:
     """Streaming pre-integration and grouping (see the module docstring)."""
 
-    def __init__(self, integration: str, factor: int, use_pos: bool, ref: int = 1) -> None:
+    def __init__(self, integration: str, factor: int, use_pos: bool, ref: int = 1,
+                 every: int = 1) -> None:
         from collections import deque
 
         self.integration = integration
         self.factor = factor
-        self.acc_hist = deque(maxlen=max(ref, factor))  # accel of the last reference step
+        self.every = every  # steps per accelerometer/magnetometer update
+        self.since = 0  # steps since the last update
+        self.t_upd: float | None = None  # end of the last step with an update
+        self.acc_upd: list[Array] = []  # accelerometer samples since that update
+        self.acc_hist = deque(maxlen=max(ref, factor) if every == 1 else 1)
         self.use_pos = use_pos
         self.t_edge: float | None = None  # end of the last closed step (t_{k-1})
         self.g_edge: Array | None = None  # gyro at that edge (trapezoid)
@@ -145,7 +157,11 @@ class _StepBuilder:
         self.dropped = 0  # IMU samples not after the previous one
 
     def _finish(self, r: _Raw) -> _Raw:
-        if self.mag_last is not None and r.t0 < self.mag_last[0] <= r.t:
+        if r.a is None:  # a prediction-only step (updates every ``every`` steps)
+            return r
+        t0 = r.t0 if self.every == 1 else (r.t0 if self.t_upd is None else self.t_upd)
+        self.t_upd = r.t
+        if self.mag_last is not None and t0 < self.mag_last[0] <= r.t:
             r.mag = self.mag_last[1]
         if self.use_pos:
             acc = np.full(3, np.nan)
@@ -203,7 +219,14 @@ class _StepBuilder:
             for d in dq:
                 q = quat_mul(q, d)
             w = quat_log(q) / max(t1 - t0, 1e-12)
-            if self.acc_hist.maxlen > self.factor:  # faster than the reference rate
+            if self.every > 1:  # updates once per reference step: its mean specific force
+                self.acc_upd.extend(s.accel for s in b)
+                self.since += 1
+                a = None
+                if self.since >= self.every:
+                    a = np.sum(self.acc_upd, axis=0) / len(self.acc_upd)
+                    self.acc_upd, self.since = [], 0
+            elif self.acc_hist.maxlen > self.factor:  # faster than the reference rate
                 self.acc_hist.extend(s.accel for s in b)
                 a = np.sum(list(self.acc_hist), axis=0) / len(self.acc_hist)
             else:
@@ -337,23 +360,30 @@ class AttitudeStream:
         cap = DEFAULT_MAX_RATE_HZ if o.rate_hz is None else float(o.rate_hz)
         factor = 1 if cap <= 0 or integ == "trapezoid" else max(1, round(rate / cap))
         ref = 1 if integ == "trapezoid" else max(1, round(rate / DEFAULT_MAX_RATE_HZ))
-        self._accel_weight = min(1.0, factor / ref)  # 1.0 at the default rate
+        # faster than the reference rate: updates at most at ``update_hz`` (default the
+        # reference rate), on the mean specific force of the samples since the last one
+        ucap = DEFAULT_MAX_RATE_HZ if o.update_hz is None else float(o.update_hz)
+        frate = rate / factor if factor else rate
+        every = (1 if ucap <= 0 or integ == "trapezoid" or factor >= ref
+                 else max(1, round(frate / ucap)))
+        self._accel_weight = min(1.0, factor * every / ref)  # 1.0 at the default rate
         # the magnetometer: its updates per second now against those at the default rate
         # (each step uses its latest sample): 1 when it is slower than both filter rates
         span = (ti[-1] - ti[0]) if len(ti) > 1 else 0.0
         mrate = mag_counts.get(mag, 0) / span if mag and span > 0 else 0.0
-        frate = rate / factor if factor else rate
+        urate = frate / every
         ref_rate = rate / ref
-        self._mag_weight = (min(1.0, min(mrate, ref_rate) / min(mrate, frate))
+        self._mag_weight = (min(1.0, min(mrate, ref_rate) / min(mrate, urate))
                             if mrate > 0 else 1.0)
         self.noise = noise_for_source(imu).with_(**o.noise)
         self._model = GyroTransition(self.noise)
         self.summary.update(
             imu_source=imu, imu_sources=imu_counts, mag_source=mag, accel_compensation=pos,
             integration=integ, preintegrated_samples_per_step=factor, align_rate_hz=rate,
+            steps_per_update=every,
         )
         self._imu, self._mag, self._pos = imu, mag, pos
-        self._builder = _StepBuilder(integ, factor, pos is not None, ref)
+        self._builder = _StepBuilder(integ, factor, pos is not None, ref, every)
         # the first IMU sample, the magnetometer at/before it (else the first one held)
         self._first = first = next(s for s in held if isinstance(s, ImuSample)
                                    and s.source == imu)
@@ -411,6 +441,8 @@ class AttitudeStream:
 
     def _updates(self, r: _Raw, mref: Array | None) -> tuple:
         o, noise = self.opts, self.noise
+        if r.a is None:
+            return ()
         meas = []
         a = GravityDirection.from_accel(r.a, noise, accel_ned=r.accel_ned,
                                         weight=self._accel_weight)
