@@ -233,3 +233,43 @@ def test_mag_update_weight_scales_R_and_is_exact_at_the_reference_rate():
         (z1, m1), (z8, m8) = make(1.0), make(0.125)
         assert np.array_equal(z1, z8)
         np.testing.assert_allclose(m8.R, 8.0 * m1.R, rtol=1e-15)
+
+
+def test_gyro_transition_float_paths_equal_the_composed_forms():
+    """GyroTransition.F and f of one state run on Python floats; they equal the composed
+    numpy forms (quat_to_dcm(quat_exp(-phi)), right_jacobian, gyro_propagate) to 1e-15
+    over angles from 1e-9 rad (the Taylor branches) to ~3 rad per step."""
+    from uavest.geometry.rotation import gyro_propagate, quat_exp, quat_to_dcm, right_jacobian
+    from uavest.models.attitude import AttitudeNoise, GyroTransition
+
+    tr = GyroTransition(AttitudeNoise())
+    rng = np.random.default_rng(4)
+    for _ in range(500):
+        q = rng.normal(size=4)
+        x = np.concatenate([q / np.linalg.norm(q), rng.normal(0, 0.01, 3)])
+        u = rng.normal(0, 1, 3) * 10 ** rng.uniform(-9, 1.5)
+        dt = rng.uniform(1e-4, 0.1)
+        phi = (u - x[4:]) * dt
+        F = np.eye(6)
+        F[:3, :3] = quat_to_dcm(quat_exp(-phi))
+        F[:3, 3:] = -right_jacobian(phi) * dt
+        np.testing.assert_allclose(tr.F(x, 0.0, dt, u), F, rtol=0, atol=1e-15)
+        np.testing.assert_allclose(tr.f(x[None], 0.0, dt, u), gyro_propagate(x[None], u, dt),
+                                   rtol=0, atol=1e-15)
+    Q = tr.Q(0.0, 0.004)
+    assert Q is tr.Q(0.0, 0.004) and not Q.flags.writeable  # one diag per dt
+    assert tr.Q(0.0, 0.005)[0, 0] > Q[0, 0]
+
+
+def test_slerp_one_equals_the_composed_slerp():
+    from uavest.geometry.rotation import quat_conj, quat_exp, quat_log, quat_mul, slerp_one
+
+    rng = np.random.default_rng(5)
+    for i in range(300):
+        q0 = rng.normal(size=4)
+        q0 /= np.linalg.norm(q0)
+        d = rng.normal(size=3) * 10 ** rng.uniform(-10, 0.4)
+        q1 = quat_mul(q0, quat_exp(d)) * (-1 if i % 3 == 0 else 1)  # both signs
+        for s in (0.0, 0.3, 1.0):
+            ref = quat_mul(q0, quat_exp(s * quat_log(quat_mul(quat_conj(q0), q1))))
+            np.testing.assert_allclose(slerp_one(q0, q1, s), ref, rtol=0, atol=1e-15)

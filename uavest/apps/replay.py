@@ -106,6 +106,7 @@ class _ImuGaps(Sink):
         self.last: dict[str, float] = {}
         self.first: dict[str, float] = {}
         self.dts: dict[str, list] = {}
+        self.med: dict[str, float] = {}
         self.gap: dict[str, float] = {}
 
     def sample(self, s) -> None:
@@ -118,11 +119,13 @@ class _ImuGaps(Sink):
             self.first[src] = t
             return
         dt = t - prev
-        d = self.dts.setdefault(src, [])
-        if len(d) < 200:
+        med = self.med.get(src)
+        if med is None:
+            d = self.dts.setdefault(src, [])
             d.append(dt)
+            if len(d) == 200:  # the median of the first 200 intervals, once
+                self.med[src] = float(np.median(d[:200]))
             return
-        med = float(np.median(d))
         if dt > 3.0 * med:
             self.gap[src] = self.gap.get(src, 0.0) + dt - med
 

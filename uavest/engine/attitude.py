@@ -212,13 +212,16 @@ class _StepBuilder:
             w = 0.5 * (self.g_edge + b[-1].gyro)
             a = b[-1].accel
         else:
-            t = np.array([t0] + [s.t for s in b])
-            g = np.array([s.gyro for s in b])
-            dq = quat_exp(g * np.diff(t)[:, None])
-            q = np.array([1.0, 0.0, 0.0, 0.0])
-            for d in dq:
-                q = quat_mul(q, d)
-            w = quat_log(q) / max(t1 - t0, 1e-12)
+            if len(b) == 1:  # full rate: Log(Exp(g dt)) / dt = g (up to rounding)
+                w = b[0].gyro
+            else:
+                t = np.array([t0] + [s.t for s in b])
+                g = np.array([s.gyro for s in b])
+                dq = quat_exp(g * np.diff(t)[:, None])
+                q = np.array([1.0, 0.0, 0.0, 0.0])
+                for d in dq:
+                    q = quat_mul(q, d)
+                w = quat_log(q) / max(t1 - t0, 1e-12)
             if self.every > 1:  # updates once per reference step: its mean specific force
                 self.acc_upd.extend(s.accel for s in b)
                 self.since += 1

@@ -18,10 +18,10 @@ import numpy as np
 
 from ..geometry.rotation import (
     quat_conj,
-    quat_exp,
     quat_log,
     quat_mul,
     quat_to_euler,
+    slerp_one,
     wrap_pi,
 )
 
@@ -182,9 +182,7 @@ class _RefTrack:
             return self.q[0]
         i = min(bisect_right(ts, t) - 1, len(ts) - 2)
         s = min(max((t - ts[i]) / (ts[i + 1] - ts[i]), 0.0), 1.0)
-        q0 = self.q[i]
-        d = quat_log(quat_mul(quat_conj(q0), self.q[i + 1]))
-        return quat_mul(q0, quat_exp(s * d))
+        return np.array(slerp_one(self.q[i], self.q[i + 1], s))
 
     def trim(self, t: float) -> None:
         """Forget samples not needed for steps at or after ``t``."""

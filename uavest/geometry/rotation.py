@@ -18,6 +18,8 @@ the test-suite checks both agree.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 Array = np.ndarray
@@ -214,6 +216,30 @@ def right_jacobian(phi: Array) -> Array:
         return np.eye(3) - 0.5 * K + K @ K / 6.0
     th = np.sqrt(th2)
     return np.eye(3) - (1 - np.cos(th)) / th2 * K + (th - np.sin(th)) / (th2 * th) * K @ K
+
+
+def slerp_one(q0, q1, s: float) -> tuple[float, float, float, float]:
+    """``q0 Exp(s Log(q0^-1 q1))`` of two single quaternions on Python floats (the
+    formulas of :func:`quat_mul`, :func:`quat_log` (shortest way) and :func:`quat_exp`,
+    without numpy's per-call cost): the streaming scorers interpolate one reference
+    sample pair per step."""
+    aw, ax, ay, az = (float(v) for v in q0)
+    bw, bx, by, bz = (float(v) for v in q1)
+    # d = conj(q0) * q1
+    w = aw * bw + ax * bx + ay * by + az * bz
+    x = aw * bx - ax * bw - ay * bz + az * by
+    y = aw * by + ax * bz - ay * bw - az * bx
+    z = aw * bz - ax * by + ay * bx - az * bw
+    if w < 0.0:
+        w, x, y, z = -w, -x, -y, -z
+    n = math.sqrt(x * x + y * y + z * z)
+    k = s * (2.0 / max(w, 1e-300) if n < 1e-8 else 2.0 * math.atan2(n, w) / n)
+    vx, vy, vz = k * x, k * y, k * z
+    th = math.sqrt(vx * vx + vy * vy + vz * vz)
+    f = 0.5 - th * th / 48.0 if th < 1e-5 else math.sin(0.5 * th) / th
+    ew, ex, ey, ez = math.cos(0.5 * th), f * vx, f * vy, f * vz
+    return (aw * ew - ax * ex - ay * ey - az * ez, aw * ex + ax * ew + ay * ez - az * ey,
+            aw * ey - ax * ez + ay * ew + az * ex, aw * ez + ax * ey - ay * ex + az * ew)
 
 
 def quat_slerp_interp(t_ref: Array, q_ref: Array, t: Array) -> tuple[Array, Array]:

@@ -26,6 +26,7 @@ body-measured field rotated into NED by the state, ``atan2(m_E, m_N)``; z = decl
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -41,7 +42,6 @@ from ..geometry.rotation import (
     quat_rotate,
     quat_rotate_inv,
     quat_to_dcm,
-    right_jacobian,
     skew,
     wrap_pi,
 )
@@ -249,6 +249,8 @@ class GyroTransition(Transition):
 
     def f(self, X: Array, t: float, dt: float, u: Array | None = None) -> Array:
         w = np.zeros(3) if u is None else np.asarray(u, float)
+        if X.ndim == 2 and X.shape[0] == 1:  # one state (the EKF): on Python floats
+            return _propagate_one(X[0].tolist(), w.tolist(), dt)[None, :]
         if X.ndim == 2:
             return gyro_propagate(X, w, dt)  # fused kernel, same numbers
         phi = (w - X[..., 4:]) * dt
@@ -257,19 +259,71 @@ class GyroTransition(Transition):
         return np.concatenate([q, X[..., 4:]], axis=-1)
 
     def Q(self, t: float, dt: float, u: Array | None = None) -> Array:
-        n = self.noise
         dt = abs(dt)
+        c = self._q_cache
+        if c is not None and c[0] == dt:  # full-rate steps repeat dt: one diag per dt
+            return c[1]
+        n = self.noise
         qa = n.gyro_noise**2 * dt + n.rate_walk**2 * dt**3 / 3.0 + 1e-14
         qb = n.gyro_bias_walk**2 * dt + 1e-16
-        return np.diag([qa, qa, qa, qb, qb, qb])
+        Q = np.diag([qa, qa, qa, qb, qb, qb])
+        Q.flags.writeable = False
+        self._q_cache = (dt, Q)
+        return Q
+
+    _q_cache: tuple | None = None
 
     def F(self, x: Array, t: float, dt: float, u: Array | None = None) -> Array:
-        w = np.zeros(3) if u is None else np.asarray(u, float)
-        phi = (w - x[4:]) * dt
-        F = np.eye(6)
-        F[:3, :3] = quat_to_dcm(quat_exp(-phi))
-        F[:3, 3:] = -right_jacobian(phi) * dt
-        return F
+        """The tangent Jacobian, on Python floats (one 6x6 array built at the end):
+        Exp(-phi) as a DCM and the SO(3) right Jacobian J_r(phi) = I - (1 - cos th)/th^2
+        [phi]x + (th - sin th)/th^3 [phi]x^2 (Taylor below th^2 = 1e-10), the formulas of
+        :func:`~uavest.geometry.rotation.quat_to_dcm` / ``quat_exp`` and
+        :func:`~uavest.geometry.rotation.right_jacobian`."""
+        w = (0.0, 0.0, 0.0) if u is None else np.asarray(u, float).tolist()
+        b = x[4:].tolist()
+        px, py, pz = (w[0] - b[0]) * dt, (w[1] - b[1]) * dt, (w[2] - b[2]) * dt
+        th2 = px * px + py * py + pz * pz
+        th = math.sqrt(th2)
+        # quat_exp(-phi) -> DCM
+        h = 0.5 * th
+        s = 0.5 - th * th / 48.0 if th < 1e-5 else math.sin(h) / th
+        qw, qx, qy, qz = math.cos(h), -s * px, -s * py, -s * pz
+        # J_r(phi) = I - a K + c K^2, K = [phi]x, K^2 = phi phi^T - th^2 I
+        if th2 < 1e-10:
+            a, c = 0.5, 1.0 / 6.0
+        else:
+            a, c = (1 - math.cos(th)) / th2, (th - math.sin(th)) / (th2 * th)
+        kxx, kyy, kzz = px * px - th2, py * py - th2, pz * pz - th2
+        kxy, kxz, kyz = px * py, px * pz, py * pz
+        m = -dt
+        return np.array([
+            [1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy),
+             m * (1 + c * kxx), m * (a * pz + c * kxy), m * (-a * py + c * kxz)],
+            [2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx),
+             m * (-a * pz + c * kxy), m * (1 + c * kyy), m * (a * px + c * kyz)],
+            [2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy),
+             m * (a * py + c * kxz), m * (-a * px + c * kyz), m * (1 + c * kzz)],
+            [0.0, 0.0, 0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 0.0, 0.0, 1.0, 0.0],
+            [0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+        ])
+
+
+def _propagate_one(x: list, w: list, dt: float) -> Array:
+    """q <- q * Exp((w - b) dt), normalised; b <- b: one state on Python floats (the
+    formulas of ``quat_exp`` / ``quat_mul``)."""
+    qw, qx, qy, qz, bx, by, bz = x
+    vx, vy, vz = (w[0] - bx) * dt, (w[1] - by) * dt, (w[2] - bz) * dt
+    th = math.sqrt(vx * vx + vy * vy + vz * vz)
+    h = 0.5 * th
+    s = 0.5 - th * th / 48.0 if th < 1e-5 else math.sin(h) / th
+    ew, ex, ey, ez = math.cos(h), s * vx, s * vy, s * vz
+    rw = qw * ew - qx * ex - qy * ey - qz * ez
+    rx = qw * ex + qx * ew + qy * ez - qz * ey
+    ry = qw * ey - qx * ez + qy * ew + qz * ex
+    rz = qw * ez + qx * ey - qy * ex + qz * ew
+    n = math.sqrt(rw * rw + rx * rx + ry * ry + rz * rz)
+    return np.array([rw / n, rx / n, ry / n, rz / n, bx, by, bz])
 
 
 class GravityDirection(Measurement):
