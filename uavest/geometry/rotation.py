@@ -19,6 +19,7 @@ the test-suite checks both agree.
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 
@@ -274,7 +275,58 @@ def quat_slerp_interp(t_ref: Array, q_ref: Array, t: Array) -> tuple[Array, Arra
 # product as a gathered 4x4 (Hamilton) matrix, exp/log without the broadcasting machinery,
 # results written into one preallocated array. Equal to the composed functions to 1e-15
 # (tests/unit/test_speed_kernels.py keeps the composed form as the reference).
-# Fused numpy was chosen over a compiled (numba) kernel: see docs/speed.md.
+# With numba installed (``uavest[fast]``) the same kernels run compiled
+# (:mod:`uavest.geometry._compiled`, chosen by measurement: docs/speed.md).
+
+#: The compiled kernels (module :mod:`uavest.geometry._compiled`) once loaded, False when
+#: numba is missing, disabled (``UAVEST_NUMBA=0``) or failed; None before the first call.
+_NB = None
+
+
+def compiled_kernels():
+    """The numba kernels module if they can be used here, else False (the fused numpy
+    kernels below are used). Decided once per process at the first kernel call: numba must
+    import, ``UAVEST_NUMBA`` must not be ``0``, and the four kernels must compile (first
+    time: some seconds, then numba's on-disk cache) and agree with the numpy kernels on a
+    small case; any failure is logged and falls back to numpy."""
+    global _NB
+    if _NB is not None:
+        return _NB
+    _NB = False
+    if os.environ.get("UAVEST_NUMBA", "1") == "0":
+        return _NB
+    try:
+        import numba  # noqa: F401
+    except ImportError:
+        return _NB
+    import logging
+
+    log = logging.getLogger("uavest.geometry")
+    try:
+        from . import _compiled as nb
+
+        log.info("numba kernels: loading (the first use compiles them, then cached)")
+        x = np.array([0.9, 0.1, -0.3, 0.2, 1e-3, -2e-3, 3e-3])
+        x[:4] /= np.sqrt(x[:4] @ x[:4])
+        d = np.array([[1e-3, -2e-2, 3e-1, 1e-4, 0.0, -1e-4], [0.0, 1e-7, 0.0, 0.0, 0.0, 0.0]])
+        X = _np_retract_rows(x, d)
+        w = np.array([0.25, 0.75])
+        ok = (np.allclose(nb.retract_rows(x[None, :], d), X, rtol=0, atol=1e-12)
+              and np.allclose(nb.local_rows(x[None, :], X), _np_local_rows(x, X), rtol=0,
+                              atol=1e-12)
+              and np.allclose(nb.gyro_propagate(X, d[0, :3], 0.01),
+                              _np_gyro_propagate(X, d[0, :3], 0.01), rtol=0, atol=1e-12)
+              and np.allclose(nb.mean(X, w, X[0]), _np_mean(X, w, X[0]), rtol=0,
+                              atol=1e-12))
+    except Exception as e:  # noqa: BLE001 - any failure of an optional accelerator
+        log.warning("numba kernels unavailable (%s: %s); using numpy", type(e).__name__, e)
+        return _NB
+    if not ok:
+        log.warning("numba kernels disagree with the numpy kernels; using numpy")
+        return _NB
+    _NB = nb
+    return _NB
+
 
 #: Gather indices and signs of the left-multiplication matrix: p * q = L(p) q with
 #: L(p) = p[_LI] * _LS, [[w,-x,-y,-z],[x,w,-z,y],[y,z,w,-x],[z,-y,x,w]].
@@ -328,6 +380,13 @@ def _qmul_rows(p: Array, q: Array) -> Array:
 
 def retract_rows(x: Array, dx: Array) -> Array:
     """:meth:`AttitudeSpace.retract` for ``x`` (7,) or (M, 7) and ``dx`` (M, 6)."""
+    nb = _NB if _NB is not None else compiled_kernels()
+    if nb:
+        return nb.retract_rows(x.reshape(1, 7) if x.ndim == 1 else x, dx)
+    return _np_retract_rows(x, dx)
+
+
+def _np_retract_rows(x: Array, dx: Array) -> Array:
     M = dx.shape[0]
     E = _exp_rows(dx[:, :3])
     if x.ndim == 1:
@@ -342,6 +401,13 @@ def retract_rows(x: Array, dx: Array) -> Array:
 
 def local_rows(x: Array, y: Array) -> Array:
     """:meth:`AttitudeSpace.local` for ``x`` (7,) or (M, 7) and ``y`` (M, 7)."""
+    nb = _NB if _NB is not None else compiled_kernels()
+    if nb:
+        return nb.local_rows(x.reshape(1, 7) if x.ndim == 1 else x, y)
+    return _np_local_rows(x, y)
+
+
+def _np_local_rows(x: Array, y: Array) -> Array:
     if x.ndim == 1:
         qq = y[:, :4] @ ((x[:4] * _CONJ)[_LI] * _LS).T
     else:
@@ -355,6 +421,13 @@ def local_rows(x: Array, y: Array) -> Array:
 def gyro_propagate(X: Array, w: Array, dt: float) -> Array:
     """q <- q * Exp((w - b) dt), b <- b for every row of ``X`` (M, 7) (the gyro
     transition), ``w`` (3,) rad/s."""
+    nb = _NB if _NB is not None else compiled_kernels()
+    if nb:
+        return nb.gyro_propagate(X, w, float(dt))
+    return _np_gyro_propagate(X, w, dt)
+
+
+def _np_gyro_propagate(X: Array, w: Array, dt: float) -> Array:
     E = _exp_rows((w - X[:, 4:]) * dt)
     out = np.empty(X.shape)
     _normalise_into(_qmul_rows(X[:, :4], E), out[:, :4])
@@ -409,17 +482,25 @@ class AttitudeSpace:
 
     def mean(self, X: Array, w: Array, x0: Array | None = None) -> Array:
         ref = X[0] if x0 is None else x0
-        q = X[:, :4]
-        sgn = np.where(q @ ref[:4] < 0.0, -1.0, 1.0)
-        qm = (w * sgn) @ q
-        nq = float(np.sqrt(qm @ qm))  # = np.linalg.norm(qm)
-        start = np.empty(7)
-        start[:4] = qm / nq if nq > 1e-9 else ref[:4]
-        start[4:] = w @ X[:, 4:]
-        # one Gauss-Newton (Karcher) step after the chordal start: its error is third
-        # order in the spread, far below sensor noise at filter spreads (tested);
-        # = manifold_mean(self, X, w, start, iters=1), inlined on the fused kernels
-        return retract_rows(start, (w @ local_rows(start, X))[None, :])[0]
+        nb = _NB if _NB is not None else compiled_kernels()
+        if nb:
+            return nb.mean(X, w, ref)
+        return _np_mean(X, w, ref)
 
     def __repr__(self) -> str:
         return "AttitudeSpace(q*Exp(dtheta), b+db)"
+
+
+def _np_mean(X: Array, w: Array, ref: Array) -> Array:
+    q = X[:, :4]
+    sgn = np.where(q @ ref[:4] < 0.0, -1.0, 1.0)
+    qm = (w * sgn) @ q
+    nq = float(np.sqrt(qm @ qm))  # = np.linalg.norm(qm)
+    start = np.empty(7)
+    start[:4] = qm / nq if nq > 1e-9 else ref[:4]
+    start[4:] = w @ X[:, 4:]
+    # one Gauss-Newton (Karcher) step after the chordal start: its error is third
+    # order in the spread, far below sensor noise at filter spreads (tested);
+    # = manifold_mean(self, X, w, start, iters=1), inlined on the fused kernels
+    return _np_retract_rows(start, (w @ _np_local_rows(start, X))[None, :])[0]
+

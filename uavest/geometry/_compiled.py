@@ -1,0 +1,126 @@
+"""Compiled (numba) attitude-manifold kernels: the optional fast path of
+:mod:`uavest.geometry.rotation` (``pip install "uavest[fast]"``).
+
+The same formulas as the fused numpy kernels there (``retract_rows``, ``local_rows``,
+``gyro_propagate``, ``AttitudeSpace.mean``), as loops over rows compiled by numba: the
+filters call these on 13 sigma points or 221 members a few times per step, where numpy's
+cost is its per-call floor, not arithmetic (``benchmarks/numba_kernels.py`` measures
+both side by side; docs/speed.md). Equal to the numpy kernels to 1e-12
+(``tests/unit/test_speed_kernels.py``). Importing this module imports numba and compiles
+nothing; each kernel compiles at its first call (cached on disk by numba).
+
+All arrays are float64; ``x`` is always 2-D here, (1, 7) for one state or (M, 7).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["gyro_propagate", "local_rows", "mean", "retract_rows"]
+
+
+@njit(cache=True)
+def _qexp(vx, vy, vz):  # pragma: no cover - compiled
+    th = math.sqrt(vx * vx + vy * vy + vz * vz)
+    h = 0.5 * th
+    s = 0.5 - th * th / 48.0 if th < 1e-5 else math.sin(h) / th
+    return math.cos(h), s * vx, s * vy, s * vz
+
+
+@njit(cache=True)
+def _qmul(aw, ax, ay, az, bw, bx, by, bz):  # pragma: no cover - compiled
+    return (aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw)
+
+
+@njit(cache=True)
+def retract_rows(x, dx):  # pragma: no cover - compiled
+    """q_i * Exp(dx_i[:3]) normalised, b_i + dx_i[3:]; ``x`` (1, 7) or (M, 7)."""
+    M = dx.shape[0]
+    one = x.shape[0] == 1
+    out = np.empty((M, 7))
+    for i in range(M):
+        r = 0 if one else i
+        ew, ex, ey, ez = _qexp(dx[i, 0], dx[i, 1], dx[i, 2])
+        w, a, b, c = _qmul(x[r, 0], x[r, 1], x[r, 2], x[r, 3], ew, ex, ey, ez)
+        n = math.sqrt(w * w + a * a + b * b + c * c)
+        out[i, 0] = w / n
+        out[i, 1] = a / n
+        out[i, 2] = b / n
+        out[i, 3] = c / n
+        for j in range(3):
+            out[i, 4 + j] = x[r, 4 + j] + dx[i, 3 + j]
+    return out
+
+
+@njit(cache=True)
+def local_rows(x, y):  # pragma: no cover - compiled
+    """Log(q_x^-1 q_y) the short way, b_y - b_x; ``x`` (1, 7) or (M, 7)."""
+    M = y.shape[0]
+    one = x.shape[0] == 1
+    out = np.empty((M, 6))
+    for i in range(M):
+        r = 0 if one else i
+        w, a, b, c = _qmul(x[r, 0], -x[r, 1], -x[r, 2], -x[r, 3],
+                           y[i, 0], y[i, 1], y[i, 2], y[i, 3])
+        sg = -1.0 if w < 0.0 else 1.0
+        aw = abs(w)
+        n = math.sqrt(a * a + b * b + c * c)
+        k = 2.0 / max(aw, 1e-300) if n < 1e-8 else 2.0 * math.atan2(n, aw) / n
+        k *= sg
+        out[i, 0] = k * a
+        out[i, 1] = k * b
+        out[i, 2] = k * c
+        for j in range(3):
+            out[i, 3 + j] = y[i, 4 + j] - x[r, 4 + j]
+    return out
+
+
+@njit(cache=True)
+def gyro_propagate(X, u, dt):  # pragma: no cover - compiled
+    """q_i <- q_i * Exp((u - b_i) dt) normalised, b_i <- b_i."""
+    M = X.shape[0]
+    out = np.empty((M, 7))
+    for i in range(M):
+        ew, ex, ey, ez = _qexp((u[0] - X[i, 4]) * dt, (u[1] - X[i, 5]) * dt,
+                               (u[2] - X[i, 6]) * dt)
+        w, a, b, c = _qmul(X[i, 0], X[i, 1], X[i, 2], X[i, 3], ew, ex, ey, ez)
+        n = math.sqrt(w * w + a * a + b * b + c * c)
+        out[i, 0] = w / n
+        out[i, 1] = a / n
+        out[i, 2] = b / n
+        out[i, 3] = c / n
+        out[i, 4] = X[i, 4]
+        out[i, 5] = X[i, 5]
+        out[i, 6] = X[i, 6]
+    return out
+
+
+@njit(cache=True)
+def mean(X, w, ref):  # pragma: no cover - compiled
+    """Sign-aligned chordal mean, then one Gauss-Newton (Karcher) step
+    (``AttitudeSpace.mean``)."""
+    M = X.shape[0]
+    s = np.zeros(7)
+    for i in range(M):
+        d = X[i, 0] * ref[0] + X[i, 1] * ref[1] + X[i, 2] * ref[2] + X[i, 3] * ref[3]
+        ws = -w[i] if d < 0.0 else w[i]
+        for j in range(4):
+            s[j] += ws * X[i, j]
+        for j in range(4, 7):
+            s[j] += w[i] * X[i, j]
+    nq = math.sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2] + s[3] * s[3])
+    start = np.empty((1, 7))
+    for j in range(4):
+        start[0, j] = s[j] / nq if nq > 1e-9 else ref[j]
+    for j in range(4, 7):
+        start[0, j] = s[j]
+    d = local_rows(start, X)
+    step = np.zeros((1, 6))
+    for i in range(M):
+        for j in range(6):
+            step[0, j] += w[i] * d[i, j]
+    return retract_rows(start, step)[0]
