@@ -315,6 +315,10 @@ def test_compiled_kernels_equal_the_numpy_kernels():
         Xs = rot._np_retract_rows(x, rng.normal(0, 0.05, (M, 6)))
         np.testing.assert_allclose(nb.mean(Xs, w, Xs[0]), rot._np_mean(Xs, w, Xs[0]),
                                    rtol=0, atol=1e-12)
+        v = rng.normal(size=3)
+        np.testing.assert_allclose(
+            nb.rotate_inv_rows(X[:, :4], v),
+            np.einsum("...ji,...j->...i", rot.quat_to_dcm(X[:, :4]), v), rtol=0, atol=1e-12)
     # the public functions dispatch to the compiled kernels
     assert rot.compiled_kernels() is nb
 

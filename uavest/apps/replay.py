@@ -187,7 +187,9 @@ def replay_samples(
     info.filters = {sp.label: sp.as_dict() for sp, _ in specs}
     all_sinks = [score, gaps] + ([refs] if refs else []) + ([coll] if coll else []) + list(sinks)
     wall0 = time.perf_counter()
-    run_lanes(_windowed(samples, opts.in_window), [Lane(stream, runners)], all_sinks, info)
+    windowed = (samples if opts.start is None and opts.end is None
+                else _windowed(samples, opts.in_window))
+    run_lanes(windowed, [Lane(stream, runners)], all_sinks, info)
     wall = time.perf_counter() - wall0 - sum(r.smooth_seconds for r in runners)
     scorer.finish()
     stream.summary["imu_gap_fraction"] = gaps.fraction(stream.summary.get("imu_source"))

@@ -41,13 +41,14 @@ causal, so a live link computes it exactly as a replay does.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..core.gaussian import Gaussian
-from ..geometry.rotation import AttitudeSpace, quat_exp, quat_log, quat_mul, quat_rotate
+from ..geometry.rotation import AttitudeSpace, quat_exp, quat_rotate
 from ..ingest.api import choose_source
 from ..ingest.types import ImuSample, MagSample, PositionSample
 from ..models.attitude import (
@@ -215,13 +216,7 @@ class _StepBuilder:
             if len(b) == 1:  # full rate: Log(Exp(g dt)) / dt = g (up to rounding)
                 w = b[0].gyro
             else:
-                t = np.array([t0] + [s.t for s in b])
-                g = np.array([s.gyro for s in b])
-                dq = quat_exp(g * np.diff(t)[:, None])
-                q = np.array([1.0, 0.0, 0.0, 0.0])
-                for d in dq:
-                    q = quat_mul(q, d)
-                w = quat_log(q) / max(t1 - t0, 1e-12)
+                w = np.array(_preintegrate(t0, b)) / max(t1 - t0, 1e-12)
             if self.every > 1:  # updates once per reference step: its mean specific force
                 self.acc_upd.extend(s.accel for s in b)
                 self.since += 1
@@ -237,6 +232,32 @@ class _StepBuilder:
         self.t_edge, self.g_edge = t1, b[-1].gyro
         self.block = []
         return _Raw(t1, t0, w, a, len(b))
+
+
+def _preintegrate(t0: float, block: list) -> tuple[float, float, float]:
+    """Log of the product of Exp(g_i (t_i - t_{i-1})) over the block's samples (rad, body
+    FRD): the exact rotation of the step, on Python floats (the formulas of ``quat_exp``,
+    ``quat_mul`` and ``quat_log``; equal to them up to rounding)."""
+    qw, qx, qy, qz = 1.0, 0.0, 0.0, 0.0
+    tp = t0
+    for smp in block:
+        dt = smp.t - tp
+        tp = smp.t
+        gx, gy, gz = smp.gyro.tolist()
+        vx, vy, vz = gx * dt, gy * dt, gz * dt
+        th = math.sqrt(vx * vx + vy * vy + vz * vz)
+        h = 0.5 * th
+        f = 0.5 - th * th / 48.0 if th < 1e-5 else math.sin(h) / th
+        ew, ex, ey, ez = math.cos(h), f * vx, f * vy, f * vz
+        qw, qx, qy, qz = (qw * ew - qx * ex - qy * ey - qz * ez,
+                          qw * ex + qx * ew + qy * ez - qz * ey,
+                          qw * ey - qx * ez + qy * ew + qz * ex,
+                          qw * ez + qx * ey - qy * ex + qz * ew)
+    if qw < 0.0:
+        qw, qx, qy, qz = -qw, -qx, -qy, -qz
+    n = math.sqrt(qx * qx + qy * qy + qz * qz)
+    k = 2.0 / max(qw, 1e-300) if n < 1e-8 else 2.0 * math.atan2(n, qw) / n
+    return k * qx, k * qy, k * qz
 
 
 class AttitudeStream:

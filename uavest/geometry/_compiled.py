@@ -19,7 +19,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["gyro_propagate", "local_rows", "mean", "retract_rows"]
+__all__ = ["gyro_propagate", "local_rows", "mean", "retract_rows", "rotate_inv_rows"]
 
 
 @njit(cache=True)
@@ -124,3 +124,27 @@ def mean(X, w, ref):  # pragma: no cover - compiled
         for j in range(6):
             step[0, j] += w[i] * d[i, j]
     return retract_rows(start, step)[0]
+
+
+@njit(cache=True)
+def rotate_inv_rows(Q, v):  # pragma: no cover - compiled
+    """R(q_i)^T v for every row q_i of ``Q`` (M, 4) (NED -> body FRD), ``v`` (3,): the
+    transposed :func:`~uavest.geometry.rotation.quat_to_dcm` applied, summed j = 0..2."""
+    M = Q.shape[0]
+    out = np.empty((M, 3))
+    v0, v1, v2 = v[0], v[1], v[2]
+    for i in range(M):
+        w, x, y, z = Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3]
+        r00 = 1 - 2 * (y * y + z * z)
+        r01 = 2 * (x * y - w * z)
+        r02 = 2 * (x * z + w * y)
+        r10 = 2 * (x * y + w * z)
+        r11 = 1 - 2 * (x * x + z * z)
+        r12 = 2 * (y * z - w * x)
+        r20 = 2 * (x * z - w * y)
+        r21 = 2 * (y * z + w * x)
+        r22 = 1 - 2 * (x * x + y * y)
+        out[i, 0] = r00 * v0 + r10 * v1 + r20 * v2
+        out[i, 1] = r01 * v0 + r11 * v1 + r21 * v2
+        out[i, 2] = r02 * v0 + r12 * v1 + r22 * v2
+    return out

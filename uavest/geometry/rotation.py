@@ -166,6 +166,10 @@ def quat_rotate(q: Array, v: Array) -> Array:
 
 def quat_rotate_inv(q: Array, v: Array) -> Array:
     """``R(q)^T v``: NED vector(s) ``v`` expressed in body FRD."""
+    if q.ndim == 2 and np.ndim(v) == 1:  # rows against one vector (the attitude h)
+        nb = _NB if _NB is not None else compiled_kernels()
+        if nb:
+            return nb.rotate_inv_rows(q, np.asarray(v, float))
     return np.einsum("...ji,...j->...i", quat_to_dcm(q), v)
 
 
@@ -317,7 +321,10 @@ def compiled_kernels():
               and np.allclose(nb.gyro_propagate(X, d[0, :3], 0.01),
                               _np_gyro_propagate(X, d[0, :3], 0.01), rtol=0, atol=1e-12)
               and np.allclose(nb.mean(X, w, X[0]), _np_mean(X, w, X[0]), rtol=0,
-                              atol=1e-12))
+                              atol=1e-12)
+              and np.allclose(nb.rotate_inv_rows(X[:, :4], d[0, :3]),
+                              np.einsum("...ji,...j->...i", quat_to_dcm(X[:, :4]), d[0, :3]),
+                              rtol=0, atol=1e-12))
     except Exception as e:  # noqa: BLE001 - any failure of an optional accelerator
         log.warning("numba kernels unavailable (%s: %s); using numpy", type(e).__name__, e)
         return _NB

@@ -35,6 +35,7 @@ from ..core.model import Measurement, Transition
 from ..geometry.rotation import (
     G0,
     AttitudeSpace,
+    compiled_kernels,
     euler_to_quat,
     gyro_propagate,
     quat_exp,
@@ -237,6 +238,9 @@ def _weighted(R: Array, weight: float) -> Array:
     return R / weight
 
 
+_DOWN = np.array([0.0, 0.0, 1.0])
+
+
 class GyroTransition(Transition):
     """q <- q * Exp((u - b) dt), b <- b. ``u`` gyro rate (rad/s, body FRD, bias not
     removed). Analytic tangent Jacobian for the right error:
@@ -342,8 +346,10 @@ class GravityDirection(Measurement):
     def __init__(self, R: Array, ref: Array | None = None) -> None:
         self.R = R
         self.ref = None if ref is None else np.asarray(ref, float)
-        if self.ref is not None and np.allclose(self.ref, [0.0, 0.0, 1.0]):
-            self.ref = None
+        if self.ref is not None:  # np.allclose(ref, [0, 0, 1]) without its call cost
+            r0, r1, r2 = self.ref.tolist()
+            if abs(r0) <= 1e-8 and abs(r1) <= 1e-8 and abs(r2 - 1.0) <= 1e-8 + 1e-5:
+                self.ref = None
 
     @staticmethod
     def from_accel(
@@ -379,6 +385,8 @@ class GravityDirection(Measurement):
     def h(self, X: Array) -> Array:
         if self.ref is not None:
             return quat_rotate_inv(X[..., :4], self.ref)
+        if X.ndim == 2 and compiled_kernels():  # R^T (0, 0, 1), compiled: the same sums
+            return quat_rotate_inv(X[:, :4], _DOWN)
         w, x, y, z = X[..., 0], X[..., 1], X[..., 2], X[..., 3]
         return np.stack(
             [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1
