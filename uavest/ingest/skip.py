@@ -90,20 +90,18 @@ class TlogSkipper:
         self._crc = None
         self._skip: dict[int, tuple[str, bytes]] = {}
 
-    def _table(self, mav) -> dict[int, tuple[str, bytes]]:
-        """msgid -> (name, crc_extra byte) of the unused types for parser ``mav``."""
-        if type(mav) is not self._mavtype:
-            self._mavtype = type(mav)
-            mod = self._mod = sys.modules[type(mav).__module__]
-            self._ignore_crc = bool(mod.MAVLINK_IGNORE_CRC)
-            fast = getattr(mod, "mcrf4xx", None)
-            self._crc = ((lambda b: fast(b, 0xFFFF)) if fast is not None
-                         else (lambda b: mod.x25crc(b).crc))
-            # the MAVLink 2 parser (the one uavest.ingest selects); another: decode all
-            self._skip = {} if getattr(mod, "WIRE_PROTOCOL_VERSION", "") != "2.0" else {
-                mid: (cls.msgname, bytes((cls.crc_extra,)))
-                for mid, cls in mod.mavlink_map.items() if cls.msgname not in self.decoded}
-        return self._skip
+    def _table(self, mav) -> None:
+        """The unused types for parser ``mav``: msgid -> (name, crc_extra byte)."""
+        self._mavtype = type(mav)
+        mod = self._mod = sys.modules[type(mav).__module__]
+        self._ignore_crc = bool(mod.MAVLINK_IGNORE_CRC)
+        fast = getattr(mod, "mcrf4xx", None)
+        self._crc = ((lambda b: fast(b, 0xFFFF)) if fast is not None
+                     else (lambda b: mod.x25crc(b).crc))
+        # the MAVLink 2 parser (the one uavest.ingest selects); another: decode all
+        self._skip = {} if getattr(mod, "WIRE_PROTOCOL_VERSION", "") != "2.0" else {
+            mid: (cls.msgname, bytes((cls.crc_extra,)))
+            for mid, cls in mod.mavlink_map.items() if cls.msgname not in self.decoded}
 
     def sync(self, conn) -> None:
         """Put the file position where the skipped records end (before pymavlink reads)."""
@@ -114,15 +112,12 @@ class TlogSkipper:
     def next(self, conn, at: int = -1) -> Skipped | None:
         """The next record as :class:`Skipped` if it is a good record of an unused type;
         ``at``: the file position if known (after a record pymavlink read), else -1."""
-        mm = self.mm
-        mav = conn.mav
-        if mm is None or conn.first_byte or len(mav.buf) != mav.buf_index:
-            return self.sync(conn)
         o = self.pos
         if o is None:
             o = at if at >= 0 else conn.f.tell()
-        size = self.size
-        if o + 18 > size:  # the shortest frame (MAVLink 1, empty) is 16 bytes with its time
+        mm = self.mm
+        # the shortest record (MAVLink 1, empty payload) is 16 bytes with its time
+        if mm is None or o + 18 > self.size:
             return self.sync(conn)
         mk = mm[o + 8]
         if mk == 0xFD:
@@ -131,9 +126,16 @@ class TlogSkipper:
             mid = mm[o + 13]
         else:
             return self.sync(conn)
-        info = self._table(mav).get(mid)
-        if info is None:  # a used type, or one pymavlink does not know
-            return self.sync(conn)
+        mav = conn.mav
+        if type(mav) is not self._mavtype:
+            self._table(mav)
+        info = self._skip.get(mid)
+        if info is None:  # a used type, or one pymavlink does not know: pymavlink reads it
+            if self.pos is not None:
+                self.sync(conn)
+            return None
+        if conn.first_byte or len(mav.buf) != mav.buf_index:
+            return self.sync(conn)  # pymavlink's parser is not idle
         last = conn._last_message
         if last is None or last.get_type() == "BAD_DATA":
             return self.sync(conn)  # pymavlink may rescan the next record's time
@@ -155,7 +157,7 @@ class TlogSkipper:
         end = o + 8 + flen
         # a frame shorter than the header pymavlink reads first makes it read into the next
         # record (its own quirk): left to pymavlink, as is a frame cut by the end of file
-        if flen < mav.expected_length or end > size:
+        if flen < mav.expected_length or end > self.size:
             return self.sync(conn)
         if not self._ignore_crc:
             c = end - 2 - sig
