@@ -188,6 +188,8 @@ class MavlinkSource:
     :class:`PositionSample` in vehicle-time order (a ``reorder_window`` second
     buffer absorbs the small disorder between message types).  ``stats`` and
     ``params`` fill while iterating; ``params`` is complete after the iteration.
+    Records of types no converter uses are stepped over undecoded when they are certainly
+    good (``undecoded`` counts them; docs/ingest.md "What is decoded").
     Iterating twice re-reads the file.  :class:`uavest.ingest.live.LiveLink` subclasses
     this and replaces :meth:`_messages` with its reader queue (same conversion path).
     """

@@ -60,7 +60,7 @@ class Skipped:
         return self.sysid
 
 
-def _map(path) -> tuple[mmap.mmap | None, int]:
+def _map(path: str | os.PathLike) -> tuple[mmap.mmap | None, int]:
     size = os.path.getsize(path)
     if size == 0:
         return None, 0
@@ -80,7 +80,7 @@ class TlogSkipper:
     length of the next frame, the last good receive time) is updated as pymavlink would.
     """
 
-    def __init__(self, path, decoded: frozenset[str] = TLOG_DECODED) -> None:
+    def __init__(self, path: str | os.PathLike, decoded: frozenset[str] = TLOG_DECODED) -> None:
         self.mm, self.size = _map(path)
         self.decoded = decoded
         self.pos: int | None = None  # file offset after the last skipped record
