@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .convert import Raw, check, convert_dataflash, convert_mavlink, stat_key
+from .skip import DataflashSkipper, Skipped, TlogSkipper
 from .timebase import RxFilter, StreamGate, VehicleClock
 from .types import (
     AdsbSample,
@@ -187,6 +188,8 @@ class MavlinkSource:
     :class:`PositionSample` in vehicle-time order (a ``reorder_window`` second
     buffer absorbs the small disorder between message types).  ``stats`` and
     ``params`` fill while iterating; ``params`` is complete after the iteration.
+    Records of types no converter uses are stepped over undecoded when they are certainly
+    good (``undecoded`` counts them; docs/ingest.md "What is decoded").
     Iterating twice re-reads the file.  :class:`uavest.ingest.live.LiveLink` subclasses
     this and replaces :meth:`_messages` with its reader queue (same conversion path).
     """
@@ -208,6 +211,11 @@ class MavlinkSource:
         self.stats = IngestStats()
         self.params = LogParams()
         self.bytes_read = 0  # file position of the reader (progress while reading)
+        # records of types no converter uses stepped over without decoding (skip.py); they
+        # are counted in stats.messages like the decoded ones
+        self.undecoded = 0
+        # True: pymavlink decodes every record (the former path; for tests and benchmarks)
+        self._decode_all = False
 
     # ----------------------------------------------------------------- readers
     def _open(self):
@@ -235,14 +243,39 @@ class MavlinkSource:
             return RxFilter(self.stats).filter(self._read())
         return self._read()
 
+    def _skipper(self, conn):
+        """The skipper of unused records for ``conn`` (None: decode every record)."""
+        if self._decode_all:
+            return None
+        if self.format == "tlog":
+            return TlogSkipper(self.path)
+        from pymavlink import DFReader
+
+        if isinstance(conn, DFReader.DFReader_binary):
+            return DataflashSkipper()
+        return None  # DataFlash text: decoded as before
+
     def _read(self) -> Iterator[tuple[object, float | None]]:
         conn = self._open()
         st = self.stats
         is_df = self.format.startswith("dataflash")
         stall = 0
         last_pos = -1
+        skip = None
         try:
+            skip = self._skipper(conn)
             while True:
+                if skip is not None:
+                    rec = skip.next(conn, last_pos)
+                    if rec is not None:  # a good record of an unused type, not decoded
+                        pos = skip.pos if not is_df else conn.offset
+                        self.bytes_read = pos
+                        stall, last_pos = 0, pos
+                        st.messages[rec.name] += 1
+                        self.undecoded += 1
+                        self._good_end = pos
+                        yield rec, rec.rx
+                        continue
                 buf = io.StringIO()
                 try:
                     if is_df:
@@ -300,6 +333,9 @@ class MavlinkSource:
                 self._good_end = pos
                 yield msg, rx
         finally:
+            if isinstance(skip, TlogSkipper):
+                skip.sync(conn)
+                skip.close()
             self._check_truncated(conn)
             with contextlib.suppress(Exception):
                 conn.close()
@@ -375,6 +411,10 @@ class MavlinkSource:
                     t_ev = reorder.last_out if math.isfinite(reorder.last_out) else 0.0
                     yield dataclasses.replace(rx, t=t_ev)
                 continue
+            if type(msg) is Skipped:  # a record no converter uses: only its system counts
+                if self.sysid is not None and not is_df and msg.sysid != self.sysid:
+                    st.bad("wrong_sysid", msg.name)
+                continue
             name = msg.get_type()
             if name in ("GPS", "GPS_RAW_INT") and self.params.geo is None:
                 _gps_geo(msg, self.params, systime.get(0 if is_df else msg.get_srcSystem()))
@@ -433,7 +473,7 @@ class MavlinkSource:
         """Find the first GPS fix with its date before the replay (``params.geo``): a
         DataFlash log records its boot parameters (``COMPASS_DEC`` 0 with auto-declination)
         long before the GPS lock. Reads at most ``max_messages`` messages; counts nothing."""
-        keep = self.stats
+        keep, keep_undecoded = self.stats, self.undecoded
         self.stats = IngestStats()
         systime: dict[int, float] = {}
         try:
@@ -450,7 +490,7 @@ class MavlinkSource:
         except Exception:  # noqa: BLE001 - a pre-scan never fails the replay
             pass
         finally:
-            self.stats = keep
+            self.stats, self.undecoded = keep, keep_undecoded
 
     def _param(self, name, value) -> None:
         if isinstance(name, bytes):

@@ -289,7 +289,8 @@ class IngestStats:
     """Counts of bad data per kind (skipped) and of good data per type.
 
     Every bad-data kind in :data:`BAD_KINDS` is an attribute.  ``messages`` counts
-    decoded records per message/topic type (good framing, before validation);
+    records per message/topic type (good framing, before validation; tlog and DataFlash
+    records of types no converter uses are counted without being decoded);
     ``accepted`` counts measurements yielded per source; ``rejected`` counts
     skipped measurements per ``"<kind>:<source>"``.
     """

@@ -1,0 +1,124 @@
+"""Ingest speed: decoding only the record types the converters use (``uavest/ingest/skip.py``)
+against decoding every record (the former path, ``MavlinkSource._decode_all = True``).
+
+    PYTHONPATH=$PWD python benchmarks/ingest_speed.py [--rounds 5] [--logs /work/shared/logs]
+
+In one process, for each log (``vtol.tlog`` and ``test.BIN`` from the shared logs,
+``logs/sim_200hz.tlog``), old and new alternate (the order flips every round) for
+``--rounds`` rounds; the best time of each is kept. Two stages are timed:
+
+* ``samples``: every sample of the log (``list(MavlinkSource(...))``: open, read, convert,
+  check, time base, reorder), what a replay pays for ingest;
+* ``records``: the reader alone (``MavlinkSource._messages()``: open and read the records,
+  bad-data counting, receive-time check), where the decoding is.
+
+Printed per log: records in the log, the share of them decoded by the new path, samples,
+best CPU times of the process (s; ``time.process_time``, less disturbed than the wall clock
+by other processes on a shared machine) and new/old ratios (< 1: the new path is faster;
+the wall-clock ratio in brackets), and whether both paths gave the same samples and stats
+(checked on the first round). Only ratios mean anything on a shared, loaded machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _shared(arg: str | None) -> Path | None:
+    cands = [arg, os.environ.get("UAVEST_SHARED_LOGS"), ROOT.parent / "shared" / "logs",
+             "/work/shared/logs"]
+    for c in cands:
+        if c and (Path(c) / "vtol.tlog").is_file():
+            return Path(c)
+    return None
+
+
+def _source(path: Path, decode_all: bool):
+    from uavest.ingest.api import detect_format
+    from uavest.ingest.mavlink import MavlinkSource
+
+    src = MavlinkSource(path, detect_format(str(path)))
+    src._decode_all = decode_all
+    return src
+
+
+def _time_samples(path: Path, decode_all: bool) -> tuple[tuple[float, float], object, list]:
+    src = _source(path, decode_all)
+    c0, t0 = time.process_time(), time.perf_counter()
+    out = list(src)
+    return (time.process_time() - c0, time.perf_counter() - t0), src, out
+
+
+def _time_records(path: Path, decode_all: bool) -> tuple[float, float]:
+    src = _source(path, decode_all)
+    c0, t0 = time.process_time(), time.perf_counter()
+    for _ in src._messages():
+        pass
+    return time.process_time() - c0, time.perf_counter() - t0
+
+
+def _same(a: list, b: list) -> bool:
+    """Same samples: types and every value (shortest round-trip float repr: exact)."""
+    import numpy as np
+
+    with np.printoptions(floatmode="unique", threshold=sys.maxsize):
+        return len(a) == len(b) and all(repr(x) == repr(y) for x, y in zip(a, b, strict=True))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--rounds", type=int, default=5, help="alternating rounds (best of)")
+    ap.add_argument("--logs", default=None, help="directory of vtol.tlog and test.BIN")
+    a = ap.parse_args(argv)
+    sys.path.insert(0, str(ROOT))
+    shared = _shared(a.logs)
+    logs = []
+    if shared is None:
+        print("shared logs not found (--logs DIR): vtol.tlog and test.BIN left out")
+    else:
+        logs += [shared / "vtol.tlog", shared / "test.BIN"]
+    if (ROOT / "logs" / "sim_200hz.tlog").is_file():
+        logs.append(ROOT / "logs" / "sim_200hz.tlog")
+    print(f"best of {a.rounds} alternating rounds, one process; times in s of CPU time of the"
+          " process (robust to other load; wall-clock ratio in brackets); ratio = new / old")
+    print(f"{'log':<15} {'records':>7} {'decoded':>7} {'samples':>7} | "
+          f"{'samples: old':>12} {'new':>6} {'ratio':>12} | "
+          f"{'records: old':>12} {'new':>6} {'ratio':>12} | same")
+    for path in logs:
+        inf = (float("inf"), float("inf"))
+        best = {(stage, old): inf for stage in ("s", "r") for old in (True, False)}
+        same = None
+        info = None
+        for r in range(a.rounds):
+            order = (True, False) if r % 2 == 0 else (False, True)
+            got = {}
+            for old in order:
+                dt, src, out = _time_samples(path, old)
+                best["s", old] = tuple(map(min, best["s", old], dt))
+                got[old] = (src, out)
+            for old in order:
+                best["r", old] = tuple(map(min, best["r", old], _time_records(path, old)))
+            if same is None:
+                (so, oo), (sn, on) = got[True], got[False]
+                same = _same(oo, on) and so.stats.as_dict() == sn.stats.as_dict()
+                n = sum(sn.stats.messages.values())
+                info = (n, (n - sn.undecoded) / n if n else 1.0, len(on))
+        n, frac, ns = info
+        cols = []
+        for stage in ("s", "r"):
+            o, w = best[stage, True], best[stage, False]
+            ratio = f"{w[0] / o[0]:.2f} ({w[1] / o[1]:.2f})"
+            cols.append(f"{o[0]:>12.3f} {w[0]:>6.3f} {ratio:>12}")
+        print(f"{path.name:<15} {n:>7} {100 * frac:>6.1f}% {ns:>7} | {cols[0]} | {cols[1]} | "
+              f"{'yes' if same else 'NO'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
