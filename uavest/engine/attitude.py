@@ -174,28 +174,30 @@ class _StepBuilder:
             r.accel_ned = acc
         return r
 
-    def push(self, s) -> Iterator[_Raw]:
-        """Feed one sample (of the chosen IMU / mag / position source); yields closed
-        steps."""
+    def push(self, s) -> list[_Raw]:
+        """Feed one sample (of the chosen IMU / mag / position source); returns the steps
+        it closed (zero or one)."""
+        out = []
         if self.pending is not None and s.t > self.pending.t:
-            yield self._finish(self.pending)
+            out.append(self._finish(self.pending))
             self.pending = None
-        if isinstance(s, MagSample):
-            self.mag_last = (s.t, s.field)
-        elif isinstance(s, PositionSample):
-            if s.vel_ned is not None and np.isfinite(s.vel_ned).all():
-                self.vel = (self.vel + [(s.t, s.vel_ned)])[-2:]
-        elif isinstance(s, ImuSample):
+        if isinstance(s, ImuSample):
             if self.t_last is not None and s.t <= self.t_last:
                 self.dropped += 1
-                return
+                return out
             if self.t_edge is None:  # the first sample: t_0 of the first step
                 self.t_edge, self.g_edge, self.t_last = s.t, s.gyro, s.t
-                return
+                return out
             self.block.append(s)
             self.t_last = s.t
             if len(self.block) >= self.factor:
                 self.pending = self._close()
+        elif isinstance(s, MagSample):
+            self.mag_last = (s.t, s.field)
+        elif isinstance(s, PositionSample):
+            if s.vel_ned is not None and np.isfinite(s.vel_ned).all():
+                self.vel = (self.vel + [(s.t, s.vel_ned)])[-2:]
+        return out
 
     def flush(self) -> Iterator[_Raw]:
         if self.block:
@@ -332,7 +334,8 @@ class AttitudeStream:
         if isinstance(s, ImuSample):
             self._imu_n[0] += 1
             self._imu_n[2] = s.t
-        return self._emit(list(self._builder.push(s)))
+        raws = self._builder.push(s)
+        return self._emit(raws) if raws else raws
 
     def _emit(self, raws: list[_Raw]) -> list:
         if self._align is None:
