@@ -97,13 +97,16 @@ def _column(ids: list[str]) -> str | dict:
 
 
 def build_layout(labels: list[str] | tuple[str, ...], kind: str = "attitude",
-                 follow: str | None = None) -> dict:
+                 follow: str | None = None, dim: int = 1) -> dict:
     """The Foxglove layout (a JSON-ready dict) for estimators ``labels``.
 
     ``kind="attitude"``: the 3-D panel (every filter's body frame and the truth's side by
     side), roll/pitch/yaw error plots each with every filter's +-3 sigma bounds (deg), the
     NEES and NIS plots, and the event log. ``kind="radar"``: the 3-D panel with the
     detections, the truths and every tracker's tracks, and the track-count plot.
+    ``kind="state"`` (generic vector states, ``uavest bench --mcap``): per component
+    (``dim`` of them, at most 6) the error plot with every filter's +-3 sigma, x[0] of the
+    truth and the estimates, NEES, NIS and the event log.
     ``follow``: the frame the 3-D view follows (default ``body_truth`` / ``world``)."""
     labels = list(labels)
     cfg: dict[str, dict] = {}
@@ -149,8 +152,36 @@ def build_layout(labels: list[str] | tuple[str, ...], kind: str = "attitude",
         layout = _split("row", "3D!uavest3d",
                         _split("column", "Plot!uavest_tracks", "RosOut!uavest_log", 60.0),
                         65.0)
+    elif kind == "state":
+        plots = []
+        for i in range(max(1, min(int(dim), 6))):  # one error plot per state component
+            paths = []
+            for lab in labels:
+                c = colour(lab)
+                base = f"/state/{lab}/error"
+                paths += [(f"{base}.err[{i}]", f"{lab} error", c),
+                          (f"{base}.sigma3[{i}]", f"{lab} +3 sigma", c + "80"),
+                          (f"{base}.neg_sigma3[{i}]", f"{lab} -3 sigma", c + "80")]
+            pid = f"Plot!uavest_err_x{i}"
+            cfg[pid] = _plot(f"x[{i}] error (estimate - truth), +-3 sigma", paths)
+            plots.append(pid)
+        cfg["Plot!uavest_state"] = _plot(
+            "x[0]: truth and estimates",
+            [("/truth/state.x[0]", "truth", REFERENCE_COLOUR)]
+            + [(f"/state/{lab}/estimate.x[0]", lab, colour(lab)) for lab in labels], "x[0]")
+        cfg["Plot!uavest_nees"] = _plot(
+            f"NEES ({dim} dof)",
+            [(f"/state/{lab}/error.nees", lab, colour(lab)) for lab in labels], "NEES", 0.0)
+        cfg["Plot!uavest_nis"] = _plot(
+            "NIS of the step's updates (dof in .nis_dof)",
+            [(f"/state/{lab}/health.nis", lab, colour(lab)) for lab in labels], "NIS", 0.0)
+        cfg["RosOut!uavest_log"] = {"searchTerms": [], "minLogLevel": 1,
+                                    "foxglovePanelTitle": "events (/log)"}
+        left = _split("column", "Plot!uavest_state", "RosOut!uavest_log", 70.0)
+        layout = _split("row", left, _column(plots + ["Plot!uavest_nees", "Plot!uavest_nis"]),
+                        40.0)
     else:
-        raise ValueError(f"layout kind must be attitude or radar, not {kind!r}")
+        raise ValueError(f"layout kind must be attitude, radar or state, not {kind!r}")
     return {
         "configById": cfg,
         "globalVariables": {},
@@ -161,9 +192,10 @@ def build_layout(labels: list[str] | tuple[str, ...], kind: str = "attitude",
     }
 
 
-def layout_text(labels, kind: str = "attitude", follow: str | None = None) -> str:
+def layout_text(labels, kind: str = "attitude", follow: str | None = None,
+                dim: int = 1) -> str:
     """:func:`build_layout` as indented JSON text."""
-    return json.dumps(build_layout(labels, kind, follow), indent=2) + "\n"
+    return json.dumps(build_layout(labels, kind, follow, dim), indent=2) + "\n"
 
 
 def shipped(kind: str = "attitude") -> str:

@@ -65,8 +65,8 @@ from ..layouts import REFERENCE_COLOUR, colour
 Array = np.ndarray
 
 __all__ = [
-    "Publisher", "RadarScanSample", "SCHEMAS", "euler_sigma_deg", "ned_frd_to_enu_flu",
-    "b64_floats", "quat_to_rpy_deg", "triu_to_full",
+    "Publisher", "RadarScanSample", "SCHEMAS", "StateSample", "euler_sigma_deg",
+    "ned_frd_to_enu_flu", "b64_floats", "quat_to_rpy_deg", "triu_to_full",
 ]
 
 _S2 = math.sqrt(0.5)
@@ -95,6 +95,23 @@ class RadarScanSample:
     model: Any
     origins: Array | None = None
     truths: Array | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class StateSample:
+    """One step of a generic vector-state run (a Monte Carlo trial of the benchmark
+    systems: UNGM, nonlinear2d, linear_cv) as a sample for sinks, handed with the step
+    through ``Step.info["samples"]`` before the estimators step: step ``k`` at ``t`` (s),
+    the true state ``x`` (n,) (None when unknown) and the step's measurement ``z`` (m,)
+    (None without one), in the system's own units. A recorder that sees one records the
+    run's :class:`~uavest.engine.records.StepRecord` s on the generic ``/state/<label>/*``
+    channels (state = plain vector, covariance in the same coordinates) instead of the
+    attitude ones."""
+
+    t: float
+    k: int
+    x: Array | None = None
+    z: Array | None = None
 
 
 # ------------------------------------------------------------------------- conversions
@@ -309,6 +326,29 @@ SCHEMAS: dict[str, dict] = {
             "n_tentative": {"type": "integer"}, "tracks": {"type": "array"},
             "deleted": {"type": "array"}, "resets": {"type": "integer"},
             "wall_us": _NUM}, ["t", "k", "tracks"]),
+    "uavest.StateEstimate": _obj(
+        "uavest.StateEstimate", "a filter's posterior of a generic vector state (the "
+        "system's own units): x (n,), per-component 3-sigma 3 sqrt(P_ii), P (n x n, "
+        "row-major; the same coordinates as x)", {
+            "t": _NUM, "k": {"type": "integer"}, "n": {"type": "integer"},
+            "x": {"type": "array", "items": _NUM}, "sigma3": {"type": "array", "items": _NUM},
+            "P": {"type": "array", "items": _NUM}}, ["t", "k", "x", "P"]),
+    "uavest.StateError": _obj(
+        "uavest.StateError", "estimate - truth of a generic vector state per component, "
+        "the filter's own +-3 sigma per component (3 sqrt(P_ii)), NEES e^T P^-1 e with "
+        "dof = n (truth of the same step)", {
+            "t": _NUM, "k": {"type": "integer"}, "err": {"type": "array", "items": _NUM},
+            "sigma3": {"type": "array", "items": _NUM},
+            "neg_sigma3": {"type": "array", "items": _NUM}, "nees": _NUM,
+            "dof": {"type": "integer"}}, ["t", "k", "err", "sigma3", "nees"]),
+    "uavest.StateTruth": _obj(
+        "uavest.StateTruth", "the true state of a simulated run at step k (system units)", {
+            "t": _NUM, "k": {"type": "integer"}, "x": {"type": "array", "items": _NUM}},
+        ["t", "k", "x"]),
+    "uavest.Measurement": _obj(
+        "uavest.Measurement", "the measurement z of step k (system units)", {
+            "t": _NUM, "k": {"type": "integer"}, "z": {"type": "array", "items": _NUM}},
+        ["t", "k", "z"]),
     "uavest.RunInfo": _obj("uavest.RunInfo", "the run (also in the MCAP metadata)", {
         "command": {"type": "string"}, "source": {"type": "string"},
         "seed": {"type": "integer"}, "filters": {"type": "object"},
@@ -386,7 +426,7 @@ class Publisher:
         self.only_subscribed = only_subscribed
         self.channels: dict[str, Any] = {}
         self.labels: list[str] = []
-        self.kind: str | None = None  # "attitude" | "radar"
+        self.kind: str | None = None  # "attitude" | "radar" | "state"
         self.refs: dict[str, _RefSeries] = {}
         self.ref_frames: dict[str, str] = {}
         self.best_ref: str | None = None
@@ -398,6 +438,9 @@ class Publisher:
         self.last_frame: dict[str, float] = {}
         self.tracks_hist: dict[tuple[str, int], deque] = {}
         self.markers_wall = -1e9
+        # generic vector-state runs: the latest truth (t, x) and the largest state size
+        self.state_truth: tuple[float, Array] | None = None
+        self.state_dim = 0
         self.counts: dict[str, int] = {}
         self.info: dict | None = None
 
@@ -477,6 +520,21 @@ class Publisher:
             self._position(s)
         elif name == "RadarScanSample" or (hasattr(s, "Z") and hasattr(s, "model")):
             self._radar(s)
+        elif name == "StateSample":
+            self._state_sample(s)
+
+    def _state_sample(self, s: StateSample) -> None:
+        """Truth and measurement of a generic vector-state step (``/truth/state``,
+        ``/measurement/z``); the truth is kept for the error of the step's records."""
+        self.kind = "state"
+        if s.x is not None:
+            x = np.asarray(s.x, float).ravel()
+            self.state_truth = (float(s.t), x)
+            self._json("/truth/state", "uavest.StateTruth", s.t,
+                       {"t": s.t, "k": int(s.k), "x": _floats(x)})
+        if s.z is not None:
+            self._json("/measurement/z", "uavest.Measurement", s.t,
+                       {"t": s.t, "k": int(s.k), "z": _floats(s.z)})
 
     def _position(self, s) -> None:
         msg = {"t": s.t, "source": s.source}
@@ -577,6 +635,9 @@ class Publisher:
         if isinstance(rec, ScanRecord):
             self._scan(rec)
             return
+        if self.kind == "state":
+            self._state_record(rec)
+            return
         self.kind = self.kind or "attitude"
         lab, t = rec.estimator, rec.t
         if lab not in self.labels:
@@ -597,18 +658,7 @@ class Publisher:
                        _n(t), rec.k, _n(xs[0]), _n(xs[1]), _n(xs[2]), _n(xs[3]), _n(b[0]),
                        _n(b[1]), _n(b[2]), _n(rpy[0]), _n(rpy[1]), _n(rpy[2]), _n(s3[0]),
                        _n(s3[1]), _n(s3[2]), _b64(P[_triu(P.shape[0])])))
-        dofs = [int(np.size(u.nu)) for u in rec.updates]
-        ups = ",".join('{"kind":%s,"nis":%s,"dof":%d}' % (_q(u.kind), _n(u.nis), d)  # noqa: UP031
-                       for u, d in zip(rec.updates, dofs, strict=True))
-        self._text(f"/attitude/{lab}/health", "uavest.FilterHealth", t,
-                   '{"t":%s,"k":%d,"nis":%s,"nis_dof":%d,"updates":[%s],"reset":%s,'  # noqa: UP031
-                   '"reason":%s,"resets":%d,"wall_us":%s}' % (
-                       _n(t), rec.k, _n(rec.nis), sum(dofs), ups,
-                       "true" if rec.reset else "false", _q(rec.reason), int(rec.resets),
-                       _n(1e6 * rec.wall_s)))
-        if rec.reset:
-            self.log_event(t, "warning", lab, f"{lab} reset at t = {t:.3f} s (step {rec.k}): "
-                           f"{rec.reason or 'divergence guard'}; resets so far {rec.resets}")
+        self._health(f"/attitude/{lab}/health", rec)
         i = self.labels.index(lab)
         self._frame(lab, f"body_{lab}", t, q, self.spacing * (i + 1), lab)
         self._markers(t)
@@ -617,6 +667,55 @@ class Publisher:
             self.pending.append((t, rec.k, lab, tuple(float(v) for v in q),
                                  [row[:3] for row in Pl[:3]], s3, rpy))
             self._drain(final=False)
+
+    def _health(self, topic: str, rec: StepRecord) -> None:
+        """``uavest.FilterHealth`` of a step (and its reset on ``/log``)."""
+        t, lab = rec.t, rec.estimator
+        dofs = [int(np.size(u.nu)) for u in rec.updates]
+        ups = ",".join('{"kind":%s,"nis":%s,"dof":%d}' % (_q(u.kind), _n(u.nis), d)  # noqa: UP031
+                       for u, d in zip(rec.updates, dofs, strict=True))
+        self._text(topic, "uavest.FilterHealth", t,
+                   '{"t":%s,"k":%d,"nis":%s,"nis_dof":%d,"updates":[%s],"reset":%s,'  # noqa: UP031
+                   '"reason":%s,"resets":%d,"wall_us":%s}' % (
+                       _n(t), rec.k, _n(rec.nis), sum(dofs), ups,
+                       "true" if rec.reset else "false", _q(rec.reason), int(rec.resets),
+                       _n(1e6 * rec.wall_s)))
+        if rec.reset:
+            self.log_event(t, "warning", lab, f"{lab} reset at t = {t:.3f} s (step {rec.k}): "
+                           f"{rec.reason or 'divergence guard'}; resets so far {rec.resets}")
+
+    def _state_record(self, rec: StepRecord) -> None:
+        """A generic vector-state step: ``/state/<label>/estimate``, ``.../health`` and,
+        when the truth of the same step was seen, ``.../error`` (estimate - truth, the
+        filter's own +-3 sigma, NEES with dof n). The state is a plain vector (x and P in
+        the same coordinates); a state whose covariance is of another size has no error
+        channel."""
+        lab, t = rec.estimator, rec.t
+        if lab not in self.labels:
+            self.labels.append(lab)
+        x = np.asarray(rec.x, float).ravel()
+        P = np.asarray(rec.P, float).reshape(x.size, -1) if np.size(rec.P) else \
+            np.zeros((x.size, 0))
+        self.state_dim = max(self.state_dim, int(x.size))
+        d = np.diagonal(P) if P.shape[0] == P.shape[1] else np.full(x.size, np.nan)
+        with np.errstate(invalid="ignore"):
+            s3 = 3.0 * np.sqrt(d)
+        s3l = _floats(s3)
+        self._json(f"/state/{lab}/estimate", "uavest.StateEstimate", t, {
+            "t": t, "k": int(rec.k), "n": int(x.size), "x": _floats(x), "sigma3": s3l,
+            "P": _floats(P)})
+        self._health(f"/state/{lab}/health", rec)
+        tr = self.state_truth
+        if tr is not None and tr[0] == t and tr[1].size == x.size == P.shape[0] == P.shape[1]:
+            e = x - tr[1]
+            try:
+                ne = float(e @ np.linalg.solve(P, e))
+            except np.linalg.LinAlgError:
+                ne = math.nan
+            self._json(f"/state/{lab}/error", "uavest.StateError", t, {
+                "t": t, "k": int(rec.k), "err": _floats(e), "sigma3": s3l,
+                "neg_sigma3": _floats(-s3), "nees": ne if math.isfinite(ne) else None,
+                "dof": int(x.size)})
 
     def _drain(self, final: bool) -> None:
         """Errors of the waiting steps whose time the chosen reference has reached."""

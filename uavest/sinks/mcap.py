@@ -146,10 +146,10 @@ class McapSink(Sink):
 
             pub = self.pub
             follow = pub.ref_frames.get(pub.best_ref) if pub.best_ref else None
-            if follow is None and pub.labels and pub.kind != "radar":
+            if follow is None and pub.labels and pub.kind == "attitude":
                 follow = f"body_{pub.labels[0]}"
             self.layout_path.write_text(layout_text(pub.labels, pub.kind or "attitude",
-                                                    follow))
+                                                    follow, max(pub.state_dim, 1)))
 
     @property
     def counts(self) -> dict[str, int]:
