@@ -63,7 +63,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pairs", type=int, default=2)
     ap.add_argument("--rate-hz", type=float, default=0.0)
     ap.add_argument("--frame-rate-hz", type=float, default=None,
-                    help="McapSink frame_rate_hz (3-D channels per estimator; default every step)")
+                    help="McapSink frame_rate_hz (3-D channels per estimator; default the "
+                    "sink's, 30 Hz; 0: every step)")
     ap.add_argument("--seconds", type=float, default=None,
                     help="replay only this many seconds of data")
     args = ap.parse_args(argv)
@@ -79,7 +80,9 @@ def main(argv: list[str] | None = None) -> int:
         for i in range(args.pairs):
             for with_rec in (False, True) if i % 2 == 0 else (True, False):
                 path = Path(d) / f"run{i}.mcap"
-                sinks = [Timed(McapSink(path, args.frame_rate_hz))] if with_rec else []
+                kw = {} if args.frame_rate_hz is None else {"frame_rate_hz":
+                                                             args.frame_rate_hz or None}
+                sinks = [Timed(McapSink(path, **kw))] if with_rec else []
                 c, p = time.perf_counter(), time.process_time()
                 doc = replay(args.log, cfg, sinks=sinks)
                 wall = time.perf_counter() - c
