@@ -96,7 +96,27 @@ def attitude_data(rec: Recording) -> dict:
         if msgs:
             out["positions"][topic.split("/", 2)[2]] = (_stack(msgs, "t"),
                                                        _stack(msgs, "ned_m", 3))
+    if not out["positions"]:  # only lat/lon/alt (a live link's GLOBAL_POSITION_INT)
+        for topic in rec.topics("/position/"):
+            msgs = [m for m in rec.json.get(topic, []) if m.get("lat_lon_alt")
+                    and None not in m["lat_lon_alt"]]
+            if msgs:
+                out["positions"][topic.split("/", 2)[2] + " (lat/lon/alt)"] = (
+                    _stack(msgs, "t"), lla_to_local_ned(_stack(msgs, "lat_lon_alt", 3)))
     return out
+
+
+def lla_to_local_ned(lla: Array) -> Array:
+    """NED (K, 3) m of fixes ``lla`` (K, 3) [lat deg, lon deg, alt m] in the local
+    tangent plane at the first fix (WGS84 through ECEF, :class:`uavest.sim.geo.LocalFrame`;
+    altitude taken as the ellipsoidal height, which shifts only the origin). A tangent
+    plane: over a few km the curvature puts "down" off by d^2 / (2 R), 0.08 m at 1 km."""
+    from ..sim.geo import LocalFrame
+
+    lla = np.asarray(lla, float).reshape(-1, 3)
+    if not len(lla):
+        return np.zeros((0, 3))
+    return LocalFrame(*lla[0]).geodetic_to_ned(lla[:, 0], lla[:, 1], lla[:, 2])
 
 
 class _Ref:
@@ -549,9 +569,15 @@ def _attitude_figures(data: dict, rows: dict, m: dict, events: list) -> list[tup
     ax.set_xlabel("east (m)")
     ax.set_ylabel("north (m)")
     ax.grid(alpha=0.3)
-    ax.set_title("Vehicle trajectory, top view (local NED origin)")
+    from_lla = any(src.endswith("(lat/lon/alt)") for src in data["positions"])
+    ax.set_title("Vehicle trajectory, top view (" + (
+        "local NED at the first fix, from lat/lon/alt" if from_lla else "local NED origin")
+        + ")")
     figs.append(("fig-trajectory", "Trajectory", _fig_png(fig),
-                 "Vehicle position from the log (top view, east/north in m)."))
+                 "Vehicle position from the log (top view, east/north in m)" + (
+                     "; no local NED position was recorded, so the lat/lon/alt fixes are "
+                     "shown in the local tangent plane at the first fix" if from_lla
+                     else "") + "."))
     figs.append(_timing_fig({lab: (f["t"], f["wall_us"]) for lab, f in data["filters"].items()},
                             "filter step"))
     figs.append(_resets_fig({lab: (f["t"], f["resets"]) for lab, f in data["filters"].items()},
