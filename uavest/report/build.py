@@ -97,26 +97,43 @@ def attitude_data(rec: Recording) -> dict:
             out["positions"][topic.split("/", 2)[2]] = (_stack(msgs, "t"),
                                                        _stack(msgs, "ned_m", 3))
     if not out["positions"]:  # only lat/lon/alt (a live link's GLOBAL_POSITION_INT)
+        fixes = {}
         for topic in rec.topics("/position/"):
             msgs = [m for m in rec.json.get(topic, []) if m.get("lat_lon_alt")
                     and None not in m["lat_lon_alt"]]
             if msgs:
-                out["positions"][topic.split("/", 2)[2] + " (lat/lon/alt)"] = (
-                    _stack(msgs, "t"), lla_to_local_ned(_stack(msgs, "lat_lon_alt", 3)))
+                fixes[topic.split("/", 2)[2]] = (_stack(msgs, "t"),
+                                                 _stack(msgs, "lat_lon_alt", 3))
+        # one origin for every source: the earliest fix of the preferred one
+        order = sorted(fixes, key=lambda src: (_LLA_ORDER.index(src) if src in _LLA_ORDER
+                                               else len(_LLA_ORDER), src))
+        origin = fixes[order[0]][1][0] if order else None
+        for src in order:
+            t, lla = fixes[src]
+            out["positions"][src + " (lat/lon/alt)"] = (t, lla_to_local_ned(lla, origin))
     return out
 
 
-def lla_to_local_ned(lla: Array) -> Array:
+#: Preference among lat/lon/alt sources for the origin of the trajectory (the fused
+#: position before the raw GPS).
+_LLA_ORDER = ("GLOBAL_POSITION_INT", "vehicle_global_position", "POS", "GPS_RAW_INT",
+              "GPS", "vehicle_gps_position")
+
+
+def lla_to_local_ned(lla: Array, origin: Array | None = None) -> Array:
     """NED (K, 3) m of fixes ``lla`` (K, 3) [lat deg, lon deg, alt m] in the local
-    tangent plane at the first fix (WGS84 through ECEF, :class:`uavest.sim.geo.LocalFrame`;
-    altitude taken as the ellipsoidal height, which shifts only the origin). A tangent
-    plane: over a few km the curvature puts "down" off by d^2 / (2 R), 0.08 m at 1 km."""
+    tangent plane at ``origin`` [lat deg, lon deg, alt m] (default: the first fix), WGS84
+    through ECEF (:class:`uavest.sim.geo.LocalFrame`; the altitude is taken as the
+    ellipsoidal height, which moves only the origin's height). A tangent plane, not a
+    map projection: fine for a flight of a few km (at a distance d the plane's "down"
+    is d^2 / (2 R) below the sphere, 0.08 m at 1 km, 8 m at 10 km)."""
     from ..sim.geo import LocalFrame
 
     lla = np.asarray(lla, float).reshape(-1, 3)
     if not len(lla):
         return np.zeros((0, 3))
-    return LocalFrame(*lla[0]).geodetic_to_ned(lla[:, 0], lla[:, 1], lla[:, 2])
+    o = lla[0] if origin is None else np.asarray(origin, float)
+    return LocalFrame(*o).geodetic_to_ned(lla[:, 0], lla[:, 1], lla[:, 2])
 
 
 class _Ref:
@@ -558,9 +575,11 @@ def _attitude_figures(data: dict, rows: dict, m: dict, events: list) -> list[tup
     # trajectory
     fig, ax = plt.subplots(figsize=(7, 7))
     if data["positions"]:
-        for src, (_t, ned) in data["positions"].items():
-            ax.plot(ned[:, 1], ned[:, 0], color=REFERENCE_COLOUR, lw=1.0, label=src)
-            ax.plot(ned[:1, 1], ned[:1, 0], "o", color="g", label="start")
+        styles = [(REFERENCE_COLOUR, "-", 1.2), ("#888888", "--", 0.9), ("#bbbbbb", ":", 0.9)]
+        for j, (src, (_t, ned)) in enumerate(data["positions"].items()):
+            col, ls, lw = styles[min(j, len(styles) - 1)]
+            ax.plot(ned[:, 1], ned[:, 0], color=col, ls=ls, lw=lw, label=src)
+            ax.plot(ned[:1, 1], ned[:1, 0], "o", color="g", label="start" if j == 0 else None)
         ax.set_aspect("equal", adjustable="datalim")
         ax.legend(fontsize=8)
     else:
@@ -576,7 +595,9 @@ def _attitude_figures(data: dict, rows: dict, m: dict, events: list) -> list[tup
     figs.append(("fig-trajectory", "Trajectory", _fig_png(fig),
                  "Vehicle position from the log (top view, east/north in m)" + (
                      "; no local NED position was recorded, so the lat/lon/alt fixes are "
-                     "shown in the local tangent plane at the first fix" if from_lla
+                     "shown in the local tangent plane at the first fix (of the fused "
+                     "position when there is one), the same origin for every source"
+                     if from_lla
                      else "") + "."))
     figs.append(_timing_fig({lab: (f["t"], f["wall_us"]) for lab, f in data["filters"].items()},
                             "filter step"))
