@@ -470,7 +470,7 @@ class Publisher:
         self.only_subscribed = only_subscribed
         self.channels: dict[str, Any] = {}
         self.labels: list[str] = []
-        self.kind: str | None = None  # "attitude" | "radar" | "state"
+        self.kind: str | None = None  # "attitude" | "radar" | "attitude+radar" | "state"
         self.refs: dict[str, _RefSeries] = {}
         self.ref_frames: dict[str, str] = {}
         self.best_ref: str | None = None
@@ -487,6 +487,7 @@ class Publisher:
         self.state_truth: tuple[float, Array] | None = None
         self.state_dim = 0
         self.lanes: dict[str, _Lane] = {}
+        self.track_labels: list[str] = []  # labels of trackers (ScanRecord)
         self.health_lanes: dict[str, _Lane] = {}
         self._err_tpl: dict[str, str] = {}
         self._drains = 0
@@ -730,7 +731,9 @@ class Publisher:
         if self.kind == "state":
             self._state_record(rec)
             return
-        self.kind = self.kind or "attitude"
+        if self.kind != "attitude":
+            self.kind = "attitude+radar" if self.kind in ("radar", "attitude+radar") \
+                else "attitude"
         lab, t, k = rec.estimator, rec.t, rec.k
         ln = self.lanes.get(lab) or self._lane(lab)
         ns = _ns(t)
@@ -882,8 +885,16 @@ class Publisher:
                     ref.trim(keep)
 
     # -- radar ----------------------------------------------------------------------------
+    def _saw_radar(self) -> None:
+        """Radar data: kind ``radar``, or ``attitude+radar`` for a run with both (a live
+        link: attitude filters and trackers side by side)."""
+        if self.kind in (None, "radar"):
+            self.kind = "radar"
+        elif self.kind == "attitude":
+            self.kind = "attitude+radar"
+
     def _radar(self, s) -> None:
-        self.kind = "radar"
+        self._saw_radar()
 
         Z = np.asarray(s.Z, float).reshape(len(s.Z), -1)
         m = s.model
@@ -954,10 +965,12 @@ class Publisher:
 
     def _scan(self, rec: ScanRecord) -> None:
 
-        self.kind = "radar"
+        self._saw_radar()
         lab, t = rec.estimator, rec.t
         if lab not in self.labels:
             self.labels.append(lab)
+        if lab not in self.track_labels:
+            self.track_labels.append(lab)
         col = colour(lab)
         rows, ents = [], []
         for tr in rec.tracks:

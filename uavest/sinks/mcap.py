@@ -153,10 +153,13 @@ class McapSink(Sink):
 
             pub = self.pub
             follow = pub.ref_frames.get(pub.best_ref) if pub.best_ref else None
-            if follow is None and pub.labels and pub.kind == "attitude":
-                follow = f"body_{pub.labels[0]}"
-            self.layout_path.write_text(layout_text(pub.labels, pub.kind or "attitude",
-                                                    follow, max(pub.state_dim, 1)))
+            kind = pub.kind or "attitude"
+            att = [lab for lab in pub.labels if lab not in pub.track_labels]
+            if follow is None and att and kind.startswith("attitude"):
+                follow = f"body_{att[0]}"
+            self.layout_path.write_text(layout_text(
+                pub.track_labels if kind == "radar" else att, kind, follow,
+                max(pub.state_dim, 1), pub.track_labels))
 
     @property
     def counts(self) -> dict[str, int]:
