@@ -154,7 +154,7 @@ def test_publisher_survives_a_diverged_filter(tmp_path):
 
 
 def test_hot_path_json_text_is_valid_and_nan_becomes_null():
-    from uavest.sinks.foxglove_channels import _EST_TPL, _fill, _g, _neg, _nees3, _rpy
+    from uavest.sinks.foxglove_channels import _EST_TPL, _fill, _g, _nees3, _neg, _rpy
 
     vals = (1.25, 3, 1.0, 0.0, 0.0, 0.0, 1e-3, -2e-3, 3e-4, 0.1, -0.2, 179.9)
     txt = _fill(_EST_TPL, vals) + '{"roll":1,"pitch":2,"yaw":3}}'
