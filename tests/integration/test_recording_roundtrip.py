@@ -45,7 +45,7 @@ def vtol(tmp_path_factory):
     d = tmp_path_factory.mktemp("rec")
     path = d / "vtol.mcap"
     coll, smp = Collector(), Samples()
-    sink = McapSink(path)
+    sink = McapSink(path, frame_rate_hz=None)  # every step on the 3-D channels too
     doc = replay(VTOL, ReplayConfig(end=660.0), sinks=[coll, smp, sink], command="test")
     return {"path": path, "coll": coll, "samples": smp, "doc": doc, "sink": sink,
             "rec": read_recording(path)}

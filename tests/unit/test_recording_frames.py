@@ -151,3 +151,54 @@ def test_publisher_survives_a_diverged_filter(tmp_path):
     est = rec.json["/attitude/ekf/estimate"]
     assert [m["k"] for m in est] == [1, 2, 3]
     assert est[0]["sigma3_deg"]["yaw"] is None and np.isnan(b64_floats(est[1]["P_triu_b64"])).all()
+
+
+def test_hot_path_json_text_is_valid_and_nan_becomes_null():
+    from uavest.sinks.foxglove_channels import _EST_TPL, _fill, _g, _nees3, _neg, _rpy
+
+    vals = (1.25, 3, 1.0, 0.0, 0.0, 0.0, 1e-3, -2e-3, 3e-4, 0.1, -0.2, 179.9)
+    txt = _fill(_EST_TPL, vals) + '{"roll":1,"pitch":2,"yaw":3}}'
+    m = json.loads(txt)
+    assert m["t"] == 1.25 and m["k"] == 3 and m["bias_rad_s"] == [1e-3, -2e-3, 3e-4]
+    m = json.loads(_fill(_EST_TPL, (1.25, 3, float("nan"), *vals[3:]))
+                   + '{"roll":1,"pitch":2,"yaw":3}}')
+    assert m["q"][0] is None and m["q"][1] == 0.0
+    assert _g(float("inf")) == "null" and _neg("null") == "null"
+    assert _neg("-1.5") == "1.5" and _neg("2") == "-2"
+    rng = np.random.default_rng(3)
+    for q in _random_q(rng, 20):
+        np.testing.assert_allclose(_rpy(*q), quat_to_rpy_deg(q), atol=1e-12)
+    # NEES against the vectorised scorer
+    from uavest.eval.attitude import nees_attitude
+
+    q, qr = _random_q(rng, 2)
+    A = rng.standard_normal((6, 6))
+    P = A @ A.T + np.eye(6)
+    assert _nees3(tuple(q), tuple(qr), P.tolist()) == pytest.approx(
+        float(nees_attitude(q[None], P[None], qr[None])[0]), rel=1e-9)
+
+
+def test_3d_channels_are_rate_limited_by_default(tmp_path):
+    """At 250 Hz, the JSON channels carry every step and the 3-D channels about 30 Hz of
+    data time (the default); frame_rate_hz=None gives every step."""
+    from uavest.engine.records import RunInfo, StepRecord
+    from uavest.report import read_recording
+    from uavest.sinks.mcap import McapSink
+
+    recs = [StepRecord("ekf", k, k / 250.0, np.array([1.0, 0, 0, 0, 0, 0, 0]),
+                       np.eye(6) * 1e-4) for k in range(1, 501)]
+    counts = {}
+    for name, kw in (("default", {}), ("every", {"frame_rate_hz": None})):
+        sink = McapSink(tmp_path / f"{name}.mcap", **kw)
+        sink.open(RunInfo("test", "synthetic", 0))
+        for r in recs:
+            sink.record(r)
+        sink.close()
+        rec = read_recording(tmp_path / f"{name}.mcap")
+        assert rec.counts["/attitude/ekf/estimate"] == 500
+        counts[name] = rec.counts["/tf/ekf"], rec.counts["/attitude/ekf/pose"]
+        if name == "default":
+            dt = np.diff(np.array(rec.log_times["/tf/ekf"])) * 1e-9
+            assert dt.min() >= 1 / 30 - 1e-9
+    assert counts["every"] == (500, 500)
+    assert 55 <= counts["default"][0] <= 61 and counts["default"][0] == counts["default"][1]

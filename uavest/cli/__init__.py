@@ -51,6 +51,12 @@ def _bench_parser(sub) -> None:
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scenario parameter (repeatable), e.g. --set model.Q=5")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--trial", type=int, default=0, metavar="K",
+                   help="the Monte Carlo trial --mcap / --report record (default 0; "
+                   "must be < --runs)")
+    from .record import add_recording_options
+
+    add_recording_options(p, live_view=False)
     p.set_defaults(func=_lazy("bench", "cmd_bench"), filters_preset="bench")
 
 

@@ -6,6 +6,7 @@ import sys
 
 from ..scenarios import load_scenario
 from ..sinks.jsonout import write_json
+from .record import finish_recording, recording_sinks
 from .report import progress, table
 
 __all__ = ["cmd_bench"]
@@ -31,15 +32,26 @@ def cmd_bench(args) -> int:
 
         reject_linear_only(specs, f"bench {sc['name']}", "a nonlinear model")
     check(sc, specs, runs, int(sc.get("steps", 100)), "bench")
+    recording = bool(getattr(args, "mcap", None) or getattr(args, "report", None))
+    trial = int(getattr(args, "trial", 0) or 0)
+    if recording and args.speed:
+        raise ValueError("--mcap/--report record a Monte Carlo trial; not with --speed")
+    if recording and not 0 <= trial < runs:
+        raise ValueError(f"--trial must be in 0..{runs - 1} (--runs {runs}), got {trial}")
+    sinks = recording_sinks(args) if recording else []
     doc = {"run": {"command": " ".join(sys.argv), "seed": args.seed},
            "scenario": sc["name"], "source": sc.get("source"), "runs": runs,
            "seed": args.seed, "steps": sc.get("steps"), "overrides": args.sets}
     bar = progress(runs * (9 if args.ablation else 1), f"bench {sc['name']}",
                    False if args.no_progress else None)
     if sc["kind"] == "radar":
-        from ..experiments.radar import run_bench
+        from ..experiments.radar import run_bench, trial_info
 
-        doc["filters"] = run_bench(sc, specs, runs, args.seed, args.steps)
+        rec = None
+        if sinks:
+            rspecs = specs or list(sc.get("filters", ["ekf", "ukf", "hybrid"]))
+            rec = (trial, sinks, trial_info(sc, rspecs, args.seed, trial, " ".join(sys.argv)))
+        doc["filters"] = run_bench(sc, specs, runs, args.seed, args.steps, rec)
         cols = ["pos_rmse", "vel_rmse", "pcrlb_pos", "pcrlb_ratio", "pcrlb_ratio_rms",
                 "cond_ratio", "nees_mean", "nees_band", "nees_in_band_fraction",
                 "gospa", "id_swaps", "false_tracks", "track_breaks", "diverged_fraction",
@@ -51,7 +63,13 @@ def cmd_bench(args) -> int:
         sysm = build_system(sc)
         if args.speed:
             return _speed(args, sysm, sc, runs, doc)
-        doc["filters"] = evaluate(sysm, specs, runs, args.seed, bar.update)
+        from ..experiments.montecarlo import trial_info
+
+        rec = None
+        if sinks:
+            rec = (trial, sinks, trial_info(sysm, specs, args.seed, trial, sc["name"],
+                                            " ".join(sys.argv)))
+        doc["filters"] = evaluate(sysm, specs, runs, args.seed, bar.update, rec)
         cols = list(METRICS) + ["resets"]
         if args.ablation:
             doc["ablation"] = ablation(sysm, runs, args.seed, bar.update)
@@ -67,6 +85,9 @@ def cmd_bench(args) -> int:
     if args.json:
         write_json(args.json, doc)
         print(f"\nwrote {args.json}")
+    if recording:
+        print(f"recorded trial {trial}")
+        finish_recording(args)
     return 0
 
 

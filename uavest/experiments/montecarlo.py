@@ -10,12 +10,13 @@ and :func:`aggregate` combines any set of trial rows into the table.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
 from ..engine import FilterRunner, Start, Step, run
 from ..engine.build import build_filters
+from ..engine.records import RunInfo, package_versions
 from ..eval.metrics import mean_abs, nees, nees_band, rmse
 from ..seeding import filter_stream, rng
 from ..sinks.base import Collector
@@ -35,25 +36,51 @@ def trial_data(sysm: System, seed: int, r: int) -> tuple[Array, Array]:
     return X[0], Z[0]
 
 
-def trial_steps(sysm: System, Z: Array) -> Iterator[Start | Step]:
+def trial_steps(sysm: System, Z: Array, X: Array | None = None) -> Iterator[Start | Step]:
     """The engine's items for one trial: start at the filter prior, then one step per
-    measurement (predict over dt, update with z_k)."""
+    measurement (predict over dt, update with z_k). With the truth ``X`` (T, n) every step
+    also carries a :class:`~uavest.sinks.foxglove_channels.StateSample` (truth x_k and
+    z_k) in ``info["samples"]`` for recorders (filters never see ``info``)."""
     tr, me = sysm.transition, sysm.measurement
     yield Start(0.0, sysm.filter_prior, tr.space)
+    if X is None:
+        for k in range(Z.shape[0]):
+            yield Step(k + 1, (k + 1) * sysm.dt, sysm.dt, tr, ((Z[k], me),))
+        return
+    from ..sinks.foxglove_channels import StateSample
+
     for k in range(Z.shape[0]):
-        yield Step(k + 1, (k + 1) * sysm.dt, sysm.dt, tr, ((Z[k], me),))
+        t = (k + 1) * sysm.dt
+        yield Step(k + 1, t, sysm.dt, tr, ((Z[k], me),),
+                   info={"samples": (StateSample(t, k + 1, X[k], Z[k]),)})
 
 
-def run_trial(sysm: System, specs: list[str], seed: int, r: int) -> dict[str, dict]:
+def trial_info(sysm: System, specs: list[str], seed: int, r: int, scenario: str = "",
+               command: str = "") -> RunInfo:
+    """The run description of trial ``r`` for a recording: scenario, seed, trial, the
+    resolved filters (label -> resolved spec), the system's steps and dt."""
+    built = build_filters(specs, "bench", dim=sysm.transition.space.dim)
+    return RunInfo(command, f"scenario:{scenario}" if scenario else "bench", seed,
+                   filters={sp.label: sp.as_dict() for sp, _ in built},
+                   config={"scenario": scenario, "trial": r, "steps": sysm.steps,
+                           "dt": sysm.dt, "state_dim": sysm.transition.space.dim},
+                   versions=package_versions())
+
+
+def run_trial(sysm: System, specs: list[str], seed: int, r: int, sinks: Sequence = (),
+              info: RunInfo | None = None) -> dict[str, dict]:
     """Per-filter metrics of trial ``r``: rmse, approx_error (mean |x_pred - x|),
-    est_error (mean |x_est - x|), nees (mean over steps), resets, diverged, seconds."""
+    est_error (mean |x_est - x|), nees (mean over steps), resets, diverged, seconds.
+    ``sinks`` (e.g. an MCAP recorder) see the same engine run (records, and the truth and
+    measurement of every step as :class:`~uavest.sinks.foxglove_channels.StateSample`);
+    the numbers do not depend on them."""
     X, Z = trial_data(sysm, seed, r)
     n = sysm.transition.space.dim
     built = build_filters(specs, "bench", dim=n)
     runners = [FilterRunner(sp.label, f, rng(seed, r, filter_stream(sp.label)),
                             record_prediction=True) for sp, f in built]
     coll = Collector()
-    run(trial_steps(sysm, Z), runners, [coll])
+    run(trial_steps(sysm, Z, X if sinks else None), runners, [coll, *sinks], info)
     out = {}
     for fr in runners:
         a = coll.arrays(fr.label)
@@ -73,11 +100,17 @@ def run_trial(sysm: System, specs: list[str], seed: int, r: int) -> dict[str, di
 
 
 def trial_rows(sysm: System, specs: list[str], seed: int, trials: Iterable[int],
-               progress: Callable[[int], None] | None = None) -> list[dict[str, dict]]:
-    """:func:`run_trial` for each trial index (a shard of a study)."""
+               progress: Callable[[int], None] | None = None,
+               record: tuple[int, Sequence, RunInfo | None] | None = None
+               ) -> list[dict[str, dict]]:
+    """:func:`run_trial` for each trial index (a shard of a study); ``record = (r, sinks,
+    info)`` hands trial r's run to ``sinks``."""
     rows = []
     for r in trials:
-        rows.append(run_trial(sysm, specs, seed, r))
+        if record is not None and r == record[0]:
+            rows.append(run_trial(sysm, specs, seed, r, record[1], record[2]))
+        else:
+            rows.append(run_trial(sysm, specs, seed, r))
         if progress:
             progress(1)
     return rows
@@ -109,9 +142,11 @@ def aggregate(rows: list[dict[str, dict]], n: int) -> dict[str, dict]:
 
 
 def evaluate(sysm: System, specs: list[str], runs: int, seed: int,
-             progress: Callable[[int], None] | None = None) -> dict[str, dict]:
-    """Per-filter metrics (see ``METRICS``) over trials 0..runs-1."""
-    rows = trial_rows(sysm, specs, seed, range(runs), progress)
+             progress: Callable[[int], None] | None = None,
+             record: tuple[int, Sequence, RunInfo | None] | None = None) -> dict[str, dict]:
+    """Per-filter metrics (see ``METRICS``) over trials 0..runs-1; ``record = (r, sinks,
+    info)``: trial r's engine run also goes to ``sinks`` (``uavest bench --mcap``)."""
+    rows = trial_rows(sysm, specs, seed, range(runs), progress, record)
     return aggregate(rows, sysm.transition.space.dim)
 
 

@@ -276,7 +276,10 @@ def tracker_errors(tracker: Tracker, run, ndim: int, c: float, dt: float):
     return q, errs
 
 
-def bench_tracker_mode(sc: dict, filters: list[str], runs: int, seed: int, steps: int | None):
+def bench_tracker_mode(sc: dict, filters: list[str], runs: int, seed: int, steps: int | None,
+                       record: tuple | None = None):
+    """Tracker-mode table over runs 0..runs-1; ``record = (r, sinks, info)`` hands run r's
+    engine run (scans, truths, every tracker's records) to ``sinks``."""
     motion, radar = build_models(sc)
     ndim = radar.ndim
     dt = float(sc.get("dt", 1.0))
@@ -286,7 +289,10 @@ def bench_tracker_mode(sc: dict, filters: list[str], runs: int, seed: int, steps
     for r in range(runs):
         rd = generate_run(sc, data_rng(seed, r), steps)
         K = len(rd.scans)
-        trackers = run_trackers(sc, filters, rd, seed, r)
+        if record is not None and r == record[0]:
+            trackers = run_trackers(sc, filters, rd, seed, r, record[1], record[2])
+        else:
+            trackers = run_trackers(sc, filters, rd, seed, r)
         for lab, tr in trackers.items():
             q, errs = tracker_errors(tr, rd, ndim, c, dt)
             a = acc[lab]
@@ -356,15 +362,38 @@ def bench_tracker_mode(sc: dict, filters: list[str], runs: int, seed: int, steps
     return out
 
 
+def trial_info(sc: dict, filters: list[str], seed: int, r: int, command: str = ""):
+    """The run description of radar trial ``r`` for a recording (scenario, seed, trial,
+    resolved filters, dt, GOSPA c)."""
+    from ..engine.records import RunInfo, package_versions
+
+    motion, _ = build_models(sc)
+    built = build_filters(filters, "radar", dim=motion.space.dim)
+    return RunInfo(command, f"scenario:{sc.get('name')}", seed,
+                   filters={sp.label: sp.as_dict() for sp, _ in built},
+                   config={"scenario": sc.get("name"), "trial": r,
+                           "mode": sc.get("mode", "tracker"), "dt": float(sc.get("dt", 1.0)),
+                           "gospa_c": float(sc.get("metrics", {}).get("gospa_c", 200.0))},
+                   versions=package_versions())
+
+
 def run_bench(
-    scenario: dict, filters: list[str], runs: int, seed: int, steps: int | None
+    scenario: dict, filters: list[str], runs: int, seed: int, steps: int | None,
+    record: tuple | None = None,
 ) -> dict[str, dict[str, float]]:
     """Entry point for ``uavest bench`` on ``kind = "radar"`` scenarios (see module doc).
 
     ``filters`` empty/None -> the scenario's ``filters`` list; ``runs`` None/0 -> the
-    scenario's ``runs``."""
+    scenario's ``runs``. ``record = (r, sinks, info)``: trial r's tracker run goes to
+    ``sinks`` (tracker mode: the very run the table uses; filter mode, which runs no
+    tracker: the trackers on trial r's data, as ``uavest track`` does)."""
     filters = list(filters or scenario.get("filters", ["ekf", "ukf", "hybrid"]))
     runs = int(runs or scenario.get("runs", 100))
     if scenario.get("mode", "tracker") == "filter":
-        return bench_filter_mode(scenario, filters, runs, seed, steps)
-    return bench_tracker_mode(scenario, filters, runs, seed, steps)
+        out = bench_filter_mode(scenario, filters, runs, seed, steps)
+        if record is not None:
+            r, sinks, info = record
+            run_trackers(scenario, filters, generate_run(scenario, data_rng(seed, r), steps),
+                         seed, r, sinks, info)
+        return out
+    return bench_tracker_mode(scenario, filters, runs, seed, steps, record)

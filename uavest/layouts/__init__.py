@@ -13,10 +13,12 @@ per panel id ``"<PanelType>!<id>"``, and a ``layout`` mosaic tree of ``direction
 from __future__ import annotations
 
 import json
+import re
 import zlib
 from importlib import resources
 
-__all__ = ["COLOURS", "REFERENCE_COLOUR", "build_layout", "colour", "layout_text", "shipped"]
+__all__ = ["COLOURS", "REFERENCE_COLOUR", "build_layout", "colour", "layout_text", "mpath",
+           "shipped"]
 
 #: Fixed colours of the usual estimator labels (hex RGB); any other label takes a colour
 #: of :data:`_CYCLE` chosen by a CRC of its name, so every process (recorder, layout,
@@ -39,6 +41,18 @@ def colour(label: str) -> str:
     if label in COLOURS:
         return COLOURS[label]
     return _CYCLE[zlib.crc32(label.encode()) % len(_CYCLE)]
+
+
+_PLAIN_TOPIC = re.compile(r"^(/[A-Za-z0-9_-]*)+$")
+
+
+def mpath(topic: str, fields: str) -> str:
+    """A Foxglove message path ``<topic>.<fields>``: the topic as it is when it is made of
+    ``/``-separated ``[A-Za-z0-9_-]`` names, else double-quoted (Foxglove's message-path
+    grammar; a label such as ``track:ekf`` or ``ukf(alpha=0.5)`` needs the quotes)."""
+    if not _PLAIN_TOPIC.match(topic):
+        topic = '"' + topic.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    return f"{topic}.{fields}"
 
 
 def _plot(title: str, paths: list[tuple[str, str, str]], ylabel: str = "",
@@ -97,15 +111,33 @@ def _column(ids: list[str]) -> str | dict:
 
 
 def build_layout(labels: list[str] | tuple[str, ...], kind: str = "attitude",
-                 follow: str | None = None) -> dict:
+                 follow: str | None = None, dim: int = 1,
+                 track_labels: list[str] | tuple[str, ...] = ()) -> dict:
     """The Foxglove layout (a JSON-ready dict) for estimators ``labels``.
 
     ``kind="attitude"``: the 3-D panel (every filter's body frame and the truth's side by
     side), roll/pitch/yaw error plots each with every filter's +-3 sigma bounds (deg), the
     NEES and NIS plots, and the event log. ``kind="radar"``: the 3-D panel with the
     detections, the truths and every tracker's tracks, and the track-count plot.
+    ``kind="state"`` (generic vector states, ``uavest bench --mcap``): per component
+    (``dim`` of them, at most 6) the error plot with every filter's +-3 sigma, x[0] of the
+    truth and the estimates, NEES, NIS and the event log.
+    ``kind="attitude+radar"`` (a live run with filters and trackers): the attitude layout
+    for ``labels`` beside a radar 3-D panel and the track-count plot for
+    ``track_labels``.
     ``follow``: the frame the 3-D view follows (default ``body_truth`` / ``world``)."""
     labels = list(labels)
+    if kind == "attitude+radar":
+        att = build_layout(labels, "attitude", follow)
+        rad = build_layout(list(track_labels), "radar")
+        cfg = dict(att["configById"])
+        cfg["3D!uavest3d_radar"] = rad["configById"]["3D!uavest3d"]
+        cfg["Plot!uavest_tracks"] = rad["configById"]["Plot!uavest_tracks"]
+        att["configById"] = cfg
+        att["layout"] = _split("row", att["layout"],
+                               _split("column", "3D!uavest3d_radar", "Plot!uavest_tracks",
+                                      60.0), 70.0)
+        return att
     cfg: dict[str, dict] = {}
     if kind == "attitude":
         topics = ["/attitude/bodies"] + [f"/tf/{lab}" for lab in labels]
@@ -116,19 +148,19 @@ def build_layout(labels: list[str] | tuple[str, ...], kind: str = "attitude",
             for lab in labels:
                 c = colour(lab)
                 base = f"/attitude/{lab}/error"
-                paths += [(f"{base}.err_deg.{ax}", f"{lab} error", c),
-                          (f"{base}.sigma3_deg.{ax}", f"{lab} +3 sigma", c + "80"),
-                          (f"{base}.neg_sigma3_deg.{ax}", f"{lab} -3 sigma", c + "80")]
+                paths += [(mpath(base, f"err_deg.{ax}"), f"{lab} error", c),
+                          (mpath(base, f"sigma3_deg.{ax}"), f"{lab} +3 sigma", c + "80"),
+                          (mpath(base, f"neg_sigma3_deg.{ax}"), f"{lab} -3 sigma", c + "80")]
             pid = f"Plot!uavest_err_{ax}"
             cfg[pid] = _plot(f"{ax} error vs reference (deg), +-3 sigma", paths, "deg")
             plots.append(pid)
         cfg["Plot!uavest_nees"] = _plot(
             "attitude NEES (3 dof; 95% band of one step 0.22..9.35)",
-            [(f"/attitude/{lab}/error.nees", lab, colour(lab)) for lab in labels],
+            [(mpath(f"/attitude/{lab}/error", "nees"), lab, colour(lab)) for lab in labels],
             "NEES", 0.0, 30.0)
         cfg["Plot!uavest_nis"] = _plot(
             "NIS of the step's updates (dof in .nis_dof)",
-            [(f"/attitude/{lab}/health.nis", lab, colour(lab)) for lab in labels],
+            [(mpath(f"/attitude/{lab}/health", "nis"), lab, colour(lab)) for lab in labels],
             "NIS", 0.0, 50.0)
         cfg["RosOut!uavest_log"] = {"searchTerms": [], "minLogLevel": 1,
                                     "foxglovePanelTitle": "events (/log)"}
@@ -142,15 +174,47 @@ def build_layout(labels: list[str] | tuple[str, ...], kind: str = "attitude",
         cfg["3D!uavest3d"] = td
         cfg["Plot!uavest_tracks"] = _plot(
             "confirmed tracks per tracker (truth: /radar/truth/state.n)",
-            [(f"/tracks/{lab}/state.n_confirmed", lab, colour(lab)) for lab in labels]
+            [(mpath(f"/tracks/{lab}/state", "n_confirmed"), lab, colour(lab)) for lab in labels]
             + [("/radar/truth/state.n", "truth", REFERENCE_COLOUR)], "tracks")
         cfg["RosOut!uavest_log"] = {"searchTerms": [], "minLogLevel": 1,
                                     "foxglovePanelTitle": "events (/log)"}
         layout = _split("row", "3D!uavest3d",
                         _split("column", "Plot!uavest_tracks", "RosOut!uavest_log", 60.0),
                         65.0)
+    elif kind == "state":
+        plots = []
+        for i in range(max(1, min(int(dim), 6))):  # one error plot per state component
+            paths = []
+            for lab in labels:
+                c = colour(lab)
+                base = f"/state/{lab}/error"
+                paths += [(mpath(base, f"err[{i}]"), f"{lab} error", c),
+                          (mpath(base, f"sigma3[{i}]"), f"{lab} +3 sigma", c + "80"),
+                          (mpath(base, f"neg_sigma3[{i}]"), f"{lab} -3 sigma", c + "80")]
+            pid = f"Plot!uavest_err_x{i}"
+            cfg[pid] = _plot(f"x[{i}] error (estimate - truth), +-3 sigma", paths)
+            plots.append(pid)
+        cfg["Plot!uavest_state"] = _plot(
+            "x[0]: truth and estimates",
+            [("/truth/state.x[0]", "truth", REFERENCE_COLOUR)]
+            + [(mpath(f"/state/{lab}/estimate", "x[0]"), lab, colour(lab))
+               for lab in labels], "x[0]")
+        cfg["Plot!uavest_nees"] = _plot(
+            f"NEES ({dim} dof)",
+            [(mpath(f"/state/{lab}/error", "nees"), lab, colour(lab)) for lab in labels],
+            "NEES", 0.0)
+        cfg["Plot!uavest_nis"] = _plot(
+            "NIS of the step's updates (dof in .nis_dof)",
+            [(mpath(f"/state/{lab}/health", "nis"), lab, colour(lab)) for lab in labels],
+            "NIS", 0.0)
+        cfg["RosOut!uavest_log"] = {"searchTerms": [], "minLogLevel": 1,
+                                    "foxglovePanelTitle": "events (/log)"}
+        left = _split("column", "Plot!uavest_state", "RosOut!uavest_log", 70.0)
+        layout = _split("row", left, _column(plots + ["Plot!uavest_nees", "Plot!uavest_nis"]),
+                        40.0)
     else:
-        raise ValueError(f"layout kind must be attitude or radar, not {kind!r}")
+        raise ValueError("layout kind must be attitude, radar, attitude+radar or state, "
+                         f"not {kind!r}")
     return {
         "configById": cfg,
         "globalVariables": {},
@@ -161,9 +225,10 @@ def build_layout(labels: list[str] | tuple[str, ...], kind: str = "attitude",
     }
 
 
-def layout_text(labels, kind: str = "attitude", follow: str | None = None) -> str:
+def layout_text(labels, kind: str = "attitude", follow: str | None = None,
+                dim: int = 1, track_labels=()) -> str:
     """:func:`build_layout` as indented JSON text."""
-    return json.dumps(build_layout(labels, kind, follow), indent=2) + "\n"
+    return json.dumps(build_layout(labels, kind, follow, dim, track_labels), indent=2) + "\n"
 
 
 def shipped(kind: str = "attitude") -> str:

@@ -30,13 +30,18 @@ from .read import Recording, read_recording
 
 Array = np.ndarray
 
-__all__ = ["ATTITUDE_FIGURES", "RADAR_FIGURES", "attitude_data", "write_report"]
+__all__ = ["ATTITUDE_FIGURES", "RADAR_FIGURES", "STATE_FIGURES", "attitude_data",
+           "state_data", "state_metrics", "write_report"]
 
 #: Figure ids of an attitude report, in page order.
 ATTITUDE_FIGURES = ("fig-attitude", "fig-errors", "fig-nees", "fig-nis", "fig-trajectory",
                     "fig-timing", "fig-resets")
 #: Figure ids of a radar report, in page order.
 RADAR_FIGURES = ("fig-tracks-top", "fig-gospa", "fig-track-count", "fig-timing",
+                 "fig-resets")
+
+#: Figure ids of a generic vector-state report (``uavest bench --mcap``), in page order.
+STATE_FIGURES = ("fig-state", "fig-errors", "fig-nees", "fig-nis", "fig-timing",
                  "fig-resets")
 
 _AX = ("roll", "pitch", "yaw")
@@ -91,7 +96,44 @@ def attitude_data(rec: Recording) -> dict:
         if msgs:
             out["positions"][topic.split("/", 2)[2]] = (_stack(msgs, "t"),
                                                        _stack(msgs, "ned_m", 3))
+    if not out["positions"]:  # only lat/lon/alt (a live link's GLOBAL_POSITION_INT)
+        fixes = {}
+        for topic in rec.topics("/position/"):
+            msgs = [m for m in rec.json.get(topic, []) if m.get("lat_lon_alt")
+                    and None not in m["lat_lon_alt"]]
+            if msgs:
+                fixes[topic.split("/", 2)[2]] = (_stack(msgs, "t"),
+                                                 _stack(msgs, "lat_lon_alt", 3))
+        # one origin for every source: the earliest fix of the preferred one
+        order = sorted(fixes, key=lambda src: (_LLA_ORDER.index(src) if src in _LLA_ORDER
+                                               else len(_LLA_ORDER), src))
+        origin = fixes[order[0]][1][0] if order else None
+        for src in order:
+            t, lla = fixes[src]
+            out["positions"][src + " (lat/lon/alt)"] = (t, lla_to_local_ned(lla, origin))
     return out
+
+
+#: Preference among lat/lon/alt sources for the origin of the trajectory (the fused
+#: position before the raw GPS).
+_LLA_ORDER = ("GLOBAL_POSITION_INT", "vehicle_global_position", "POS", "GPS_RAW_INT",
+              "GPS", "vehicle_gps_position")
+
+
+def lla_to_local_ned(lla: Array, origin: Array | None = None) -> Array:
+    """NED (K, 3) m of fixes ``lla`` (K, 3) [lat deg, lon deg, alt m] in the local
+    tangent plane at ``origin`` [lat deg, lon deg, alt m] (default: the first fix), WGS84
+    through ECEF (:class:`uavest.sim.geo.LocalFrame`; the altitude is taken as the
+    ellipsoidal height, which moves only the origin's height). A tangent plane, not a
+    map projection: fine for a flight of a few km (at a distance d the plane's "down"
+    is d^2 / (2 R) below the sphere, 0.08 m at 1 km, 8 m at 10 km)."""
+    from ..sim.geo import LocalFrame
+
+    lla = np.asarray(lla, float).reshape(-1, 3)
+    if not len(lla):
+        return np.zeros((0, 3))
+    o = lla[0] if origin is None else np.asarray(origin, float)
+    return LocalFrame(*o).geodetic_to_ned(lla[:, 0], lla[:, 1], lla[:, 2])
 
 
 class _Ref:
@@ -152,6 +194,188 @@ def _moving_mean(x: Array, w: int) -> Array:
     cnt = n[i] - n[j]
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(cnt > 0, (c[i] - c[j]) / np.maximum(cnt, 1), np.nan)
+
+
+# ------------------------------------------------------------------- generic states
+
+
+def state_data(rec: Recording) -> dict:
+    """Generic vector-state runs (``uavest bench --mcap``): per filter ``t`` (K,), ``k``
+    (K,), ``x`` (K, n), ``P`` (K, n, n), ``nis``, ``nis_dof``, ``resets``, ``wall_us``
+    (K,); the truth ``truth = (t, k, x (T, n))`` from ``/truth/state`` (or None) and the
+    measurements ``meas = (t, z (T, m))`` from ``/measurement/z`` (or None)."""
+    out: dict = {"filters": {}, "truth": None, "meas": None}
+    labels = [t.split("/")[2] for t in rec.topics("/state/", "/estimate")]
+    info = rec.json.get("/run/info") or [{}]
+    order = list(info[0].get("filters") or rec.metadata.get("filters", {}))
+    labels = [lab for lab in order if lab in labels] + [lab for lab in labels
+                                                        if lab not in order]
+    for lab in labels:
+        est = rec.json.get(f"/state/{lab}/estimate", [])
+        hl = rec.json.get(f"/state/{lab}/health", [])
+        m = min(len(est), len(hl))
+        est, hl = est[:m], hl[:m]
+        n = int(est[0]["n"]) if est else 0
+        out["filters"][lab] = {
+            "t": _stack(est, "t"), "k": _stack(est, "k"), "x": _stack(est, "x", n),
+            "P": _stack(est, "P", n * n).reshape(m, n, n),
+            "nis": _stack(hl, "nis"), "nis_dof": _stack(hl, "nis_dof"),
+            "resets": _stack(hl, "resets"), "wall_us": _stack(hl, "wall_us")}
+    tr = rec.json.get("/truth/state", [])
+    if tr:
+        n = len(tr[0]["x"])
+        out["truth"] = (_stack(tr, "t"), _stack(tr, "k"), _stack(tr, "x", n))
+    zm = rec.json.get("/measurement/z", [])
+    if zm:
+        out["meas"] = (_stack(zm, "t"), _stack(zm, "z", len(zm[0]["z"])))
+    return out
+
+
+def state_metrics(data: dict) -> tuple[dict, dict]:
+    """(rows per filter, per-step series) of a generic-state recording, recomputed from
+    the file: the estimates matched to the truth by step number k, error e = estimate -
+    truth, ``rmse`` = sqrt(mean_k ||e_k||^2) (as the Monte Carlo trial's), per-component
+    RMSE ``rmse_x<i>``, ``nees_mean`` (e^T P^-1 e, n dof), ``frac_in_3sigma`` (steps with
+    every |e_i| <= 3 sqrt(P_ii)), mean NIS and its dof, resets, us per step."""
+    from ..eval.metrics import nees, rmse
+
+    rows, series = {}, {}
+    truth = data["truth"]
+    by_k = ({int(k): i for i, k in enumerate(truth[1])} if truth is not None else {})
+    for lab, f in data["filters"].items():
+        row: dict = {"steps": int(len(f["t"]))}
+        s: dict = {"t": f["t"]}
+        n = f["x"].shape[1] if f["x"].ndim == 2 else 0
+        idx = np.array([by_k.get(int(k), -1) for k in f["k"]], int)
+        mk = idx >= 0
+        if truth is not None and mk.any() and truth[2].shape[1] == n:
+            e = np.full_like(f["x"], np.nan)
+            e[mk] = f["x"][mk] - truth[2][idx[mk]]
+            with np.errstate(invalid="ignore"):
+                sig3 = 3.0 * np.sqrt(np.einsum("kii->ki", f["P"]))
+            ne = np.full(len(f["t"]), np.nan)
+            ne[mk] = nees(e[mk], f["P"][mk])
+            s.update(mask=mk, err=e, sig3=sig3, nees=ne)
+            row["rmse"] = rmse(e[mk])
+            for i in range(n):
+                row[f"rmse_x{i}"] = float(np.sqrt(np.mean(e[mk, i] ** 2)))
+            row["nees_mean"] = float(np.mean(ne[mk]))
+            row["nees_dof"] = n
+            row["frac_in_3sigma"] = float(np.mean(np.all(np.abs(e[mk]) <= sig3[mk], axis=1)))
+        ok = np.isfinite(f["nis"])
+        if ok.any():
+            row["nis_mean"] = float(np.mean(f["nis"][ok]))
+            row["nis_dof_mean"] = float(np.mean(f["nis_dof"][ok]))
+        row["resets"] = int(np.nanmax(f["resets"])) if len(f["resets"]) else 0
+        row["us_per_step"] = float(np.nanmean(f["wall_us"])) if len(f["wall_us"]) else math.nan
+        rows[lab] = row
+        series[lab] = s
+    return rows, {"series": series}
+
+
+def _state_figures(data: dict, rows: dict, m: dict, events: list) -> list[tuple]:
+    from scipy.stats import chi2
+
+    plt = _plt()
+    S = m["series"]
+    figs = []
+    n = max((f["x"].shape[1] for f in data["filters"].values() if f["x"].ndim == 2),
+            default=1)
+    nc = max(1, min(n, 6))  # components drawn
+    truth = data["truth"]
+    # state over time: truth, estimates (and a 1-D measurement)
+    fig, axs = plt.subplots(nc, 1, figsize=(12, 2.6 * nc + 1), sharex=True, squeeze=False)
+    axs = axs[:, 0]
+    for i, ax in enumerate(axs):
+        if truth is not None:
+            ax.plot(truth[0], truth[2][:, i], color=REFERENCE_COLOUR, lw=1.4, label="truth")
+        for lab, f in data["filters"].items():
+            ax.plot(f["t"], f["x"][:, i], color=colour(lab), lw=0.9, label=lab)
+        ax.set_ylabel(f"x[{i}]")
+        ax.grid(alpha=0.3)
+    axs[0].legend(loc="upper right", fontsize=8, ncol=4)
+    axs[-1].set_xlabel("time t (s)")
+    fig.suptitle("State of every filter and the truth (black)")
+    figs.append(("fig-state", "State", _fig_png(fig),
+                 "Each state component of every filter's estimate and the truth."))
+    # errors with own 3 sigma
+    fig, axs = plt.subplots(nc, 1, figsize=(12, 2.8 * nc + 1), sharex=True, squeeze=False)
+    axs = axs[:, 0]
+    for lab, s in S.items():
+        if "err" not in s:
+            continue
+        mk, c = s["mask"], colour(lab)
+        for i, ax in enumerate(axs):
+            t = s["t"][mk]
+            ax.plot(t, s["err"][mk, i], color=c, lw=0.9,
+                    label=f"{lab} error (RMSE {rows[lab].get(f'rmse_x{i}', math.nan):.3g})")
+            ax.plot(t, s["sig3"][mk, i], color=c, lw=0.8, ls="--")
+            ax.plot(t, -s["sig3"][mk, i], color=c, lw=0.8, ls="--",
+                    label=f"{lab} +-3 sigma" if i == 0 else None)
+    for i, ax in enumerate(axs):
+        ax.set_ylabel(f"x[{i}] error")
+        ax.grid(alpha=0.3)
+        lim = [np.nanpercentile(np.abs(s["err"][s["mask"], i]), 99.5) * 3
+               for s in S.values() if "err" in s and s["mask"].any()]
+        if lim and np.isfinite(max(lim)) and max(lim) > 0:
+            ax.set_ylim(-max(lim), max(lim))
+        ax.legend(loc="upper right", fontsize=7, ncol=3)
+    axs[-1].set_xlabel("time t (s)")
+    fig.suptitle("Error (estimate - truth) per component with each filter's own +-3 sigma "
+                 "(dashed)")
+    figs.append(("fig-errors", "Errors with +-3 sigma", _fig_png(fig),
+                 "Per-component error (solid) and the filter's own +-3 sqrt(P_ii) "
+                 "(dashed)."))
+    # NEES with its chi-square band (n dof per step)
+    fig, ax = plt.subplots(figsize=(12, 4))
+    have = False
+    for lab, s in S.items():
+        if "nees" in s:
+            have = True
+            ax.plot(s["t"], s["nees"], ".-", ms=3, lw=0.6, color=colour(lab),
+                    label=f"{lab} (mean {rows[lab]['nees_mean']:.3g})")
+    if have:
+        lo, hi = chi2.ppf([0.025, 0.975], n)
+        ax.axhspan(lo, hi, color="grey", alpha=0.2,
+                   label=f"95% chi-square band of one step ({n} dof)")
+        ax.axhline(float(n), color="k", lw=0.8, ls=":", label=f"expected {n}")
+        ax.set_yscale("log")
+        ax.legend(loc="upper right", fontsize=8)
+    else:
+        ax.text(0.5, 0.5, "no truth in this recording: NEES needs truth", ha="center",
+                va="center", transform=ax.transAxes)
+    ax.set_xlabel("time t (s)")
+    ax.set_ylabel(f"NEES ({n} dof)")
+    ax.grid(alpha=0.3)
+    ax.set_title("NEES per step against the truth, with the chi-square 95% band")
+    figs.append(("fig-nees", "NEES", _fig_png(fig),
+                 f"NEES e^T P^-1 e per step ({n} dof) and the 95% band of one step."))
+    # NIS
+    fig, ax = plt.subplots(figsize=(12, 4))
+    dofm = []
+    for lab, f in data["filters"].items():
+        nis, dof = f["nis"], f["nis_dof"]
+        ok = np.isfinite(nis) & (dof > 0)
+        if ok.any():
+            ax.plot(f["t"], np.where(ok, nis, np.nan), ".-", ms=3, lw=0.6, color=colour(lab),
+                    label=f"{lab} (mean {rows[lab]['nis_mean']:.3g})")
+            dofm.append(float(np.mean(dof[ok])))
+    if dofm:
+        dm = float(np.mean(dofm))
+        lo, hi = chi2.ppf([0.025, 0.975], dm)
+        ax.axhspan(lo, hi, color="grey", alpha=0.2, label=f"95% band ({dm:g} dof)")
+        ax.set_yscale("log")
+        ax.legend(loc="upper right", fontsize=8)
+    ax.set_xlabel("time t (s)")
+    ax.set_ylabel("NIS")
+    ax.grid(alpha=0.3)
+    ax.set_title("NIS of each step's update with the chi-square band")
+    figs.append(("fig-nis", "NIS", _fig_png(fig), "Normalised innovation squared per step."))
+    figs.append(_timing_fig({lab: (f["t"], f["wall_us"]) for lab, f in data["filters"].items()},
+                            "filter step"))
+    figs.append(_resets_fig({lab: (f["t"], f["resets"]) for lab, f in data["filters"].items()},
+                            events))
+    return figs
 
 
 # ------------------------------------------------------------------------------ radar
@@ -351,9 +575,11 @@ def _attitude_figures(data: dict, rows: dict, m: dict, events: list) -> list[tup
     # trajectory
     fig, ax = plt.subplots(figsize=(7, 7))
     if data["positions"]:
-        for src, (_t, ned) in data["positions"].items():
-            ax.plot(ned[:, 1], ned[:, 0], color=REFERENCE_COLOUR, lw=1.0, label=src)
-            ax.plot(ned[:1, 1], ned[:1, 0], "o", color="g", label="start")
+        styles = [(REFERENCE_COLOUR, "-", 1.2), ("#888888", "--", 0.9), ("#bbbbbb", ":", 0.9)]
+        for j, (src, (_t, ned)) in enumerate(data["positions"].items()):
+            col, ls, lw = styles[min(j, len(styles) - 1)]
+            ax.plot(ned[:, 1], ned[:, 0], color=col, ls=ls, lw=lw, label=src)
+            ax.plot(ned[:1, 1], ned[:1, 0], "o", color="g", label="start" if j == 0 else None)
         ax.set_aspect("equal", adjustable="datalim")
         ax.legend(fontsize=8)
     else:
@@ -362,9 +588,17 @@ def _attitude_figures(data: dict, rows: dict, m: dict, events: list) -> list[tup
     ax.set_xlabel("east (m)")
     ax.set_ylabel("north (m)")
     ax.grid(alpha=0.3)
-    ax.set_title("Vehicle trajectory, top view (local NED origin)")
+    from_lla = any(src.endswith("(lat/lon/alt)") for src in data["positions"])
+    ax.set_title("Vehicle trajectory, top view (" + (
+        "local NED at the first fix, from lat/lon/alt" if from_lla else "local NED origin")
+        + ")")
     figs.append(("fig-trajectory", "Trajectory", _fig_png(fig),
-                 "Vehicle position from the log (top view, east/north in m)."))
+                 "Vehicle position from the log (top view, east/north in m)" + (
+                     "; no local NED position was recorded, so the lat/lon/alt fixes are "
+                     "shown in the local tangent plane at the first fix (of the fused "
+                     "position when there is one), the same origin for every source"
+                     if from_lla
+                     else "") + "."))
     figs.append(_timing_fig({lab: (f["t"], f["wall_us"]) for lab, f in data["filters"].items()},
                             "filter step"))
     figs.append(_resets_fig({lab: (f["t"], f["resets"]) for lab, f in data["filters"].items()},
@@ -556,8 +790,8 @@ def write_report(mcap_path: str | Path, out_dir: str | Path | None = None) -> di
     out.mkdir(parents=True, exist_ok=True)
     rec = read_recording(mcap_path)
     events = _events(rec)
-    kinds = [k for k, topic in (("attitude", "/attitude/"), ("radar", "/tracks/"))
-             if rec.topics(topic)] or ["attitude"]
+    kinds = [k for k, topic in (("attitude", "/attitude/"), ("radar", "/tracks/"),
+                                ("state", "/state/")) if rec.topics(topic)] or ["attitude"]
     kind = "+".join(kinds)  # a live run (uavest demo) records both
     sections = []  # (title, rows, cols)
     figs: list = []
@@ -571,6 +805,16 @@ def write_report(mcap_path: str | Path, out_dir: str | Path | None = None) -> di
             cols = ["roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg", "n", "nees_mean",
                     "frac_in_3sigma", "nis_mean", "nis_dof_mean", "resets", "us_per_step"]
             extra.update(reference=m["reference"], reference_kind=m["reference_kind"])
+        elif kd == "state":
+            data = state_data(rec)
+            rows, m = state_metrics(data)
+            kf = _state_figures(data, rows, m, events)
+            n = max((r.get("nees_dof", 0) for r in rows.values()), default=0)
+            cols = (["rmse"] + [f"rmse_x{i}" for i in range(min(n, 6))]
+                    + ["nees_mean", "nees_dof", "frac_in_3sigma", "nis_mean", "nis_dof_mean",
+                       "resets", "us_per_step", "steps"])
+            cfg = rec.metadata.get("config", {})
+            extra.update({k: json.loads(cfg[k]) for k in ("scenario", "trial") if k in cfg})
         else:
             data = radar_data(rec)
             cfg = rec.metadata.get("config", {})

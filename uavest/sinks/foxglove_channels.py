@@ -26,6 +26,7 @@ from __future__ import annotations
 import base64
 import json
 import math
+import re
 import time
 from bisect import bisect_right
 from collections import deque
@@ -65,8 +66,8 @@ from ..layouts import REFERENCE_COLOUR, colour
 Array = np.ndarray
 
 __all__ = [
-    "Publisher", "RadarScanSample", "SCHEMAS", "euler_sigma_deg", "ned_frd_to_enu_flu",
-    "b64_floats", "quat_to_rpy_deg", "triu_to_full",
+    "DEFAULT_FRAME_RATE_HZ", "Publisher", "RadarScanSample", "SCHEMAS", "StateSample",
+    "euler_sigma_deg", "ned_frd_to_enu_flu", "b64_floats", "quat_to_rpy_deg", "triu_to_full",
 ]
 
 _S2 = math.sqrt(0.5)
@@ -95,6 +96,23 @@ class RadarScanSample:
     model: Any
     origins: Array | None = None
     truths: Array | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class StateSample:
+    """One step of a generic vector-state run (a Monte Carlo trial of the benchmark
+    systems: UNGM, nonlinear2d, linear_cv) as a sample for sinks, handed with the step
+    through ``Step.info["samples"]`` before the estimators step: step ``k`` at ``t`` (s),
+    the true state ``x`` (n,) (None when unknown) and the step's measurement ``z`` (m,)
+    (None without one), in the system's own units. A recorder that sees one records the
+    run's :class:`~uavest.engine.records.StepRecord` s on the generic ``/state/<label>/*``
+    channels (state = plain vector, covariance in the same coordinates) instead of the
+    attitude ones."""
+
+    t: float
+    k: int
+    x: Array | None = None
+    z: Array | None = None
 
 
 # ------------------------------------------------------------------------- conversions
@@ -145,19 +163,19 @@ def _qexp(v) -> tuple[float, float, float, float]:
     return (math.cos(0.5 * th), s * x, s * y, s * z)
 
 
-def _nees3(q, q_ref, P3) -> float:
+def _nees3(q, q_ref, P) -> float:
     """e^T P3^-1 e with e = Log(q^-1 q_ref) (as :func:`uavest.eval.attitude.nees_attitude`;
-    P3 a 3x3 nested list, solved by Cramer's rule)."""
+    P3 the upper-left 3x3 block of ``P`` (nested lists, the attitude block), solved by
+    Cramer's rule)."""
     w, x, y, z = q
-    e = _qlog(_qmul((w, -x, -y, -z), q_ref))
-    (a, b, c), (d, f, g), (h, i, j) = P3
+    e0, e1, e2 = _qlog(_qmul((w, -x, -y, -z), q_ref))
+    (a, b, c), (d, f, g), (h, i, j) = P[0][:3], P[1][:3], P[2][:3]
     det = a * (f * j - g * i) - b * (d * j - g * h) + c * (d * i - f * h)
     if det == 0.0 or not math.isfinite(det):
         return math.nan
-    inv = ((f * j - g * i, c * i - b * j, b * g - c * f),
-           (g * h - d * j, a * j - c * h, c * d - a * g),
-           (d * i - f * h, b * h - a * i, a * f - b * d))
-    return sum(e[r] * sum(inv[r][k] * e[k] for k in range(3)) for r in range(3)) / det
+    return (e0 * ((f * j - g * i) * e0 + (c * i - b * j) * e1 + (b * g - c * f) * e2)
+            + e1 * ((g * h - d * j) * e0 + (a * j - c * h) * e1 + (c * d - a * g) * e2)
+            + e2 * ((d * i - f * h) * e0 + (b * h - a * i) * e1 + (a * f - b * d) * e2)) / det
 
 
 def quat_to_rpy_deg(q) -> tuple[float, float, float]:
@@ -168,6 +186,17 @@ def quat_to_rpy_deg(q) -> tuple[float, float, float]:
     pitch = math.asin(min(max(2 * (w * y - x * z), -1.0), 1.0))
     yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
     return math.degrees(roll), math.degrees(pitch), math.degrees(yaw)
+
+
+_DEG = 180.0 / math.pi
+
+
+def _rpy(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
+    """:func:`quat_to_rpy_deg` of Python floats (the recorder's hot path)."""
+    s = 2.0 * (w * y - x * z)
+    return (_DEG * math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y)),
+            _DEG * math.asin(1.0 if s > 1.0 else (-1.0 if s < -1.0 else s)),
+            _DEG * math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
 
 
 def euler_sigma_deg(q: Array, P: Array) -> Array:
@@ -195,22 +224,25 @@ def euler_sigma_deg(q: Array, P: Array) -> Array:
 
 
 def _sigma3_scalar(rpy_deg, P) -> tuple[float, float, float]:
-    r, p = math.radians(rpy_deg[0]), math.radians(rpy_deg[1])
-    sr, cr, tp, cp = math.sin(r), math.cos(r), math.tan(p), math.cos(p)
+    """3-sigma (deg) of roll, pitch, yaw: :func:`euler_sigma_deg` for one attitude given
+    its Euler angles (deg) and the tangent covariance ``P`` (nested lists, >= 3x3),
+    written out (W has zeros at [1][0] and [2][0])."""
+    r, p = rpy_deg[0] / _DEG, rpy_deg[1] / _DEG
+    sr, cr, cp = math.sin(r), math.cos(r), math.cos(p)
     if abs(cp) < 1e-12:  # gimbal lock: the Euler bounds are unbounded
         return math.inf, math.inf, math.inf
-    W = ((1.0, sr * tp, cr * tp), (0.0, cr, -sr), (0.0, sr / cp, cr / cp))
-    out = []
-    for w in W:
-        v = 0.0
-        for i in range(3):
-            if w[i] == 0.0:
-                continue
-            for j in range(3):
-                v += w[i] * P[i][j] * w[j]
-        out.append(3.0 * math.degrees(math.sqrt(v)) if v >= 0.0 else
-                   (0.0 if v > -1e-300 else math.nan))
-    return out[0], out[1], out[2]
+    tp = math.sin(p) / cp
+    (p00, p01, p02), (p10, p11, p12), (p20, p21, p22) = P[0][:3], P[1][:3], P[2][:3]
+    b, c = sr * tp, cr * tp  # roll row (1, b, c)
+    v0 = p00 + b * (p01 + p10) + c * (p02 + p20) + b * b * p11 + b * c * (p12 + p21) \
+        + c * c * p22
+    v1 = cr * cr * p11 - cr * sr * (p12 + p21) + sr * sr * p22  # pitch row (0, cr, -sr)
+    b, c = sr / cp, cr / cp  # yaw row (0, b, c)
+    v2 = b * b * p11 + b * c * (p12 + p21) + c * c * p22
+    k = 3.0 * _DEG  # a rounding-level negative variance counts as 0
+    return (k * math.sqrt(v0) if v0 >= 0.0 else (0.0 if v0 > -1e-300 else math.nan),
+            k * math.sqrt(v1) if v1 >= 0.0 else (0.0 if v1 > -1e-300 else math.nan),
+            k * math.sqrt(v2) if v2 >= 0.0 else (0.0 if v2 > -1e-300 else math.nan))
 
 
 def _wrap180(a: float) -> float:
@@ -309,6 +341,29 @@ SCHEMAS: dict[str, dict] = {
             "n_tentative": {"type": "integer"}, "tracks": {"type": "array"},
             "deleted": {"type": "array"}, "resets": {"type": "integer"},
             "wall_us": _NUM}, ["t", "k", "tracks"]),
+    "uavest.StateEstimate": _obj(
+        "uavest.StateEstimate", "a filter's posterior of a generic vector state (the "
+        "system's own units): x (n,), per-component 3-sigma 3 sqrt(P_ii), P (n x n, "
+        "row-major; the same coordinates as x)", {
+            "t": _NUM, "k": {"type": "integer"}, "n": {"type": "integer"},
+            "x": {"type": "array", "items": _NUM}, "sigma3": {"type": "array", "items": _NUM},
+            "P": {"type": "array", "items": _NUM}}, ["t", "k", "x", "P"]),
+    "uavest.StateError": _obj(
+        "uavest.StateError", "estimate - truth of a generic vector state per component, "
+        "the filter's own +-3 sigma per component (3 sqrt(P_ii)), NEES e^T P^-1 e with "
+        "dof = n (truth of the same step)", {
+            "t": _NUM, "k": {"type": "integer"}, "err": {"type": "array", "items": _NUM},
+            "sigma3": {"type": "array", "items": _NUM},
+            "neg_sigma3": {"type": "array", "items": _NUM}, "nees": _NUM,
+            "dof": {"type": "integer"}}, ["t", "k", "err", "sigma3", "nees"]),
+    "uavest.StateTruth": _obj(
+        "uavest.StateTruth", "the true state of a simulated run at step k (system units)", {
+            "t": _NUM, "k": {"type": "integer"}, "x": {"type": "array", "items": _NUM}},
+        ["t", "k", "x"]),
+    "uavest.Measurement": _obj(
+        "uavest.Measurement", "the measurement z of step k (system units)", {
+            "t": _NUM, "k": {"type": "integer"}, "z": {"type": "array", "items": _NUM}},
+        ["t", "k", "z"]),
     "uavest.RunInfo": _obj("uavest.RunInfo", "the run (also in the MCAP metadata)", {
         "command": {"type": "string"}, "source": {"type": "string"},
         "seed": {"type": "integer"}, "filters": {"type": "object"},
@@ -364,6 +419,35 @@ def _ref_rank(source: str, kind: str) -> tuple:
 
 # --------------------------------------------------------------------------- publisher
 
+#: Default limit (Hz of data time) of the 3-D channels per estimator and reference of the
+#: recording and live sinks: Foxglove's 3-D panel needs no more, and at a 248 Hz filter
+#: rate the FrameTransform and PoseInFrame messages were 2 of the 5 per filter step.
+DEFAULT_FRAME_RATE_HZ = 30.0
+
+#: ``uavest.AttitudeEstimate`` up to ``"sigma3_deg":`` (t, k, q, bias exact; Euler deg
+#: derived, 10 digits).
+_EST_TPL = ('{"t":%.17g,"k":%d,"q":[%.17g,%.17g,%.17g,%.17g],"bias_rad_s":[%.17g,%.17g,'
+            '%.17g],"rpy_deg":{"roll":%.10g,"pitch":%.10g,"yaw":%.10g},"sigma3_deg":')
+
+
+class _Lane:
+    """One attitude estimator's channels (made once; the record hot path)."""
+
+    __slots__ = ("label", "t_est", "t_health", "t_err", "est", "health", "err", "frame",
+                 "offset", "key", "last_frame")
+
+    def __init__(self, label: str, offset: float) -> None:
+        self.label = label
+        self.t_est = f"/attitude/{label}/estimate"
+        self.t_health = f"/attitude/{label}/health"
+        self.t_err = f"/attitude/{label}/error"
+        self.est = self.health = self.err = None
+        self.frame = f"body_{label}"
+        self.offset = offset
+        self.key = "lab:" + label
+        self.last_frame: float | None = None
+
+
 
 class Publisher:
     """Turns samples and records into Foxglove messages on channels of one context.
@@ -386,11 +470,12 @@ class Publisher:
         self.only_subscribed = only_subscribed
         self.channels: dict[str, Any] = {}
         self.labels: list[str] = []
-        self.kind: str | None = None  # "attitude" | "radar"
+        self.kind: str | None = None  # "attitude" | "radar" | "attitude+radar" | "state"
         self.refs: dict[str, _RefSeries] = {}
         self.ref_frames: dict[str, str] = {}
         self.best_ref: str | None = None
-        # steps waiting for the reference: (t, k, label, q, P3, sigma3, rpy)
+        # steps waiting for the reference: (t, ns, k, lane, q, P (lists), +3 sigma JSON,
+        # -3 sigma JSON, rpy)
         self.pending: deque = deque()
         self.last_step_t: float | None = None
         self.pos_enu = (0.0, 0.0, 0.0)
@@ -398,6 +483,15 @@ class Publisher:
         self.last_frame: dict[str, float] = {}
         self.tracks_hist: dict[tuple[str, int], deque] = {}
         self.markers_wall = -1e9
+        # generic vector-state runs: the latest truth (t, x) and the largest state size
+        self.state_truth: tuple[float, Array] | None = None
+        self.state_dim = 0
+        self.lanes: dict[str, _Lane] = {}
+        self.track_labels: list[str] = []  # labels of trackers (ScanRecord)
+        self.health_lanes: dict[str, _Lane] = {}
+        self._err_tpl: dict[str, str] = {}
+        self._drains = 0
+        self._src: dict[tuple[str, str], tuple] = {}
         self.counts: dict[str, int] = {}
         self.info: dict | None = None
 
@@ -463,20 +557,53 @@ class Publisher:
     def sample(self, s) -> None:
         name = type(s).__name__
         if name == "ImuSample":
-            g, a = s.gyro.tolist(), s.accel.tolist()
-            self._text(f"/imu/{s.source}", "uavest.Imu", s.t,
-                       '{"t":%s,"source":%s,"gyro_rad_s":[%s,%s,%s],"accel_m_s2":[%s,%s,%s]}' % (  # noqa: UP031
-                           _n(s.t), _q(s.source), _n(g[0]), _n(g[1]), _n(g[2]), _n(a[0]),
-                           _n(a[1]), _n(a[2])))
+            topic, ch, tpl = self._src_channel("/imu/", s.source, "uavest.Imu",
+                                               '"gyro_rad_s":[%.17g,%.17g,%.17g],'
+                                               '"accel_m_s2":[%.17g,%.17g,%.17g]}')
+            if ch is not None:
+                g, a = s.gyro.tolist(), s.accel.tolist()
+                self._log(ch, topic, _fill(tpl, (s.t, g[0], g[1], g[2], a[0], a[1], a[2])
+                                           ).encode(), _ns(s.t))
         elif name == "MagSample":
-            self._json(f"/mag/{s.source}", "uavest.Mag", s.t, {
-                "t": s.t, "source": s.source, "field_gauss": _floats(s.field)})
+            topic, ch, tpl = self._src_channel("/mag/", s.source, "uavest.Mag",
+                                               '"field_gauss":[%.17g,%.17g,%.17g]}')
+            if ch is not None:
+                f = s.field.tolist()
+                self._log(ch, topic, _fill(tpl, (s.t, f[0], f[1], f[2])).encode(), _ns(s.t))
         elif name == "AttitudeRef":
             self._reference(s)
         elif name == "PositionSample":
             self._position(s)
         elif name == "RadarScanSample" or (hasattr(s, "Z") and hasattr(s, "model")):
             self._radar(s)
+        elif name == "StateSample":
+            self._state_sample(s)
+
+    def _src_channel(self, prefix: str, source: str, schema: str, body: str):
+        """(topic, channel or None when nobody listens, template) of a per-source sample
+        channel; the template starts ``{"t":%.17g,"source":"<source>",`` + ``body``."""
+        key = (prefix, source)
+        hit = self._src.get(key)
+        if hit is None:
+            topic = prefix + source
+            hit = self._src[key] = (topic, self._channel(topic, schema),
+                                    '{"t":%.17g,"source":' + _pct(_q(source)) + "," + body)
+        if self.only_subscribed and not hit[1].has_sinks():
+            return hit[0], None, hit[2]
+        return hit
+
+    def _state_sample(self, s: StateSample) -> None:
+        """Truth and measurement of a generic vector-state step (``/truth/state``,
+        ``/measurement/z``); the truth is kept for the error of the step's records."""
+        self.kind = "state"
+        if s.x is not None:
+            x = np.asarray(s.x, float).ravel()
+            self.state_truth = (float(s.t), x)
+            self._json("/truth/state", "uavest.StateTruth", s.t,
+                       {"t": s.t, "k": int(s.k), "x": _floats(x)})
+        if s.z is not None:
+            self._json("/measurement/z", "uavest.Measurement", s.t,
+                       {"t": s.t, "k": int(s.k), "z": _floats(s.z)})
 
     def _position(self, s) -> None:
         msg = {"t": s.t, "source": s.source}
@@ -512,23 +639,29 @@ class Publisher:
                 self.best_ref = s.source
         if not r.add(s.t, s.q):
             return
-        rpy = quat_to_rpy_deg(s.q)
-        self._json(f"/reference/{s.source}", "uavest.AttitudeReference", s.t, {
-            "t": s.t, "source": s.source, "kind": s.kind, "q": _floats(s.q),
-            "rpy_deg": {"roll": rpy[0], "pitch": rpy[1], "yaw": rpy[2]}})
+        q = r.q[-1]  # as Python floats
+        topic, ch, tpl = self._src_channel(
+            "/reference/", s.source, "uavest.AttitudeReference",
+            '"kind":' + _pct(_q(s.kind)) + ',"q":[%.17g,%.17g,%.17g,%.17g],'
+            '"rpy_deg":{"roll":%.10g,"pitch":%.10g,"yaw":%.10g}}')
+        if ch is not None:
+            rpy = _rpy(*q)
+            self._log(ch, topic, _fill(tpl, (s.t, *q, *rpy)).encode(), _ns(s.t))
         frame = self.ref_frames[s.source]
-        self._frame(frame[5:], frame, s.t, s.q, 0.0, "ref:" + s.source)
+        self._frame(frame[5:], frame, s.t, q, 0.0, "ref:" + s.source)
         if s.source == self.best_ref:
             self._drain(final=False)
 
     # -- 3-D ------------------------------------------------------------------------------
     def _frame(self, name: str, frame: str, t: float, q, offset_east: float, key: str) -> None:
-        if self.frame_dt:
+        """``/tf/<name>`` and ``/attitude/<name>/pose`` of attitude ``q`` (NED/FRD, a
+        tuple) at ``t``; estimators' records check the rate limit themselves, the
+        references here (per ``key``)."""
+        if self.frame_dt and not key.startswith("lab:"):
             last = self.last_frame.get(key)
             if last is not None and t - last < self.frame_dt:
                 return
             self.last_frame[key] = t
-
         w, x, y, z = _enu_flu(q)
         e, n, u = self.pos_enu
         rot = Quaternion(x=x, y=y, z=z, w=w)
@@ -573,50 +706,139 @@ class Publisher:
         self._pb("/attitude/bodies", "SceneUpdate", t, lambda: SceneUpdate(entities=ents))
 
     # -- records --------------------------------------------------------------------------
-    def record(self, rec: StepRecord | ScanRecord) -> None:
-        if isinstance(rec, ScanRecord):
-            self._scan(rec)
-            return
-        self.kind = self.kind or "attitude"
-        lab, t = rec.estimator, rec.t
+    def _lane(self, lab: str) -> _Lane:
+        """The channels and 3-D placement of attitude estimator ``lab`` (made once)."""
         if lab not in self.labels:
             self.labels.append(lab)
-        x, P = rec.x, rec.P
-        q = x[:4]
-        Pl = P.tolist()
-        rpy = quat_to_rpy_deg(q)
+        ln = _Lane(lab, self.spacing * (self.labels.index(lab) + 1))
+        ln.est = self._channel(ln.t_est, "uavest.AttitudeEstimate")
+        ln.health = self._channel(ln.t_health, "uavest.FilterHealth")
+        self.lanes[lab] = ln
+        return ln
+
+    def _log(self, ch, topic: str, data: bytes, ns: int) -> None:
+        """Log JSON bytes on a channel made by :meth:`_channel` (the wrapper's checks
+        skipped: ``foxglove.Channel.base.log``)."""
+        ch.base.log(data, ns)
+        c = self.counts
+        c[topic] = c.get(topic, 0) + 1
+
+    def record(self, rec: StepRecord | ScanRecord) -> None:
+        if type(rec) is not StepRecord:
+            if isinstance(rec, ScanRecord):
+                self._scan(rec)
+                return
+        if self.kind == "state":
+            self._state_record(rec)
+            return
+        if self.kind != "attitude":
+            self.kind = "attitude+radar" if self.kind in ("radar", "attitude+radar") \
+                else "attitude"
+        lab, t, k = rec.estimator, rec.t, rec.k
+        ln = self.lanes.get(lab) or self._lane(lab)
+        ns = _ns(t)
+        osub = self.only_subscribed
+        P = rec.P
+        xs = rec.x.tolist()
+        Pl = P[:3, :3].tolist()  # the attitude block (sigma3, NEES)
+        w, x, y, z = xs[0], xs[1], xs[2], xs[3]
+        rpy = _rpy(w, x, y, z)
         s3 = _sigma3_scalar(rpy, Pl)
-        # the hot path: JSON text assembled directly (%.17g round-trips a double exactly;
-        # NaN/inf -> null), the same messages json.dumps would make, about 2x cheaper
-        xs = x.tolist()
-        b = xs[4:7] + [math.nan] * (7 - len(xs)) if len(xs) < 7 else xs[4:7]
-        self._text(f"/attitude/{lab}/estimate", "uavest.AttitudeEstimate", t,
-                   '{"t":%s,"k":%d,"q":[%s,%s,%s,%s],"bias_rad_s":[%s,%s,%s],'  # noqa: UP031
-                   '"rpy_deg":{"roll":%s,"pitch":%s,"yaw":%s},'
-                   '"sigma3_deg":{"roll":%s,"pitch":%s,"yaw":%s},"P_triu_b64":"%s"}' % (
-                       _n(t), rec.k, _n(xs[0]), _n(xs[1]), _n(xs[2]), _n(xs[3]), _n(b[0]),
-                       _n(b[1]), _n(b[2]), _n(rpy[0]), _n(rpy[1]), _n(rpy[2]), _n(s3[0]),
-                       _n(s3[1]), _n(s3[2]), _b64(P[_triu(P.shape[0])])))
-        dofs = [int(np.size(u.nu)) for u in rec.updates]
-        ups = ",".join('{"kind":%s,"nis":%s,"dof":%d}' % (_q(u.kind), _n(u.nis), d)  # noqa: UP031
-                       for u, d in zip(rec.updates, dofs, strict=True))
-        self._text(f"/attitude/{lab}/health", "uavest.FilterHealth", t,
-                   '{"t":%s,"k":%d,"nis":%s,"nis_dof":%d,"updates":[%s],"reset":%s,'  # noqa: UP031
-                   '"reason":%s,"resets":%d,"wall_us":%s}' % (
-                       _n(t), rec.k, _n(rec.nis), sum(dofs), ups,
-                       "true" if rec.reset else "false", _q(rec.reason), int(rec.resets),
-                       _n(1e6 * rec.wall_s)))
-        if rec.reset:
-            self.log_event(t, "warning", lab, f"{lab} reset at t = {t:.3f} s (step {rec.k}): "
-                           f"{rec.reason or 'divergence guard'}; resets so far {rec.resets}")
-        i = self.labels.index(lab)
-        self._frame(lab, f"body_{lab}", t, q, self.spacing * (i + 1), lab)
+        s3t = (_g(s3[0]), _g(s3[1]), _g(s3[2]))
+        s3j = '{"roll":%s,"pitch":%s,"yaw":%s}' % s3t  # noqa: UP031
+        # the hot path: JSON text assembled directly (q, bias, t exact with %.17g; derived
+        # Euler angles and bounds with 10 digits; NaN/inf -> null), one formatting
+        # operation per message
+        if not osub or ln.est.has_sinks():
+            b = xs[4:7] if len(xs) >= 7 else (xs[4:7] + [math.nan] * 3)[:3]
+            self._log(ln.est, ln.t_est, (_fill(_EST_TPL, (
+                t, k, w, x, y, z, b[0], b[1], b[2], rpy[0], rpy[1], rpy[2]))
+                + s3j + ',"P_triu_b64":"' + _b64_triu(P) + '"}').encode(), ns)
+        if not osub or ln.health.has_sinks():
+            self._health_fast(ln, rec, ns)
+        elif rec.reset:
+            self._reset_event(rec)
+        if self.frame_dt:
+            last = ln.last_frame
+            if last is None or t - last >= self.frame_dt:
+                ln.last_frame = t
+                self._frame(lab, ln.frame, t, (w, x, y, z), ln.offset, ln.key)
+        else:
+            self._frame(lab, ln.frame, t, (w, x, y, z), ln.offset, ln.key)
         self._markers(t)
         self.last_step_t = t
         if self.refs:
-            self.pending.append((t, rec.k, lab, tuple(float(v) for v in q),
-                                 [row[:3] for row in Pl[:3]], s3, rpy))
+            self.pending.append((t, ns, k, ln, (w, x, y, z), Pl, s3j,
+                                 '{"roll":%s,"pitch":%s,"yaw":%s}' % (  # noqa: UP031
+                                     _neg(s3t[0]), _neg(s3t[1]), _neg(s3t[2])), rpy))
             self._drain(final=False)
+
+    def _health_fast(self, ln: _Lane, rec: StepRecord, ns: int) -> None:
+        ups, dof, nis = [], 0, 0.0
+        for u in rec.updates:
+            nu = u.nu
+            d = nu.size if type(nu) is np.ndarray else int(np.size(nu))
+            dof += d
+            nis += u.nis
+            ups.append('{"kind":%s,"nis":%s,"dof":%d}' % (_q(u.kind), _n(u.nis), d))  # noqa: UP031
+        self._log(ln.health, ln.t_health, (
+            '{"t":%s,"k":%d,"nis":%s,"nis_dof":%d,"updates":[%s],"reset":%s,'  # noqa: UP031
+            '"reason":%s,"resets":%d,"wall_us":%s}' % (
+                _n(rec.t), rec.k, _n(float(nis)) if ups else "null", dof, ",".join(ups),
+                "true" if rec.reset else "false", _q(rec.reason), int(rec.resets),
+                _g(1e6 * rec.wall_s))).encode(), ns)
+        if rec.reset:
+            self._reset_event(rec)
+
+    def _reset_event(self, rec: StepRecord) -> None:
+        t, lab = rec.t, rec.estimator
+        self.log_event(t, "warning", lab, f"{lab} reset at t = {t:.3f} s (step {rec.k}): "
+                       f"{rec.reason or 'divergence guard'}; resets so far {rec.resets}")
+
+    def _health(self, topic: str, rec: StepRecord) -> None:
+        """``uavest.FilterHealth`` of a step on ``topic`` (and its reset on ``/log``)."""
+        ln = self.health_lanes.get(topic)
+        if ln is None:
+            ln = self.health_lanes[topic] = _Lane(rec.estimator, 0.0)
+            ln.t_health = topic
+            ln.health = self._channel(topic, "uavest.FilterHealth")
+        if not self.only_subscribed or ln.health.has_sinks():
+            self._health_fast(ln, rec, _ns(rec.t))
+        elif rec.reset:
+            self._reset_event(rec)
+
+    def _state_record(self, rec: StepRecord) -> None:
+        """A generic vector-state step: ``/state/<label>/estimate``, ``.../health`` and,
+        when the truth of the same step was seen, ``.../error`` (estimate - truth, the
+        filter's own +-3 sigma, NEES with dof n). The state is a plain vector (x and P in
+        the same coordinates); a state whose covariance is of another size has no error
+        channel."""
+        lab, t = rec.estimator, rec.t
+        if lab not in self.labels:
+            self.labels.append(lab)
+        x = np.asarray(rec.x, float).ravel()
+        P = np.asarray(rec.P, float).reshape(x.size, -1) if np.size(rec.P) else \
+            np.zeros((x.size, 0))
+        self.state_dim = max(self.state_dim, int(x.size))
+        d = np.diagonal(P) if P.shape[0] == P.shape[1] else np.full(x.size, np.nan)
+        with np.errstate(invalid="ignore"):
+            s3 = 3.0 * np.sqrt(d)
+        s3l = _floats(s3)
+        self._json(f"/state/{lab}/estimate", "uavest.StateEstimate", t, {
+            "t": t, "k": int(rec.k), "n": int(x.size), "x": _floats(x), "sigma3": s3l,
+            "P": _floats(P)})
+        self._health(f"/state/{lab}/health", rec)
+        tr = self.state_truth
+        if tr is not None and tr[0] == t and tr[1].size == x.size == P.shape[0] == P.shape[1]:
+            e = x - tr[1]
+            try:
+                ne = float(e @ np.linalg.solve(P, e))
+            except np.linalg.LinAlgError:
+                ne = math.nan
+            self._json(f"/state/{lab}/error", "uavest.StateError", t, {
+                "t": t, "k": int(rec.k), "err": _floats(e), "sigma3": s3l,
+                "neg_sigma3": _floats(-s3), "nees": ne if math.isfinite(ne) else None,
+                "dof": int(x.size)})
 
     def _drain(self, final: bool) -> None:
         """Errors of the waiting steps whose time the chosen reference has reached."""
@@ -625,34 +847,54 @@ class Publisher:
             return
         r = self.refs[name]
         truth = r.kind == "truth"
-        while self.pending:
-            t, k, lab, q, P3, s3, a = self.pending[0]
-            if r.t and t > r.t[-1] and not final:
+        pend = self.pending
+        rt = r.t
+        osub = self.only_subscribed
+        tpl = self._err_tpl.get(name)
+        if tpl is None:
+            tpl = self._err_tpl[name] = (
+                '{"t":%%.17g,"k":%%d,"reference":%s,"kind":%s,'  # noqa: UP031
+                '"err_deg":{"roll":%%.10g,"pitch":%%.10g,"yaw":%%.10g}' % (
+                    _pct(_q(name)), _pct(_q(r.kind))))
+        while pend:
+            t, ns, k, ln, q, Pl, s3j, negj, a = pend[0]
+            if rt and t > rt[-1] and not final:
                 break
-            self.pending.popleft()
+            pend.popleft()
             qr = r.at(t)
             if qr is None:
                 continue  # outside the reference's span: not scored (as the scorer)
-            b = quat_to_rpy_deg(qr)
-            err = [_wrap180(a[i] - b[i]) for i in range(3)]
-            nees = ',"nees":%s' % _n(_nees3(q, qr, P3)) if truth else ""  # noqa: UP031
-            self._text(f"/attitude/{lab}/error", "uavest.AttitudeError", t,
-                       '{"t":%s,"k":%d,"reference":%s,"kind":%s,'  # noqa: UP031
-                       '"err_deg":{"roll":%s,"pitch":%s,"yaw":%s},'
-                       '"sigma3_deg":{"roll":%s,"pitch":%s,"yaw":%s},'
-                       '"neg_sigma3_deg":{"roll":%s,"pitch":%s,"yaw":%s}%s}' % (
-                           _n(t), k, _q(name), _q(r.kind), _n(err[0]), _n(err[1]),
-                           _n(err[2]), _n(s3[0]), _n(s3[1]), _n(s3[2]), _n(-s3[0]),
-                           _n(-s3[1]), _n(-s3[2]), nees))
+            ch = ln.err
+            if ch is None:
+                ch = ln.err = self._channel(ln.t_err, "uavest.AttitudeError")
+            if osub and not ch.has_sinks():
+                continue
+            b = _rpy(*qr)
+            tail = ',"nees":' + _g(_nees3(q, qr, Pl)) + "}" if truth else "}"
+            self._log(ch, ln.t_err, (_fill(tpl, (
+                t, k, (a[0] - b[0] + 180.0) % 360.0 - 180.0,  # wrapped as _wrap180
+                (a[1] - b[1] + 180.0) % 360.0 - 180.0, (a[2] - b[2] + 180.0) % 360.0 - 180.0))
+                + ',"sigma3_deg":' + s3j + ',"neg_sigma3_deg":' + negj + tail).encode(), ns)
         # later steps come at or after the newest step seen: keep what they may need
-        keep = self.pending[0][0] if self.pending else self.last_step_t
-        if keep is not None:
-            for ref in self.refs.values():
-                ref.trim(keep)
+        # (trimmed now and then: the slerp's bisection does not mind a longer list)
+        self._drains += 1
+        if final or self._drains % 64 == 0:
+            keep = pend[0][0] if pend else self.last_step_t
+            if keep is not None:
+                for ref in self.refs.values():
+                    ref.trim(keep)
 
     # -- radar ----------------------------------------------------------------------------
+    def _saw_radar(self) -> None:
+        """Radar data: kind ``radar``, or ``attitude+radar`` for a run with both (a live
+        link: attitude filters and trackers side by side)."""
+        if self.kind in (None, "radar"):
+            self.kind = "radar"
+        elif self.kind == "attitude":
+            self.kind = "attitude+radar"
+
     def _radar(self, s) -> None:
-        self.kind = "radar"
+        self._saw_radar()
 
         Z = np.asarray(s.Z, float).reshape(len(s.Z), -1)
         m = s.model
@@ -723,10 +965,12 @@ class Publisher:
 
     def _scan(self, rec: ScanRecord) -> None:
 
-        self.kind = "radar"
+        self._saw_radar()
         lab, t = rec.estimator, rec.t
         if lab not in self.labels:
             self.labels.append(lab)
+        if lab not in self.track_labels:
+            self.track_labels.append(lab)
         col = colour(lab)
         rows, ents = [], []
         for tr in rec.tracks:
@@ -773,6 +1017,22 @@ def _triu(n: int) -> tuple:
     return _TRIU[n]
 
 
+_TRIU_FLAT: dict[int, Array] = {}
+
+
+def _b64_triu(P: Array) -> str:
+    """:func:`_b64` of the upper triangle of square ``P``, row by row (as
+    ``P[numpy.triu_indices(n)]``; ``take`` with cached flat indices is cheaper)."""
+    n = P.shape[0]
+    idx = _TRIU_FLAT.get(n)
+    if idx is None:
+        idx = _TRIU_FLAT[n] = np.ravel_multi_index(np.triu_indices(n), (n, n))
+    v = P.take(idx)
+    if v.dtype != np.dtype("<f8"):
+        v = v.astype("<f8")
+    return base64.b64encode(v.tobytes()).decode()
+
+
 def _b64(a: Array) -> str:
     return base64.b64encode(np.ascontiguousarray(a, "<f8").tobytes()).decode()
 
@@ -810,6 +1070,41 @@ def _n(v) -> str:
     if v is None or not math.isfinite(v):
         return "null"
     return "%.17g" % v  # noqa: UP031
+
+
+def _g(v: float) -> str:
+    """A derived display quantity (Euler angles, 3-sigma, errors, NEES, wall time) as JSON
+    text: 10 significant digits (%.10g, about 4x cheaper to format than the exact
+    %.17g), null for NaN/inf."""
+    return "%.10g" % v if v - v == 0.0 else "null"  # noqa: UP031
+
+
+_NULLS: dict[str, str] = {}
+_FLOAT_FIELD = re.compile(r"%\.\d+g")
+
+
+def _fill(tpl: str, vals: tuple) -> str:
+    """``tpl % vals`` for a template whose float fields are ``%.17g`` (exact) or
+    ``%.10g`` (derived) and int fields ``%d``: one formatting operation when every value
+    is finite (checked with one ``sum``), else NaN/inf written as null."""
+    if math.isfinite(sum(vals)):
+        return tpl % vals
+    t2 = _NULLS.get(tpl)
+    if t2 is None:
+        t2 = _NULLS[tpl] = _FLOAT_FIELD.sub("%s", tpl)
+    return t2 % tuple(_n(v) if isinstance(v, float) else v for v in vals)
+
+
+def _pct(s: str) -> str:
+    """``s`` as literal text inside a %-template."""
+    return s.replace("%", "%%")
+
+
+def _neg(s: str) -> str:
+    """The JSON text of -v from the JSON text of v (null stays null)."""
+    if s == "null":
+        return s
+    return s[1:] if s[0] == "-" else "-" + s
 
 
 _QUOTED: dict[str, str] = {}

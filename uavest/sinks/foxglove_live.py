@@ -13,7 +13,7 @@ import time
 
 from ..engine.records import RunInfo, ScanRecord, StepRecord
 from .base import Sink
-from .foxglove_channels import Publisher
+from .foxglove_channels import DEFAULT_FRAME_RATE_HZ, Publisher
 
 __all__ = ["FoxgloveLiveSink"]
 
@@ -31,7 +31,7 @@ class FoxgloveLiveSink(Sink):
         port: int = 8765,
         *,
         name: str = "uavest",
-        frame_rate_hz: float | None = None,
+        frame_rate_hz: float | None = DEFAULT_FRAME_RATE_HZ,
         wait_for_client: float = 0.0,
         linger_s: float = 0.0,
         spacing_m: float = 2.0,
