@@ -15,10 +15,12 @@ __all__ = ["add_recording_options", "finish_recording", "recording_sinks"]
 
 def add_recording_options(p: argparse.ArgumentParser, live_view: bool = True,
                           report: bool = True, mcap_default: str | None = None) -> None:
-    p.add_argument("--mcap", default=mcap_default, metavar="PATH",
+    p.add_argument("--mcap", default=None, metavar="PATH",
                    help="record everything to this MCAP file (Foxglove schemas; a layout "
-                   "JSON is written beside it)" + (f"; default {mcap_default}"
+                   "JSON is written beside it)" + (f"; default {mcap_default} (DIR/run.mcap "
+                                                  "with --report DIR)"
                                                   if mcap_default else ""))
+    p.set_defaults(mcap_default=mcap_default)
     if live_view:
         p.add_argument("--foxglove", nargs="?", const="127.0.0.1:8765", default=None,
                        metavar="HOST:PORT", help="serve the same channels live to the "
@@ -65,7 +67,9 @@ def recording_sinks(args) -> list:
     mcap = getattr(args, "mcap", None)
     if mcap is None and getattr(args, "report", None):
         mcap = str(Path(args.report) / "run.mcap")
-        args.mcap = mcap
+    elif mcap is None:
+        mcap = getattr(args, "mcap_default", None)
+    args.mcap = mcap
     if mcap:
         from ..sinks.mcap import McapSink
 

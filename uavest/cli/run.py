@@ -214,7 +214,7 @@ def demo(args) -> dict:
           f"estimator, {args.duration:g} s", file=sys.stderr)
     try:
         if args.no_record:
-            args.mcap = None
+            args.mcap = args.mcap_default = None
         doc = run_live(cfg, command=" ".join(sys.argv),
                        status=False if args.no_status else None, on_wait=_wait,
                        stop=_stop_on_signals(), sinks=recording_sinks(args))
