@@ -119,20 +119,10 @@ def _tlog_records(data: bytes) -> list[tuple[int, int, int]]:
 
 
 def _df_records(data: bytes) -> list[tuple[int, int, str]]:
-    """(offset, length, name) of each DataFlash record (A3 95 type + payload)."""
-    fmts: dict[int, tuple[int, str]] = {128: (89, "FMT")}
-    out, pos, n = [], 0, len(data)
-    while pos + 3 <= n:
-        if data[pos] != 0xA3 or data[pos + 1] != 0x95 or data[pos + 2] not in fmts:
-            pos += 1
-            continue
-        ln, name = fmts[data[pos + 2]]
-        if data[pos + 2] == 128 and pos + 89 <= n:
-            fmts[data[pos + 3]] = (data[pos + 4],
-                                   data[pos + 5:pos + 9].rstrip(b"\0").decode("ascii", "replace"))
-        out.append((pos, ln, name))
-        pos += ln
-    return out
+    """(offset, length, name) of each DataFlash record: the hostile corpus's walker."""
+    from tests.hostile.corpus import df_records
+
+    return df_records(data)
 
 
 def _flip_bits(data: bytes, rate: float, seed: int, skip: int = 0) -> bytes:

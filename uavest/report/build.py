@@ -273,6 +273,30 @@ def state_metrics(data: dict) -> tuple[dict, dict]:
     return rows, {"series": series}
 
 
+def _error_axes(axs, S: dict, legend, ylabel) -> None:
+    """Each filter's error per axis (solid) with its own +-3 sigma (dashed), one colour
+    per filter; ``legend(lab, i)`` the error's legend text, ``ylabel(i)`` the axis label;
+    y limits at 3x the 99.5th percentile of |error| over the filters."""
+    for lab, s in S.items():
+        if "err" not in s:
+            continue
+        mk, c = s["mask"], colour(lab)
+        for i, ax in enumerate(axs):
+            t = s["t"][mk]
+            ax.plot(t, s["err"][mk, i], color=c, lw=0.9, label=legend(lab, i))
+            ax.plot(t, s["sig3"][mk, i], color=c, lw=0.8, ls="--")
+            ax.plot(t, -s["sig3"][mk, i], color=c, lw=0.8, ls="--",
+                    label=f"{lab} +-3 sigma" if i == 0 else None)
+    for i, ax in enumerate(axs):
+        ax.set_ylabel(ylabel(i))
+        ax.grid(alpha=0.3)
+        lim = [np.nanpercentile(np.abs(s["err"][s["mask"], i]), 99.5) * 3
+               for s in S.values() if "err" in s and s["mask"].any()]
+        if lim and np.isfinite(max(lim)) and max(lim) > 0:
+            ax.set_ylim(-max(lim), max(lim))
+        ax.legend(loc="upper right", fontsize=7, ncol=3)
+
+
 def _state_figures(data: dict, rows: dict, m: dict, events: list) -> list[tuple]:
     from scipy.stats import chi2
 
@@ -301,25 +325,8 @@ def _state_figures(data: dict, rows: dict, m: dict, events: list) -> list[tuple]
     # errors with own 3 sigma
     fig, axs = plt.subplots(nc, 1, figsize=(12, 2.8 * nc + 1), sharex=True, squeeze=False)
     axs = axs[:, 0]
-    for lab, s in S.items():
-        if "err" not in s:
-            continue
-        mk, c = s["mask"], colour(lab)
-        for i, ax in enumerate(axs):
-            t = s["t"][mk]
-            ax.plot(t, s["err"][mk, i], color=c, lw=0.9,
-                    label=f"{lab} error (RMSE {rows[lab].get(f'rmse_x{i}', math.nan):.3g})")
-            ax.plot(t, s["sig3"][mk, i], color=c, lw=0.8, ls="--")
-            ax.plot(t, -s["sig3"][mk, i], color=c, lw=0.8, ls="--",
-                    label=f"{lab} +-3 sigma" if i == 0 else None)
-    for i, ax in enumerate(axs):
-        ax.set_ylabel(f"x[{i}] error")
-        ax.grid(alpha=0.3)
-        lim = [np.nanpercentile(np.abs(s["err"][s["mask"], i]), 99.5) * 3
-               for s in S.values() if "err" in s and s["mask"].any()]
-        if lim and np.isfinite(max(lim)) and max(lim) > 0:
-            ax.set_ylim(-max(lim), max(lim))
-        ax.legend(loc="upper right", fontsize=7, ncol=3)
+    _error_axes(axs, S, lambda lab, i: f"{lab} error (RMSE "
+                f"{rows[lab].get(f'rmse_x{i}', math.nan):.3g})", lambda i: f"x[{i}] error")
     axs[-1].set_xlabel("time t (s)")
     fig.suptitle("Error (estimate - truth) per component with each filter's own +-3 sigma "
                  "(dashed)")
@@ -492,26 +499,9 @@ def _attitude_figures(data: dict, rows: dict, m: dict, events: list) -> list[tup
                  "Roll, pitch, yaw of each filter and the reference (black)."))
     # errors with own 3 sigma
     fig, axs = plt.subplots(3, 1, figsize=(12, 8.5), sharex=True)
-    for lab, s in S.items():
-        if "err" not in s:
-            continue
-        mk = s["mask"]
-        c = colour(lab)
-        for i, ax in enumerate(axs):
-            t = s["t"][mk]
-            ax.plot(t, s["err"][mk, i], color=c, lw=0.9,
-                    label=f"{lab} error (RMSE {rows[lab].get(_AX[i] + '_rmse_deg', math.nan):.2f})")
-            ax.plot(t, s["sig3"][mk, i], color=c, lw=0.8, ls="--")
-            ax.plot(t, -s["sig3"][mk, i], color=c, lw=0.8, ls="--",
-                    label=f"{lab} +-3 sigma" if i == 0 else None)
-    for i, ax in enumerate(axs):
-        ax.set_ylabel(f"{_AX[i]} error (deg)")
-        ax.grid(alpha=0.3)
-        lim = [np.nanpercentile(np.abs(s["err"][s["mask"], i]), 99.5) * 3
-               for s in S.values() if "err" in s and s["mask"].any()]
-        if lim and np.isfinite(max(lim)) and max(lim) > 0:
-            ax.set_ylim(-max(lim), max(lim))
-        ax.legend(loc="upper right", fontsize=7, ncol=3)
+    _error_axes(axs, S, lambda lab, i: f"{lab} error (RMSE "
+                f"{rows[lab].get(_AX[i] + '_rmse_deg', math.nan):.2f})",
+                lambda i: f"{_AX[i]} error (deg)")
     axs[-1].set_xlabel("time t (s)")
     fig.suptitle(f"Error vs {ref} (estimate - reference, wrapped) with each filter's own "
                  "+-3 sigma (dashed)")
