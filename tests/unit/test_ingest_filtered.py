@@ -126,13 +126,9 @@ def _df_records(data: bytes) -> list[tuple[int, int, str]]:
 
 
 def _flip_bits(data: bytes, rate: float, seed: int, skip: int = 0) -> bytes:
-    rng = np.random.default_rng(seed)
-    a = np.frombuffer(data, dtype=np.uint8).copy()
-    n = a.size - skip
-    k = max(1, int(round(rate * n)))
-    idx = skip + rng.choice(n, size=k, replace=False)
-    a[idx] ^= (1 << rng.integers(0, 8, size=k)).astype(np.uint8)
-    return a.tobytes()
+    from tests.hostile.corpus import flip_bits
+
+    return flip_bits(data, rate, seed, skip)
 
 
 def _nth(recs, key, which: int):
