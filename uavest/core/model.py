@@ -57,6 +57,11 @@ class Measurement:
         """Jacobian of ``h`` w.r.t. the tangent-space state error at ``x`` (m x n)."""
         return fd_jacobian(self.h, self.space, None, x)
 
+    def h_H(self, x: Array) -> tuple[Array, Array]:
+        """(h(x), H(x)) of one state ``x``: what the EKF's update needs. Models whose
+        measurement and Jacobian share work override it (the radar)."""
+        return self.h(x[None, :])[0], self.H(x)
+
     def H_rows(self, X: Array) -> Array:
         """Jacobians at every row of ``X`` (M, size) -> (M, m, n), tangent-space; batched
         central finite differences through ``retract`` and ``residual`` by default."""

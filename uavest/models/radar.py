@@ -46,6 +46,7 @@ Array = np.ndarray
 COMPONENTS = ("range", "azimuth", "elevation", "range_rate")
 _EPS = 1e-9  # m, floor of range / horizontal range in divisions
 _I2 = np.eye(2)
+_TWO_PI = 2.0 * math.pi
 
 
 def wrap_angle(a: Array | float) -> Array:
@@ -188,8 +189,19 @@ class RadarMeasurement(Measurement):
         x = np.asarray(x, float)
         if self.ndim != 2 or self._rr is not None:
             return self.H_rows(x[None, :])[0]
+        return self._h_H2(x)[1]
+
+    def h_H(self, x: Array) -> tuple[Array, Array]:
+        """(h(x), H(x)) of one state: the 2-D range / azimuth case from one line of sight
+        (the same expressions as :meth:`h` and :meth:`H`)."""
+        if self.ndim != 2 or self._rr is not None:
+            return self.h(x[None, :])[0], self.H(x)
+        return self._h_H2(np.asarray(x, float))
+
+    def _h_H2(self, x: Array) -> tuple[Array, Array]:
         R = self.pose.R_ws
         dx, dy = ((x[:2] - self.pose.position) @ R).tolist()  # D = R^T (p - s)
+        z = np.array([math.sqrt(dx * dx + dy * dy), math.atan2(dy, dx)])
         r2 = max(dx * dx + dy * dy, _EPS**2)
         r = math.sqrt(r2)
         Hm = np.zeros((2, self.space.dim))
@@ -198,7 +210,7 @@ class RadarMeasurement(Measurement):
             Hm[0, 0], Hm[0, 1], Hm[1, 0], Hm[1, 1] = dx / r, dy / r, -dy / r2, dx / r2
         else:
             Hm[:, :2] = np.array([[dx / r, dy / r], [-dy / r2, dx / r2]]) @ R.T
-        return Hm
+        return z, Hm
 
     def H_rows(self, X: Array) -> Array:
         """Analytic Jacobians at every row of ``X`` (M, n) -> (M, m, n), vectorised."""
@@ -234,7 +246,10 @@ class RadarMeasurement(Measurement):
     def residual(self, a: Array, b: Array) -> Array:
         """``a - b`` with the azimuth wrapped to [-pi, pi); broadcasts (M, m) vs (m,)."""
         r = np.asarray(a, float) - np.asarray(b, float)
-        r[..., self._az] = wrap_angle(r[..., self._az])
+        if r.ndim == 1:  # one residual (the EKF, the UKF): the same wrap on a Python float
+            r[self._az] = (float(r[self._az]) + math.pi) % _TWO_PI - math.pi
+        else:
+            r[..., self._az] = wrap_angle(r[..., self._az])
         return r
 
     def mean(self, Y: Array, w: Array) -> Array:
