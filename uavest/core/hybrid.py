@@ -36,17 +36,20 @@ irrelevant are refused in specs (their ``when`` declaration).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import ClassVar
 
 import numpy as np
 
-from ..geometry.spaces import Space
+from ..geometry.spaces import Space, VectorSpace
 from .base import (
     Ensemble,
     Innovation,
     ensemble_estimate,
     ensemble_moments,
+    equal_weights,
     innovation,
     mean_start,
 )
@@ -286,6 +289,23 @@ def _check_switches(sampling: str, weights: str) -> None:
 _PHI_GRID = np.linspace(0.0, 1.0, 17)
 
 
+# The hot paths below call ``np.dot`` rather than ``@`` (the same BLAS routine and the
+# same numbers for these 1-D / 2-D operands, without the gufunc's per-call overhead, which
+# dominates on ensembles of ~100 members) and ``np.add.reduce`` / ``np.maximum.reduce``
+# rather than the ``.sum()`` / ``.max()`` methods (the same reduction, one call less).
+_dot = np.dot
+_sum = np.add.reduce
+_max = np.maximum.reduce
+
+
+@lru_cache(maxsize=32)
+def _log_equal(M: int) -> Array:
+    """log(max(1/M, 1e-300)) as :func:`tempered_weights` computes it for equal weights."""
+    a = np.log(np.maximum(equal_weights(M), 1e-300))
+    a.flags.writeable = False
+    return a
+
+
 def tempered_weights(
     w: Array, loglik: Array, phi_max: float, min_ess: float
 ) -> tuple[Array, float]:
@@ -295,20 +315,27 @@ def tempered_weights(
     Returns (normalised weights, phi). Vectorised over the grid: one (17, M) evaluation.
     """
     M = w.shape[0]
-    logw0 = np.log(np.maximum(w, 1e-300))
+    logw0 = _log_equal(M) if w is equal_weights(M) else np.log(np.maximum(w, 1e-300))
     L1 = logw0 + phi_max * loglik  # common case first: the full share keeps the ESS floor
-    W1 = np.exp(L1 - L1.max())
-    W1 /= W1.sum()
-    if 1.0 / (W1 @ W1) >= min_ess * M:
+    W1 = np.exp(L1 - _max(L1))
+    W1 /= _sum(W1)
+    if 1.0 / _dot(W1, W1) >= min_ess * M:
         return W1, float(phi_max)
     phis = phi_max * _PHI_GRID
     L = logw0 + phis[:, None] * loglik
-    W = np.exp(L - L.max(axis=1, keepdims=True))
-    W /= W.sum(axis=1, keepdims=True)
-    ok = (W * W).sum(axis=1) * (min_ess * M) <= 1.0  # ESS = 1 / sum w^2 >= min_ess M
+    W = np.exp(L - _max(L, axis=1, keepdims=True))
+    W /= _sum(W, axis=1, keepdims=True)
+    ok = _sum(W * W, axis=1) * (min_ess * M) <= 1.0  # ESS = 1 / sum w^2 >= min_ess M
     i = int(np.nonzero(ok)[0][-1]) if ok.any() else 0
     return W[i], float(phis[i])
 
+
+def _mean(space: Space, X: Array, w: Array) -> Array:
+    """``space.mean`` of members ``X`` with weights ``w`` (``np.dot`` on a plain vector
+    space: the same numbers as its ``w @ X``)."""
+    if type(space) is VectorSpace:
+        return _dot(w, X)
+    return space.mean(X, w, mean_start(space, X, w))
 
 
 class _HybridBase(EnsembleFilter):
@@ -343,8 +370,8 @@ class _HybridBase(EnsembleFilter):
         x, dX, w, P = ensemble_moments(E)
         idx = systematic_resample(w, rng)
         h = self.kernel
-        a = np.sqrt(1.0 - h * h)
-        J = rng.standard_normal((E.M, E.space.dim)) @ (h * chol(P)).T
+        a = math.sqrt(1.0 - h * h)
+        J = _dot(rng.standard_normal((E.M, E.space.dim)), (h * chol(P)).T)
         return Ensemble(E.space.retract(x, a * dX[idx] + J), E.space)
 
     def keeps_members(self, E: Ensemble) -> bool:
@@ -435,12 +462,12 @@ class Hybrid(_HybridBase):
     def update(self, E: Ensemble, z, model: Measurement, rng=None) -> tuple[Ensemble, Innovation]:
         space = model.space
         M = E.M
-        w = np.full(M, 1.0 / M) if E.w is None else E.w
+        w = equal_weights(M) if E.w is None else E.w
         Y = model.h(E.X)
         r = model.residual(z, Y)
         ybar = model.mean(Y, w)
         dY0 = model.residual(Y, ybar)
-        innov = innovation(model.residual(z, ybar), (dY0.T * w) @ dY0 + model.R)
+        innov = innovation(model.residual(z, ybar), _dot(dY0.T * w, dY0) + model.R)
         tau = 1.0
         if self.weights == "confidence":
             left = 1.0 - self.tau  # share of the likelihood still to go into the weights
@@ -450,28 +477,27 @@ class Hybrid(_HybridBase):
                 if left <= 1e-9 or stage == self.stages - 1:
                     break
                 E = self._regenerate(Ensemble(E.X, E.space, w), rng)
-                w = np.full(M, 1.0 / M)
+                w = equal_weights(M)
                 Y = model.h(E.X)
                 r = model.residual(z, Y)
             tau = self.tau + left
         X = E.X
-        c = 1.0 / max(1.0 - float(w @ w), 1e-12)
+        c = 1.0 / max(1.0 - float(_dot(w, w)), 1e-12)
         Rt = model.R * (self.shifts / tau)
         Lr = chol(Rt)
         for i in range(self.shifts):
             if i:
                 Y = model.h(X)
                 r = model.residual(z, Y)
-            x = space.mean(X, w, mean_start(space, X, w))
-            dX = space.local(x, X)
-            dX = dX - w @ dX
+            dX = space.local(_mean(space, X, w), X)
+            dX = dX - _dot(w, dX)
             dY = model.residual(Y, model.mean(Y, w))
-            dY = dY - w @ dY
+            dY = dY - _dot(w, dY)
             # weighted sums of outer products: symmetric by construction (Cholesky reads
             # the lower triangle), so no symmetrising on this hot path
-            K = gain(c * (dX.T * w) @ dY, c * (dY.T * w) @ dY + Rt)
-            V = rng.standard_normal((M, model.dim)) @ Lr.T
-            X = space.retract(X, (r + V) @ K.T)
+            K = gain(_dot(c * (dX.T * w), dY), _dot(c * (dY.T * w), dY) + Rt)
+            V = _dot(rng.standard_normal((M, model.dim)), Lr.T)
+            X = space.retract(X, _dot(r + V, K.T))
         return Ensemble(X, E.space, None if self.weights == "equal" else w), innov
 
 

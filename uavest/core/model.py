@@ -71,7 +71,7 @@ class Measurement:
         return a - b
 
     def mean(self, Y: Array, w: Array) -> Array:
-        return w @ Y
+        return np.dot(w, Y)  # = w @ Y, with less per-call overhead
 
     @property
     def dim(self) -> int:
