@@ -9,6 +9,7 @@ import numpy as np
 
 from ..geometry.spaces import Space, VectorSpace
 from .gaussian import Gaussian
+from .linalg import chol, nis_from_factor
 
 Array = np.ndarray
 
@@ -62,10 +63,13 @@ def ensemble_moments(E: Ensemble) -> tuple[Array, Array, Array, Array]:
         return E.moments
     w = equal_weights(E.M) if E.w is None else E.w
     # np.dot: the same numbers as ``@`` here, with less per-call overhead
-    x = (np.dot(w, E.X) if type(E.space) is VectorSpace
-         else E.space.mean(E.X, w, mean_start(E.space, E.X, w)))
-    dX = E.space.local(x, E.X)
-    dX = dX - np.dot(w, dX)  # centre exactly (tangent linearisation on manifolds)
+    if type(E.space) is VectorSpace:  # X - (w X) is centred under w up to rounding
+        x = np.dot(w, E.X)
+        dX = E.X - x
+    else:
+        x = E.space.mean(E.X, w, mean_start(E.space, E.X, w))
+        dX = E.space.local(x, E.X)
+        dX = dX - np.dot(w, dX)  # centre exactly (tangent linearisation on manifolds)
     denom = 1.0 - float(np.dot(w, w))
     P = np.dot(dX.T * w, dX) / max(denom, 1e-12)
     out = (x, dX, w, P)
@@ -93,14 +97,10 @@ def ensemble_estimate(E: Ensemble) -> Gaussian:
 
 def sample_gaussian(g: Gaussian, space: Space, M: int, rng: np.random.Generator) -> Array:
     """M iid draws from N(g.x, g.P) on ``space`` (tangent-space sampling)."""
-    from .linalg import chol
-
     L = chol(g.P)
     return space.retract(g.x, rng.standard_normal((M, space.dim)) @ L.T)
 
 
 def innovation(nu: Array, S: Array) -> Innovation:
     """Innovation record with its NIS (Cholesky solve through LAPACK)."""
-    from .linalg import chol, nis_from_factor
-
     return Innovation(nu, S, nis_from_factor(chol(S), nu))

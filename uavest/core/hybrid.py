@@ -330,6 +330,14 @@ def tempered_weights(
     return W[i], float(phis[i])
 
 
+def _plain_measurement(model: Measurement) -> bool:
+    """True if the model's ``mean`` and ``residual`` are the plain weighted sum and
+    difference (then ``residual(Y, mean(Y, w))`` is centred under ``w`` up to rounding)."""
+    t = type(model)  # (a wrapper that delegates its attributes: False, the safe answer)
+    return (getattr(t, "mean", None) is Measurement.mean
+            and getattr(t, "residual", None) is Measurement.residual)
+
+
 def _mean(space: Space, X: Array, w: Array) -> Array:
     """``space.mean`` of members ``X`` with weights ``w`` (``np.dot`` on a plain vector
     space: the same numbers as its ``w @ X``)."""
@@ -485,17 +493,26 @@ class Hybrid(_HybridBase):
         c = 1.0 / max(1.0 - float(_dot(w, w)), 1e-12)
         Rt = model.R * (self.shifts / tau)
         Lr = chol(Rt)
+        flat = type(space) is VectorSpace
+        plain = flat and _plain_measurement(model)
         for i in range(self.shifts):
             if i:
                 Y = model.h(X)
                 r = model.residual(z, Y)
-            dX = space.local(_mean(space, X, w), X)
-            dX = dX - _dot(w, dX)
             dY = model.residual(Y, model.mean(Y, w))
-            dY = dY - _dot(w, dY)
+            if not plain:  # a manifold, or e.g. a circular mean: centre them exactly
+                dY = dY - _dot(w, dY)
             # weighted sums of outer products: symmetric by construction (Cholesky reads
             # the lower triangle), so no symmetrising on this hot path
-            K = gain(_dot(c * (dX.T * w), dY), _dot(c * (dY.T * w), dY) + Rt)
+            if flat:
+                # on a vector space sum_j w_j (X_j - x) dY_j^T = sum_j w_j X_j dY_j^T (the
+                # weighted dY sum to zero), so neither the mean nor dX is needed
+                A = dY.T * (c * w)
+                K = gain(_dot(A, X).T, _dot(A, dY) + Rt)
+            else:
+                dX = space.local(_mean(space, X, w), X)
+                dX = dX - _dot(w, dX)
+                K = gain(_dot(c * (dX.T * w), dY), _dot(c * (dY.T * w), dY) + Rt)
             V = _dot(rng.standard_normal((M, model.dim)), Lr.T)
             X = space.retract(X, _dot(r + V, K.T))
         return Ensemble(X, E.space, None if self.weights == "equal" else w), innov
