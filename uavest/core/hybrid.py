@@ -56,7 +56,7 @@ from .base import (
 from .contract import EnsembleFilter, FilterBase
 from .ensemble import propagate_members
 from .gaussian import Gaussian
-from .linalg import chol, gain, is_pd, symmetrize
+from .linalg import NumericalError, chol, gain, is_pd, symmetrize
 from .model import Measurement, Transition
 from .particle import ess, log_likelihood, systematic_resample
 from .spec import param
@@ -566,59 +566,99 @@ class HybridLocal(_HybridBase):
         Kalman update with the Jacobian H_j at its centre (exact for a component small
         enough that h is linear across it), and its confidence weight is its predictive
         likelihood: w_j <- w_j N(z; h(C_j), H_j B H_j^T + R). New members are drawn from
-        the posterior mixture (systematic selection first if ESS < regen_ess M).
+        the posterior mixture (systematic selection first if ESS < regen_ess M), as
+        C_j+ + (I - K_j H_j) e_j + K_j v_j with e_j ~ N(0, B), v_j ~ N(0, R): exactly
+        N(C_j+, B_j+) without a Cholesky factor per component. Everything is vectorised
+        over the components; the m x m innovation covariances (m <= 2) are inverted in
+        closed form on the whole stack.
         """
         space = E.space
         x, dX, w, P = ensemble_moments(E)
         M, n = dX.shape
+        m = model.dim
         h = self.bandwidth or silverman_bandwidth(M, n)
-        C = space.retract(x, np.sqrt(1.0 - h * h) * dX)
+        C = space.retract(x, math.sqrt(1.0 - h * h) * dX)
         B = (h * h) * P
-        Hs = model.H_rows(C)  # (M, m, n)
-        Y = model.h(C)
+        Y, Hs = model.h_H_rows(C)  # (M, m), (M, m, n)
         nu = model.residual(z, Y)
-        HB = Hs @ B
-        S = HB @ Hs.transpose(0, 2, 1) + model.R
-        Ls = np.linalg.cholesky(S)
-        # one batched solve for the innovation and the gain: S^-1 [nu, H B]
-        G = np.linalg.solve(S, np.concatenate([nu[:, :, None], HB], axis=2))
-        u, SiHB = G[:, :, 0], G[:, :, 1:]
-        dx = np.einsum("jmn,jm->jn", HB, u)
+        if nu.shape[-1] != m:  # (einsum would broadcast a wrong-sized z silently)
+            raise ValueError(f"measurement has {nu.shape[-1]} components, the model {m}")
+        HB = _dot(Hs.reshape(M * m, n), B).reshape(M, m, n)  # H_j B, one product
+        # S_j = H_j B H_j^T + R, its inverse and log-determinant (closed form, m <= 2)
+        Si, logdet, Sw = _innovation_stack(HB, Hs, model.R, w)
+        u = np.einsum("jab,jb->ja", Si, nu)  # S_j^-1 nu_j
+        KT = Si @ HB  # the local gains K_j = B H_j^T S_j^-1, transposed (M, m, n)
         ybar = model.mean(Y, w)
         dY = model.residual(Y, ybar)
-        innov = innovation(model.residual(z, ybar),
-                           (dY.T * w) @ dY + np.einsum("j,jab->ab", w, S))
+        innov = innovation(model.residual(z, ybar), _dot(dY.T * w, dY) + Sw)
         if self.weights == "confidence":
-            loglik = -0.5 * np.einsum("jm,jm->j", nu, u) - np.log(
-                np.diagonal(Ls, axis1=1, axis2=2)).sum(axis=1)
+            loglik = -0.5 * (np.einsum("jm,jm->j", nu, u) + logdet)
             logw = np.log(np.maximum(w, 1e-300)) + loglik
-            w = np.exp(logw - logw.max())
-            w /= w.sum()
-        Cp = space.retract(C, dx)
-        Bp = B - HB.transpose(0, 2, 1) @ SiHB
-        Bp = 0.5 * (Bp + Bp.transpose(0, 2, 1))
-        if ess(w) < self.regen_ess * M:
+            w = np.exp(logw - _max(logw))
+            w /= _sum(w)
+        resample = ess(w) < self.regen_ess * M
+        if resample:
             idx = systematic_resample(w, rng)
-            Cp, Bp, wn = Cp[idx], Bp[idx], None
+            wn = None
         else:
             wn = w if self.weights == "confidence" else None
-        Lb = _batch_chol(Bp)
-        X = space.retract(Cp, np.einsum("jab,jb->ja", Lb, rng.standard_normal((M, n))))
+        # a draw from N(C_j + K_j nu_j, B_j+), B_j+ = B - K_j H_j B, without factoring
+        # each B_j+: with e ~ N(0, B) and v ~ N(0, R), (I - K_j H_j) e + K_j v has exactly
+        # that covariance (the Joseph form of the optimal gain)
+        e = _dot(rng.standard_normal((M, n)), chol(B).T)
+        v = _dot(rng.standard_normal((M, m)), chol(model.R).T)
+        if resample:  # the selected components' centres C_j + K_j nu_j and gains
+            Cp = space.retract(C, np.einsum("jm,jmn->jn", u, HB))[idx]
+            Hs, KT = Hs[idx], KT[idx]
+            d = v - np.einsum("jmn,jn->jm", Hs, e)
+        else:  # K_j nu_j + K_j (v_j - H_j e_j) in one product
+            Cp = C
+            d = nu + v - np.einsum("jmn,jn->jm", Hs, e)
+        X = space.retract(Cp, e + np.einsum("jm,jmn->jn", d, KT))
         return Ensemble(X, space, wn), innov
 
 
 
+@lru_cache(maxsize=64)
 def silverman_bandwidth(M: int, n: int) -> float:
     """Silverman's rule for a Gaussian kernel, (4 / (M (n + 2)))^(1 / (n + 4)), as a
     fraction of the ensemble's standard deviation (clipped to [0.05, 0.95])."""
     return float(np.clip((4.0 / (M * (n + 2))) ** (1.0 / (n + 4)), 0.05, 0.95))
 
 
-def _batch_chol(P: Array) -> Array:
-    """Lower Cholesky factors of a stack of symmetric PSD matrices (M, n, n); rows that
-    are not numerically PD fall back to an eigenvalue-clipped square root."""
-    try:
-        return np.linalg.cholesky(P)
-    except np.linalg.LinAlgError:
-        lam, V = np.linalg.eigh(P)
-        return V * np.sqrt(np.maximum(lam, 0.0))[:, None, :]
+def _innovation_stack(HB: Array, Hs: Array, R: Array, w: Array
+                      ) -> tuple[Array, Array, Array]:
+    """Inverses (M, m, m) and log-determinants (M,) of S_j = H_j B H_j^T + R given
+    ``HB`` = H_j B and ``Hs`` = H_j, and the weighted sum sum_j w_j S_j (m, m).
+
+    For m = 1 and m = 2 in closed form from the entries (elementwise over the members;
+    numpy's batched matrix routines call one small kernel per member); otherwise batched
+    ``matmul`` / ``inv`` / ``slogdet``. A non-positive determinant raises
+    :class:`~uavest.core.linalg.NumericalError` (for the guard)."""
+    M, m, _ = Hs.shape
+    if m <= 2:
+        diag = np.einsum("jmn,jmn->jm", HB, Hs)
+        diag += R.diagonal()  # (M, m): S_j's diagonal
+        a = diag[:, 0]
+        if m == 1:
+            if not np.all(a > 0.0):
+                raise NumericalError("innovation covariance not positive definite")
+            return (1.0 / a)[:, None, None], np.log(a), np.array([[_dot(w, a)]])
+        d = diag[:, 1]
+        b = np.einsum("jn,jn->j", HB[:, 0], Hs[:, 1])
+        b += R[0, 1]
+        det = a * d - b * b
+        if not np.all(det > 0.0):
+            raise NumericalError("innovation covariance not positive definite")
+        i = 1.0 / det
+        Si = np.empty((M, 2, 2))
+        Si[:, 0, 0] = d * i
+        Si[:, 1, 1] = a * i
+        Si[:, 0, 1] = Si[:, 1, 0] = -b * i
+        (sa, sd), sb = _dot(w, diag).tolist(), float(_dot(w, b))
+        return Si, np.log(det), np.array([[sa, sb], [sb, sd]])
+    S = HB @ Hs.transpose(0, 2, 1) + R
+    sign, logdet = np.linalg.slogdet(S)
+    if not np.all(sign > 0):
+        raise NumericalError("innovation covariance not positive definite")
+    return np.linalg.inv(S), logdet, np.einsum("j,jab->ab", w, S)

@@ -62,6 +62,11 @@ class Measurement:
         measurement and Jacobian share work override it (the radar)."""
         return self.h(x[None, :])[0], self.H(x)
 
+    def h_H_rows(self, X: Array) -> tuple[Array, Array]:
+        """(h(X), H_rows(X)): measurements and Jacobians of every row of ``X`` (what the
+        local-gain hybrid needs). Models whose two share work override it (the radar)."""
+        return self.h(X), self.H_rows(X)
+
     def H_rows(self, X: Array) -> Array:
         """Jacobians at every row of ``X`` (M, size) -> (M, m, n), tangent-space; batched
         central finite differences through ``retract`` and ``residual`` by default."""

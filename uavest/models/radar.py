@@ -160,9 +160,13 @@ class RadarMeasurement(Measurement):
         return m
 
     # -- geometry -------------------------------------------------------------------------
-    def _los(self, X: Array) -> tuple[Array, Array]:
+    def _los(self, X: Array) -> tuple[Array, Array | None]:
+        """Line of sight D and relative velocity V (None without a range-rate component,
+        which is the only one that reads it) in the sensor frame, rows of ``X``."""
         d = self.ndim
         D = (X[:, :d] - self.pose.position) @ self.pose.R_ws  # rows: R^T (p - s)
+        if self._rr is None:
+            return D, None
         V = (X[:, d : 2 * d] - self.pose.velocity) @ self.pose.R_ws
         return D, V
 
@@ -212,6 +216,39 @@ class RadarMeasurement(Measurement):
             Hm[:, :2] = np.array([[dx / r, dy / r], [-dy / r2, dx / r2]]) @ R.T
         return z, Hm
 
+    def h_H_rows(self, X: Array) -> tuple[Array, Array]:
+        """(h(X), H_rows(X)) from one line of sight per row (the 2-D range / azimuth case;
+        the same expressions as :meth:`h` and :meth:`H_rows`)."""
+        if self.ndim != 2 or self._rr is not None:
+            return self.h(X), self.H_rows(X)
+        D = self._los(X)[0]
+        rr = np.einsum("ij,ij->i", D, D)
+        Z = np.empty((D.shape[0], 2))
+        Z[:, 0] = np.sqrt(rr)
+        Z[:, 1] = np.arctan2(D[:, 1], D[:, 0])
+        return Z, self._H2_rows(D, np.maximum(rr, _EPS**2))
+
+    def _H2_rows(self, D: Array, r2: Array) -> Array:
+        """Range / azimuth Jacobians (M, 2, n) from the 2-D line of sight ``D`` and its
+        floored squared length ``r2`` (rho = r in 2-D)."""
+        Hm = np.zeros((D.shape[0], 2, self.space.dim))
+        g = Hm[:, :, :2]
+        g[:, 0] = D / np.sqrt(r2)[:, None]
+        g[:, 1, 0], g[:, 1, 1] = -D[:, 1] / r2, D[:, 0] / r2
+        if not self._axes_aligned():  # d/dp = R gD
+            g[...] = g @ self.pose.R_ws.T
+        return Hm
+
+    def _axes_aligned(self) -> bool:
+        """True if the 2-D sensor axes are the world axes (R_ws = I), remembered per pose."""
+        pose = self.pose
+        memo = self.__dict__.get("_aligned")
+        if memo is None or memo[0] is not pose:
+            R = pose.R_ws
+            memo = (pose, R is _I2 or np.array_equal(R, _I2))
+            self._aligned = memo
+        return memo[1]
+
     def H_rows(self, X: Array) -> Array:
         """Analytic Jacobians at every row of ``X`` (M, n) -> (M, m, n), vectorised."""
         d = self.ndim
@@ -220,6 +257,8 @@ class RadarMeasurement(Measurement):
         # floors as in h(): a target at the sensor (r = 0) or straight above / below it
         # (rho = 0, e.g. under a UAV radar) gives a finite (zero) gradient, not inf/NaN
         r2 = np.maximum(np.einsum("ij,ij->i", D, D), _EPS**2)
+        if d == 2 and self._rr is None:  # range / azimuth: two gradient rows
+            return self._H2_rows(D, r2)
         r = np.sqrt(r2)
         rho2 = np.maximum(D[:, 0] ** 2 + D[:, 1] ** 2, _EPS**2)
         zero = np.zeros((M, d))
@@ -248,14 +287,19 @@ class RadarMeasurement(Measurement):
         r = np.asarray(a, float) - np.asarray(b, float)
         if r.ndim == 1:  # one residual (the EKF, the UKF): the same wrap on a Python float
             r[self._az] = (float(r[self._az]) + math.pi) % _TWO_PI - math.pi
-        else:
-            r[..., self._az] = wrap_angle(r[..., self._az])
+        else:  # wrap_angle's three operations, in place on the azimuth column
+            t = r[..., self._az]
+            t += np.pi
+            np.remainder(t, _TWO_PI, out=t)
+            t -= np.pi
         return r
 
     def mean(self, Y: Array, w: Array) -> Array:
         """Weighted mean of measurements ``Y`` (M, m); circular for the azimuth."""
-        m = w @ Y
-        m[self._az] = np.arctan2(w @ np.sin(Y[:, self._az]), w @ np.cos(Y[:, self._az]))
+        m = np.dot(w, Y)  # = w @ Y, less per-call overhead
+        a = Y[:, self._az]
+        m[self._az] = np.arctan2(np.dot(w, np.sin(a)), np.dot(w, np.cos(a)))  # not math:
+        # numpy's arctan2 is its own (SIMD) implementation, libm's differs in the last bit
         return m
 
     def mean_rows(self, Y: Array, w: Array) -> Array:
