@@ -204,13 +204,18 @@ class RadarMeasurement(Measurement):
 
     def _h_H2(self, x: Array) -> tuple[Array, Array]:
         R = self.pose.R_ws
-        dx, dy = ((x[:2] - self.pose.position) @ R).tolist()  # D = R^T (p - s)
+        aligned = self._axes_aligned()
+        if aligned:  # D = (p - s) I on floats: the products by 1 and 0 are exact, and
+            # the BLAS product sums them onto +0 (signed zeros as it gives them)
+            px, py = float(x[0] - self.pose.position[0]), float(x[1] - self.pose.position[1])
+            dx, dy = (0.0 + px) + py * 0.0, (0.0 + px * 0.0) + py
+        else:
+            dx, dy = ((x[:2] - self.pose.position) @ R).tolist()  # D = R^T (p - s)
         z = np.array([math.sqrt(dx * dx + dy * dy), math.atan2(dy, dx)])
         r2 = max(dx * dx + dy * dy, _EPS**2)
         r = math.sqrt(r2)
         Hm = np.zeros((2, self.space.dim))
-        if R is _I2 or (R[0, 1] == 0.0 and R[1, 0] == 0.0 and R[0, 0] == 1.0
-                        and R[1, 1] == 1.0):  # sensor axes = world axes: R gD = gD
+        if aligned:  # sensor axes = world axes: R gD = gD
             Hm[0, 0], Hm[0, 1], Hm[1, 0], Hm[1, 1] = dx / r, dy / r, -dy / r2, dx / r2
         else:
             Hm[:, :2] = np.array([[dx / r, dy / r], [-dy / r2, dx / r2]]) @ R.T
