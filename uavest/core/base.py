@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -103,4 +104,10 @@ def sample_gaussian(g: Gaussian, space: Space, M: int, rng: np.random.Generator)
 
 def innovation(nu: Array, S: Array) -> Innovation:
     """Innovation record with its NIS (Cholesky solve through LAPACK)."""
+    if S.shape[0] == 1:  # chol + nis_from_factor of a 1 x 1, on floats
+        s = float(S[0, 0])
+        if 0.0 < s < math.inf:
+            i = 1.0 / math.sqrt(s)
+            v = float(nu[0])
+            return Innovation(nu, S, v * (v * i * i))
     return Innovation(nu, S, nis_from_factor(chol(S), nu))

@@ -89,6 +89,11 @@ def is_pd(P: Array) -> bool:
 
 def gain(Pxy: Array, S: Array) -> Array:
     """Kalman gain K = Pxy S^-1 computed by a solve (S symmetric PD)."""
+    if S.shape[0] == 1:  # as gain_factor, without building the unused factor
+        s = float(S[0, 0])
+        if 0.0 < s < math.inf:
+            i = 1.0 / math.sqrt(s)
+            return Pxy * i * i
     return gain_factor(Pxy, S)[0]
 
 

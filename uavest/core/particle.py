@@ -56,8 +56,9 @@ def log_likelihood(r: Array, R: Array) -> Array:
     if r.shape[-1] != R.shape[0]:
         raise ValueError(f"residuals have {r.shape[-1]} components, the measurement "
                          f"noise {R.shape[0]}")
-    if R.shape[0] == 1:  # 1 x 1: the triangular solve as LAPACK does it (linalg.py)
-        u = r[:, 0] * (1.0 / float(chol(R)[0, 0]))
+    if R.shape[0] == 1 and 0.0 < float(R[0, 0]) < math.inf:
+        # 1 x 1: the factor and triangular solve as LAPACK does them (linalg.py)
+        u = r[:, 0] * (1.0 / math.sqrt(float(R[0, 0])))
         return -0.5 * (u * u)
     u = _linalg.dtrtrs(chol(R), r.T, lower=1)[0]  # LAPACK, bound at the first call
     return -0.5 * np.add.reduce(u * u, axis=0)  # = .sum(axis=0), one call less
