@@ -607,11 +607,12 @@ class HybridLocal(_HybridBase):
         # that covariance (the Joseph form of the optimal gain)
         e = _dot(rng.standard_normal((M, n)), chol(B).T)
         v = _dot(rng.standard_normal((M, m)), chol(model.R).T)
-        if resample:  # the selected components' centres C_j + K_j nu_j and gains
-            Cp = space.retract(C, np.einsum("jm,jmn->jn", u, HB))[idx]
-            Hs, KT = Hs[idx], KT[idx]
+        if resample or type(space) is not VectorSpace:  # the centres C_j + K_j nu_j
+            Cp = space.retract(C, np.einsum("jm,jmn->jn", u, HB))
+            if resample:  # the selected components' centres and gains
+                Cp, Hs, KT = Cp[idx], Hs[idx], KT[idx]
             d = v - np.einsum("jmn,jn->jm", Hs, e)
-        else:  # K_j nu_j + K_j (v_j - H_j e_j) in one product
+        else:  # on a vector space K_j nu_j + K_j (v_j - H_j e_j) in one product
             Cp = C
             d = nu + v - np.einsum("jmn,jn->jm", Hs, e)
         X = space.retract(Cp, e + np.einsum("jm,jmn->jn", d, KT))
