@@ -36,7 +36,7 @@ def propagate_members(
     space = model.space
     X = model.f(E.X, t, dt, u)
     L = chol(model.Q(t, dt, u))
-    W = rng.standard_normal((E.M, space.dim)) @ L.T
+    W = np.dot(rng.standard_normal((E.M, space.dim)), L.T)  # np.dot: = @, less overhead
     if inflation != 1.0:
         w = np.full(E.M, 1.0 / E.M) if E.w is None else E.w
         x = space.mean(X, w, X[0])

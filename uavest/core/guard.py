@@ -101,10 +101,11 @@ class Guarded(FilterBase):
             return None, f"estimate failed: {e}"
         P = g.P
         L, info = _linalg.dpotrf(P, lower=1)
-        if info != 0 or not math.isfinite(float(g.x.sum()) + float(L.trace())):
+        # sums of Python floats: a few entries, cheaper than two numpy reductions
+        if info != 0 or not math.isfinite(sum(g.x.tolist()) + sum(L.diagonal().tolist())):
             return None, ("non-finite estimate" if not g.finite()
                           else "covariance not positive definite")
-        if var_limit < np.inf and float(P.diagonal().max()) > var_limit:
+        if var_limit < np.inf and max(P.diagonal().tolist()) > var_limit:
             return None, "covariance exploded"
         return g, ""
 
@@ -163,7 +164,7 @@ class Guarded(FilterBase):
     def _after_update(self, s: GuardState, inner, inn, model, rng
                       ) -> tuple[GuardState, Innovation | None]:
         g, why = self._check(inner, s.var_limit)
-        if g is None or not np.isfinite(inn.nis):
+        if g is None or not math.isfinite(inn.nis):
             return self._recover(s, model.space, rng, why or "non-finite NIS"), inn
         strikes = s.strikes + 1 if inn.nis > nis_gate(len(inn.nu), self.gate_prob) else 0
         if strikes >= self.strikes:

@@ -36,24 +36,27 @@ irrelevant are refused in specs (their ``when`` declaration).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import ClassVar
 
 import numpy as np
 
-from ..geometry.spaces import Space
+from ..geometry.spaces import Space, VectorSpace
 from .base import (
     Ensemble,
     Innovation,
     ensemble_estimate,
     ensemble_moments,
+    equal_weights,
     innovation,
     mean_start,
 )
 from .contract import EnsembleFilter, FilterBase
 from .ensemble import propagate_members
 from .gaussian import Gaussian
-from .linalg import chol, gain, is_pd, symmetrize
+from .linalg import NumericalError, chol, gain, is_pd, symmetrize
 from .model import Measurement, Transition
 from .particle import ess, log_likelihood, systematic_resample
 from .spec import param
@@ -286,6 +289,23 @@ def _check_switches(sampling: str, weights: str) -> None:
 _PHI_GRID = np.linspace(0.0, 1.0, 17)
 
 
+# The hot paths below call ``np.dot`` rather than ``@`` (the same BLAS routine and the
+# same numbers for these 1-D / 2-D operands, without the gufunc's per-call overhead, which
+# dominates on ensembles of ~100 members) and ``np.add.reduce`` / ``np.maximum.reduce``
+# rather than the ``.sum()`` / ``.max()`` methods (the same reduction, one call less).
+_dot = np.dot
+_sum = np.add.reduce
+_max = np.maximum.reduce
+
+
+@lru_cache(maxsize=32)
+def _log_equal(M: int) -> Array:
+    """log(max(1/M, 1e-300)) as :func:`tempered_weights` computes it for equal weights."""
+    a = np.log(np.maximum(equal_weights(M), 1e-300))
+    a.flags.writeable = False
+    return a
+
+
 def tempered_weights(
     w: Array, loglik: Array, phi_max: float, min_ess: float
 ) -> tuple[Array, float]:
@@ -295,20 +315,35 @@ def tempered_weights(
     Returns (normalised weights, phi). Vectorised over the grid: one (17, M) evaluation.
     """
     M = w.shape[0]
-    logw0 = np.log(np.maximum(w, 1e-300))
+    logw0 = _log_equal(M) if w is equal_weights(M) else np.log(np.maximum(w, 1e-300))
     L1 = logw0 + phi_max * loglik  # common case first: the full share keeps the ESS floor
-    W1 = np.exp(L1 - L1.max())
-    W1 /= W1.sum()
-    if 1.0 / (W1 @ W1) >= min_ess * M:
+    W1 = np.exp(L1 - _max(L1))
+    W1 /= _sum(W1)
+    if 1.0 / _dot(W1, W1) >= min_ess * M:
         return W1, float(phi_max)
     phis = phi_max * _PHI_GRID
     L = logw0 + phis[:, None] * loglik
-    W = np.exp(L - L.max(axis=1, keepdims=True))
-    W /= W.sum(axis=1, keepdims=True)
-    ok = (W * W).sum(axis=1) * (min_ess * M) <= 1.0  # ESS = 1 / sum w^2 >= min_ess M
+    W = np.exp(L - _max(L, axis=1, keepdims=True))
+    W /= _sum(W, axis=1, keepdims=True)
+    ok = _sum(W * W, axis=1) * (min_ess * M) <= 1.0  # ESS = 1 / sum w^2 >= min_ess M
     i = int(np.nonzero(ok)[0][-1]) if ok.any() else 0
     return W[i], float(phis[i])
 
+
+def _plain_measurement(model: Measurement) -> bool:
+    """True if the model's ``mean`` and ``residual`` are the plain weighted sum and
+    difference (then ``residual(Y, mean(Y, w))`` is centred under ``w`` up to rounding)."""
+    t = type(model)  # (a wrapper that delegates its attributes: False, the safe answer)
+    return (getattr(t, "mean", None) is Measurement.mean
+            and getattr(t, "residual", None) is Measurement.residual)
+
+
+def _mean(space: Space, X: Array, w: Array) -> Array:
+    """``space.mean`` of members ``X`` with weights ``w`` (``np.dot`` on a plain vector
+    space: the same numbers as its ``w @ X``)."""
+    if type(space) is VectorSpace:
+        return _dot(w, X)
+    return space.mean(X, w, mean_start(space, X, w))
 
 
 class _HybridBase(EnsembleFilter):
@@ -343,8 +378,8 @@ class _HybridBase(EnsembleFilter):
         x, dX, w, P = ensemble_moments(E)
         idx = systematic_resample(w, rng)
         h = self.kernel
-        a = np.sqrt(1.0 - h * h)
-        J = rng.standard_normal((E.M, E.space.dim)) @ (h * chol(P)).T
+        a = math.sqrt(1.0 - h * h)
+        J = _dot(rng.standard_normal((E.M, E.space.dim)), (h * chol(P)).T)
         return Ensemble(E.space.retract(x, a * dX[idx] + J), E.space)
 
     def keeps_members(self, E: Ensemble) -> bool:
@@ -435,12 +470,12 @@ class Hybrid(_HybridBase):
     def update(self, E: Ensemble, z, model: Measurement, rng=None) -> tuple[Ensemble, Innovation]:
         space = model.space
         M = E.M
-        w = np.full(M, 1.0 / M) if E.w is None else E.w
+        w = equal_weights(M) if E.w is None else E.w
         Y = model.h(E.X)
         r = model.residual(z, Y)
         ybar = model.mean(Y, w)
         dY0 = model.residual(Y, ybar)
-        innov = innovation(model.residual(z, ybar), (dY0.T * w) @ dY0 + model.R)
+        innov = innovation(model.residual(z, ybar), _dot(dY0.T * w, dY0) + model.R)
         tau = 1.0
         if self.weights == "confidence":
             left = 1.0 - self.tau  # share of the likelihood still to go into the weights
@@ -450,28 +485,36 @@ class Hybrid(_HybridBase):
                 if left <= 1e-9 or stage == self.stages - 1:
                     break
                 E = self._regenerate(Ensemble(E.X, E.space, w), rng)
-                w = np.full(M, 1.0 / M)
+                w = equal_weights(M)
                 Y = model.h(E.X)
                 r = model.residual(z, Y)
             tau = self.tau + left
         X = E.X
-        c = 1.0 / max(1.0 - float(w @ w), 1e-12)
+        c = 1.0 / max(1.0 - float(_dot(w, w)), 1e-12)
         Rt = model.R * (self.shifts / tau)
         Lr = chol(Rt)
+        flat = type(space) is VectorSpace
+        plain = flat and _plain_measurement(model)
         for i in range(self.shifts):
             if i:
                 Y = model.h(X)
                 r = model.residual(z, Y)
-            x = space.mean(X, w, mean_start(space, X, w))
-            dX = space.local(x, X)
-            dX = dX - w @ dX
             dY = model.residual(Y, model.mean(Y, w))
-            dY = dY - w @ dY
+            if not plain:  # a manifold, or e.g. a circular mean: centre them exactly
+                dY = dY - _dot(w, dY)
             # weighted sums of outer products: symmetric by construction (Cholesky reads
             # the lower triangle), so no symmetrising on this hot path
-            K = gain(c * (dX.T * w) @ dY, c * (dY.T * w) @ dY + Rt)
-            V = rng.standard_normal((M, model.dim)) @ Lr.T
-            X = space.retract(X, (r + V) @ K.T)
+            if flat:
+                # on a vector space sum_j w_j (X_j - x) dY_j^T = sum_j w_j X_j dY_j^T (the
+                # weighted dY sum to zero), so neither the mean nor dX is needed
+                A = dY.T * (c * w)
+                K = gain(_dot(A, X).T, _dot(A, dY) + Rt)
+            else:
+                dX = space.local(_mean(space, X, w), X)
+                dX = dX - _dot(w, dX)
+                K = gain(_dot(c * (dX.T * w), dY), _dot(c * (dY.T * w), dY) + Rt)
+            V = _dot(rng.standard_normal((M, model.dim)), Lr.T)
+            X = space.retract(X, _dot(r + V, K.T))
         return Ensemble(X, E.space, None if self.weights == "equal" else w), innov
 
 
@@ -523,59 +566,100 @@ class HybridLocal(_HybridBase):
         Kalman update with the Jacobian H_j at its centre (exact for a component small
         enough that h is linear across it), and its confidence weight is its predictive
         likelihood: w_j <- w_j N(z; h(C_j), H_j B H_j^T + R). New members are drawn from
-        the posterior mixture (systematic selection first if ESS < regen_ess M).
+        the posterior mixture (systematic selection first if ESS < regen_ess M), as
+        C_j+ + (I - K_j H_j) e_j + K_j v_j with e_j ~ N(0, B), v_j ~ N(0, R): exactly
+        N(C_j+, B_j+) without a Cholesky factor per component. Everything is vectorised
+        over the components; the m x m innovation covariances (m <= 2) are inverted in
+        closed form on the whole stack.
         """
         space = E.space
         x, dX, w, P = ensemble_moments(E)
         M, n = dX.shape
+        m = model.dim
         h = self.bandwidth or silverman_bandwidth(M, n)
-        C = space.retract(x, np.sqrt(1.0 - h * h) * dX)
+        C = space.retract(x, math.sqrt(1.0 - h * h) * dX)
         B = (h * h) * P
-        Hs = model.H_rows(C)  # (M, m, n)
-        Y = model.h(C)
+        Y, Hs = model.h_H_rows(C)  # (M, m), (M, m, n)
         nu = model.residual(z, Y)
-        HB = Hs @ B
-        S = HB @ Hs.transpose(0, 2, 1) + model.R
-        Ls = np.linalg.cholesky(S)
-        # one batched solve for the innovation and the gain: S^-1 [nu, H B]
-        G = np.linalg.solve(S, np.concatenate([nu[:, :, None], HB], axis=2))
-        u, SiHB = G[:, :, 0], G[:, :, 1:]
-        dx = np.einsum("jmn,jm->jn", HB, u)
+        if nu.shape[-1] != m:  # (einsum would broadcast a wrong-sized z silently)
+            raise ValueError(f"measurement has {nu.shape[-1]} components, the model {m}")
+        HB = _dot(Hs.reshape(M * m, n), B).reshape(M, m, n)  # H_j B, one product
+        # S_j = H_j B H_j^T + R, its inverse and log-determinant (closed form, m <= 2)
+        Si, logdet, Sw = _innovation_stack(HB, Hs, model.R, w)
+        u = np.einsum("jab,jb->ja", Si, nu)  # S_j^-1 nu_j
+        KT = Si @ HB  # the local gains K_j = B H_j^T S_j^-1, transposed (M, m, n)
         ybar = model.mean(Y, w)
         dY = model.residual(Y, ybar)
-        innov = innovation(model.residual(z, ybar),
-                           (dY.T * w) @ dY + np.einsum("j,jab->ab", w, S))
+        innov = innovation(model.residual(z, ybar), _dot(dY.T * w, dY) + Sw)
         if self.weights == "confidence":
-            loglik = -0.5 * np.einsum("jm,jm->j", nu, u) - np.log(
-                np.diagonal(Ls, axis1=1, axis2=2)).sum(axis=1)
+            loglik = -0.5 * (np.einsum("jm,jm->j", nu, u) + logdet)
             logw = np.log(np.maximum(w, 1e-300)) + loglik
-            w = np.exp(logw - logw.max())
-            w /= w.sum()
-        Cp = space.retract(C, dx)
-        Bp = B - HB.transpose(0, 2, 1) @ SiHB
-        Bp = 0.5 * (Bp + Bp.transpose(0, 2, 1))
-        if ess(w) < self.regen_ess * M:
+            w = np.exp(logw - _max(logw))
+            w /= _sum(w)
+        resample = ess(w) < self.regen_ess * M
+        if resample:
             idx = systematic_resample(w, rng)
-            Cp, Bp, wn = Cp[idx], Bp[idx], None
+            wn = None
         else:
             wn = w if self.weights == "confidence" else None
-        Lb = _batch_chol(Bp)
-        X = space.retract(Cp, np.einsum("jab,jb->ja", Lb, rng.standard_normal((M, n))))
+        # a draw from N(C_j + K_j nu_j, B_j+), B_j+ = B - K_j H_j B, without factoring
+        # each B_j+: with e ~ N(0, B) and v ~ N(0, R), (I - K_j H_j) e + K_j v has exactly
+        # that covariance (the Joseph form of the optimal gain)
+        e = _dot(rng.standard_normal((M, n)), chol(B).T)
+        v = _dot(rng.standard_normal((M, m)), chol(model.R).T)
+        if resample or type(space) is not VectorSpace:  # the centres C_j + K_j nu_j
+            Cp = space.retract(C, np.einsum("jm,jmn->jn", u, HB))
+            if resample:  # the selected components' centres and gains
+                Cp, Hs, KT = Cp[idx], Hs[idx], KT[idx]
+            d = v - np.einsum("jmn,jn->jm", Hs, e)
+        else:  # on a vector space K_j nu_j + K_j (v_j - H_j e_j) in one product
+            Cp = C
+            d = nu + v - np.einsum("jmn,jn->jm", Hs, e)
+        X = space.retract(Cp, e + np.einsum("jm,jmn->jn", d, KT))
         return Ensemble(X, space, wn), innov
 
 
 
+@lru_cache(maxsize=64)
 def silverman_bandwidth(M: int, n: int) -> float:
     """Silverman's rule for a Gaussian kernel, (4 / (M (n + 2)))^(1 / (n + 4)), as a
     fraction of the ensemble's standard deviation (clipped to [0.05, 0.95])."""
     return float(np.clip((4.0 / (M * (n + 2))) ** (1.0 / (n + 4)), 0.05, 0.95))
 
 
-def _batch_chol(P: Array) -> Array:
-    """Lower Cholesky factors of a stack of symmetric PSD matrices (M, n, n); rows that
-    are not numerically PD fall back to an eigenvalue-clipped square root."""
-    try:
-        return np.linalg.cholesky(P)
-    except np.linalg.LinAlgError:
-        lam, V = np.linalg.eigh(P)
-        return V * np.sqrt(np.maximum(lam, 0.0))[:, None, :]
+def _innovation_stack(HB: Array, Hs: Array, R: Array, w: Array
+                      ) -> tuple[Array, Array, Array]:
+    """Inverses (M, m, m) and log-determinants (M,) of S_j = H_j B H_j^T + R given
+    ``HB`` = H_j B and ``Hs`` = H_j, and the weighted sum sum_j w_j S_j (m, m).
+
+    For m = 1 and m = 2 in closed form from the entries (elementwise over the members;
+    numpy's batched matrix routines call one small kernel per member); otherwise batched
+    ``matmul`` / ``inv`` / ``slogdet``. A non-positive determinant raises
+    :class:`~uavest.core.linalg.NumericalError` (for the guard)."""
+    M, m, _ = Hs.shape
+    if m <= 2:
+        diag = np.einsum("jmn,jmn->jm", HB, Hs)
+        diag += R.diagonal()  # (M, m): S_j's diagonal
+        a = diag[:, 0]
+        if m == 1:
+            if not np.all(a > 0.0):
+                raise NumericalError("innovation covariance not positive definite")
+            return (1.0 / a)[:, None, None], np.log(a), np.array([[_dot(w, a)]])
+        d = diag[:, 1]
+        b = np.einsum("jn,jn->j", HB[:, 0], Hs[:, 1])
+        b += R[0, 1]
+        det = a * d - b * b
+        if not np.all(det > 0.0):
+            raise NumericalError("innovation covariance not positive definite")
+        i = 1.0 / det
+        Si = np.empty((M, 2, 2))
+        Si[:, 0, 0] = d * i
+        Si[:, 1, 1] = a * i
+        Si[:, 0, 1] = Si[:, 1, 0] = -b * i
+        (sa, sd), sb = _dot(w, diag).tolist(), float(_dot(w, b))
+        return Si, np.log(det), np.array([[sa, sb], [sb, sd]])
+    S = HB @ Hs.transpose(0, 2, 1) + R
+    sign, logdet = np.linalg.slogdet(S)
+    if not np.all(sign > 0):
+        raise NumericalError("innovation covariance not positive definite")
+    return np.linalg.inv(S), logdet, np.einsum("j,jab->ab", w, S)

@@ -7,6 +7,11 @@ predict:  x- = f(x),            P- = F P F^T + Q
 update:   nu = z (-) h(x-),     S = H P- H^T + R,      K = P- H^T S^-1 (solve)
           x+ = retract(x-, K nu)
           P+ = (I - K H) P- (I - K H)^T + K R K^T      (Joseph form)
+
+The products are ``np.dot`` (the same BLAS calls as ``@`` with less per-call overhead on
+these small matrices), the symmetrising ``(A + A^T) / 2`` is done in the fresh result, and
+one Cholesky solve gives both the gain and S^-1 nu for the NIS: the same numbers as the
+composed expressions, a quarter less time per radar step (docs/speed.md).
 """
 
 from __future__ import annotations
@@ -16,13 +21,17 @@ from functools import lru_cache
 
 import numpy as np
 
+from . import linalg as _linalg
 from .base import Innovation
 from .contract import FilterBase, sigma_point_terms
 from .gaussian import Gaussian
-from .linalg import gain_factor, nis_from_factor, symmetrize
+from .linalg import chol
 from .model import Measurement, Transition
 
 Array = np.ndarray
+
+
+_dot = np.dot
 
 
 @lru_cache(maxsize=16)
@@ -30,6 +39,26 @@ def _eye(n: int) -> Array:
     I = np.eye(n)
     I.flags.writeable = False
     return I
+
+
+def _sym(A: Array) -> Array:
+    """(A + A^T) / 2 of a fresh product (written into the sum: no second temporary)."""
+    S = A + A.T
+    S *= 0.5
+    return S
+
+
+def _gain_nis(PHt: Array, S: Array, nu: Array) -> tuple[Array, float]:
+    """K = P H^T S^-1 and nu^T S^-1 nu from one Cholesky solve S [K^T, u] = [H P, nu]
+    (jittered factor when S is not numerically PD, as :func:`linalg.gain_factor`)."""
+    n = PHt.shape[0]
+    B = np.empty((S.shape[0], n + 1), order="F")
+    B[:, :n] = PHt.T
+    B[:, n] = nu
+    _, X, info = _linalg.dposv(S, B, lower=1, overwrite_b=1)
+    if info != 0:
+        X = _linalg.dpotrs(chol(S), B, lower=1)[0]
+    return X[:, :n].T, float(_dot(nu, X[:, n]))
 
 
 @dataclass(frozen=True)
@@ -49,8 +78,9 @@ class EKF(FilterBase):
         """Predict and also return the Jacobian F used (for RTS smoothing)."""
         F = model.F(g.x, t, dt, u)
         x = model.f(g.x[None, :], t, dt, u)[0]
-        P = symmetrize(F @ g.P @ F.T + model.Q(t, dt, u))
-        return Gaussian(x, P), F
+        A = _dot(_dot(F, g.P), F.T)
+        A += model.Q(t, dt, u)
+        return Gaussian(x, _sym(A)), F
 
     def predict(self, g: Gaussian, model: Transition, t: float, dt: float, u=None, rng=None):
         return self.predict_jac(g, model, t, dt, u)[0]
@@ -58,16 +88,19 @@ class EKF(FilterBase):
     def update(
         self, g: Gaussian, z: Array, model: Measurement, rng=None
     ) -> tuple[Gaussian, Innovation]:
-        H = model.H(g.x)
-        zhat = model.h(g.x[None, :])[0]
+        zhat, H = model.h_H(g.x)
         nu = model.residual(z, zhat)
-        PHt = g.P @ H.T
-        S = symmetrize(H @ PHt + model.R)
-        K, cS = gain_factor(PHt, S)
-        x = model.space.retract(g.x, K @ nu)
-        IKH = _eye(g.P.shape[0]) - K @ H
-        P = symmetrize(IKH @ g.P @ IKH.T + K @ model.R @ K.T)
-        return Gaussian(x, P), Innovation(nu, S, nis_from_factor(cS, nu))
+        P, R = g.P, model.R
+        PHt = _dot(P, H.T)
+        S = _dot(H, PHt)
+        S += R
+        S = _sym(S)
+        K, nis = _gain_nis(PHt, S, nu)
+        x = model.space.retract(g.x, _dot(K, nu))
+        IKH = _eye(P.shape[0]) - _dot(K, H)
+        A = _dot(_dot(IKH, P), IKH.T)
+        A += _dot(_dot(K, R), K.T)
+        return Gaussian(x, _sym(A)), Innovation(nu, S, nis)
 
     def estimate(self, g: Gaussian) -> Gaussian:
         return g

@@ -57,6 +57,16 @@ class Measurement:
         """Jacobian of ``h`` w.r.t. the tangent-space state error at ``x`` (m x n)."""
         return fd_jacobian(self.h, self.space, None, x)
 
+    def h_H(self, x: Array) -> tuple[Array, Array]:
+        """(h(x), H(x)) of one state ``x``: what the EKF's update needs. Models whose
+        measurement and Jacobian share work override it (the radar)."""
+        return self.h(x[None, :])[0], self.H(x)
+
+    def h_H_rows(self, X: Array) -> tuple[Array, Array]:
+        """(h(X), H_rows(X)): measurements and Jacobians of every row of ``X`` (what the
+        local-gain hybrid needs). Models whose two share work override it (the radar)."""
+        return self.h(X), self.H_rows(X)
+
     def H_rows(self, X: Array) -> Array:
         """Jacobians at every row of ``X`` (M, size) -> (M, m, n), tangent-space; batched
         central finite differences through ``retract`` and ``residual`` by default."""
@@ -66,7 +76,7 @@ class Measurement:
         return a - b
 
     def mean(self, Y: Array, w: Array) -> Array:
-        return w @ Y
+        return np.dot(w, Y)  # = w @ Y, with less per-call overhead
 
     @property
     def dim(self) -> int:

@@ -9,7 +9,9 @@ Resampling is deferred to the next predict so that the estimate uses the weighte
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
@@ -29,15 +31,23 @@ def systematic_resample(w: Array, rng: np.random.Generator, n: int | None = None
     n defaults to N. Raises :class:`NumericalError` for non-finite weights."""
     N = w.shape[0] if n is None else n
     cs = w.cumsum()
-    if not np.isfinite(cs[-1]):
+    if not math.isfinite(cs[-1]):
         raise NumericalError("resampling weights are not finite")
     cs[-1] = 1.0
-    return cs.searchsorted((rng.random() + np.arange(N)) * (1.0 / N))
+    return cs.searchsorted((rng.random() + _arange(N)) * (1.0 / N))
+
+
+@lru_cache(maxsize=32)
+def _arange(N: int) -> Array:
+    """0, 1, ..., N-1 as floats (what ``u + np.arange(N)`` adds), shared and read-only."""
+    a = np.arange(N, dtype=float)
+    a.flags.writeable = False
+    return a
 
 
 def ess(w: Array) -> float:
     """Effective sample size 1 / sum w^2 of normalised weights."""
-    return 1.0 / float(w @ w)
+    return 1.0 / float(np.dot(w, w))  # = w @ w, less per-call overhead
 
 
 def log_likelihood(r: Array, R: Array) -> Array:
@@ -46,8 +56,12 @@ def log_likelihood(r: Array, R: Array) -> Array:
     if r.shape[-1] != R.shape[0]:
         raise ValueError(f"residuals have {r.shape[-1]} components, the measurement "
                          f"noise {R.shape[0]}")
+    if R.shape[0] == 1 and 0.0 < float(R[0, 0]) < math.inf:
+        # 1 x 1: the factor and triangular solve as LAPACK does them (linalg.py)
+        u = r[:, 0] * (1.0 / math.sqrt(float(R[0, 0])))
+        return -0.5 * (u * u)
     u = _linalg.dtrtrs(chol(R), r.T, lower=1)[0]  # LAPACK, bound at the first call
-    return -0.5 * (u * u).sum(axis=0)
+    return -0.5 * np.add.reduce(u * u, axis=0)  # = .sum(axis=0), one call less
 
 
 def normalise_log(logw: Array) -> Array:

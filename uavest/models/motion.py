@@ -38,7 +38,7 @@ class NearlyConstantVelocity(Transition):
         return self._cache[1], self._cache[2]
 
     def f(self, X, t, dt, u=None):
-        return X @ self._mats(dt)[0].T
+        return np.dot(X, self._mats(dt)[0].T)  # = X @ F^T, less per-call overhead
 
     def F(self, x, t, dt, u=None):
         return self._mats(dt)[0]

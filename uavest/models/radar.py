@@ -46,6 +46,7 @@ Array = np.ndarray
 COMPONENTS = ("range", "azimuth", "elevation", "range_rate")
 _EPS = 1e-9  # m, floor of range / horizontal range in divisions
 _I2 = np.eye(2)
+_TWO_PI = 2.0 * math.pi
 
 
 def wrap_angle(a: Array | float) -> Array:
@@ -159,9 +160,13 @@ class RadarMeasurement(Measurement):
         return m
 
     # -- geometry -------------------------------------------------------------------------
-    def _los(self, X: Array) -> tuple[Array, Array]:
+    def _los(self, X: Array) -> tuple[Array, Array | None]:
+        """Line of sight D and relative velocity V (None without a range-rate component,
+        which is the only one that reads it) in the sensor frame, rows of ``X``."""
         d = self.ndim
         D = (X[:, :d] - self.pose.position) @ self.pose.R_ws  # rows: R^T (p - s)
+        if self._rr is None:
+            return D, None
         V = (X[:, d : 2 * d] - self.pose.velocity) @ self.pose.R_ws
         return D, V
 
@@ -188,17 +193,66 @@ class RadarMeasurement(Measurement):
         x = np.asarray(x, float)
         if self.ndim != 2 or self._rr is not None:
             return self.H_rows(x[None, :])[0]
+        return self._h_H2(x)[1]
+
+    def h_H(self, x: Array) -> tuple[Array, Array]:
+        """(h(x), H(x)) of one state: the 2-D range / azimuth case from one line of sight
+        (the same expressions as :meth:`h` and :meth:`H`)."""
+        if self.ndim != 2 or self._rr is not None:
+            return self.h(x[None, :])[0], self.H(x)
+        return self._h_H2(np.asarray(x, float))
+
+    def _h_H2(self, x: Array) -> tuple[Array, Array]:
         R = self.pose.R_ws
-        dx, dy = ((x[:2] - self.pose.position) @ R).tolist()  # D = R^T (p - s)
+        aligned = self._axes_aligned()
+        if aligned:  # D = (p - s) I on floats: the products by 1 and 0 are exact, and
+            # the BLAS product sums them onto +0 (signed zeros as it gives them)
+            px, py = float(x[0] - self.pose.position[0]), float(x[1] - self.pose.position[1])
+            dx, dy = (0.0 + px) + py * 0.0, (0.0 + px * 0.0) + py
+        else:
+            dx, dy = ((x[:2] - self.pose.position) @ R).tolist()  # D = R^T (p - s)
+        z = np.array([math.sqrt(dx * dx + dy * dy), math.atan2(dy, dx)])
         r2 = max(dx * dx + dy * dy, _EPS**2)
         r = math.sqrt(r2)
         Hm = np.zeros((2, self.space.dim))
-        if R is _I2 or (R[0, 1] == 0.0 and R[1, 0] == 0.0 and R[0, 0] == 1.0
-                        and R[1, 1] == 1.0):  # sensor axes = world axes: R gD = gD
+        if aligned:  # sensor axes = world axes: R gD = gD
             Hm[0, 0], Hm[0, 1], Hm[1, 0], Hm[1, 1] = dx / r, dy / r, -dy / r2, dx / r2
         else:
             Hm[:, :2] = np.array([[dx / r, dy / r], [-dy / r2, dx / r2]]) @ R.T
+        return z, Hm
+
+    def h_H_rows(self, X: Array) -> tuple[Array, Array]:
+        """(h(X), H_rows(X)) from one line of sight per row (the 2-D range / azimuth case;
+        the same expressions as :meth:`h` and :meth:`H_rows`)."""
+        if self.ndim != 2 or self._rr is not None:
+            return self.h(X), self.H_rows(X)
+        D = self._los(X)[0]
+        rr = np.einsum("ij,ij->i", D, D)
+        Z = np.empty((D.shape[0], 2))
+        Z[:, 0] = np.sqrt(rr)
+        Z[:, 1] = np.arctan2(D[:, 1], D[:, 0])
+        return Z, self._H2_rows(D, np.maximum(rr, _EPS**2))
+
+    def _H2_rows(self, D: Array, r2: Array) -> Array:
+        """Range / azimuth Jacobians (M, 2, n) from the 2-D line of sight ``D`` and its
+        floored squared length ``r2`` (rho = r in 2-D)."""
+        Hm = np.zeros((D.shape[0], 2, self.space.dim))
+        g = Hm[:, :, :2]
+        g[:, 0] = D / np.sqrt(r2)[:, None]
+        g[:, 1, 0], g[:, 1, 1] = -D[:, 1] / r2, D[:, 0] / r2
+        if not self._axes_aligned():  # d/dp = R gD
+            g[...] = g @ self.pose.R_ws.T
         return Hm
+
+    def _axes_aligned(self) -> bool:
+        """True if the 2-D sensor axes are the world axes (R_ws = I), remembered per pose."""
+        pose = self.pose
+        memo = self.__dict__.get("_aligned")
+        if memo is None or memo[0] is not pose:
+            R = pose.R_ws
+            memo = (pose, R is _I2 or np.array_equal(R, _I2))
+            self._aligned = memo
+        return memo[1]
 
     def H_rows(self, X: Array) -> Array:
         """Analytic Jacobians at every row of ``X`` (M, n) -> (M, m, n), vectorised."""
@@ -208,6 +262,8 @@ class RadarMeasurement(Measurement):
         # floors as in h(): a target at the sensor (r = 0) or straight above / below it
         # (rho = 0, e.g. under a UAV radar) gives a finite (zero) gradient, not inf/NaN
         r2 = np.maximum(np.einsum("ij,ij->i", D, D), _EPS**2)
+        if d == 2 and self._rr is None:  # range / azimuth: two gradient rows
+            return self._H2_rows(D, r2)
         r = np.sqrt(r2)
         rho2 = np.maximum(D[:, 0] ** 2 + D[:, 1] ** 2, _EPS**2)
         zero = np.zeros((M, d))
@@ -234,13 +290,21 @@ class RadarMeasurement(Measurement):
     def residual(self, a: Array, b: Array) -> Array:
         """``a - b`` with the azimuth wrapped to [-pi, pi); broadcasts (M, m) vs (m,)."""
         r = np.asarray(a, float) - np.asarray(b, float)
-        r[..., self._az] = wrap_angle(r[..., self._az])
+        if r.ndim == 1:  # one residual (the EKF, the UKF): the same wrap on a Python float
+            r[self._az] = (float(r[self._az]) + math.pi) % _TWO_PI - math.pi
+        else:  # wrap_angle's three operations, in place on the azimuth column
+            t = r[..., self._az]
+            t += np.pi
+            np.remainder(t, _TWO_PI, out=t)
+            t -= np.pi
         return r
 
     def mean(self, Y: Array, w: Array) -> Array:
         """Weighted mean of measurements ``Y`` (M, m); circular for the azimuth."""
-        m = w @ Y
-        m[self._az] = np.arctan2(w @ np.sin(Y[:, self._az]), w @ np.cos(Y[:, self._az]))
+        m = np.dot(w, Y)  # = w @ Y, less per-call overhead
+        a = Y[:, self._az]
+        m[self._az] = np.arctan2(np.dot(w, np.sin(a)), np.dot(w, np.cos(a)))  # not math:
+        # numpy's arctan2 is its own (SIMD) implementation, libm's differs in the last bit
         return m
 
     def mean_rows(self, Y: Array, w: Array) -> Array:
