@@ -178,13 +178,17 @@ class RadarMeasurement(Measurement):
             dx, dy = ((X[0, :2] - self.pose.position) @ self.pose.R_ws).tolist()
             return np.array([[math.sqrt(dx * dx + dy * dy), math.atan2(dy, dx)]])
         D, V = self._los(X)
-        r = np.sqrt(np.einsum("ij,ij->i", D, D))
-        cols = [r, np.arctan2(D[:, 1], D[:, 0])]
+        out = np.empty((X.shape[0], 2 + (self.ndim == 3) + (self._rr is not None)))
+        r = out[:, 0]  # the columns written in place (no list and stack)
+        np.sqrt(np.einsum("ij,ij->i", D, D), out=r)
+        np.arctan2(D[:, 1], D[:, 0], out=out[:, 1])
+        c = 2
         if self.ndim == 3:
-            cols.append(np.arctan2(D[:, 2], np.hypot(D[:, 0], D[:, 1])))
+            np.arctan2(D[:, 2], np.hypot(D[:, 0], D[:, 1]), out=out[:, 2])
+            c = 3
         if self._rr is not None:
-            cols.append(np.einsum("ij,ij->i", D, V) / np.maximum(r, _EPS))
-        return np.stack(cols, axis=1)
+            np.divide(np.einsum("ij,ij->i", D, V), np.maximum(r, _EPS), out=out[:, c])
+        return out
 
     def H(self, x: Array) -> Array:
         """Analytic Jacobian (m, n) w.r.t. the world-frame state. Range / azimuth (2-D, no
