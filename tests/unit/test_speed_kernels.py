@@ -280,7 +280,11 @@ def _numba_kernels():
 
     from uavest.geometry import rotation
 
+    import os
+
     pytest.importorskip("numba", reason="numba not installed (the optional uavest[fast])")
+    if os.environ.get("UAVEST_NUMBA") == "0":
+        pytest.skip("UAVEST_NUMBA=0: the numpy kernels only (.ci/run's second pass)")
     nb = rotation.compiled_kernels()
     if not nb:
         pytest.fail("numba is installed but the compiled kernels were refused (see log)")
