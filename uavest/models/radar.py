@@ -172,7 +172,8 @@ class RadarMeasurement(Measurement):
 
     def h(self, X: Array) -> Array:
         """Noise-free measurements of states ``X`` (M, n) -> (M, m)."""
-        X = np.atleast_2d(X)
+        if getattr(X, "ndim", 0) != 2:
+            X = np.atleast_2d(X)
         if X.shape[0] == 1 and self.ndim == 2 and self._rr is None:
             # one state (the EKF): the same expressions on scalars
             dx, dy = ((X[0, :2] - self.pose.position) @ self.pose.R_ws).tolist()
