@@ -139,6 +139,7 @@ def _option_cases() -> list[dict]:
         ["--noise", "gyro_noise=abc"], ["--noise", "nosuch=1"], ["--noise", "gyro_noise"],
         ["--noise", "gyro_noise=inf"], ["--mag-delay", "-100"], ["--mag-delay", "nan"],
         ["--mag-delay", "1e9"], ["--rate", "-1"], ["--rate", "nan"], ["--start", "nan"],
+        ["--update-rate", "-1"], ["--update-rate", "nan"], ["--update-rate", "inf"],
         ["--start", "10", "--end", "5"], ["--filters", ""], ["--filters", "ekf,ekf"],
         ["--filters", "kf"], ["--filters", "ukf(alpha=nan)"], ["--filters", "ukf(alpha=0)"],
         ["--filters", "hybrid_sh(b=5)"], ["--filters", "hybrid(n_cloud=0)"],

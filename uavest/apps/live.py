@@ -84,6 +84,7 @@ class LiveConfig:
     reorder_window: float = 0.05
     duration: float | None = None  # wall seconds; None: until stopped
     rate_hz: float | None = None
+    update_hz: float | None = None  # above 25 Hz: update rate cap (AttitudeOptions)
     radar_source: str = "adsb"  # adsb (virtual radar) | obstacle (OBSTACLE_DISTANCE_3D)
     radar: RadarConfig = field(default_factory=RadarConfig)
     motion_q: float = 1.0  # NCV noise intensity of the tracks (m^2/s^3)
@@ -390,7 +391,8 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
 
     def make_stream() -> AttitudeStream:
         d = declination() if declination is not None else None
-        return AttitudeStream(opts=AttitudeOptions(rate_hz=cfg.rate_hz, declination=d),
+        return AttitudeStream(opts=AttitudeOptions(rate_hz=cfg.rate_hz, update_hz=cfg.update_hz,
+                                                     declination=d),
                               params=params)
 
     att = _GapAware(make_stream, cfg.bridge_s)

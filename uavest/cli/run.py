@@ -54,6 +54,9 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-range", type=float, default=5000.0, help="radar range, m")
     p.add_argument("--rate", type=float, default=None,
                    help="max attitude filter rate, Hz (default 25; 0 = every IMU sample)")
+    p.add_argument("--update-rate", type=float, default=None, metavar="HZ",
+                   help="above 25 Hz: accelerometer/magnetometer updates at most this often "
+                   "(default 25; 0 = every step, weighted)")
     p.add_argument("--reorder-window", type=float, default=0.05,
                    help="s of vehicle time held to order messages (default 0.05)")
     p.add_argument("--no-status", action="store_true", help="no live status line")
@@ -91,6 +94,9 @@ def _cfg(args, connect: str) -> LiveConfig:
 
     if args.duration is not None and not args.duration > 0:
         raise ValueError(f"--duration must be > 0 s, got {args.duration}")
+    for name, v in (("rate", args.rate), ("update-rate", getattr(args, "update_rate", None))):
+        if v is not None and not (v >= 0 and math.isfinite(v)):
+            raise ValueError(f"--{name} must be >= 0 Hz (0 = every step), got {v}")
     return LiveConfig(
         connect=connect, filters=tuple(args.filter_specs or split_filter_list(args.filters)),
         trackers=tuple(split_filter_list(",".join(trackers))) if trackers else (),
@@ -98,6 +104,7 @@ def _cfg(args, connect: str) -> LiveConfig:
         signing_key=getattr(args, "signing_key", None), tlog=args.tlog,
         heartbeat_timeout=getattr(args, "heartbeat_timeout", 30.0),
         reorder_window=args.reorder_window, duration=args.duration, rate_hz=args.rate,
+        update_hz=getattr(args, "update_rate", None),
         radar_source=args.radar_source, radar=_radar(args))
 
 
