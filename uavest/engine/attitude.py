@@ -41,14 +41,13 @@ causal, so a live link computes it exactly as a replay does.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..core.gaussian import Gaussian
-from ..geometry.rotation import AttitudeSpace, quat_exp, quat_rotate
+from ..geometry.rotation import AttitudeSpace, qexp_f, qlog_f, qmul_f, quat_exp, quat_rotate
 from ..ingest.api import choose_source
 from ..ingest.types import ImuSample, MagSample, PositionSample
 from ..models.attitude import (
@@ -160,7 +159,8 @@ class _StepBuilder:
     def _finish(self, r: _Raw) -> _Raw:
         if r.a is None:  # a prediction-only step (updates every ``every`` steps)
             return r
-        t0 = r.t0 if self.every == 1 else (r.t0 if self.t_upd is None else self.t_upd)
+        # the magnetometer sample of the update interval: since the last update's end
+        t0 = self.t_upd if self.every > 1 and self.t_upd is not None else r.t0
         self.t_upd = r.t
         if self.mag_last is not None and t0 < self.mag_last[0] <= r.t:
             r.mag = self.mag_last[1]
@@ -238,28 +238,16 @@ class _StepBuilder:
 
 def _preintegrate(t0: float, block: list) -> tuple[float, float, float]:
     """Log of the product of Exp(g_i (t_i - t_{i-1})) over the block's samples (rad, body
-    FRD): the exact rotation of the step, on Python floats (the formulas of ``quat_exp``,
-    ``quat_mul`` and ``quat_log``; equal to them up to rounding)."""
-    qw, qx, qy, qz = 1.0, 0.0, 0.0, 0.0
+    FRD): the exact rotation of the step, on Python floats (``qexp_f``, ``qmul_f``,
+    ``qlog_f``: the formulas of ``quat_exp``, ``quat_mul`` and ``quat_log``)."""
+    q = (1.0, 0.0, 0.0, 0.0)
     tp = t0
     for smp in block:
         dt = smp.t - tp
         tp = smp.t
         gx, gy, gz = smp.gyro.tolist()
-        vx, vy, vz = gx * dt, gy * dt, gz * dt
-        th = math.sqrt(vx * vx + vy * vy + vz * vz)
-        h = 0.5 * th
-        f = 0.5 - th * th / 48.0 if th < 1e-5 else math.sin(h) / th
-        ew, ex, ey, ez = math.cos(h), f * vx, f * vy, f * vz
-        qw, qx, qy, qz = (qw * ew - qx * ex - qy * ey - qz * ez,
-                          qw * ex + qx * ew + qy * ez - qz * ey,
-                          qw * ey - qx * ez + qy * ew + qz * ex,
-                          qw * ez + qx * ey - qy * ex + qz * ew)
-    if qw < 0.0:
-        qw, qx, qy, qz = -qw, -qx, -qy, -qz
-    n = math.sqrt(qx * qx + qy * qy + qz * qz)
-    k = 2.0 / max(qw, 1e-300) if n < 1e-8 else 2.0 * math.atan2(n, qw) / n
-    return k * qx, k * qy, k * qz
+        q = qmul_f(q, qexp_f((gx * dt, gy * dt, gz * dt)))
+    return qlog_f(q)
 
 
 class AttitudeStream:

@@ -40,6 +40,9 @@ __all__ = [
     "quat_mul",
     "quat_rotate",
     "quat_rotate_inv",
+    "qexp_f",
+    "qlog_f",
+    "qmul_f",
     "quat_slerp_interp",
     "quat_to_dcm",
     "quat_to_euler",
@@ -223,28 +226,39 @@ def right_jacobian(phi: Array) -> Array:
     return np.eye(3) - (1 - np.cos(th)) / th2 * K + (th - np.sin(th)) / (th2 * th) * K @ K
 
 
-def slerp_one(q0, q1, s: float) -> tuple[float, float, float, float]:
-    """``q0 Exp(s Log(q0^-1 q1))`` of two single quaternions on Python floats (the
-    formulas of :func:`quat_mul`, :func:`quat_log` (shortest way) and :func:`quat_exp`,
-    without numpy's per-call cost): the streaming scorers interpolate one reference
-    sample pair per step."""
-    aw, ax, ay, az = (float(v) for v in q0)
-    bw, bx, by, bz = (float(v) for v in q1)
-    # d = conj(q0) * q1
-    w = aw * bw + ax * bx + ay * by + az * bz
-    x = aw * bx - ax * bw - ay * bz + az * by
-    y = aw * by + ax * bz - ay * bw - az * bx
-    z = aw * bz - ax * by + ay * bx - az * bw
+def qmul_f(p, q) -> tuple[float, float, float, float]:
+    """Hamilton product ``p * q`` of two single quaternions on Python floats (the formula of
+    :func:`quat_mul`, without numpy's per-call cost)."""
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    return (pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw)
+
+
+def qlog_f(q) -> tuple[float, float, float]:
+    """:func:`quat_log` of one quaternion on Python floats (rad, the short way)."""
+    w, x, y, z = q
     if w < 0.0:
         w, x, y, z = -w, -x, -y, -z
     n = math.sqrt(x * x + y * y + z * z)
-    k = s * (2.0 / max(w, 1e-300) if n < 1e-8 else 2.0 * math.atan2(n, w) / n)
-    vx, vy, vz = k * x, k * y, k * z
-    th = math.sqrt(vx * vx + vy * vy + vz * vz)
-    f = 0.5 - th * th / 48.0 if th < 1e-5 else math.sin(0.5 * th) / th
-    ew, ex, ey, ez = math.cos(0.5 * th), f * vx, f * vy, f * vz
-    return (aw * ew - ax * ex - ay * ey - az * ez, aw * ex + ax * ew + ay * ez - az * ey,
-            aw * ey - ax * ez + ay * ew + az * ex, aw * ez + ax * ey - ay * ex + az * ew)
+    k = 2.0 / max(w, 1e-300) if n < 1e-8 else 2.0 * math.atan2(n, w) / n
+    return (k * x, k * y, k * z)
+
+
+def qexp_f(v) -> tuple[float, float, float, float]:
+    """:func:`quat_exp` of one rotation vector (rad) on Python floats."""
+    x, y, z = v
+    th = math.sqrt(x * x + y * y + z * z)
+    s = 0.5 - th * th / 48.0 if th < 1e-5 else math.sin(0.5 * th) / th
+    return (math.cos(0.5 * th), s * x, s * y, s * z)
+
+
+def slerp_one(q0, q1, s: float) -> tuple[float, float, float, float]:
+    """``q0 Exp(s Log(q0^-1 q1))`` of two single quaternions on Python floats: the
+    streaming scorer and the recorder interpolate one reference sample pair per step."""
+    w, x, y, z = (float(v) for v in q0)
+    d = qlog_f(qmul_f((w, -x, -y, -z), tuple(float(v) for v in q1)))
+    return qmul_f((w, x, y, z), qexp_f((s * d[0], s * d[1], s * d[2])))
 
 
 def quat_slerp_interp(t_ref: Array, q_ref: Array, t: Array) -> tuple[Array, Array]:

@@ -38,6 +38,8 @@ from ..geometry.rotation import (
     compiled_kernels,
     euler_to_quat,
     gyro_propagate,
+    qexp_f,
+    qmul_f,
     quat_exp,
     quat_mul,
     quat_rotate,
@@ -250,6 +252,7 @@ class GyroTransition(Transition):
 
     def __init__(self, noise: AttitudeNoise | None = None) -> None:
         self.noise = noise or AttitudeNoise()
+        self._q_cache: tuple | None = None  # (dt, Q) of the last call
 
     def f(self, X: Array, t: float, dt: float, u: Array | None = None) -> Array:
         w = np.zeros(3) if u is None else np.asarray(u, float)
@@ -274,8 +277,6 @@ class GyroTransition(Transition):
         Q.flags.writeable = False
         self._q_cache = (dt, Q)
         return Q
-
-    _q_cache: tuple | None = None
 
     def F(self, x: Array, t: float, dt: float, u: Array | None = None) -> Array:
         """The tangent Jacobian, on Python floats (one 6x6 array built at the end):
@@ -314,18 +315,11 @@ class GyroTransition(Transition):
 
 
 def _propagate_one(x: list, w: list, dt: float) -> Array:
-    """q <- q * Exp((w - b) dt), normalised; b <- b: one state on Python floats (the
-    formulas of ``quat_exp`` / ``quat_mul``)."""
+    """q <- q * Exp((w - b) dt), normalised; b <- b: one state on Python floats (``qexp_f``,
+    ``qmul_f``: the formulas of ``quat_exp`` / ``quat_mul``)."""
     qw, qx, qy, qz, bx, by, bz = x
-    vx, vy, vz = (w[0] - bx) * dt, (w[1] - by) * dt, (w[2] - bz) * dt
-    th = math.sqrt(vx * vx + vy * vy + vz * vz)
-    h = 0.5 * th
-    s = 0.5 - th * th / 48.0 if th < 1e-5 else math.sin(h) / th
-    ew, ex, ey, ez = math.cos(h), s * vx, s * vy, s * vz
-    rw = qw * ew - qx * ex - qy * ey - qz * ez
-    rx = qw * ex + qx * ew + qy * ez - qz * ey
-    ry = qw * ey - qx * ez + qy * ew + qz * ex
-    rz = qw * ez + qx * ey - qy * ex + qz * ew
+    rw, rx, ry, rz = qmul_f((qw, qx, qy, qz),
+                            qexp_f(((w[0] - bx) * dt, (w[1] - by) * dt, (w[2] - bz) * dt)))
     n = math.sqrt(rw * rw + rx * rx + ry * ry + rz * rz)
     return np.array([rw / n, rx / n, ry / n, rz / n, bx, by, bz])
 

@@ -61,6 +61,7 @@ from foxglove.messages import (
 )
 
 from ..engine.records import RunInfo, ScanRecord, StepRecord
+from ..geometry.rotation import qlog_f, qmul_f, slerp_one
 from ..layouts import REFERENCE_COLOUR, colour
 
 Array = np.ndarray
@@ -137,38 +138,12 @@ def _enu_flu(q) -> tuple[float, float, float, float]:
     return (-ax, aw, az, -ay)
 
 
-def _qmul(p, q) -> tuple[float, float, float, float]:
-    """Hamilton product of two scalar quaternions (tuples)."""
-    pw, px, py, pz = p
-    qw, qx, qy, qz = q
-    return (pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw)
-
-
-def _qlog(q) -> tuple[float, float, float]:
-    """Scalar :func:`uavest.geometry.rotation.quat_log` (shortest way)."""
-    w, x, y, z = q
-    if w < 0.0:
-        w, x, y, z = -w, -x, -y, -z
-    n = math.sqrt(x * x + y * y + z * z)
-    k = 2.0 / max(w, 1e-300) if n < 1e-8 else 2.0 * math.atan2(n, w) / n
-    return (k * x, k * y, k * z)
-
-
-def _qexp(v) -> tuple[float, float, float, float]:
-    """Scalar :func:`uavest.geometry.rotation.quat_exp`."""
-    x, y, z = v
-    th = math.sqrt(x * x + y * y + z * z)
-    s = 0.5 - th * th / 48.0 if th < 1e-5 else math.sin(0.5 * th) / th
-    return (math.cos(0.5 * th), s * x, s * y, s * z)
-
-
 def _nees3(q, q_ref, P) -> float:
     """e^T P3^-1 e with e = Log(q^-1 q_ref) (as :func:`uavest.eval.attitude.nees_attitude`;
     P3 the upper-left 3x3 block of ``P`` (nested lists, the attitude block), solved by
     Cramer's rule)."""
     w, x, y, z = q
-    e0, e1, e2 = _qlog(_qmul((w, -x, -y, -z), q_ref))
+    e0, e1, e2 = qlog_f(qmul_f((w, -x, -y, -z), q_ref))
     (a, b, c), (d, f, g), (h, i, j) = P[0][:3], P[1][:3], P[2][:3]
     det = a * (f * j - g * i) - b * (d * j - g * h) + c * (d * i - f * h)
     if det == 0.0 or not math.isfinite(det):
@@ -401,10 +376,7 @@ class _RefSeries:
             return self.q[0]
         i = min(bisect_right(ts, t) - 1, len(ts) - 2)
         s = min(max((t - ts[i]) / (ts[i + 1] - ts[i]), 0.0), 1.0)
-        q0 = self.q[i]
-        w, x, y, z = q0
-        d = _qlog(_qmul((w, -x, -y, -z), self.q[i + 1]))
-        return _qmul(q0, _qexp((s * d[0], s * d[1], s * d[2])))
+        return slerp_one(self.q[i], self.q[i + 1], s)
 
     def trim(self, t: float) -> None:
         i = bisect_right(self.t, t) - 1
