@@ -21,6 +21,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.hostile.corpus import df_records as _df_records
+from tests.hostile.corpus import flip_bits as _flip_bits
 from uavest.ingest import IngestError
 from uavest.ingest.api import detect_format
 from uavest.ingest.mavlink import MavlinkSource
@@ -117,18 +119,6 @@ def _tlog_records(data: bytes) -> list[tuple[int, int, int]]:
         pos += ln
     return out
 
-
-def _df_records(data: bytes) -> list[tuple[int, int, str]]:
-    """(offset, length, name) of each DataFlash record: the hostile corpus's walker."""
-    from tests.hostile.corpus import df_records
-
-    return df_records(data)
-
-
-def _flip_bits(data: bytes, rate: float, seed: int, skip: int = 0) -> bytes:
-    from tests.hostile.corpus import flip_bits
-
-    return flip_bits(data, rate, seed, skip)
 
 
 def _nth(recs, key, which: int):

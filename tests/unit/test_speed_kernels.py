@@ -276,11 +276,11 @@ def test_slerp_one_equals_the_composed_slerp():
 
 
 def _numba_kernels():
+    import os
+
     import pytest
 
     from uavest.geometry import rotation
-
-    import os
 
     pytest.importorskip("numba", reason="numba not installed (the optional uavest[fast])")
     if os.environ.get("UAVEST_NUMBA") == "0":
