@@ -151,7 +151,9 @@ class PoolBackend:
             codes.append(p.exitcode)
         died = [c for c in codes if c not in (None, 0, -signal.SIGTERM)]
         if died:
-            return _signal_text(died[0])
+            # a worker killed by a signal is the cause; a survivor of the broken pool may
+            # exit with an error code of its own while it is torn down
+            return _signal_text(min(died, key=lambda c: c >= 0))
         if -signal.SIGTERM in codes:
             return _signal_text(-signal.SIGTERM)
         return "worker died"
