@@ -210,8 +210,12 @@ class PoolBackend:
                 for f, t in list(inflight.items()):
                     settle(f, t)
                 inflight.clear()
-                reason = self._death_reason() if len(dead) == 1 else "worker died"
+                # the executor's manager thread reaps the broken pool's processes: read
+                # their exit codes only after it has finished (a forkserver child's status
+                # is read once from a pipe; two threads polling it race, and the loser
+                # sees exit code 255)
                 self._ex.shutdown(wait=True, cancel_futures=True)
+                reason = self._death_reason() if len(dead) == 1 else "worker died"
                 self._new()
                 for t in dead:
                     attempts[t.key] = attempts.get(t.key, 0) + 1
