@@ -3,6 +3,7 @@ connects to FoxgloveLiveSink's server on loopback while a replay runs, sees the 
 advertised, subscribes and receives binary message data frames."""
 
 import asyncio
+import base64
 import json
 import struct
 import threading
@@ -12,8 +13,8 @@ from pathlib import Path
 import pytest
 
 from uavest.apps.replay import ReplayConfig, replay
+from uavest.report.protowire import ProtoDecoder
 from uavest.sinks.base import Sink
-from uavest.sinks.foxglove_channels import b64_floats
 from uavest.sinks.foxglove_live import FoxgloveLiveSink
 
 websockets = pytest.importorskip("websockets")
@@ -100,12 +101,17 @@ def test_live_server_advertises_and_streams_while_a_replay_runs():
     assert adv["/attitude/ekf/estimate"]["schemaName"] == "uavest.AttitudeEstimate"
     assert {"/imu/RAW_IMU", "/reference/SIMSTATE", "/attitude/hybrid/health"} <= set(adv)
     assert set(got["data"]) == set(WANT) | {"/run/info"}
+    # uavest's per-step channels are protobuf with the FileDescriptorSet advertised
+    # (base64, as the protocol carries protobuf schemas)
+    est_ch = adv["/attitude/ekf/estimate"]
+    assert est_ch["encoding"] == "protobuf" and est_ch["schemaEncoding"] == "protobuf"
+    dec = ProtoDecoder(base64.b64decode(est_ch["schema"]))
     log_time, payload = got["data"]["/attitude/ekf/estimate"]
-    m = json.loads(payload)
-    assert len(m["q"]) == 4 and len(b64_floats(m["P_triu_b64"])) == 21
+    m = dec.decode(payload, "uavest.AttitudeEstimate")
+    assert len(m["q"]) == 4 and len(m["P_triu"]) == 21
     assert abs(m["t"] * 1e9 - log_time) < 2
-    e = json.loads(got["data"]["/attitude/ukf/error"][1])
-    assert e["reference"] == "SIMSTATE" and "nees" in e
+    e = dec.decode(got["data"]["/attitude/ukf/error"][1], "uavest.AttitudeError")
+    assert e["reference"] == "SIMSTATE" and e["nees"] >= 0.0
     info = json.loads(got["data"]["/run/info"][1])
     assert list(info["filters"]) == ["ekf", "ukf", "hybrid"]
     assert "doc" in result and sink.closed

@@ -11,7 +11,9 @@ from uavest.layouts import build_layout, colour, layout_text, shipped
 from uavest.report.protowire import ProtoDecoder
 from uavest.sinks.foxglove_channels import (
     _enu_flu,
-    _sigma3_scalar,
+    _nees_rows,
+    _rpy_rows,
+    _sigma3_rows,
     euler_sigma_deg,
     ned_frd_to_enu_flu,
     quat_to_rpy_deg,
@@ -64,7 +66,7 @@ def test_euler_sigma_matches_a_numerical_jacobian():
                    - quat_to_euler(quat_mul(q, quat_exp(-d)))) / (2 * h)
     want = np.degrees(np.sqrt(np.diag(J @ P[:3, :3] @ J.T)))
     np.testing.assert_allclose(euler_sigma_deg(q, P), want, rtol=1e-5)
-    np.testing.assert_allclose(np.array(_sigma3_scalar(quat_to_rpy_deg(q), P.tolist())),
+    np.testing.assert_allclose(_sigma3_rows(np.array([quat_to_rpy_deg(q)]), P[None, :3, :3])[0],
                                3 * want, rtol=1e-5)
     np.testing.assert_allclose(quat_to_rpy_deg(q), np.degrees(quat_to_euler(q)), atol=1e-12)
 
@@ -130,7 +132,7 @@ def test_publisher_survives_a_diverged_filter(tmp_path):
 
     from uavest.engine.records import StepRecord
     from uavest.report import read_recording
-    from uavest.sinks.foxglove_channels import Publisher, b64_floats
+    from uavest.sinks.foxglove_channels import Publisher
 
     ctx = foxglove.Context()
     w = foxglove.open_mcap(str(tmp_path / "nan.mcap"), context=ctx)
@@ -150,32 +152,104 @@ def test_publisher_survives_a_diverged_filter(tmp_path):
     assert [m["reset"] for m in hl] == [False, False, True] and hl[-1]["resets"] == 1
     est = rec.json["/attitude/ekf/estimate"]
     assert [m["k"] for m in est] == [1, 2, 3]
-    assert est[0]["sigma3_deg"]["yaw"] is None and np.isnan(b64_floats(est[1]["P_triu_b64"])).all()
+    assert est[0]["sigma3_deg"]["yaw"] is None and all(v is None for v in est[1]["P_triu"])
 
 
-def test_hot_path_json_text_is_valid_and_nan_becomes_null():
-    from uavest.sinks.foxglove_channels import _EST_TPL, _fill, _g, _nees3, _neg, _rpy
-
-    vals = (1.25, 3, 1.0, 0.0, 0.0, 0.0, 1e-3, -2e-3, 3e-4, 0.1, -0.2, 179.9)
-    txt = _fill(_EST_TPL, vals) + '{"roll":1,"pitch":2,"yaw":3}}'
-    m = json.loads(txt)
-    assert m["t"] == 1.25 and m["k"] == 3 and m["bias_rad_s"] == [1e-3, -2e-3, 3e-4]
-    m = json.loads(_fill(_EST_TPL, (1.25, 3, float("nan"), *vals[3:]))
-                   + '{"roll":1,"pitch":2,"yaw":3}}')
-    assert m["q"][0] is None and m["q"][1] == 0.0
-    assert _g(float("inf")) == "null" and _neg("null") == "null"
-    assert _neg("-1.5") == "1.5" and _neg("2") == "-2"
-    rng = np.random.default_rng(3)
-    for q in _random_q(rng, 20):
-        np.testing.assert_allclose(_rpy(*q), quat_to_rpy_deg(q), atol=1e-12)
-    # NEES against the vectorised scorer
+def test_row_functions_equal_the_one_attitude_forms():
+    """The recorder's vectorised Euler angles, Euler 3-sigma and NEES equal the one-attitude
+    functions (and the scorer's NEES); gimbal lock gives inf, a NaN covariance NaN."""
     from uavest.eval.attitude import nees_attitude
 
-    q, qr = _random_q(rng, 2)
-    A = rng.standard_normal((6, 6))
-    P = A @ A.T + np.eye(6)
-    assert _nees3(tuple(q), tuple(qr), P.tolist()) == pytest.approx(
-        float(nees_attitude(q[None], P[None], qr[None])[0]), rel=1e-9)
+    rng = np.random.default_rng(3)
+    q, qr = _random_q(rng, 40), _random_q(rng, 40)
+    A = rng.standard_normal((40, 6, 6)) * 0.1
+    P = A @ A.transpose(0, 2, 1) + 1e-3 * np.eye(6)
+    rpy = _rpy_rows(q)
+    np.testing.assert_allclose(rpy, [quat_to_rpy_deg(x) for x in q], atol=1e-12)
+    np.testing.assert_allclose(_sigma3_rows(rpy, P[:, :3, :3]),
+                               3 * euler_sigma_deg(q, P), rtol=1e-9)
+    np.testing.assert_allclose(_nees_rows(q, qr, P[:, :3, :3]),
+                               nees_attitude(q, P, qr), rtol=1e-9)
+    q90 = euler_to_quat(0.0, np.pi / 2, 0.0)[None]
+    s = _sigma3_rows(_rpy_rows(q90), np.eye(3)[None])
+    assert np.isinf(s[0, 0]) and np.isinf(s[0, 2])
+    bad = np.full((1, 3, 3), np.nan)
+    assert np.isnan(_sigma3_rows(rpy[:1], bad)).all() and np.isnan(_nees_rows(q[:1], qr[:1], bad))
+    assert np.isnan(_nees_rows(q[:1], qr[:1], np.zeros((1, 3, 3))))
+
+
+def test_own_frame_encoding_equals_the_sdks():
+    """/tf and /attitude/*/pose are encoded by the publisher: the same message as the
+    SDK's FrameTransform / PoseInFrame encode, decoded with the SDK's schema (zeros too,
+    which the SDK leaves out)."""
+    import foxglove.messages as fm
+
+    from uavest.sinks import foxglove_channels as fc
+    from uavest.sinks import protobuf as pb
+
+    dt = ProtoDecoder(fm.FrameTransform.get_schema().data)
+    dp = ProtoDecoder(fm.PoseInFrame.get_schema().data)
+
+    def full(d):  # proto3 defaults filled in
+        out = {"timestamp": {"seconds": 0, "nanos": 0}, **d}
+        out["timestamp"] = {"seconds": 0, "nanos": 0, **d.get("timestamp", {})}
+        for k in ("translation", "rotation", "pose"):
+            if k in out and k != "pose":
+                out[k] = {**dict.fromkeys("xyz" + ("w" if k == "rotation" else ""), 0.0),
+                          **out[k]}
+        if "pose" in out:
+            p = out["pose"]
+            out["pose"] = {"position": {**dict.fromkeys("xyz", 0.0), **p.get("position", {})},
+                           "orientation": {**dict.fromkeys("xyzw", 0.0),
+                                           **p.get("orientation", {})}}
+        return out
+
+    rng = np.random.default_rng(4)
+    for ns in (0, 7, 1_000_000_000, 123_456_789_012, 2**40 + 5):
+        v = rng.standard_normal(7)
+        v[rng.integers(0, 7)] = 0.0
+        mine = (pb.timestamp_field(1, ns) + pb.len_field(2, b"world")
+                + pb.len_field(3, b"body_ekf") + fc._TF_POSE.pack(*v))
+        ts = fm.Timestamp(ns // 10**9, ns % 10**9)
+        rot = fm.Quaternion(x=v[3], y=v[4], z=v[5], w=v[6])
+        sdk = fm.FrameTransform(timestamp=ts, parent_frame_id="world",
+                                child_frame_id="body_ekf",
+                                translation=fm.Vector3(x=v[0], y=v[1], z=v[2]),
+                                rotation=rot).encode()
+        assert full(dt.decode(mine, "foxglove.FrameTransform")) == full(
+            dt.decode(sdk, "foxglove.FrameTransform"))
+        mine = pb.timestamp_field(1, ns) + fc._POSE_HEAD + fc._POSE.pack(*v)
+        sdk = fm.PoseInFrame(timestamp=ts, frame_id="world", pose=fm.Pose(
+            position=fm.Vector3(x=v[0], y=v[1], z=v[2]), orientation=rot)).encode()
+        assert full(dp.decode(mine, "foxglove.PoseInFrame")) == full(
+            dp.decode(sdk, "foxglove.PoseInFrame"))
+
+
+def test_fixed_encoder_batches_decode_to_the_columns():
+    """A batch of N messages from one FixedEncoder call decodes (our decoder) to the
+    columns given, constant strings included; appended repeated fields decode too."""
+    from uavest.sinks import protobuf as pb
+
+    rng = np.random.default_rng(5)
+    dec = ProtoDecoder(pb.DESCRIPTOR_SET)
+    n = 17
+    cols = {"t": rng.random(n), "k": np.arange(n), "err_deg": rng.standard_normal((n, 3)),
+            "sigma3_deg": rng.random((n, 3)), "neg_sigma3_deg": -rng.random((n, 3)),
+            "nees": np.r_[np.nan, rng.random(n - 1)]}
+    enc = pb.FixedEncoder("AttitudeError", {"reference": "SIMSTATE", "kind": "truth"})
+    msgs = enc.encode(n, cols)
+    assert len(msgs) == n and {len(m) for m in msgs} == {enc.size}
+    for i, m in enumerate(msgs):
+        d = dec.decode(m, "uavest.AttitudeError")
+        assert (d["reference"], d["kind"], d["k"]) == ("SIMSTATE", "truth", i)
+        assert d["t"] == cols["t"][i]
+        assert [d["err_deg"][a] for a in ("roll", "pitch", "yaw")] == cols["err_deg"][i].tolist()
+        assert (np.isnan(d["nees"]) if i == 0 else d["nees"] == cols["nees"][i])
+    h = pb.FixedEncoder("FilterHealth").encode(1, {"t": [2.0], "reset": [True]})[0]
+    h += pb.update_bytes(5, "accel", 1.5, 3) + pb.field_bytes(7, "NIS gate")
+    d = dec.decode(h, "uavest.FilterHealth")
+    assert d["updates"] == [{"kind": "accel", "nis": 1.5, "dof": 3}]
+    assert d["reset"] is True and d["reason"] == "NIS gate" and d["t"] == 2.0
 
 
 def test_3d_channels_are_rate_limited_by_default(tmp_path):

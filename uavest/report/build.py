@@ -68,6 +68,15 @@ def _stack(msgs: list[dict], key: str, width: int | None = None) -> Array:
                      for m in msgs], float).reshape(len(msgs), width)
 
 
+def _triu_of(m: dict) -> list:
+    """The covariance triangle of an estimate message: ``P_triu`` (protobuf, channel set
+    2) or ``P_triu_b64`` (JSON, channel set 1); None (NaN) where a value is missing."""
+    v = m.get("P_triu")
+    if v is None:
+        v = b64_floats(m["P_triu_b64"]).tolist() if "P_triu_b64" in m else [None] * 21
+    return [math.nan if x is None else x for x in v]
+
+
 def attitude_data(rec: Recording) -> dict:
     """Per-filter arrays from the recording: ``t`` (K,) s, ``q`` (K, 4), ``P`` (K, 6, 6),
     ``nis`` (K,), ``nis_dof`` (K,), ``reset`` (K,), ``resets`` (K,), ``wall_us`` (K,); and
@@ -78,8 +87,7 @@ def attitude_data(rec: Recording) -> dict:
         hl = rec.json.get(f"/attitude/{lab}/health", [])
         n = min(len(est), len(hl))
         est, hl = est[:n], hl[:n]
-        P = (triu_to_full(b64_floats([m["P_triu_b64"] for m in est]), 6) if n
-             else np.zeros((0, 6, 6)))
+        P = triu_to_full(np.array([_triu_of(m) for m in est], float).reshape(n, 21), 6)
         out["filters"][lab] = {
             "t": _stack(est, "t"), "k": _stack(est, "k"), "q": _stack(est, "q", 4),
             "P": P, "nis": _stack(hl, "nis"), "nis_dof": _stack(hl, "nis_dof"),

@@ -27,10 +27,11 @@ class Recording:
     """A recording read back.
 
     ``schemas``: topic -> (schema name, schema encoding, message encoding); ``counts``:
-    topic -> messages; ``json``: topic -> decoded messages of JSON channels (in file
-    order); ``raw``: topic -> [(log_time ns, bytes)] of the other channels;
-    ``metadata``: record name -> dict; ``chunks``: chunks read; ``truncated``: the file
-    has no footer (writer killed)."""
+    topic -> messages; ``json``: topic -> decoded messages of JSON channels and of
+    uavest's own protobuf channels (in file order; NaN and infinities as None); ``raw``:
+    topic -> [(log_time ns, bytes)] of the other channels; ``metadata``: record name ->
+    dict; ``chunks``: chunks read; ``truncated``: the file has no footer (writer
+    killed)."""
 
     path: Path
     schemas: dict[str, tuple[str, str, str]] = field(default_factory=dict)
@@ -43,6 +44,8 @@ class Recording:
     chunks: int = 0
     truncated: bool = False
     error: str = ""
+    _own: dict = field(default_factory=dict, repr=False)
+    _decoders: dict = field(default_factory=dict, repr=False)
 
     def topics(self, prefix: str = "", suffix: str = "") -> list[str]:
         return [t for t in self.counts if t.startswith(prefix) and t.endswith(suffix)]
@@ -81,6 +84,20 @@ def read_recording(path: str | Path, topics: set[str] | None = None) -> Recordin
     return rec
 
 
+def _nulls(v):
+    """NaN -> None in a decoded message (lists and nested dicts too)."""
+    if type(v) is float:
+        return None if v != v or v in (_INF, -_INF) else v
+    if type(v) is dict:
+        return {k: _nulls(x) for k, x in v.items()}
+    if type(v) is list:
+        return [_nulls(x) for x in v]
+    return v
+
+
+_INF = float("inf")
+
+
 def _chunk(rec, chunk, schemas, chans, topics) -> None:
     for r in breakup_chunk(chunk):
         _one(rec, r, schemas, chans, topics)
@@ -98,6 +115,13 @@ def _one(rec: Recording, r, schemas, chans, topics) -> None:
                                 r.message_encoding)
         if s is not None:
             rec.schema_data[r.topic] = s.data
+            if s.encoding == "protobuf" and s.name.startswith("uavest."):
+                # uavest's own protobuf channels (the per-step ones) are decoded like the
+                # JSON ones: dicts by field name, NaN as None (JSON's null)
+                dec = rec._decoders.get(s.id)
+                if dec is None:
+                    dec = rec._decoders[s.id] = ProtoDecoder(s.data)
+                rec._own[r.topic] = dec
         rec.counts.setdefault(r.topic, 0)
     elif isinstance(r, Message):
         ch = chans.get(r.channel_id)
@@ -110,6 +134,9 @@ def _one(rec: Recording, r, schemas, chans, topics) -> None:
         rec.log_times.setdefault(t, []).append(r.log_time)
         if ch.message_encoding == "json":
             rec.json.setdefault(t, []).append(json.loads(r.data))
+        elif ch.topic in rec._own:
+            rec.json.setdefault(t, []).append(_nulls(rec._own[t].decode(
+                r.data, rec.schemas[t][0])))
         else:
             rec.raw.setdefault(t, []).append((r.log_time, bytes(r.data)))
     elif isinstance(r, Metadata):

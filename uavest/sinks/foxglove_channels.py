@@ -26,7 +26,7 @@ from __future__ import annotations
 import base64
 import json
 import math
-import re
+import struct
 import time
 from bisect import bisect_right
 from collections import deque
@@ -40,7 +40,6 @@ from foxglove.messages import (
     ArrowPrimitive,
     Color,
     CubePrimitive,
-    FrameTransform,
     LinePrimitive,
     LinePrimitiveLineType,
     LocationFix,
@@ -48,7 +47,6 @@ from foxglove.messages import (
     LogLevel,
     Point3,
     Pose,
-    PoseInFrame,
     Quaternion,
     SceneEntity,
     SceneEntityDeletion,
@@ -61,8 +59,14 @@ from foxglove.messages import (
 )
 
 from ..engine.records import RunInfo, ScanRecord, StepRecord
-from ..geometry.rotation import qlog_f, qmul_f, slerp_one
+from ..geometry.rotation import (
+    quat_conj,
+    quat_log,
+    quat_mul,
+    quat_slerp_interp,
+)
 from ..layouts import REFERENCE_COLOUR, colour
+from . import protobuf as pb
 
 Array = np.ndarray
 
@@ -138,21 +142,6 @@ def _enu_flu(q) -> tuple[float, float, float, float]:
     return (-ax, aw, az, -ay)
 
 
-def _nees3(q, q_ref, P) -> float:
-    """e^T P3^-1 e with e = Log(q^-1 q_ref) (as :func:`uavest.eval.attitude.nees_attitude`;
-    P3 the upper-left 3x3 block of ``P`` (nested lists, the attitude block), solved by
-    Cramer's rule)."""
-    w, x, y, z = q
-    e0, e1, e2 = qlog_f(qmul_f((w, -x, -y, -z), q_ref))
-    (a, b, c), (d, f, g), (h, i, j) = P[0][:3], P[1][:3], P[2][:3]
-    det = a * (f * j - g * i) - b * (d * j - g * h) + c * (d * i - f * h)
-    if det == 0.0 or not math.isfinite(det):
-        return math.nan
-    return (e0 * ((f * j - g * i) * e0 + (c * i - b * j) * e1 + (b * g - c * f) * e2)
-            + e1 * ((g * h - d * j) * e0 + (a * j - c * h) * e1 + (c * d - a * g) * e2)
-            + e2 * ((d * i - f * h) * e0 + (b * h - a * i) * e1 + (a * f - b * d) * e2)) / det
-
-
 def quat_to_rpy_deg(q) -> tuple[float, float, float]:
     """ZYX roll, pitch, yaw (deg) of one quaternion [w, x, y, z] (as
     :func:`uavest.geometry.rotation.quat_to_euler`)."""
@@ -164,14 +153,6 @@ def quat_to_rpy_deg(q) -> tuple[float, float, float]:
 
 
 _DEG = 180.0 / math.pi
-
-
-def _rpy(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
-    """:func:`quat_to_rpy_deg` of Python floats (the recorder's hot path)."""
-    s = 2.0 * (w * y - x * z)
-    return (_DEG * math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y)),
-            _DEG * math.asin(1.0 if s > 1.0 else (-1.0 if s < -1.0 else s)),
-            _DEG * math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
 
 
 def euler_sigma_deg(q: Array, P: Array) -> Array:
@@ -198,30 +179,70 @@ def euler_sigma_deg(q: Array, P: Array) -> Array:
     return np.degrees(np.sqrt(np.clip(np.einsum("...ii->...i", C), 0.0, None)))
 
 
-def _sigma3_scalar(rpy_deg, P) -> tuple[float, float, float]:
-    """3-sigma (deg) of roll, pitch, yaw: :func:`euler_sigma_deg` for one attitude given
-    its Euler angles (deg) and the tangent covariance ``P`` (nested lists, >= 3x3),
-    written out (W has zeros at [1][0] and [2][0])."""
-    r, p = rpy_deg[0] / _DEG, rpy_deg[1] / _DEG
-    sr, cr, cp = math.sin(r), math.cos(r), math.cos(p)
-    if abs(cp) < 1e-12:  # gimbal lock: the Euler bounds are unbounded
-        return math.inf, math.inf, math.inf
-    tp = math.sin(p) / cp
-    (p00, p01, p02), (p10, p11, p12), (p20, p21, p22) = P[0][:3], P[1][:3], P[2][:3]
-    b, c = sr * tp, cr * tp  # roll row (1, b, c)
-    v0 = p00 + b * (p01 + p10) + c * (p02 + p20) + b * b * p11 + b * c * (p12 + p21) \
-        + c * c * p22
-    v1 = cr * cr * p11 - cr * sr * (p12 + p21) + sr * sr * p22  # pitch row (0, cr, -sr)
-    b, c = sr / cp, cr / cp  # yaw row (0, b, c)
-    v2 = b * b * p11 + b * c * (p12 + p21) + c * c * p22
-    k = 3.0 * _DEG  # a rounding-level negative variance counts as 0
-    return (k * math.sqrt(v0) if v0 >= 0.0 else (0.0 if v0 > -1e-300 else math.nan),
-            k * math.sqrt(v1) if v1 >= 0.0 else (0.0 if v1 > -1e-300 else math.nan),
-            k * math.sqrt(v2) if v2 >= 0.0 else (0.0 if v2 > -1e-300 else math.nan))
+def _rpy_rows(Q: Array) -> Array:
+    """:func:`quat_to_rpy_deg` of quaternion rows (N, 4) -> (N, 3) deg (vectorised)."""
+    w, x, y, z = Q[:, 0], Q[:, 1], Q[:, 2], Q[:, 3]
+    out = np.empty((Q.shape[0], 3))
+    np.multiply(_DEG, np.arctan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y)),
+                out=out[:, 0])
+    np.multiply(_DEG, np.arcsin(np.clip(2.0 * (w * y - x * z), -1.0, 1.0)), out=out[:, 1])
+    np.multiply(_DEG, np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)),
+                out=out[:, 2])
+    return out
 
 
-def _wrap180(a: float) -> float:
-    return (a + 180.0) % 360.0 - 180.0
+def _sigma3_rows(rpy: Array, P3: Array) -> Array:
+    """3 x :func:`euler_sigma_deg` of rows given their Euler angles (N, 3) deg and attitude
+    covariance blocks (N, 3, 3) rad^2 -> 3-sigma (N, 3) deg, written out (W has zeros at
+    [1][0] and [2][0]); inf at gimbal lock, a rounding-level negative variance 0, a
+    negative one NaN."""
+    r, p = rpy[:, 0] / _DEG, rpy[:, 1] / _DEG
+    sr, cr, cp = np.sin(r), np.cos(r), np.cos(p)
+    lock = np.abs(cp) < 1e-12
+    cp = np.where(lock, 1.0, cp)
+    tp = np.sin(p) / cp
+    p00, p01, p02 = P3[:, 0, 0], P3[:, 0, 1], P3[:, 0, 2]
+    p10, p11, p12 = P3[:, 1, 0], P3[:, 1, 1], P3[:, 1, 2]
+    p20, p21, p22 = P3[:, 2, 0], P3[:, 2, 1], P3[:, 2, 2]
+    b, c = sr * tp, cr * tp
+    v = np.empty((rpy.shape[0], 3))
+    v[:, 0] = (p00 + b * (p01 + p10) + c * (p02 + p20) + b * b * p11 + b * c * (p12 + p21)
+               + c * c * p22)
+    v[:, 1] = cr * cr * p11 - cr * sr * (p12 + p21) + sr * sr * p22
+    b, c = sr / cp, cr / cp
+    v[:, 2] = b * b * p11 + b * c * (p12 + p21) + c * c * p22
+    with np.errstate(invalid="ignore"):
+        out = (3.0 * _DEG) * np.sqrt(np.where((v < 0.0) & (v > -1e-300), 0.0, v))
+    out[lock] = math.inf
+    return out
+
+
+def _nees_rows(q: Array, qr: Array, P3: Array) -> Array:
+    """Attitude NEES of rows (as :func:`uavest.eval.attitude.nees_attitude`): e = Log(q^-1
+    q_ref), e^T P3^-1 e by Cramer's rule (N,); NaN where P3 is singular or not finite."""
+    e = quat_log(quat_mul(quat_conj(q), qr))
+    a, b, c = P3[:, 0, 0], P3[:, 0, 1], P3[:, 0, 2]
+    d, f, g = P3[:, 1, 0], P3[:, 1, 1], P3[:, 1, 2]
+    h, i, j = P3[:, 2, 0], P3[:, 2, 1], P3[:, 2, 2]
+    e0, e1, e2 = e[:, 0], e[:, 1], e[:, 2]
+    det = a * (f * j - g * i) - b * (d * j - g * h) + c * (d * i - f * h)
+    bad = (det == 0.0) | ~np.isfinite(det)
+    det = np.where(bad, 1.0, det)
+    out = (e0 * ((f * j - g * i) * e0 + (c * i - b * j) * e1 + (b * g - c * f) * e2)
+           + e1 * ((g * h - d * j) * e0 + (a * j - c * h) * e1 + (c * d - a * g) * e2)
+           + e2 * ((d * i - f * h) * e0 + (b * h - a * i) * e1 + (a * f - b * d) * e2)) / det
+    out[bad] = math.nan
+    return out
+
+
+def _ns_rows(T: Array) -> list[int]:
+    """:func:`_ns` of an array of times (s) as a list of ints (ns)."""
+    return np.maximum(np.rint(T * 1e9), 0.0).astype(np.int64).tolist()
+
+
+def _stack3(vs) -> Array:
+    """Rows of 3-vectors (an iterable of (3,) arrays) as (N, 3) float."""
+    return np.array(list(vs), float).reshape(-1, 3)
 
 
 def _clean(v):
@@ -259,39 +280,14 @@ _NUM = {"type": ["number", "null"]}
 _VEC3 = {"type": "array", "items": _NUM, "minItems": 3, "maxItems": 3}
 _RPY = {"type": "object", "properties": {"roll": _NUM, "pitch": _NUM, "yaw": _NUM}}
 
-#: JSON schemas (by title) of uavest's own channels.
+#: JSON schemas (by title) of uavest's own JSON channels (the per-step attitude channels
+#: and the raw samples are protobuf: :mod:`uavest.sinks.protobuf`; ``uavest.FilterHealth``
+#: is also the JSON schema of the generic ``/state/<label>/health``).
 SCHEMAS: dict[str, dict] = {
-    "uavest.Imu": _obj("uavest.Imu", "IMU sample, body FRD", {
-        "t": _NUM, "source": {"type": "string"},
-        "gyro_rad_s": _VEC3, "accel_m_s2": _VEC3}, ["t", "gyro_rad_s", "accel_m_s2"]),
-    "uavest.Mag": _obj("uavest.Mag", "magnetometer sample, body FRD, gauss", {
-        "t": _NUM, "source": {"type": "string"}, "field_gauss": _VEC3}, ["t", "field_gauss"]),
     "uavest.Position": _obj("uavest.Position", "vehicle position: NED m from the local "
                             "origin, velocity NED m/s, lat deg, lon deg, alt m AMSL", {
         "t": _NUM, "source": {"type": "string"}, "ned_m": _VEC3, "vel_ned_m_s": _VEC3,
         "lat_lon_alt": _VEC3}, ["t"]),
-    "uavest.AttitudeReference": _obj(
-        "uavest.AttitudeReference", "attitude reference (truth / autopilot / ahrs2), q "
-        "[w,x,y,z] body FRD -> NED, ZYX Euler deg", {
-            "t": _NUM, "source": {"type": "string"}, "kind": {"type": "string"},
-            "q": {"type": "array", "items": _NUM}, "rpy_deg": _RPY}, ["t", "q", "kind"]),
-    "uavest.AttitudeEstimate": _obj(
-        "uavest.AttitudeEstimate", "a filter's posterior: q [w,x,y,z] body FRD -> NED, gyro "
-        "bias rad/s FRD, ZYX Euler deg with 3-sigma (deg, linearised), P_triu_b64: the upper "
-        "triangle of the symmetric 6x6 tangent covariance, row by row (numpy.triu_indices; "
-        "3 body rotation errors rad, 3 bias errors rad/s), as base64 of little-endian "
-        "float64 (exact, and 50x cheaper to write than JSON numbers)", {
-            "t": _NUM, "k": {"type": "integer"}, "q": {"type": "array", "items": _NUM},
-            "bias_rad_s": _VEC3, "rpy_deg": _RPY, "sigma3_deg": _RPY,
-            "P_triu_b64": {"type": "string", "contentEncoding": "base64"}},
-        ["t", "k", "q", "P_triu_b64"]),
-    "uavest.AttitudeError": _obj(
-        "uavest.AttitudeError", "estimate - reference ZYX Euler error (deg, wrapped), the "
-        "filter's own +-3 sigma (deg), NEES (3 dof, against truth only); the reference is "
-        "interpolated (slerp) at the step time", {
-            "t": _NUM, "k": {"type": "integer"}, "reference": {"type": "string"},
-            "kind": {"type": "string"}, "err_deg": _RPY, "sigma3_deg": _RPY,
-            "neg_sigma3_deg": _RPY, "nees": _NUM}, ["t", "k", "err_deg", "sigma3_deg"]),
     "uavest.FilterHealth": _obj(
         "uavest.FilterHealth", "a filter step's health: total NIS of the updates and its "
         "degrees of freedom, per-update NIS, guard resets, wall time us", {
@@ -366,18 +362,6 @@ class _RefSeries:
         self.q.append(tuple(float(v) for v in q))
         return True
 
-    def at(self, t: float):
-        """Slerp at ``t`` as a tuple (None outside the span seen so far), as the scorer:
-        q0 Exp(s Log(q0^-1 q1))."""
-        ts = self.t
-        if not ts or t < ts[0] or t > ts[-1]:
-            return None
-        if len(ts) == 1:
-            return self.q[0]
-        i = min(bisect_right(ts, t) - 1, len(ts) - 2)
-        s = min(max((t - ts[i]) / (ts[i + 1] - ts[i]), 0.0), 1.0)
-        return slerp_one(self.q[i], self.q[i + 1], s)
-
     def trim(self, t: float) -> None:
         i = bisect_right(self.t, t) - 1
         if i > 0:
@@ -396,17 +380,33 @@ def _ref_rank(source: str, kind: str) -> tuple:
 #: rate the FrameTransform and PoseInFrame messages were 2 of the 5 per filter step.
 DEFAULT_FRAME_RATE_HZ = 30.0
 
-#: ``uavest.AttitudeEstimate`` up to ``"sigma3_deg":`` (t, k, q, bias exact; Euler deg
-#: derived, 10 digits).
-_EST_TPL = ('{"t":%.17g,"k":%d,"q":[%.17g,%.17g,%.17g,%.17g],"bias_rad_s":[%.17g,%.17g,'
-            '%.17g],"rpy_deg":{"roll":%.10g,"pitch":%.10g,"yaw":%.10g},"sigma3_deg":')
+class _FramePack:
+    """A translation (Vector3 x, y, z) and a rotation (Quaternion x, y, z, w) as two
+    protobuf fields, tags ``tag_t`` and ``tag_r``, packed in one ``struct`` call."""
+
+    def __init__(self, tag_t: int, tag_r: int) -> None:
+        self.s = struct.Struct("<BBBdBdBdBBBdBdBdBd")
+        self.tags = (tag_t, tag_r)
+
+    def pack(self, tx, ty, tz, qx, qy, qz, qw) -> bytes:
+        a, b = self.tags
+        return self.s.pack(a, 27, 0x09, tx, 0x11, ty, 0x19, tz, b, 36, 0x09, qx, 0x11, qy,
+                           0x19, qz, 0x21, qw)
+
+
+#: FrameTransform: translation (field 4) and rotation (field 5).
+_TF_POSE = _FramePack(0x22, 0x2A)
+#: PoseInFrame: frame_id "world" (field 2), then pose (field 3, 67 bytes: Pose's position
+#: (field 1) and orientation (field 2)).
+_POSE_HEAD = b"\x12\x05world\x1a\x43"
+_POSE = _FramePack(0x0A, 0x12)
 
 
 class _Lane:
     """One attitude estimator's channels (made once; the record hot path)."""
 
     __slots__ = ("label", "t_est", "t_health", "t_err", "est", "health", "err", "frame",
-                 "offset", "key", "last_frame")
+                 "offset", "key", "last_frame", "buf", "pend", "enc", "enc_dims")
 
     def __init__(self, label: str, offset: float) -> None:
         self.label = label
@@ -418,6 +418,10 @@ class _Lane:
         self.offset = offset
         self.key = "lab:" + label
         self.last_frame: float | None = None
+        self.buf: list = []  # records not yet encoded
+        self.pend: list[dict] = []  # encoded steps waiting for the reference (row chunks)
+        self.enc: dict[str, pb.FixedEncoder] = {}
+        self.enc_dims: tuple | None = None
 
 
 
@@ -431,11 +435,20 @@ class Publisher:
     channels (``/tf/*``, ``/attitude/*/pose``) per estimator in data time (None: every
     step); the JSON channels always carry every step. ``history``: points of a track's
     history line. ``only_subscribed``: skip building messages for channels nobody
-    listens to (the live view)."""
+    listens to (the live view). ``batch``: the per-step attitude channels and the raw
+    samples (protobuf, :mod:`uavest.sinks.protobuf`) are encoded in batches of up to this
+    many records and samples (1: at once, the live view; the recorder flushes with
+    :meth:`flush` before it closes a chunk, so a batch never outlives a chunk)."""
 
     def __init__(self, context, *, spacing_m: float = 2.0, frame_rate_hz: float | None = None,
-                 history: int = 60, only_subscribed: bool = False) -> None:
+                 history: int = 60, only_subscribed: bool = False, batch: int = 1) -> None:
         self.ctx = context
+        self.batch = max(int(batch), 1)
+        self._nbuf = 0
+        # raw samples not yet encoded: (kind, source) -> samples ((t, q) for references)
+        self._sbuf: dict[tuple[str, str], list] = {}
+        self._senc: dict[tuple[str, str], tuple] = {}
+        self._frames: dict[str, tuple] = {}
         self.spacing = float(spacing_m)
         self.frame_dt = 1.0 / frame_rate_hz if frame_rate_hz else 0.0
         self.history = int(history)
@@ -446,9 +459,6 @@ class Publisher:
         self.refs: dict[str, _RefSeries] = {}
         self.ref_frames: dict[str, str] = {}
         self.best_ref: str | None = None
-        # steps waiting for the reference: (t, ns, k, lane, q, P (lists), +3 sigma JSON,
-        # -3 sigma JSON, rpy)
-        self.pending: deque = deque()
         self.last_step_t: float | None = None
         self.pos_enu = (0.0, 0.0, 0.0)
         self.pos_source: str | None = None
@@ -461,7 +471,6 @@ class Publisher:
         self.lanes: dict[str, _Lane] = {}
         self.track_labels: list[str] = []  # labels of trackers (ScanRecord)
         self.health_lanes: dict[str, _Lane] = {}
-        self._err_tpl: dict[str, str] = {}
         self._drains = 0
         self._src: dict[tuple[str, str], tuple] = {}
         self.counts: dict[str, int] = {}
@@ -471,7 +480,14 @@ class Publisher:
     def _channel(self, topic: str, schema: str):
         ch = self.channels.get(topic)
         if ch is None:
-            if schema.startswith("uavest."):
+            if schema.startswith("wk:"):  # a well-known schema, messages encoded here
+                ch = foxglove.Channel(topic, schema=getattr(foxglove.messages, schema[3:])
+                                      .get_schema(), message_encoding="protobuf",
+                                      context=self.ctx)
+            elif schema.startswith("pb:"):
+                ch = foxglove.Channel(topic, schema=pb.schema(schema[3:]),
+                                      message_encoding="protobuf", context=self.ctx)
+            elif schema.startswith("uavest."):
                 ch = foxglove.Channel(topic, schema=SCHEMAS[schema], context=self.ctx)
             else:
                 ch = getattr(fch, schema + "Channel")(topic, context=self.ctx)
@@ -528,20 +544,15 @@ class Publisher:
     # -- samples --------------------------------------------------------------------------
     def sample(self, s) -> None:
         name = type(s).__name__
-        if name == "ImuSample":
-            topic, ch, tpl = self._src_channel("/imu/", s.source, "uavest.Imu",
-                                               '"gyro_rad_s":[%.17g,%.17g,%.17g],'
-                                               '"accel_m_s2":[%.17g,%.17g,%.17g]}')
-            if ch is not None:
-                g, a = s.gyro.tolist(), s.accel.tolist()
-                self._log(ch, topic, _fill(tpl, (s.t, g[0], g[1], g[2], a[0], a[1], a[2])
-                                           ).encode(), _ns(s.t))
-        elif name == "MagSample":
-            topic, ch, tpl = self._src_channel("/mag/", s.source, "uavest.Mag",
-                                               '"field_gauss":[%.17g,%.17g,%.17g]}')
-            if ch is not None:
-                f = s.field.tolist()
-                self._log(ch, topic, _fill(tpl, (s.t, f[0], f[1], f[2])).encode(), _ns(s.t))
+        if name == "ImuSample" or name == "MagSample":
+            key = ("imu" if name == "ImuSample" else "mag", s.source)
+            buf = self._sbuf.get(key)
+            if buf is None:
+                buf = self._sbuf[key] = []
+            buf.append(s)
+            self._nbuf += 1
+            if self._nbuf >= self.batch:
+                self.flush()
         elif name == "AttitudeRef":
             self._reference(s)
         elif name == "PositionSample":
@@ -551,18 +562,50 @@ class Publisher:
         elif name == "StateSample":
             self._state_sample(s)
 
-    def _src_channel(self, prefix: str, source: str, schema: str, body: str):
-        """(topic, channel or None when nobody listens, template) of a per-source sample
-        channel; the template starts ``{"t":%.17g,"source":"<source>",`` + ``body``."""
-        key = (prefix, source)
-        hit = self._src.get(key)
-        if hit is None:
-            topic = prefix + source
-            hit = self._src[key] = (topic, self._channel(topic, schema),
-                                    '{"t":%.17g,"source":' + _pct(_q(source)) + "," + body)
-        if self.only_subscribed and not hit[1].has_sinks():
-            return hit[0], None, hit[2]
-        return hit
+    def _flush_samples(self) -> None:
+        """Encode and log the buffered raw samples (IMU, magnetometer, references)."""
+        for key, buf in self._sbuf.items():
+            if not buf:
+                continue
+            hit = self._senc.get(key)
+            if hit is None:
+                kind, source = key
+                topic = {"imu": "/imu/", "mag": "/mag/", "ref": "/reference/"}[kind] + source
+                if kind == "imu":
+                    enc = pb.FixedEncoder("Imu", {"source": source},
+                                          {"gyro_rad_s": 3, "accel_m_s2": 3})
+                    ch = self._channel(topic, "pb:Imu")
+                elif kind == "mag":
+                    enc = pb.FixedEncoder("Mag", {"source": source}, {"field_gauss": 3})
+                    ch = self._channel(topic, "pb:Mag")
+                else:
+                    enc = pb.FixedEncoder("AttitudeReference", {
+                        "source": source, "kind": self.refs[source].kind}, {"q": 4})
+                    ch = self._channel(topic, "pb:AttitudeReference")
+                hit = self._senc[key] = (topic, ch, enc)
+            topic, ch, enc = hit
+            n = len(buf)
+            if not self.only_subscribed or ch.has_sinks():
+                if key[0] == "ref":
+                    T = np.fromiter((b[0] for b in buf), float, n)
+                    Q = np.array([b[1] for b in buf], float).reshape(n, 4)
+                    cols = {"t": T, "q": Q, "rpy_deg": _rpy_rows(Q)}
+                else:
+                    T = np.fromiter((b.t for b in buf), float, n)
+                    if key[0] == "imu":
+                        cols = {"t": T, "gyro_rad_s": _stack3(b.gyro for b in buf),
+                                "accel_m_s2": _stack3(b.accel for b in buf)}
+                    else:
+                        cols = {"t": T, "field_gauss": _stack3(b.field for b in buf)}
+                self._log_many(ch, topic, enc.encode(n, cols), _ns_rows(T))
+            buf.clear()
+
+    def _log_many(self, ch, topic: str, msgs: list[bytes], ns: list[int]) -> None:
+        log = ch.base.log
+        for m, t in zip(msgs, ns, strict=True):
+            log(m, t)
+        c = self.counts
+        c[topic] = c.get(topic, 0) + len(msgs)
 
     def _state_sample(self, s: StateSample) -> None:
         """Truth and measurement of a generic vector-state step (``/truth/state``,
@@ -612,17 +655,16 @@ class Publisher:
         if not r.add(s.t, s.q):
             return
         q = r.q[-1]  # as Python floats
-        topic, ch, tpl = self._src_channel(
-            "/reference/", s.source, "uavest.AttitudeReference",
-            '"kind":' + _pct(_q(s.kind)) + ',"q":[%.17g,%.17g,%.17g,%.17g],'
-            '"rpy_deg":{"roll":%.10g,"pitch":%.10g,"yaw":%.10g}}')
-        if ch is not None:
-            rpy = _rpy(*q)
-            self._log(ch, topic, _fill(tpl, (s.t, *q, *rpy)).encode(), _ns(s.t))
+        key = ("ref", s.source)
+        buf = self._sbuf.get(key)
+        if buf is None:
+            buf = self._sbuf[key] = []
+        buf.append((s.t, q))
         frame = self.ref_frames[s.source]
         self._frame(frame[5:], frame, s.t, q, 0.0, "ref:" + s.source)
-        if s.source == self.best_ref:
-            self._drain(final=False)
+        self._nbuf += 1
+        if self._nbuf >= self.batch:
+            self.flush()
 
     # -- 3-D ------------------------------------------------------------------------------
     def _frame(self, name: str, frame: str, t: float, q, offset_east: float, key: str) -> None:
@@ -636,14 +678,26 @@ class Publisher:
             self.last_frame[key] = t
         w, x, y, z = _enu_flu(q)
         e, n, u = self.pos_enu
-        rot = Quaternion(x=x, y=y, z=z, w=w)
-        ts = _ts(t)
-        self._pb(f"/tf/{name}", "FrameTransform", t, lambda: FrameTransform(
-            timestamp=ts, parent_frame_id="world", child_frame_id=frame,
-            translation=Vector3(x=e + offset_east, y=n, z=u), rotation=rot))
-        self._pb(f"/attitude/{name}/pose", "PoseInFrame", t, lambda: PoseInFrame(
-            timestamp=ts, frame_id="world",
-            pose=Pose(position=Vector3(x=e, y=n, z=u), orientation=rot)))
+        hit = self._frames.get(name)
+        if hit is None:
+            # foxglove.FrameTransform / foxglove.PoseInFrame (the SDK's schemas) encoded
+            # here: the same protobuf messages, without building seven SDK objects each
+            tf_t, pose_t = f"/tf/{name}", f"/attitude/{name}/pose"
+            hit = self._frames[name] = (
+                tf_t, self._channel(tf_t, "wk:FrameTransform"),
+                pb.len_field(2, b"world") + pb.len_field(3, frame.encode()),
+                pose_t, self._channel(pose_t, "wk:PoseInFrame"))
+        tf_t, tf_ch, tf_ids, pose_t, pose_ch = hit
+        ns = _ns(t)
+        osub = self.only_subscribed
+        if not osub or tf_ch.has_sinks():
+            stamp = pb.timestamp_field(1, ns)
+            self._log(tf_ch, tf_t, stamp + tf_ids + _TF_POSE.pack(
+                e + offset_east, n, u, x, y, z, w), ns)
+        if not osub or pose_ch.has_sinks():
+            stamp = pb.timestamp_field(1, ns)
+            self._log(pose_ch, pose_t, stamp + _POSE_HEAD + _POSE.pack(e, n, u, x, y, z, w),
+                      ns)
 
     def _markers(self, t: float) -> None:
         """Body markers (nose arrow, label) in every body frame, re-sent once per wall
@@ -683,8 +737,8 @@ class Publisher:
         if lab not in self.labels:
             self.labels.append(lab)
         ln = _Lane(lab, self.spacing * (self.labels.index(lab) + 1))
-        ln.est = self._channel(ln.t_est, "uavest.AttitudeEstimate")
-        ln.health = self._channel(ln.t_health, "uavest.FilterHealth")
+        ln.est = self._channel(ln.t_est, "pb:AttitudeEstimate")
+        ln.health = self._channel(ln.t_health, "pb:FilterHealth")
         self.lanes[lab] = ln
         return ln
 
@@ -706,44 +760,106 @@ class Publisher:
         if self.kind != "attitude":
             self.kind = "attitude+radar" if self.kind in ("radar", "attitude+radar") \
                 else "attitude"
-        lab, t, k = rec.estimator, rec.t, rec.k
+        lab, t = rec.estimator, rec.t
         ln = self.lanes.get(lab) or self._lane(lab)
-        ns = _ns(t)
-        osub = self.only_subscribed
-        P = rec.P
-        xs = rec.x.tolist()
-        Pl = P[:3, :3].tolist()  # the attitude block (sigma3, NEES)
-        w, x, y, z = xs[0], xs[1], xs[2], xs[3]
-        rpy = _rpy(w, x, y, z)
-        s3 = _sigma3_scalar(rpy, Pl)
-        s3t = (_g(s3[0]), _g(s3[1]), _g(s3[2]))
-        s3j = '{"roll":%s,"pitch":%s,"yaw":%s}' % s3t  # noqa: UP031
-        # the hot path: JSON text assembled directly (q, bias, t exact with %.17g; derived
-        # Euler angles and bounds with 10 digits; NaN/inf -> null), one formatting
-        # operation per message
-        if not osub or ln.est.has_sinks():
-            b = xs[4:7] if len(xs) >= 7 else (xs[4:7] + [math.nan] * 3)[:3]
-            self._log(ln.est, ln.t_est, (_fill(_EST_TPL, (
-                t, k, w, x, y, z, b[0], b[1], b[2], rpy[0], rpy[1], rpy[2]))
-                + s3j + ',"P_triu_b64":"' + _b64_triu(P) + '"}').encode(), ns)
-        if not osub or ln.health.has_sinks():
-            self._health_fast(ln, rec, ns)
-        elif rec.reset:
+        ln.buf.append(rec)
+        if rec.reset:
             self._reset_event(rec)
         if self.frame_dt:
             last = ln.last_frame
             if last is None or t - last >= self.frame_dt:
                 ln.last_frame = t
-                self._frame(lab, ln.frame, t, (w, x, y, z), ln.offset, ln.key)
+                self._frame(lab, ln.frame, t, rec.x[:4].tolist(), ln.offset, ln.key)
         else:
-            self._frame(lab, ln.frame, t, (w, x, y, z), ln.offset, ln.key)
+            self._frame(lab, ln.frame, t, rec.x[:4].tolist(), ln.offset, ln.key)
         self._markers(t)
         self.last_step_t = t
+        self._nbuf += 1
+        if self._nbuf >= self.batch:
+            self.flush()
+
+    def flush(self) -> None:
+        """Encode and log everything buffered: raw samples first (the references the
+        errors need), then each estimator's estimates and health, then the errors of the
+        steps the chosen reference has reached."""
+        self._nbuf = 0
+        self._flush_samples()
+        for ln in self.lanes.values():
+            if ln.buf:
+                self._flush_lane(ln)
+        self._drain(final=False)
+
+    def _encoders(self, ln: _Lane, nx: int, nP: int) -> dict:
+        if ln.enc_dims != (nx, nP):
+            ln.enc_dims = (nx, nP)
+            ln.enc = {
+                "est": pb.FixedEncoder("AttitudeEstimate", lengths={
+                    "q": 4, "bias_rad_s": 3, "P_triu": nP * (nP + 1) // 2}),
+                "health": pb.FixedEncoder("FilterHealth")}
+        return ln.enc
+
+    def _flush_lane(self, ln: _Lane) -> None:
+        """The buffered records of one attitude estimator: ``/attitude/<label>/estimate``
+        and ``.../health`` (vectorised over the batch), and their rows for the errors."""
+        recs = ln.buf
+        ln.buf = []
+        n = len(recs)
+        T = np.fromiter((r.t for r in recs), float, n)
+        K = np.fromiter((r.k for r in recs), np.int64, n)
+        try:
+            X = np.array([r.x for r in recs], float)
+            P = np.array([r.P for r in recs], float)
+            if X.ndim != 2 or P.ndim != 3:
+                raise ValueError
+        except ValueError:  # states of different sizes in one batch: one at a time
+            for r in recs:
+                ln.buf = [r]
+                self._flush_lane(ln)
+            return
+        nx, nP = X.shape[1], P.shape[1]
+        enc = self._encoders(ln, nx, nP)
+        Q = X[:, :4]
+        B = X[:, 4:7] if nx >= 7 else np.full((n, 3), math.nan)
+        rpy = _rpy_rows(Q)
+        P3 = P[:, :3, :3]
+        s3 = _sigma3_rows(rpy, P3)
+        ns = _ns_rows(T)
+        osub = self.only_subscribed
+        if not osub or ln.est.has_sinks():
+            i, j = _triu(nP)
+            self._log_many(ln.est, ln.t_est, enc["est"].encode(n, {
+                "t": T, "k": K, "q": Q, "bias_rad_s": B, "rpy_deg": rpy, "sigma3_deg": s3,
+                "P_triu": P[:, i, j]}), ns)
+        if not osub or ln.health.has_sinks():
+            nis = np.full(n, math.nan)
+            dof = np.zeros(n, np.int64)
+            extra: list[bytes] = []
+            upd = pb.update_bytes
+            for m, r in enumerate(recs):
+                b = b""
+                ups = r.updates
+                if ups:
+                    d, v = 0, 0.0
+                    for u in ups:
+                        nu = u.nu
+                        dd = nu.size if type(nu) is np.ndarray else int(np.size(nu))
+                        d += dd
+                        v += u.nis
+                        b += upd(5, u.kind, float(u.nis), dd)
+                    nis[m], dof[m] = v, d
+                if r.reason:
+                    b += pb.field_bytes(7, str(r.reason))
+                extra.append(b)
+            msgs = enc["health"].encode(n, {
+                "t": T, "k": K, "nis": nis, "nis_dof": dof,
+                "reset": np.fromiter((bool(r.reset) for r in recs), bool, n),
+                "resets": np.fromiter((int(r.resets) for r in recs), np.int64, n),
+                "wall_us": 1e6 * np.fromiter((r.wall_s for r in recs), float, n)})
+            self._log_many(ln.health, ln.t_health,
+                           [m + e if e else m for m, e in zip(msgs, extra, strict=True)], ns)
         if self.refs:
-            self.pending.append((t, ns, k, ln, (w, x, y, z), Pl, s3j,
-                                 '{"roll":%s,"pitch":%s,"yaw":%s}' % (  # noqa: UP031
-                                     _neg(s3t[0]), _neg(s3t[1]), _neg(s3t[2])), rpy))
-            self._drain(final=False)
+            ln.pend.append({"t": T, "ns": np.asarray(ns, np.int64), "k": K, "q": Q,
+                            "P3": P3, "s3": s3, "rpy": rpy})
 
     def _health_fast(self, ln: _Lane, rec: StepRecord, ns: int) -> None:
         ups, dof, nis = [], 0, 0.0
@@ -813,45 +929,65 @@ class Publisher:
                 "dof": int(x.size)})
 
     def _drain(self, final: bool) -> None:
-        """Errors of the waiting steps whose time the chosen reference has reached."""
+        """Errors of the waiting steps whose time the chosen reference has reached
+        (vectorised over each estimator's waiting rows); ``final``: the rest too (those
+        outside the reference's span are not scored, as the scorer)."""
         name = self.best_ref
         if name is None:
             return
         r = self.refs[name]
         truth = r.kind == "truth"
-        pend = self.pending
-        rt = r.t
-        osub = self.only_subscribed
-        tpl = self._err_tpl.get(name)
-        if tpl is None:
-            tpl = self._err_tpl[name] = (
-                '{"t":%%.17g,"k":%%d,"reference":%s,"kind":%s,'  # noqa: UP031
-                '"err_deg":{"roll":%%.10g,"pitch":%%.10g,"yaw":%%.10g}' % (
-                    _pct(_q(name)), _pct(_q(r.kind))))
-        while pend:
-            t, ns, k, ln, q, Pl, s3j, negj, a = pend[0]
-            if rt and t > rt[-1] and not final:
-                break
-            pend.popleft()
-            qr = r.at(t)
-            if qr is None:
-                continue  # outside the reference's span: not scored (as the scorer)
+        if not r.t:
+            return
+        rt = np.asarray(r.t)
+        rq = np.asarray(r.q, float).reshape(-1, 4)
+        keep_t = None
+        for ln in self.lanes.values():
+            if not ln.pend:
+                continue
+            rows = ln.pend[0] if len(ln.pend) == 1 else {
+                k: np.concatenate([c[k] for c in ln.pend]) for k in ln.pend[0]}
+            t = rows["t"]
+            if final:
+                ln.pend = []
+                ready = np.ones(t.shape, bool)
+            else:
+                ready = t <= rt[-1]
+                if ready.all():
+                    ln.pend = []
+                else:
+                    later = ~ready
+                    ln.pend = [{k: v[later] for k, v in rows.items()}]
+                    t0 = float(t[later].min())
+                    keep_t = t0 if keep_t is None else min(keep_t, t0)
+                    rows = {k: v[ready] for k, v in rows.items()}
+            ok = (rows["t"] >= rt[0]) & (rows["t"] <= rt[-1])
+            if not ok.all():
+                rows = {k: v[ok] for k, v in rows.items()}
+            n = rows["t"].shape[0]
+            if n == 0:
+                continue
             ch = ln.err
             if ch is None:
-                ch = ln.err = self._channel(ln.t_err, "uavest.AttitudeError")
-            if osub and not ch.has_sinks():
+                ch = ln.err = self._channel(ln.t_err, "pb:AttitudeError")
+            if self.only_subscribed and not ch.has_sinks():
                 continue
-            b = _rpy(*qr)
-            tail = ',"nees":' + _g(_nees3(q, qr, Pl)) + "}" if truth else "}"
-            self._log(ch, ln.t_err, (_fill(tpl, (
-                t, k, (a[0] - b[0] + 180.0) % 360.0 - 180.0,  # wrapped as _wrap180
-                (a[1] - b[1] + 180.0) % 360.0 - 180.0, (a[2] - b[2] + 180.0) % 360.0 - 180.0))
-                + ',"sigma3_deg":' + s3j + ',"neg_sigma3_deg":' + negj + tail).encode(), ns)
+            enc = ln.enc.get(("err", name))
+            if enc is None:
+                enc = ln.enc[("err", name)] = pb.FixedEncoder(
+                    "AttitudeError", {"reference": name, "kind": r.kind})
+            qr, _ = quat_slerp_interp(rt, rq, rows["t"])
+            err = (rows["rpy"] - _rpy_rows(qr) + 180.0) % 360.0 - 180.0  # as _wrap180
+            s3 = rows["s3"]
+            cols = {"t": rows["t"], "k": rows["k"], "err_deg": err, "sigma3_deg": s3,
+                    "neg_sigma3_deg": -s3,
+                    "nees": _nees_rows(rows["q"], qr, rows["P3"]) if truth else math.nan}
+            self._log_many(ch, ln.t_err, enc.encode(n, cols), rows["ns"].tolist())
         # later steps come at or after the newest step seen: keep what they may need
-        # (trimmed now and then: the slerp's bisection does not mind a longer list)
+        # (trimmed now and then: the interpolation's search does not mind a longer list)
         self._drains += 1
-        if final or self._drains % 64 == 0:
-            keep = pend[0][0] if pend else self.last_step_t
+        if final or self._drains % 8 == 0:
+            keep = keep_t if keep_t is not None else self.last_step_t
             if keep is not None:
                 for ref in self.refs.values():
                     ref.trim(keep)
@@ -973,6 +1109,7 @@ class Publisher:
                            f"at scan {rec.k}")
 
     def close(self) -> None:
+        self.flush()
         self._drain(final=True)
 
 
@@ -989,20 +1126,6 @@ def _triu(n: int) -> tuple:
     return _TRIU[n]
 
 
-_TRIU_FLAT: dict[int, Array] = {}
-
-
-def _b64_triu(P: Array) -> str:
-    """:func:`_b64` of the upper triangle of square ``P``, row by row (as
-    ``P[numpy.triu_indices(n)]``; ``take`` with cached flat indices is cheaper)."""
-    n = P.shape[0]
-    idx = _TRIU_FLAT.get(n)
-    if idx is None:
-        idx = _TRIU_FLAT[n] = np.ravel_multi_index(np.triu_indices(n), (n, n))
-    v = P.take(idx)
-    if v.dtype != np.dtype("<f8"):
-        v = v.astype("<f8")
-    return base64.b64encode(v.tobytes()).decode()
 
 
 def _b64(a: Array) -> str:
@@ -1018,7 +1141,8 @@ def b64_floats(s: str | list[str]) -> Array:
 
 def triu_to_full(v, n: int) -> Array:
     """Symmetric (..., n, n) matrices from their upper triangles (..., n (n + 1) / 2) as
-    written by the recorder (``P_triu_b64``, decoded with :func:`b64_floats`)."""
+    written by the recorder (``P_triu`` of ``uavest.AttitudeEstimate``; ``P_triu_b64`` of
+    channel set 1, decoded with :func:`b64_floats`)."""
     v = np.asarray(v, float)
     out = np.empty(v.shape[:-1] + (n, n))
     i, j = np.triu_indices(n)
@@ -1051,32 +1175,6 @@ def _g(v: float) -> str:
     return "%.10g" % v if v - v == 0.0 else "null"  # noqa: UP031
 
 
-_NULLS: dict[str, str] = {}
-_FLOAT_FIELD = re.compile(r"%\.\d+g")
-
-
-def _fill(tpl: str, vals: tuple) -> str:
-    """``tpl % vals`` for a template whose float fields are ``%.17g`` (exact) or
-    ``%.10g`` (derived) and int fields ``%d``: one formatting operation when every value
-    is finite (checked with one ``sum``), else NaN/inf written as null."""
-    if math.isfinite(sum(vals)):
-        return tpl % vals
-    t2 = _NULLS.get(tpl)
-    if t2 is None:
-        t2 = _NULLS[tpl] = _FLOAT_FIELD.sub("%s", tpl)
-    return t2 % tuple(_n(v) if isinstance(v, float) else v for v in vals)
-
-
-def _pct(s: str) -> str:
-    """``s`` as literal text inside a %-template."""
-    return s.replace("%", "%%")
-
-
-def _neg(s: str) -> str:
-    """The JSON text of -v from the JSON text of v (null stays null)."""
-    if s == "null":
-        return s
-    return s[1:] if s[0] == "-" else "-" + s
 
 
 _QUOTED: dict[str, str] = {}

@@ -1,7 +1,9 @@
 """MCAP recording sink: every channel of :mod:`uavest.sinks.foxglove_channels`, written with
 foxglove-sdk's MCAP writer (Foxglove's well-known protobuf schemas, so the app's 3-D, plot,
-map and log panels work with no set-up; uavest's own quantities as JSON with titled JSON
-schemas). Read recordings back with the ``mcap`` package (:mod:`uavest.report.read`).
+map and log panels work with no set-up; uavest's per-step quantities and raw samples as
+protobuf messages of its own schema, :mod:`uavest.sinks.protobuf`, encoded in batches; the
+rest as JSON with titled JSON schemas). Read recordings back with the ``mcap`` package
+(:mod:`uavest.report.read`).
 
 Durability: chunks (zstd) close when they reach ``chunk_size`` bytes (uncompressed) or
 when ``flush_s`` seconds of wall time have passed since the last close, whichever comes
@@ -29,7 +31,7 @@ from .foxglove_channels import DEFAULT_FRAME_RATE_HZ, Publisher, _jsonable
 __all__ = ["CHANNEL_SET_VERSION", "McapSink"]
 
 #: Version of the channel set / message fields (``recording`` metadata).
-CHANNEL_SET_VERSION = "1"
+CHANNEL_SET_VERSION = "2"
 
 
 class McapSink(Sink):
@@ -46,7 +48,10 @@ class McapSink(Sink):
     default), compressed on the calling thread (``compression_threads=0``: no pool
     competing with the replay for a small machine's cores); ``spacing_m``: display offset
     between the bodies in the 3-D view (m); ``layout``: write the Foxglove layout beside
-    the recording; ``overwrite``: replace an existing file."""
+    the recording; ``overwrite``: replace an existing file; ``batch``: records and samples
+    the publisher encodes together (the per-step channels are protobuf, encoded in
+    batches: :mod:`uavest.sinks.protobuf`; every batch is written before a chunk closes,
+    so ``flush_s`` still bounds what a killed recorder loses)."""
 
     def __init__(
         self,
@@ -60,6 +65,7 @@ class McapSink(Sink):
         spacing_m: float = 2.0,
         layout: bool = True,
         overwrite: bool = True,
+        batch: int = 1024,
     ) -> None:
         self.path = Path(path)
         self.frame_rate_hz = frame_rate_hz
@@ -70,6 +76,7 @@ class McapSink(Sink):
         self.spacing_m = spacing_m
         self.write_layout = layout
         self.overwrite = overwrite
+        self.batch = int(batch)
         self.writer = None
         self.pub: Publisher | None = None
         self._last_flush = 0.0
@@ -96,13 +103,14 @@ class McapSink(Sink):
                     compression=comp, chunk_size=self.chunk_size, profile="",
                     compression_level=self.compression_level, compression_threads=0))
             self.pub = Publisher(ctx, spacing_m=self.spacing_m,
-                                 frame_rate_hz=self.frame_rate_hz)
+                                 frame_rate_hz=self.frame_rate_hz, batch=self.batch)
             self._last_flush = time.monotonic()
         return self.pub
 
     def _tick(self) -> None:
         now = time.monotonic()
         if now - self._last_flush >= self.flush_s:
+            self.pub.flush()  # what the publisher holds goes into the chunk it closes
             self.writer.flush()
             self.flushes += 1
             self._last_flush = now
