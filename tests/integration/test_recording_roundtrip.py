@@ -273,3 +273,45 @@ def test_batched_recording_equals_one_message_at_a_time(tmp_path):
     for topic, msgs in ra.raw.items():
         if topic != "/attitude/bodies":  # re-sent once a wall second
             assert [m for _, m in rb.raw[topic]] == [m for _, m in msgs], topic
+
+
+def test_bulk_decoder_equals_the_message_decoder(vtol):
+    """The reader decodes uavest's protobuf channels in bulk (numpy over the fixed layout,
+    the message decoder for the others): the same dicts as decoding each message, on the
+    recording and on a batch with NaN / inf values and odd messages mixed in."""
+    from mcap.reader import make_reader
+
+    from uavest.report.protowire import ProtoDecoder
+    from uavest.report.read import _nulls, decode_own
+    from uavest.sinks import protobuf as pb
+
+    by_topic, names = {}, {}
+    with open(vtol["path"], "rb") as f:
+        for schema, channel, msg in make_reader(f).iter_messages(log_time_order=False):
+            if schema.encoding == "protobuf" and schema.name.startswith("uavest."):
+                by_topic.setdefault(channel.topic, []).append(bytes(msg.data))
+                names[channel.topic] = schema.name
+    dec = ProtoDecoder(pb.DESCRIPTOR_SET)
+    assert len(by_topic) >= 15
+    for topic, msgs in by_topic.items():
+        assert decode_own(dec, names[topic], msgs) == [
+            _nulls(dec.decode(m, names[topic])) for m in msgs], topic
+    rng = np.random.default_rng(6)
+    n = 20
+    P = rng.standard_normal((n, 21))
+    P[3, 5], P[7, 0], P[7, 20] = np.nan, np.inf, -np.inf
+    enc = pb.FixedEncoder("AttitudeEstimate", lengths={"q": 4, "bias_rad_s": 3, "P_triu": 21})
+    msgs = enc.encode(n, {"t": rng.random(n), "k": np.arange(n), "q": rng.random((n, 4)),
+                          "P_triu": P, "rpy_deg": np.full((n, 3), np.nan)})
+    msgs[4] = msgs[4] + pb.field_bytes(1, 9.5)  # a repeated scalar field: decoded singly
+    msgs[9] = msgs[9][:-8] + struct_pack_d(1.0)  # same length, other values: bulk
+    got = decode_own(dec, "uavest.AttitudeEstimate", msgs)
+    assert got == [_nulls(dec.decode(m, "uavest.AttitudeEstimate")) for m in msgs]
+    assert got[3]["P_triu"][5] is None and got[7]["P_triu"][20] is None
+    assert got[0]["rpy_deg"] == {"roll": None, "pitch": None, "yaw": None}
+
+
+def struct_pack_d(v: float) -> bytes:
+    import struct
+
+    return struct.pack("<d", v)

@@ -14,10 +14,11 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 from mcap.records import Channel, Chunk, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 
-from .protowire import ProtoDecoder
+from .protowire import ProtoDecoder, _varint
 
 __all__ = ["Recording", "read_recording"]
 
@@ -45,6 +46,7 @@ class Recording:
     truncated: bool = False
     error: str = ""
     _own: dict = field(default_factory=dict, repr=False)
+    _own_raw: dict = field(default_factory=dict, repr=False)
     _decoders: dict = field(default_factory=dict, repr=False)
 
     def topics(self, prefix: str = "", suffix: str = "") -> list[str]:
@@ -81,7 +83,122 @@ def read_recording(path: str | Path, topics: set[str] | None = None) -> Recordin
         except Exception as e:  # the torn tail of a killed recording
             rec.truncated = True
             rec.error = f"{type(e).__name__}: {e}"
+    for t, msgs in rec._own_raw.items():
+        rec.json[t] = decode_own(rec._own[t], rec.schemas[t][0], msgs)
+    rec._own_raw.clear()
     return rec
+
+
+def decode_own(dec: ProtoDecoder, type_name: str, msgs: list[bytes]) -> list[dict]:
+    """Messages of one of uavest's own protobuf channels as dicts (NaN as None), in order.
+
+    The recorder writes them with a fixed byte layout (:mod:`uavest.sinks.protobuf`), so
+    the messages of one length usually share it: the layout is read off the first one
+    (the offsets of its scalar and packed-double fields), every message of that length
+    whose other bytes (tags, lengths, strings) equal the first's is decoded by numpy in
+    one go, and the rest (a health message with its per-update list, a reset's reason)
+    by :class:`ProtoDecoder`. The same dicts either way (test)."""
+    out: list = [None] * len(msgs)
+    groups: dict[int, list[int]] = {}
+    for i, m in enumerate(msgs):
+        groups.setdefault(len(m), []).append(i)
+    for L, idx in groups.items():
+        lay = _layout(dec, type_name, msgs[idx[0]], 0, ()) if len(idx) >= 8 and L else None
+        if lay is None:
+            for i in idx:
+                out[i] = _nulls(dec.decode(msgs[i], type_name))
+            continue
+        slots, consts = lay
+        buf = np.frombuffer(b"".join(msgs[i] for i in idx), np.uint8).reshape(len(idx), L)
+        mask = np.ones(L, bool)
+        for _, off, kind, count in slots:
+            mask[off:off + (1 if kind == "u1" else 8 * max(count, 1))] = False
+        same = (buf[:, mask] == buf[0, mask]).all(axis=1).tolist()
+        cols = []
+        for path, off, kind, count in slots:
+            width = 1 if kind == "u1" else 8 * max(count, 1)
+            v = np.ascontiguousarray(buf[:, off:off + width]).view(kind)
+            if kind == "u1":
+                col = v[:, 0].astype(bool).tolist()
+            else:
+                col = _none_where_bad(v[:, 0] if count == 0 else v)
+            cols.append((path, col))
+        for r, i in enumerate(idx):
+            if not same[r]:
+                out[i] = _nulls(dec.decode(msgs[i], type_name))
+                continue
+            d: dict = {}
+            for path, col in cols:
+                if len(path) == 1:
+                    d[path[0]] = col[r]
+                else:
+                    d.setdefault(path[0], {})[path[1]] = col[r]
+            for path, val in consts:
+                if len(path) == 1:
+                    d[path[0]] = val
+                else:
+                    d.setdefault(path[0], {})[path[1]] = val
+            out[i] = d
+    return out
+
+
+def _none_where_bad(v: np.ndarray) -> list:
+    """``v.tolist()`` with None for NaN / inf (1-D or 2-D)."""
+    lst = v.tolist()
+    if v.dtype.kind == "f":
+        bad = ~np.isfinite(v)
+        if bad.any():
+            if v.ndim == 1:
+                for i in np.flatnonzero(bad).tolist():
+                    lst[i] = None
+            else:
+                for i, j in zip(*np.nonzero(bad), strict=True):
+                    lst[int(i)][int(j)] = None
+    return lst
+
+
+def _layout(dec: ProtoDecoder, type_name: str, m: bytes, base: int, prefix: tuple):
+    """(slots, constants) of message ``m``: slots (path, byte offset, numpy kind, count:
+    0 for a scalar, n for a packed double array) of its double / sfixed64 / bool fields,
+    constants (path, str) of its strings; None when ``m`` has a field this cannot place
+    at a fixed offset (a repeated message, a varint other than a bool)."""
+    spec = dec.types[type_name]
+    slots: list = []
+    consts: list = []
+    i, n = 0, len(m)
+    while i < n:
+        key, j = _varint(m, i)
+        num, wt = key >> 3, key & 7
+        if num not in spec:
+            return None
+        name, ftype, label, sub = spec[num]
+        path = prefix + (name,)
+        if wt == 1 and ftype in (1, 16) and label != 3:
+            slots.append((path, base + j, "<f8" if ftype == 1 else "<i8", 0))
+            i = j + 8
+        elif wt == 0 and ftype == 8 and m[j] in (0, 1):
+            slots.append((path, base + j, "u1", 0))
+            i = j + 1
+        elif wt == 2:
+            ln, k = _varint(m, j)
+            body = m[k:k + ln]
+            if ftype == 9:
+                consts.append((path, body.decode()))
+            elif ftype == 11 and label != 3 and not prefix:
+                r = _layout(dec, sub, body, base + k, path)
+                if r is None:
+                    return None
+                slots += r[0]
+                consts += r[1]
+            elif ftype == 1 and label == 3 and ln % 8 == 0:
+                slots.append((path, base + k, "<f8", ln // 8))
+            else:
+                return None
+            i = k + ln
+        else:
+            return None
+    return slots, consts
+
 
 
 def _nulls(v):
@@ -134,9 +251,8 @@ def _one(rec: Recording, r, schemas, chans, topics) -> None:
         rec.log_times.setdefault(t, []).append(r.log_time)
         if ch.message_encoding == "json":
             rec.json.setdefault(t, []).append(json.loads(r.data))
-        elif ch.topic in rec._own:
-            rec.json.setdefault(t, []).append(_nulls(rec._own[t].decode(
-                r.data, rec.schemas[t][0])))
+        elif ch.topic in rec._own:  # decoded in bulk at the end (decode_own)
+            rec._own_raw.setdefault(t, []).append(bytes(r.data))
         else:
             rec.raw.setdefault(t, []).append((r.log_time, bytes(r.data)))
     elif isinstance(r, Metadata):
