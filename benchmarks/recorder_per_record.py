@@ -126,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
             pr.enable()
             feed(s, calls)
             pr.disable()
-            pstats.Stats(pr).sort_stats("tottime").print_stats(25)
+            pstats.Stats(pr).sort_stats(os.environ.get("PROFILE_SORT", "tottime")).print_stats(25)
         best: dict[str, dict[str, float]] = {k: {"all": 1e9, "rec": 1e9} for k in impls}
         size: dict[str, int] = {}
         for i in range(args.repeats):

@@ -359,7 +359,8 @@ class _RefSeries:
         if self.t and t <= self.t[-1]:
             return False
         self.t.append(t)
-        self.q.append(tuple(float(v) for v in q))
+        self.q.append(tuple(q.tolist()) if type(q) is np.ndarray else
+                      tuple(float(v) for v in q))
         return True
 
     def trim(self, t: float) -> None:
@@ -448,6 +449,7 @@ class Publisher:
         # raw samples not yet encoded: (kind, source) -> samples ((t, q) for references)
         self._sbuf: dict[tuple[str, str], list] = {}
         self._senc: dict[tuple[str, str], tuple] = {}
+        self._raw: dict[tuple[type, str], list] = {}  # (sample type, source) -> its buffer
         self._frames: dict[str, tuple] = {}
         self.spacing = float(spacing_m)
         self.frame_dt = 1.0 / frame_rate_hz if frame_rate_hz else 0.0
@@ -545,10 +547,11 @@ class Publisher:
     def sample(self, s) -> None:
         name = type(s).__name__
         if name == "ImuSample" or name == "MagSample":
-            key = ("imu" if name == "ImuSample" else "mag", s.source)
-            buf = self._sbuf.get(key)
+            key = (type(s), s.source)
+            buf = self._raw.get(key)
             if buf is None:
-                buf = self._sbuf[key] = []
+                buf = self._raw[key] = self._sbuf.setdefault(
+                    ("imu" if name == "ImuSample" else "mag", s.source), [])
             buf.append(s)
             self._nbuf += 1
             if self._nbuf >= self.batch:
@@ -690,12 +693,11 @@ class Publisher:
         tf_t, tf_ch, tf_ids, pose_t, pose_ch = hit
         ns = _ns(t)
         osub = self.only_subscribed
+        stamp = pb.timestamp_field(1, ns)
         if not osub or tf_ch.has_sinks():
-            stamp = pb.timestamp_field(1, ns)
             self._log(tf_ch, tf_t, stamp + tf_ids + _TF_POSE.pack(
                 e + offset_east, n, u, x, y, z, w), ns)
         if not osub or pose_ch.has_sinks():
-            stamp = pb.timestamp_field(1, ns)
             self._log(pose_ch, pose_t, stamp + _POSE_HEAD + _POSE.pack(e, n, u, x, y, z, w),
                       ns)
 
