@@ -137,7 +137,7 @@ def _enu_flu(q) -> tuple[float, float, float, float]:
     """Scalar form of :func:`ned_frd_to_enu_flu` (the recorder's hot path): with
     a = q_ned2enu * q = s (-(x + y), w + z, w - z, y - x), s = 1/sqrt 2, the product
     a * [0, 1, 0, 0] = (-a_x, a_w, a_z, -a_y)."""
-    w, x, y, z = (float(v) for v in q)
+    w, x, y, z = q if type(q) is list or type(q) is tuple else (float(v) for v in q)
     aw, ax, ay, az = _S2 * (-x - y), _S2 * (w + z), _S2 * (w - z), _S2 * (y - x)
     return (-ax, aw, az, -ay)
 
@@ -436,16 +436,18 @@ class Publisher:
     channels (``/tf/*``, ``/attitude/*/pose``) per estimator in data time (None: every
     step); the JSON channels always carry every step. ``history``: points of a track's
     history line. ``only_subscribed``: skip building messages for channels nobody
-    listens to (the live view). ``batch``: the per-step attitude channels and the raw
-    samples (protobuf, :mod:`uavest.sinks.protobuf`) are encoded in batches of up to this
-    many records and samples (1: at once, the live view; the recorder flushes with
-    :meth:`flush` before it closes a chunk, so a batch never outlives a chunk)."""
+    listens to (the live view). ``batch``: :meth:`sample` and :meth:`record` queue their
+    argument; every ``batch`` calls (1: at once, the live view) :meth:`flush` handles the
+    queue in order and encodes the per-step attitude channels and the raw samples
+    (protobuf, :mod:`uavest.sinks.protobuf`) vectorised over it; the recorder also
+    flushes before it closes a chunk, so nothing waits longer than a chunk."""
 
     def __init__(self, context, *, spacing_m: float = 2.0, frame_rate_hz: float | None = None,
                  history: int = 60, only_subscribed: bool = False, batch: int = 1) -> None:
         self.ctx = context
         self.batch = max(int(batch), 1)
-        self._nbuf = 0
+        self._queue: list = []  # samples and records not yet handled, in order
+        self._nrec = -1  # (the first record sends the markers)
         # raw samples not yet encoded: (kind, source) -> samples ((t, q) for references)
         self._sbuf: dict[tuple[str, str], list] = {}
         self._senc: dict[tuple[str, str], tuple] = {}
@@ -539,12 +541,27 @@ class Publisher:
             timestamp=_ts(t), level=lvl, message=message, name=name, file="uavest", line=0))
 
     def start(self, label: str, t0: float, x0: Array, P0: Array) -> None:
+        self.flush()  # (the start event after what came before it on /log)
         if label not in self.labels:
             self.labels.append(label)
         self.log_event(t0, "info", label, f"start {label} at t = {t0:.3f} s")
 
     # -- samples --------------------------------------------------------------------------
     def sample(self, s) -> None:
+        """Queue a sample (handled with the batch, in order with the records)."""
+        q = self._queue
+        q.append(s)
+        if len(q) >= self.batch:
+            self.flush()
+
+    def record(self, rec: StepRecord | ScanRecord) -> None:
+        """Queue a record (handled with the batch, in order with the samples)."""
+        q = self._queue
+        q.append(rec)
+        if len(q) >= self.batch:
+            self.flush()
+
+    def _sample(self, s) -> None:
         name = type(s).__name__
         if name == "ImuSample" or name == "MagSample":
             key = (type(s), s.source)
@@ -553,9 +570,6 @@ class Publisher:
                 buf = self._raw[key] = self._sbuf.setdefault(
                     ("imu" if name == "ImuSample" else "mag", s.source), [])
             buf.append(s)
-            self._nbuf += 1
-            if self._nbuf >= self.batch:
-                self.flush()
         elif name == "AttitudeRef":
             self._reference(s)
         elif name == "PositionSample":
@@ -665,9 +679,6 @@ class Publisher:
         buf.append((s.t, q))
         frame = self.ref_frames[s.source]
         self._frame(frame[5:], frame, s.t, q, 0.0, "ref:" + s.source)
-        self._nbuf += 1
-        if self._nbuf >= self.batch:
-            self.flush()
 
     # -- 3-D ------------------------------------------------------------------------------
     def _frame(self, name: str, frame: str, t: float, q, offset_east: float, key: str) -> None:
@@ -686,20 +697,23 @@ class Publisher:
             # foxglove.FrameTransform / foxglove.PoseInFrame (the SDK's schemas) encoded
             # here: the same protobuf messages, without building seven SDK objects each
             tf_t, pose_t = f"/tf/{name}", f"/attitude/{name}/pose"
+            tf_ch = self._channel(tf_t, "wk:FrameTransform")
+            pose_ch = self._channel(pose_t, "wk:PoseInFrame")
             hit = self._frames[name] = (
-                tf_t, self._channel(tf_t, "wk:FrameTransform"),
+                tf_t, tf_ch, tf_ch.base.log,
                 pb.len_field(2, b"world") + pb.len_field(3, frame.encode()),
-                pose_t, self._channel(pose_t, "wk:PoseInFrame"))
-        tf_t, tf_ch, tf_ids, pose_t, pose_ch = hit
+                pose_t, pose_ch, pose_ch.base.log)
+        tf_t, tf_ch, tf_log, tf_ids, pose_t, pose_ch, pose_log = hit
         ns = _ns(t)
         osub = self.only_subscribed
         stamp = pb.timestamp_field(1, ns)
+        c = self.counts
         if not osub or tf_ch.has_sinks():
-            self._log(tf_ch, tf_t, stamp + tf_ids + _TF_POSE.pack(
-                e + offset_east, n, u, x, y, z, w), ns)
+            tf_log(stamp + tf_ids + _TF_POSE.pack(e + offset_east, n, u, x, y, z, w), ns)
+            c[tf_t] = c.get(tf_t, 0) + 1
         if not osub or pose_ch.has_sinks():
-            self._log(pose_ch, pose_t, stamp + _POSE_HEAD + _POSE.pack(e, n, u, x, y, z, w),
-                      ns)
+            pose_log(stamp + _POSE_HEAD + _POSE.pack(e, n, u, x, y, z, w), ns)
+            c[pose_t] = c.get(pose_t, 0) + 1
 
     def _markers(self, t: float) -> None:
         """Body markers (nose arrow, label) in every body frame, re-sent once per wall
@@ -751,7 +765,7 @@ class Publisher:
         c = self.counts
         c[topic] = c.get(topic, 0) + 1
 
-    def record(self, rec: StepRecord | ScanRecord) -> None:
+    def _record(self, rec: StepRecord | ScanRecord) -> None:
         if type(rec) is not StepRecord:
             if isinstance(rec, ScanRecord):
                 self._scan(rec)
@@ -774,17 +788,27 @@ class Publisher:
                 self._frame(lab, ln.frame, t, rec.x[:4].tolist(), ln.offset, ln.key)
         else:
             self._frame(lab, ln.frame, t, rec.x[:4].tolist(), ln.offset, ln.key)
-        self._markers(t)
+        self._nrec += 1
+        if not self._nrec & 31:  # the wall clock read every 32nd record
+            self._markers(t)
         self.last_step_t = t
-        self._nbuf += 1
-        if self._nbuf >= self.batch:
-            self.flush()
 
     def flush(self) -> None:
         """Encode and log everything buffered: raw samples first (the references the
         errors need), then each estimator's estimates and health, then the errors of the
         steps the chosen reference has reached."""
-        self._nbuf = 0
+        q = self._queue
+        if q:
+            # the queued calls in order, in one loop (each sink call of the run only
+            # appends: cheap between the filters' steps, which evict the recorder's
+            # working set from the caches)
+            self._queue = []
+            sample, record = self._sample, self._record
+            for it in q:
+                if type(it) is StepRecord or isinstance(it, ScanRecord):
+                    record(it)
+                else:
+                    sample(it)
         self._flush_samples()
         for ln in self.lanes.values():
             if ln.buf:

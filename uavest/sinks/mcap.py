@@ -65,7 +65,7 @@ class McapSink(Sink):
         spacing_m: float = 2.0,
         layout: bool = True,
         overwrite: bool = True,
-        batch: int = 1024,
+        batch: int = 4096,
     ) -> None:
         self.path = Path(path)
         self.frame_rate_hz = frame_rate_hz
