@@ -11,6 +11,7 @@ from uavest.layouts import build_layout, colour, layout_text, shipped
 from uavest.report.protowire import ProtoDecoder
 from uavest.sinks.foxglove_channels import (
     _enu_flu,
+    _enu_flu_rows,
     _nees_rows,
     _rpy_rows,
     _sigma3_rows,
@@ -35,6 +36,8 @@ def test_enu_flu_conversion_matches_the_matrices():
     np.testing.assert_allclose(quat_to_dcm(qe), A_NED2ENU @ quat_to_dcm(q) @ B_FLU2FRD,
                                atol=1e-12)
     np.testing.assert_allclose(np.array([_enu_flu(x) for x in q]), qe, atol=1e-12)
+    # the recorder's vectorised form: the same operations, the same numbers
+    np.testing.assert_array_equal(_enu_flu_rows(q), np.array([_enu_flu(x) for x in q]))
 
 
 def test_enu_flu_known_attitudes():

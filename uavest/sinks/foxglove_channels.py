@@ -217,6 +217,17 @@ def _sigma3_rows(rpy: Array, P3: Array) -> Array:
     return out
 
 
+def _enu_flu_rows(Q: Array) -> Array:
+    """:func:`_enu_flu` of rows (N, 4) (the same operations, vectorised)."""
+    w, x, y, z = Q[:, 0], Q[:, 1], Q[:, 2], Q[:, 3]
+    out = np.empty_like(Q)
+    out[:, 0] = -(_S2 * (w + z))
+    out[:, 1] = _S2 * (-x - y)
+    out[:, 2] = _S2 * (y - x)
+    out[:, 3] = -(_S2 * (w - z))
+    return out
+
+
 def _nees_rows(q: Array, qr: Array, P3: Array) -> Array:
     """Attitude NEES of rows (as :func:`uavest.eval.attitude.nees_attitude`): e = Log(q^-1
     q_ref), e^T P3^-1 e by Cramer's rule (N,); NaN where P3 is singular or not finite."""
@@ -453,6 +464,7 @@ class Publisher:
         self._senc: dict[tuple[str, str], tuple] = {}
         self._raw: dict[tuple[type, str], list] = {}  # (sample type, source) -> its buffer
         self._frames: dict[str, tuple] = {}
+        self._fq: list[tuple] = []  # frames not yet encoded
         self.spacing = float(spacing_m)
         self.frame_dt = 1.0 / frame_rate_hz if frame_rate_hz else 0.0
         self.history = int(history)
@@ -690,30 +702,42 @@ class Publisher:
             if last is not None and t - last < self.frame_dt:
                 return
             self.last_frame[key] = t
-        w, x, y, z = _enu_flu(q)
-        e, n, u = self.pos_enu
-        hit = self._frames.get(name)
-        if hit is None:
-            # foxglove.FrameTransform / foxglove.PoseInFrame (the SDK's schemas) encoded
-            # here: the same protobuf messages, without building seven SDK objects each
-            tf_t, pose_t = f"/tf/{name}", f"/attitude/{name}/pose"
-            tf_ch = self._channel(tf_t, "wk:FrameTransform")
-            pose_ch = self._channel(pose_t, "wk:PoseInFrame")
-            hit = self._frames[name] = (
-                tf_t, tf_ch, tf_ch.base.log,
-                pb.len_field(2, b"world") + pb.len_field(3, frame.encode()),
-                pose_t, pose_ch, pose_ch.base.log)
-        tf_t, tf_ch, tf_log, tf_ids, pose_t, pose_ch, pose_log = hit
-        ns = _ns(t)
+        self._fq.append((name, frame, t, q, offset_east, self.pos_enu))
+
+    def _flush_frames(self) -> None:
+        """Encode and log the queued frames (``/tf/<name>``, ``/attitude/<name>/pose``):
+        the ENU/FLU rotations and the times vectorised, each message one ``struct`` pack."""
+        fq = self._fq
+        if not fq:
+            return
+        self._fq = []
+        m = len(fq)
+        W = _enu_flu_rows(np.array([r[3] for r in fq], float).reshape(m, 4)).tolist()
+        NS = _ns_rows(np.fromiter((r[2] for r in fq), float, m))
         osub = self.only_subscribed
-        stamp = pb.timestamp_field(1, ns)
         c = self.counts
-        if not osub or tf_ch.has_sinks():
-            tf_log(stamp + tf_ids + _TF_POSE.pack(e + offset_east, n, u, x, y, z, w), ns)
-            c[tf_t] = c.get(tf_t, 0) + 1
-        if not osub or pose_ch.has_sinks():
-            pose_log(stamp + _POSE_HEAD + _POSE.pack(e, n, u, x, y, z, w), ns)
-            c[pose_t] = c.get(pose_t, 0) + 1
+        frames = self._frames
+        for (name, frame, _, _, offset_east, (e, n, u)), (w, x, y, z), ns in zip(
+                fq, W, NS, strict=True):
+            hit = frames.get(name)
+            if hit is None:
+                # foxglove.FrameTransform / foxglove.PoseInFrame (the SDK's schemas)
+                # encoded here: the same protobuf messages, without seven SDK objects each
+                tf_t, pose_t = f"/tf/{name}", f"/attitude/{name}/pose"
+                tf_ch = self._channel(tf_t, "wk:FrameTransform")
+                pose_ch = self._channel(pose_t, "wk:PoseInFrame")
+                hit = frames[name] = (
+                    tf_t, tf_ch, tf_ch.base.log,
+                    pb.len_field(2, b"world") + pb.len_field(3, frame.encode()),
+                    pose_t, pose_ch, pose_ch.base.log)
+            tf_t, tf_ch, tf_log, tf_ids, pose_t, pose_ch, pose_log = hit
+            stamp = pb.timestamp_field(1, ns)
+            if not osub or tf_ch.has_sinks():
+                tf_log(stamp + tf_ids + _TF_POSE.pack(e + offset_east, n, u, x, y, z, w), ns)
+                c[tf_t] = c.get(tf_t, 0) + 1
+            if not osub or pose_ch.has_sinks():
+                pose_log(stamp + _POSE_HEAD + _POSE.pack(e, n, u, x, y, z, w), ns)
+                c[pose_t] = c.get(pose_t, 0) + 1
 
     def _markers(self, t: float) -> None:
         """Body markers (nose arrow, label) in every body frame, re-sent once per wall
@@ -809,6 +833,7 @@ class Publisher:
                     record(it)
                 else:
                     sample(it)
+        self._flush_frames()
         self._flush_samples()
         for ln in self.lanes.values():
             if ln.buf:

@@ -123,15 +123,17 @@ def field_bytes(num: int, value) -> bytes:
     return _key(num, 1) + struct.pack("<d", value)
 
 
-_UPDATE_KIND: dict[str, bytes] = {}
+_UPDATE_HEAD: dict[tuple[int, str], bytes] = {}
+_UPDATE_TAIL = struct.Struct("<BdBq")
 
 
 def update_bytes(num: int, kind: str, nis: float, dof: int) -> bytes:
     """A repeated ``Update`` field (number ``num``) of one measurement update."""
-    head = _UPDATE_KIND.get(kind)
+    head = _UPDATE_HEAD.get((num, kind))
     if head is None:
-        head = _UPDATE_KIND[kind] = field_bytes(1, str(kind))
-    return _len_field(num, head + struct.pack("<BdBq", 0x11, nis, 0x19, dof))
+        body = field_bytes(1, str(kind))
+        head = _UPDATE_HEAD[(num, kind)] = (_key(num, 2) + _varint(len(body) + 18) + body)
+    return head + _UPDATE_TAIL.pack(0x11, nis, 0x19, dof)
 
 
 def _descriptor_set() -> bytes:
