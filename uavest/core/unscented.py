@@ -17,6 +17,7 @@ update:   fresh sigma points of (x-, P-); Z_j = h(chi_j); z- = mean(Z, Wm)
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -32,6 +33,7 @@ from .spec import param
 
 Array = np.ndarray
 _dot = np.dot  # the same BLAS products as @ without the gufunc's per-call cost
+_array = np.array
 
 
 @lru_cache(maxsize=64)
@@ -67,6 +69,23 @@ def sigma_offsets(L: Array, c: float, points: str) -> Array:
     if points == "cubature":
         return np.vstack([cL, -cL])
     return np.vstack([np.zeros((1, L.shape[0])), cL, -cL])
+
+
+@lru_cache(maxsize=64)
+def _scalar_weights(alpha: float, beta: float, kappa: float) -> tuple[float, ...]:
+    """(c, Wm_0, Wm_1, Wc_0, Wc_1) of the 1-D Merwe set as Python floats (the entries of
+    :func:`sigma_weights`; Wm_2 = Wm_1, Wc_2 = Wc_1)."""
+    c, Wm, Wc, _ = sigma_weights(1, alpha, beta, kappa, "merwe")
+    return c, float(Wm[0]), float(Wm[1]), float(Wc[0]), float(Wc[1])
+
+
+def plain_measurement(model: Measurement) -> bool:
+    """True if the model's ``mean`` and ``residual`` are the plain weighted sum and
+    difference of :class:`Measurement` (a wrapper that delegates its attributes, e.g. the
+    adaptive filters' noise override, gives False: the safe answer)."""
+    t = type(model)
+    return (getattr(t, "mean", None) is Measurement.mean
+            and getattr(t, "residual", None) is Measurement.residual)
 
 
 _MERWE = {"points": ("merwe",)}
@@ -119,11 +138,74 @@ class UKF(FilterBase):
         return self.predict_cross(s_prev if prev is None else prev, model, t, dt, u)
 
     def predict(self, g: Gaussian, model: Transition, t: float, dt: float, u=None, rng=None):
+        space = model.space
+        if type(space) is VectorSpace and space.dim == 1 and self.points == "merwe":
+            out = self._predict_1d(g, model, t, dt, u)
+            if out is not None:
+                return out
         return self._predict(g, model, t, dt, u)[0]
+
+    # -- 1-D states: the same formulas on Python floats ----------------------------------
+    # On a 1-D state the step's cost is numpy's per-call floor (~1 us a call on 3 sigma
+    # points), not arithmetic: these do what ``_predict`` / ``update`` do for n = m = 1
+    # with the 1 x 1 factor, gain and solve on floats (as ``linalg``'s 1 x 1 shortcuts),
+    # sigma points x, x + c sqrt(p), x - c sqrt(p) and the weighted sums written out. The
+    # sums are the same products in the same order, but BLAS may fuse a multiply and an
+    # add where Python rounds both: equal to the array path to rounding (~1e-16
+    # relative; tests/unit/test_ukf_scalar.py). Anything outside the fast case (a factor
+    # or an innovation variance that is not finite and positive, a measurement model with
+    # its own ``mean`` / ``residual``) takes the array path, which also decides what a
+    # failure raises.
+
+    def _predict_1d(self, g: Gaussian, model: Transition, t, dt, u) -> Gaussian | None:
+        p = g.P.item(0)
+        if not 0.0 < p < math.inf:
+            return None
+        c, wm0, wm1, wc0, wc1 = _scalar_weights(self.alpha, self.beta, self.kappa)
+        x0 = g.x.item(0)
+        s = c * math.sqrt(p)
+        (y0,), (y1,), (y2,) = model.f(_array([[x0], [x0 + s], [x0 - s]]), t, dt, u).tolist()
+        x = wm0 * y0 + wm1 * y1 + wm1 * y2
+        d0, d1, d2 = y0 - x, y1 - x, y2 - x
+        P = wc0 * d0 * d0 + wc1 * d1 * d1 + wc1 * d2 * d2 + model.Q(t, dt, u).item(0)
+        return Gaussian(_array([x]), _array([[P]]))
+
+    def _update_1d(self, g: Gaussian, z, model: Measurement
+                   ) -> tuple[Gaussian, Innovation] | None:
+        p = g.P.item(0)
+        if not 0.0 < p < math.inf or type(z) is not np.ndarray or z.shape != (1,):
+            return None
+        c, wm0, wm1, wc0, wc1 = _scalar_weights(self.alpha, self.beta, self.kappa)
+        x0 = g.x.item(0)
+        s = c * math.sqrt(p)
+        (z0,), (z1,), (z2,) = model.h(_array([[x0], [x0 + s], [x0 - s]])).tolist()
+        zhat = wm0 * z0 + wm1 * z1 + wm1 * z2
+        e0, e1, e2 = z0 - zhat, z1 - zhat, z2 - zhat
+        S = wc0 * e0 * e0 + wc1 * e1 * e1 + wc1 * e2 * e2 + model.R.item(0)
+        if not 0.0 < S < math.inf:
+            return None
+        Pxz = wc1 * s * e1 + wc1 * -s * e2  # the centre's offset is 0
+        i = 1.0 / math.sqrt(S)
+        K = Pxz * i * i
+        v = z.item() - zhat
+        return (Gaussian(_array([x0 + K * v]), _array([[p - K * Pxz]])),
+                Innovation(_array([v]), _array([[S]]), v * (v * i * i)))
 
     def update(
         self, g: Gaussian, z: Array, model: Measurement, rng=None
     ) -> tuple[Gaussian, Innovation]:
+        space = model.space
+        if (type(space) is VectorSpace and space.dim == 1 and self.points == "merwe"
+                and model.dim == 1 and plain_measurement(model)):
+            out = self._update_1d(g, z, model)
+            if out is not None:
+                return out
+        return self._update(g, z, model)
+
+    def _update(self, g: Gaussian, z: Array, model: Measurement
+                ) -> tuple[Gaussian, Innovation]:
+        """The update on arrays (any space and measurement model; the reference of the
+        1-D float path)."""
         space = model.space
         _, Wm, Wc, U = self._w(space.dim)
         D = _dot(U, chol(g.P).T)
