@@ -106,3 +106,201 @@ def test_ukf_plain_measurement_check():
     assert plain_measurement(UNGMMeasurement())
     assert not plain_measurement(_WrappedUNGM())
     assert issubclass(_WrappedUNGM, Measurement)
+
+
+# ------------------------------------------------------------------ the hybrid's kernels
+def _shift_kernels():
+    import os
+
+    from uavest.core import hybrid
+
+    pytest.importorskip("numba", reason="numba not installed (the optional uavest[fast])")
+    if os.environ.get("UAVEST_NUMBA") == "0":
+        pytest.skip("UAVEST_NUMBA=0: the numpy path only (.ci/run's second pass)")
+    nb = hybrid.shift_kernels()
+    if not nb:
+        pytest.fail("numba is installed but the shift kernels were refused (see log)")
+    return hybrid, nb
+
+
+def _states(name: str, spec: str, steps: int = 30):
+    """(filter, transition, measurement, [(ensemble after predict, z, t)]) of one seeded
+    run on the numpy path: weighted and equal-weight ensembles, before and after
+    regenerations."""
+    from uavest.core import hybrid
+
+    sysm = build_system(load_scenario(name, []))
+    tr, me = sysm.transition, sysm.measurement
+    _, Z = simulate(sysm, 1, np.random.default_rng([0, 1]))
+    f = make_filter(spec)
+    rng = np.random.default_rng(7)
+    keep = hybrid._SHIFT
+    hybrid._SHIFT = False  # the numpy path
+    try:
+        E = f.init(sysm.filter_prior, tr.space, rng)
+        out = []
+        for k in range(steps):
+            t = (k + 1) * sysm.dt
+            out.append((E, t))
+            E = f.predict(E, tr, t, sysm.dt, None, rng)
+            out[-1] = (out[-1][0], E, Z[0][k], t)
+            E, _ = f.update(E, Z[0][k], me, rng)
+    finally:
+        hybrid._SHIFT = keep
+    return f, tr, me, out
+
+
+def _close(a, b, tol=1e-12):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    assert a.shape == b.shape
+    np.testing.assert_allclose(a, b, rtol=tol, atol=tol * max(1.0, float(np.abs(b).max())))
+
+
+@pytest.mark.parametrize("name, spec", [
+    ("ungm", "hybrid"), ("nonlinear2d", "hybrid"), ("ungm", "hybrid(weights=equal)"),
+    ("ungm", "hybrid(tau=0.05, min_ess=0.5)"), ("nonlinear2d", "hybrid(n_cloud=8)")])
+def test_hybrid_compiled_steps_equal_the_numpy_path(name, spec):
+    """From the same ensemble and the same seeded generator, the compiled predict and
+    update equal the numpy path (``_HybridBase.predict``, ``Hybrid._update_numpy``) to
+    1e-12: members, weights, the estimate, the innovation; and they leave the generator
+    in the same state (the same draws in the same order)."""
+    hybrid, nb = _shift_kernels()
+    f, tr, me, states = _states(name, spec)
+    regen = 0
+    for E0, E, z, t in states:
+        ra, rb = np.random.default_rng(11), np.random.default_rng(11)
+        a = hybrid._HybridBase.predict(f, E0, tr, t, 1.0, None, ra)
+        b = f.predict(E0, tr, t, 1.0, None, rb)
+        regen += E0.w is not None and a.w is None
+        _close(b.X, a.X)
+        assert (a.w is None) == (b.w is None)
+        assert ra.random() == rb.random()
+        ra, rb = np.random.default_rng(12), np.random.default_rng(12)
+        (ua, ia), (ub, ib) = f._update_numpy(E, z, me, ra), f.update(E, z, me, rb)
+        assert ub.gaussian is not None  # the estimate comes with the kernel's result
+        _close(ub.X, ua.X)
+        assert (ua.w is None) == (ub.w is None)
+        if ua.w is not None:
+            _close(ub.w, ua.w)
+        ga, gb = hybrid.ensemble_estimate(ua), f.estimate(ub)
+        _close(gb.x, ga.x)
+        _close(gb.P, ga.P)
+        _close(ib.nu, ia.nu)
+        _close(ib.S, ia.S)
+        _close(ib.nis, ia.nis, 1e-11)
+        assert ra.random() == rb.random()
+    if spec == "hybrid":
+        assert regen > 0  # the regeneration kernel was compared too
+
+
+@pytest.mark.parametrize("name", ["ungm", "nonlinear2d"])
+def test_hybrid_compiled_runs_follow_the_numpy_path(name):
+    """Whole seeded runs (5 x 60 steps) of the default hybrid, compiled against numpy:
+    the estimates stay within 1e-5 (rounding differences that the tempering and
+    regeneration decisions never turned into different choices here)."""
+    hybrid, nb = _shift_kernels()
+    sysm = build_system(load_scenario(name, []))
+    tr, me = sysm.transition, sysm.measurement
+    _, Z = simulate(sysm, 5, np.random.default_rng([0, 0]))
+    f = make_filter("hybrid")
+
+    def run(r, kernels):
+        keep = hybrid._SHIFT
+        hybrid._SHIFT = kernels
+        try:
+            rng = np.random.default_rng([0, r])
+            s = f.init(sysm.filter_prior, tr.space, rng)
+            xs = []
+            for k in range(60):
+                s = f.predict(s, tr, (k + 1) * sysm.dt, sysm.dt, None, rng)
+                s, _ = f.update(s, Z[r][k], me, rng)
+                xs.append(f.estimate(s).x)
+            return np.array(xs)
+        finally:
+            hybrid._SHIFT = keep
+
+    for r in range(5):
+        np.testing.assert_allclose(run(r, nb), run(r, False), rtol=1e-5, atol=1e-5)
+
+
+def test_tempered_kernel_equals_tempered_weights():
+    """The kernel's tempering (the grid's sums by a recursion, the chosen point directly)
+    against ``tempered_weights`` on 3000 random cases (weights equal and skewed,
+    likelihood spreads 1e-2 to 1e4): the same phi, weights to 1e-12."""
+    hybrid, nb = _shift_kernels()
+    from uavest.core import _compiled_shift as cs
+    from uavest.core.base import equal_weights
+
+    rng = np.random.default_rng(0)
+    grid = 0
+    for _ in range(3000):
+        M = int(rng.choice([5, 20, 99, 300]))
+        if rng.random() < 0.5:
+            w = equal_weights(M)
+        else:
+            w = rng.uniform(0, 1, M) ** rng.uniform(1, 20)
+            w /= w.sum()
+        ll = -0.5 * (rng.standard_normal(M) * 10 ** rng.uniform(-2, 4)) ** 2
+        phi_max, floor = rng.uniform(0.05, 1.0), rng.uniform(0.05, 0.9)
+        W0, phi0 = hybrid.tempered_weights(w, ll, phi_max, floor)
+        W = np.empty(M)
+        phi = cs._tempered(np.array(w), ll, phi_max, floor, W)
+        assert phi == phi0
+        grid += phi0 != phi_max
+        np.testing.assert_allclose(W, W0, rtol=1e-12, atol=1e-300)
+    assert grid > 1000
+
+
+def test_hybrid_compiled_failures_take_the_numpy_path():
+    """A non-finite measurement, members or weights: the compiled path hands over to the
+    numpy path, which fails or continues as it always has; the guard keeps the estimate
+    finite."""
+    from uavest.core import Guarded
+    from uavest.core.base import Ensemble
+    from uavest.core.linalg import NumericalError
+
+    hybrid, nb = _shift_kernels()
+    f, tr, me, states = _states("ungm", "hybrid", 3)
+    _, E, z, t = states[-1]
+    for bad in (np.array([np.nan]), np.array([np.inf])):
+        ra, rb = np.random.default_rng(1), np.random.default_rng(1)
+        try:
+            ua, _ = f._update_numpy(E, bad, me, ra)
+        except np.linalg.LinAlgError as e:
+            with pytest.raises(type(e)):
+                f.update(E, bad, me, rb)
+        else:
+            ub, _ = f.update(E, bad, me, rb)
+            assert np.array_equal(ua.X, ub.X, equal_nan=True)
+    X = E.X.copy()
+    X[3] = np.nan
+    En = Ensemble(X, E.space, E.w)
+    try:
+        ua, _ = f._update_numpy(En, z, me, np.random.default_rng(1))
+    except np.linalg.LinAlgError as e:
+        with pytest.raises(type(e)):
+            f.update(En, z, me, np.random.default_rng(1))
+    w = np.full(E.M, np.nan)
+    with pytest.raises(NumericalError):  # non-finite weights: systematic_resample's error
+        f.predict(Ensemble(E.X, E.space, w), tr, t, 1.0, None, np.random.default_rng(1))
+    # the guard around the compiled hybrid: NaN measurements never give a NaN estimate
+    g = Guarded(f)
+    rng = np.random.default_rng(3)
+    s = g.init(Gaussian(np.array([0.1]), np.array([[2.0]])), tr.space, rng)
+    for k in range(20):
+        s = g.predict(s, tr, k + 1.0, 1.0, None, rng)
+        s, _ = g.update(s, np.array([np.nan]) if k % 4 == 3 else np.array([1.0]), me, rng)
+        assert g.estimate(s).finite()
+
+
+def test_shift_kernels_can_be_switched_off(monkeypatch):
+    from uavest.core import hybrid
+
+    monkeypatch.setattr(hybrid, "_SHIFT", None)
+    monkeypatch.setenv("UAVEST_NUMBA", "0")
+    assert hybrid.shift_kernels() is False
+    f, tr, me, states = _states("ungm", "hybrid", 2)
+    _, E, z, _ = states[-1]
+    ua, _ = f.update(E, z, me, np.random.default_rng(1))  # the numpy path
+    ub, _ = f._update_numpy(E, z, me, np.random.default_rng(1))
+    assert np.array_equal(ua.X, ub.X) and ua.gaussian is None
