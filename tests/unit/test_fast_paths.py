@@ -1,6 +1,7 @@
 """The speed paths of issue 13 against the array paths they shortcut (the reference):
 the UKF's 1-D float path (``UKF._predict_1d`` / ``_update_1d`` against ``_predict`` /
-``_update``)."""
+``_update``), the UKF's compiled vector-space path (``uavest.core._compiled_ut``) and the
+default hybrid's kernels (``uavest.core._compiled_shift``) against the numpy path."""
 
 from __future__ import annotations
 
@@ -81,8 +82,9 @@ def test_ukf_1d_outside_the_fast_case_takes_the_array_path():
     z = np.array([2.0])
     ukf = UKF()
     ref = ukf._update(g, z, me)
-    out = ukf.update(g, z, _WrappedUNGM())
-    assert np.array_equal(out[0].x, ref[0].x) and np.array_equal(out[0].P, ref[0].P)
+    out = ukf.update(g, z, _WrappedUNGM())  # (the compiled vector-space path, if numba)
+    np.testing.assert_allclose(out[0].x, ref[0].x, rtol=1e-14)
+    np.testing.assert_allclose(out[0].P, ref[0].P, rtol=1e-14)
     bad = Gaussian(np.array([1.5]), np.array([[-1.0]]))
     with pytest.raises(NotPositiveDefinite):
         ukf.predict(bad, tr, 1.0, 1.0)
@@ -255,13 +257,18 @@ def test_hybrid_compiled_failures_take_the_numpy_path():
     """A non-finite measurement, members or weights: the compiled path hands over to the
     numpy path, which fails or continues as it always has; the guard keeps the estimate
     finite."""
+    hybrid, nb = _shift_kernels()
+    f, tr, me, states = _states("ungm", "hybrid", 3)
+    _, E, z, t = states[-1]
+    with np.errstate(invalid="ignore"):  # the numpy path's NaN arithmetic
+        _hybrid_failures(f, tr, me, E, z, t)
+
+
+def _hybrid_failures(f, tr, me, E, z, t):
     from uavest.core import Guarded
     from uavest.core.base import Ensemble
     from uavest.core.linalg import NumericalError
 
-    hybrid, nb = _shift_kernels()
-    f, tr, me, states = _states("ungm", "hybrid", 3)
-    _, E, z, t = states[-1]
     for bad in (np.array([np.nan]), np.array([np.inf])):
         ra, rb = np.random.default_rng(1), np.random.default_rng(1)
         try:
@@ -304,3 +311,115 @@ def test_shift_kernels_can_be_switched_off(monkeypatch):
     ua, _ = f.update(E, z, me, np.random.default_rng(1))  # the numpy path
     ub, _ = f._update_numpy(E, z, me, np.random.default_rng(1))
     assert np.array_equal(ua.X, ub.X) and ua.gaussian is None
+
+
+# ------------------------------------------------------------------- the UKF's kernels
+def _ut_kernels():
+    import os
+
+    from uavest.core import unscented
+
+    pytest.importorskip("numba", reason="numba not installed (the optional uavest[fast])")
+    if os.environ.get("UAVEST_NUMBA") == "0":
+        pytest.skip("UAVEST_NUMBA=0: the numpy path only (.ci/run's second pass)")
+    nb = unscented.ut_kernels()
+    if not nb:
+        pytest.fail("numba is installed but the unscented kernels were refused (see log)")
+    return nb
+
+
+def _radar_models():
+    from uavest.tracking.scenario import build_models
+
+    motion, radar = build_models(load_scenario("radar_far", ["radar.sigma_az_deg=5"]))
+    return motion, radar
+
+
+@pytest.mark.parametrize("ukf", [UKF(), UKF(alpha=0.3, beta=2.0, kappa=1.0),
+                                 make_filter("ckf")])
+def test_ukf_compiled_steps_equal_the_array_path(ukf):
+    """The radar (4-D state; range and azimuth, wrapped residual and circular mean) and
+    the 2-D system: one compiled predict and update from random Gaussians equal the
+    array path (``_predict`` / ``_update``) to 1e-12."""
+    nb = _ut_kernels()
+    motion, radar = _radar_models()
+    sysm = build_system(load_scenario("nonlinear2d", []))
+    rng = np.random.default_rng(5)
+    for tr, me, scale in ((motion, radar, 1e3), (sysm.transition, sysm.measurement, 3.0)):
+        n = tr.space.dim
+        for _ in range(200):
+            x = rng.normal(0, scale, n)
+            A = rng.normal(size=(n, n)) * scale * 10 ** rng.uniform(-3, 0)
+            g = Gaussian(x, A @ A.T + 1e-3 * np.eye(n))
+            a = ukf._predict_compiled(nb, g, tr, 3.0, 1.0, None)
+            b = ukf._predict(g, tr, 3.0, 1.0, None)[0]
+            _close(a.x, b.x)
+            _close(a.P, b.P)
+            z = me.h(x[None, :] + rng.normal(0, 0.1 * scale, (1, n)))[0]
+            (ua, ia), (ub, ib) = ukf._update_compiled(nb, g, z, me), ukf._update(g, z, me)
+            _close(ua.x, ub.x)
+            _close(ua.P, ub.P, 1e-10)
+            _close(ia.nu, ib.nu)
+            _close(ia.S, ib.S)
+            assert type(ia.nis) is float
+            _close(ia.nis, ib.nis, 1e-10)
+
+
+def test_ukf_compiled_runs_follow_the_array_path():
+    """Whole radar runs (5 x 100 scans, coasting through missed detections) with the
+    compiled path and with the array path: estimates within 1e-8 (relative)."""
+    nb = _ut_kernels()
+    from uavest.core import unscented
+    from uavest.experiments.radar import data_rng
+    from uavest.tracking.scenario import generate_run, prior
+
+    sc = load_scenario("radar_far", ["radar.sigma_az_deg=5"])
+    motion, radar = _radar_models()
+    _, P0 = prior(sc)
+    f = UKF()
+    for r in range(5):
+        rd = generate_run(sc, data_rng(0, r))
+        Z = [s[o == 0][0] if np.any(o == 0) else None
+             for s, o in zip(rd.scans, rd.origins, strict=True)]
+        out = []
+        for kernels in (nb, False):
+            keep = unscented._UT
+            unscented._UT = kernels
+            try:
+                g, xs = Gaussian(rd.x0, P0), []
+                for k, z in enumerate(Z):
+                    g = f.predict(g, motion, k + 1.0, 1.0)
+                    if z is not None:
+                        g, _ = f.update(g, z, radar)
+                    xs.append(np.concatenate([g.x, g.P.ravel()]))
+                out.append(np.array(xs))
+            finally:
+                unscented._UT = keep
+        np.testing.assert_allclose(out[0], out[1], rtol=1e-8, atol=1e-8)
+
+
+def test_ukf_compiled_failures_take_the_array_path(monkeypatch):
+    """A covariance without a plain factor: the compiled path declines and the array path
+    jitters (a PSD-singular P) or raises (an indefinite one) as before; a wrong-sized z
+    raises; the kernels can be switched off."""
+    nb = _ut_kernels()
+    from uavest.core import unscented
+
+    motion, radar = _radar_models()
+    x = np.array([1000.0, 2000.0, 10.0, -5.0])
+    sing = Gaussian(x, np.diag([100.0, 100.0, 0.0, 4.0]))
+    assert UKF()._predict_compiled(nb, sing, motion, 1.0, 1.0, None) is None
+    a, b = UKF().predict(sing, motion, 1.0, 1.0), UKF()._predict(sing, motion, 1.0, 1.0,
+                                                               None)[0]
+    assert np.array_equal(a.P, b.P)
+    bad = Gaussian(x, np.diag([100.0, -1.0, 1.0, 4.0]))
+    with pytest.raises(NotPositiveDefinite):
+        UKF().predict(bad, motion, 1.0, 1.0)
+    with pytest.raises(NotPositiveDefinite):
+        UKF().update(bad, np.array([2000.0, 1.0]), radar)
+    g = Gaussian(x, np.diag([100.0, 100.0, 1.0, 4.0]))
+    with pytest.raises(ValueError):
+        UKF().update(g, np.array([2000.0, 1.0, 3.0]), radar)
+    monkeypatch.setattr(unscented, "_UT", None)
+    monkeypatch.setenv("UAVEST_NUMBA", "0")
+    assert unscented.ut_kernels() is False

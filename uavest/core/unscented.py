@@ -17,7 +17,9 @@ update:   fresh sigma points of (x-, P-); Z_j = h(chi_j); z- = mean(Z, Wm)
 
 from __future__ import annotations
 
+import logging
 import math
+import os
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -34,6 +36,7 @@ from .spec import param
 Array = np.ndarray
 _dot = np.dot  # the same BLAS products as @ without the gufunc's per-call cost
 _array = np.array
+_empty = np.empty
 
 
 @lru_cache(maxsize=64)
@@ -88,6 +91,77 @@ def plain_measurement(model: Measurement) -> bool:
             and getattr(t, "residual", None) is Measurement.residual)
 
 
+#: the compiled unscented kernels (:mod:`uavest.core._compiled_ut`), False if numba is
+#: missing, disabled (``UAVEST_NUMBA=0``) or failed; None before the first call.
+_UT = None
+
+
+def ut_kernels():
+    """The numba kernels of the UKF on vector spaces if they can be used here, else False
+    (the array path is used). Decided once per process at the first UKF step on a vector
+    space of more than one dimension: numba must import, ``UAVEST_NUMBA`` must not be
+    ``0``, and the kernels must compile (first time: some seconds, then numba's on-disk
+    cache) and agree with the array path on a small case; any failure is logged and
+    falls back to numpy."""
+    global _UT
+    if _UT is not None:
+        return _UT
+    _UT = False
+    if os.environ.get("UAVEST_NUMBA", "1") == "0":
+        return _UT
+    try:
+        import numba  # noqa: F401
+    except ImportError:
+        return _UT
+    log = logging.getLogger("uavest.core")
+    try:
+        from . import _compiled_ut as nb
+
+        log.info("numba unscented kernels: loading (the first use compiles them, then "
+                 "cached)")
+        ok = _ut_self_check(nb)
+    except Exception as e:  # noqa: BLE001 - any failure of an optional accelerator
+        log.warning("numba unscented kernels unavailable (%s: %s); using numpy",
+                    type(e).__name__, e)
+        return _UT
+    if not ok:
+        log.warning("numba unscented kernels disagree with the array path; using numpy")
+        return _UT
+    _UT = nb
+    return _UT
+
+
+def _ut_self_check(nb) -> bool:
+    """One predict and one update of a 3-D state with a 2-D measurement, the kernels
+    against the array path."""
+
+    class _T(Transition):
+        space = VectorSpace(3)
+
+        def f(self, X, t, dt=1.0, u=None):
+            return X + 0.1 * np.sin(X[:, ::-1])
+
+        def Q(self, t, dt=1.0, u=None):
+            return np.diag([0.1, 0.2, 0.3])
+
+    class _H(Measurement):
+        space = VectorSpace(3)
+        R = np.array([[0.5, 0.1], [0.1, 0.4]])
+
+        def h(self, X):
+            return np.stack([X[:, 0] * X[:, 1], X[:, 2]], axis=1)
+
+    f = UKF(alpha=0.7)
+    g = Gaussian(np.array([0.3, -1.2, 2.0]), np.array([[2.0, 0.3, 0.1], [0.3, 1.0, -0.2],
+                                                        [0.1, -0.2, 1.5]]))
+    a, b = f._predict(g, _T(), 1.0, 1.0, None)[0], f._predict_compiled(nb, g, _T(), 1.0,
+                                                                       1.0, None)
+    z = np.array([0.5, 1.0])
+    (ua, ia), (ub, ib) = f._update(g, z, _H()), f._update_compiled(nb, g, z, _H())
+    return all(np.allclose(p, q, rtol=1e-12, atol=1e-12) for p, q in (
+        (a.x, b.x), (a.P, b.P), (ua.x, ub.x), (ua.P, ub.P), (ia.S, ib.S), (ia.nis, ib.nis)))
+
+
 _MERWE = {"points": ("merwe",)}
 
 
@@ -139,11 +213,54 @@ class UKF(FilterBase):
 
     def predict(self, g: Gaussian, model: Transition, t: float, dt: float, u=None, rng=None):
         space = model.space
-        if type(space) is VectorSpace and space.dim == 1 and self.points == "merwe":
-            out = self._predict_1d(g, model, t, dt, u)
+        if type(space) is VectorSpace:
+            if space.dim == 1 and self.points == "merwe":
+                out = self._predict_1d(g, model, t, dt, u)
+            else:
+                nb = _UT if _UT is not None else ut_kernels()
+                out = self._predict_compiled(nb, g, model, t, dt, u) if nb else None
             if out is not None:
                 return out
         return self._predict(g, model, t, dt, u)[0]
+
+    # -- vector spaces with numba: the algebra between the model calls compiled ------------
+    def _predict_compiled(self, nb, g: Gaussian, model: Transition, t, dt, u
+                          ) -> Gaussian | None:
+        """``_predict`` with the sigma points and the moments in two kernel calls
+        (:mod:`uavest.core._compiled_ut`); None if P has no plain factor (the array path
+        then jitters or raises)."""
+        n = model.space.dim
+        _, Wm, Wc, U = self._w(n)
+        D, X = _empty(U.shape), _empty(U.shape)
+        if nb.sigma(g.x, g.P, U, D, X):
+            return None
+        Y = model.f(X, t, dt, u)
+        x, P = _empty(n), _empty((n, n))
+        nb.moments(Y, Wm, Wc, model.Q(t, dt, u), x, P)
+        return Gaussian(x, P)
+
+    def _update_compiled(self, nb, g: Gaussian, z, model: Measurement
+                         ) -> tuple[Gaussian, Innovation] | None:
+        """``_update`` with the sigma points and the gain algebra in two kernel calls, the
+        model's ``h``, ``mean`` and ``residual`` between them; None if P or S has no plain
+        factor (the array path then jitters or raises)."""
+        n = model.space.dim
+        _, Wm, Wc, U = self._w(n)
+        D, X = _empty(U.shape), _empty(U.shape)
+        if nb.sigma(g.x, g.P, U, D, X):
+            return None
+        Z = model.h(X)
+        zhat = model.mean(Z, Wm)
+        E = model.residual(Z, zhat)
+        nu = model.residual(z, zhat)
+        m = E.shape[1]
+        if nu.shape != (m,):  # (the array path's products raise on a wrong-sized z)
+            return None
+        x, P, S = _empty(n), _empty((n, n)), _empty((m, m))
+        st, nis = nb.update(g.x, g.P, D, E, Wc, model.R, nu, x, P, S)
+        if st:
+            return None
+        return Gaussian(x, P), Innovation(nu, S, nis)
 
     # -- 1-D states: the same formulas on Python floats ----------------------------------
     # On a 1-D state the step's cost is numpy's per-call floor (~1 us a call on 3 sigma
@@ -195,9 +312,13 @@ class UKF(FilterBase):
         self, g: Gaussian, z: Array, model: Measurement, rng=None
     ) -> tuple[Gaussian, Innovation]:
         space = model.space
-        if (type(space) is VectorSpace and space.dim == 1 and self.points == "merwe"
-                and model.dim == 1 and plain_measurement(model)):
-            out = self._update_1d(g, z, model)
+        if type(space) is VectorSpace:
+            if (space.dim == 1 and self.points == "merwe" and model.dim == 1
+                    and plain_measurement(model)):
+                out = self._update_1d(g, z, model)
+            else:
+                nb = _UT if _UT is not None else ut_kernels()
+                out = self._update_compiled(nb, g, z, model) if nb else None
             if out is not None:
                 return out
         return self._update(g, z, model)
