@@ -41,6 +41,7 @@ import math
 import os
 from dataclasses import dataclass, field
 from functools import lru_cache
+from types import ModuleType
 from typing import ClassVar
 
 import numpy as np
@@ -347,7 +348,7 @@ def _mean(space: Space, X: Array, w: Array) -> Array:
 _SHIFT = None
 
 
-def shift_kernels():
+def shift_kernels() -> ModuleType | bool:
     """The numba kernels of :class:`Hybrid` on vector spaces if they can be used here,
     else False (the numpy path is used). Decided once per process at the first hybrid
     step: numba must import, ``UAVEST_NUMBA`` must not be ``0``, and the kernels must
@@ -380,7 +381,7 @@ def shift_kernels():
     return _SHIFT
 
 
-def _self_check(nb) -> bool:
+def _self_check(nb: ModuleType) -> bool:
     """The kernels against the numpy path on a small 2-D ensemble with a 2-D measurement
     (one regeneration and one tempered shift update)."""
     from .model import Measurement as _M
@@ -543,6 +544,10 @@ class Hybrid(_HybridBase):
     # raises or continues as it always has.
 
     def predict(self, E: Ensemble, model: Transition, t, dt, u=None, rng=None) -> Ensemble:
+        """``_HybridBase.predict`` (regenerate if the ESS is low, then propagate with
+        process noise); with the shift kernels on a vector space with expanded sampling,
+        the regeneration and the noise in kernel calls (a failure of the chol of Q
+        raises before any draw here, after the regeneration's draws there)."""
         nb = _SHIFT if _SHIFT is not None else shift_kernels()
         space = model.space
         if not nb or self.sampling != "expanded" or type(space) is not VectorSpace:
@@ -579,6 +584,9 @@ class Hybrid(_HybridBase):
         return Ensemble(out, space, w)
 
     def update(self, E: Ensemble, z, model: Measurement, rng=None) -> tuple[Ensemble, Innovation]:
+        """Tempered confidence weights, then the EnKF shift (the module docstring;
+        :meth:`_update_numpy`); one kernel call for one stage and one shift on a vector
+        space with a plain measurement model and a float64 ``z`` of its size."""
         nb = _SHIFT if _SHIFT is not None else shift_kernels()
         if (nb and self.stages == 1 and self.shifts == 1 and type(model.space) is VectorSpace
                 and type(z) is np.ndarray and z.dtype == np.float64 and z.ndim == 1
@@ -586,8 +594,11 @@ class Hybrid(_HybridBase):
             return self._update_compiled(nb, E, z, model, rng)
         return self._update_numpy(E, z, model, rng)
 
-    def _update_compiled(self, nb, E: Ensemble, z: Array, model: Measurement, rng
+    def _update_compiled(self, nb: ModuleType, E: Ensemble, z: Array, model: Measurement, rng
                          ) -> tuple[Ensemble, Innovation]:
+        """The update through :func:`uavest.core._compiled_shift.shift_update`; its
+        result carries its estimate (``Ensemble.gaussian``). A failure hands the drawn
+        normals to :meth:`_update_numpy`."""
         M = E.M
         w = equal_weights(M) if E.w is None else E.w
         Y = model.h(E.X)

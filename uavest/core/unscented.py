@@ -22,6 +22,7 @@ import math
 import os
 from dataclasses import dataclass, field
 from functools import lru_cache
+from types import ModuleType
 
 import numpy as np
 
@@ -96,7 +97,7 @@ def plain_measurement(model: Measurement) -> bool:
 _UT = None
 
 
-def ut_kernels():
+def ut_kernels() -> ModuleType | bool:
     """The numba kernels of the UKF on vector spaces if they can be used here, else False
     (the array path is used). Decided once per process at the first UKF step on a vector
     space of more than one dimension: numba must import, ``UAVEST_NUMBA`` must not be
@@ -131,7 +132,7 @@ def ut_kernels():
     return _UT
 
 
-def _ut_self_check(nb) -> bool:
+def _ut_self_check(nb: ModuleType) -> bool:
     """One predict and one update of a 3-D state with a 2-D measurement, the kernels
     against the array path."""
 
@@ -224,7 +225,7 @@ class UKF(FilterBase):
         return self._predict(g, model, t, dt, u)[0]
 
     # -- vector spaces with numba: the algebra between the model calls compiled ------------
-    def _predict_compiled(self, nb, g: Gaussian, model: Transition, t, dt, u
+    def _predict_compiled(self, nb: ModuleType, g: Gaussian, model: Transition, t, dt, u
                           ) -> Gaussian | None:
         """``_predict`` with the sigma points and the moments in two kernel calls
         (:mod:`uavest.core._compiled_ut`); None if P has no plain factor (the array path
@@ -239,7 +240,7 @@ class UKF(FilterBase):
         nb.moments(Y, Wm, Wc, model.Q(t, dt, u), x, P)
         return Gaussian(x, P)
 
-    def _update_compiled(self, nb, g: Gaussian, z, model: Measurement
+    def _update_compiled(self, nb: ModuleType, g: Gaussian, z, model: Measurement
                          ) -> tuple[Gaussian, Innovation] | None:
         """``_update`` with the sigma points and the gain algebra in two kernel calls, the
         model's ``h``, ``mean`` and ``residual`` between them; None if P or S has no plain
