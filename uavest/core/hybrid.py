@@ -535,6 +535,11 @@ class Hybrid(_HybridBase):
         if not 0.0 < self.tau <= 1.0:
             raise ValueError("tau must be in (0, 1]")
 
+    def init(self, prior: Gaussian, space, rng) -> Ensemble:
+        if _SHIFT is None and type(space) is VectorSpace:
+            shift_kernels()  # numba's import and cache load here, not in the first step
+        return super().init(prior, space, rng)
+
     # -- the compiled path (numba installed; vector spaces, one stage, one shift) -------
     # What ``_HybridBase.predict`` and ``_update_numpy`` do, with the work between the
     # model calls and the random draws in one kernel call each (uavest/core/

@@ -187,6 +187,9 @@ class UKF(FilterBase):
         return sigma_weights(n, self.alpha, self.beta, self.kappa, self.points)
 
     def init(self, prior: Gaussian, space, rng=None) -> Gaussian:
+        if _UT is None and type(space) is VectorSpace and (
+                space.dim > 1 or self.points != "merwe"):
+            ut_kernels()  # numba's import and cache load here, not in the first step
         return prior
 
     def _predict(self, g: Gaussian, model: Transition, t, dt, u):
