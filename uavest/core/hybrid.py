@@ -311,6 +311,14 @@ def _log_equal(M: int) -> Array:
     return a
 
 
+@lru_cache(maxsize=32)
+def _equal_writable(M: int) -> Array:
+    """The equal weights 1/M as a writable array, for the kernels only (they never write
+    to it): numba types a read-only array apart, and each type is one more compilation
+    of every kernel it reaches."""
+    return np.full(M, 1.0 / M)
+
+
 def tempered_weights(
     w: Array, loglik: Array, phi_max: float, min_ess: float
 ) -> tuple[Array, float]:
@@ -605,7 +613,7 @@ class Hybrid(_HybridBase):
         result carries its estimate (``Ensemble.gaussian``). A failure hands the drawn
         normals to :meth:`_update_numpy`."""
         M = E.M
-        w = equal_weights(M) if E.w is None else E.w
+        w = _equal_writable(M) if E.w is None else E.w
         Y = model.h(E.X)
         V = rng.standard_normal((M, model.dim))  # the shift's perturbations
         confidence = self.weights == "confidence"
