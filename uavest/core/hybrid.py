@@ -390,36 +390,40 @@ def shift_kernels() -> ModuleType | bool:
 
 
 def _self_check(nb: ModuleType) -> bool:
-    """The kernels against the numpy path on a small 2-D ensemble with a 2-D measurement
-    (one regeneration and one tempered shift update)."""
-    from .model import Measurement as _M
+    """The kernels against the numpy path on small ensembles, 2-D with a 2-D measurement
+    (the general loops) and 1-D (their own loops): one regeneration and one tempered
+    shift update each."""
 
-    class _Sq(_M):
-        R = np.array([[0.5, 0.1], [0.1, 0.8]])
-        space = VectorSpace(2)
+    class _Sq(Measurement):
+        def __init__(self, n: int) -> None:
+            self.R = np.array([[0.5, 0.1], [0.1, 0.8]])[:n, :n]
+            self.space = VectorSpace(n)
 
         def h(self, X):
             return X * X
 
     f = Hybrid(n_cloud=2)
-    rng = np.random.default_rng(1)
-    X = rng.standard_normal((15, 2))
-    w = rng.uniform(0.5, 1.5, 15)
-    w /= w.sum()
-    E = Ensemble(X, VectorSpace(2), w)
-    me = _Sq()
-    z = np.array([0.7, 1.9])
-    a, ia = f._update_numpy(E, z, me, np.random.default_rng(2))
-    b, ib = f._update_compiled(nb, E, z, me, np.random.default_rng(2))
-    ga, gb = ensemble_estimate(a), ensemble_estimate(b)
-    ra = f._regenerate(E, np.random.default_rng(3))
-    rng = np.random.default_rng(3)  # systematic_resample's uniform, then the normals
-    u = rng.random()
-    rb = np.empty((15, 2))
-    st = nb.regenerate(X, w, u, rng.standard_normal((15, 2)), f.kernel, rb)
-    return st == 0 and all(np.allclose(p, q, rtol=1e-12, atol=1e-12) for p, q in (
-        (a.X, b.X), (a.w, b.w), (ga.x, gb.x), (ga.P, gb.P), (ia.nu, ib.nu), (ia.S, ib.S),
-        (ia.nis, ib.nis), (ra.X, rb)))
+    close = []
+    for n in (2, 1):
+        rng = np.random.default_rng(n)
+        X = rng.standard_normal((15, n))
+        w = rng.uniform(0.5, 1.5, 15)
+        w /= w.sum()
+        E = Ensemble(X, VectorSpace(n), w)
+        me = _Sq(n)
+        z = np.array([0.7, 1.9])[:n]
+        a, ia = f._update_numpy(E, z, me, np.random.default_rng(2))
+        b, ib = f._update_compiled(nb, E, z, me, np.random.default_rng(2))
+        ga, gb = ensemble_estimate(a), ensemble_estimate(b)
+        ra = f._regenerate(E, np.random.default_rng(3))
+        rng = np.random.default_rng(3)  # systematic_resample's uniform, then the normals
+        u = rng.random()
+        rb = np.empty((15, n))
+        st = nb.regenerate(X, w, u, rng.standard_normal((15, n)), f.kernel, rb)
+        close += [st == 0] + [np.allclose(p, q, rtol=1e-12, atol=1e-12) for p, q in (
+            (a.X, b.X), (a.w, b.w), (ga.x, gb.x), (ga.P, gb.P), (ia.nu, ib.nu),
+            (ia.S, ib.S), (ia.nis, ib.nis), (ra.X, rb))]
+    return all(close)
 
 
 class _HybridBase(EnsembleFilter):
