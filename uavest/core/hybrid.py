@@ -36,9 +36,12 @@ irrelevant are refused in specs (their ``when`` declaration).
 
 from __future__ import annotations
 
+import logging
 import math
+import os
 from dataclasses import dataclass, field
 from functools import lru_cache
+from types import ModuleType
 from typing import ClassVar
 
 import numpy as np
@@ -56,10 +59,11 @@ from .base import (
 from .contract import EnsembleFilter, FilterBase
 from .ensemble import propagate_members
 from .gaussian import Gaussian
-from .linalg import NumericalError, chol, gain, is_pd, symmetrize
+from .linalg import NotPositiveDefinite, NumericalError, chol, gain, is_pd, symmetrize
 from .model import Measurement, Transition
 from .particle import ess, log_likelihood, systematic_resample
 from .spec import param
+from .unscented import plain_measurement  # mean / residual plain: residuals centred
 
 Array = np.ndarray
 
@@ -294,6 +298,7 @@ _PHI_GRID = np.linspace(0.0, 1.0, 17)
 # dominates on ensembles of ~100 members) and ``np.add.reduce`` / ``np.maximum.reduce``
 # rather than the ``.sum()`` / ``.max()`` methods (the same reduction, one call less).
 _dot = np.dot
+_empty = np.empty
 _sum = np.add.reduce
 _max = np.maximum.reduce
 
@@ -304,6 +309,14 @@ def _log_equal(M: int) -> Array:
     a = np.log(np.maximum(equal_weights(M), 1e-300))
     a.flags.writeable = False
     return a
+
+
+@lru_cache(maxsize=32)
+def _equal_writable(M: int) -> Array:
+    """The equal weights 1/M as a writable array, for the kernels only (they never write
+    to it): numba types a read-only array apart, and each type is one more compilation
+    of every kernel it reaches."""
+    return np.full(M, 1.0 / M)
 
 
 def tempered_weights(
@@ -330,20 +343,87 @@ def tempered_weights(
     return W[i], float(phis[i])
 
 
-def _plain_measurement(model: Measurement) -> bool:
-    """True if the model's ``mean`` and ``residual`` are the plain weighted sum and
-    difference (then ``residual(Y, mean(Y, w))`` is centred under ``w`` up to rounding)."""
-    t = type(model)  # (a wrapper that delegates its attributes: False, the safe answer)
-    return (getattr(t, "mean", None) is Measurement.mean
-            and getattr(t, "residual", None) is Measurement.residual)
-
-
 def _mean(space: Space, X: Array, w: Array) -> Array:
     """``space.mean`` of members ``X`` with weights ``w`` (``np.dot`` on a plain vector
     space: the same numbers as its ``w @ X``)."""
     if type(space) is VectorSpace:
         return _dot(w, X)
     return space.mean(X, w, mean_start(space, X, w))
+
+
+#: the compiled shift kernels (:mod:`uavest.core._compiled_shift`), False if numba is
+#: missing, disabled (``UAVEST_NUMBA=0``) or failed; None before the first call.
+_SHIFT = None
+
+
+def shift_kernels() -> ModuleType | bool:
+    """The numba kernels of :class:`Hybrid` on vector spaces if they can be used here,
+    else False (the numpy path is used). Decided once per process at the first hybrid
+    step: numba must import, ``UAVEST_NUMBA`` must not be ``0``, and the kernels must
+    compile (first time: some seconds, then numba's on-disk cache) and agree with the
+    numpy path on a small case; any failure is logged and falls back to numpy."""
+    global _SHIFT
+    if _SHIFT is not None:
+        return _SHIFT
+    _SHIFT = False
+    if os.environ.get("UAVEST_NUMBA", "1") == "0":
+        return _SHIFT
+    try:
+        import numba  # noqa: F401
+    except ImportError:
+        return _SHIFT
+    log = logging.getLogger("uavest.core")
+    try:
+        from . import _compiled_shift as nb
+
+        log.info("numba shift kernels: loading (the first use compiles them, then cached)")
+        ok = _self_check(nb)
+    except Exception as e:  # noqa: BLE001 - any failure of an optional accelerator
+        log.warning("numba shift kernels unavailable (%s: %s); using numpy",
+                    type(e).__name__, e)
+        return _SHIFT
+    if not ok:
+        log.warning("numba shift kernels disagree with the numpy path; using numpy")
+        return _SHIFT
+    _SHIFT = nb
+    return _SHIFT
+
+
+def _self_check(nb: ModuleType) -> bool:
+    """The kernels against the numpy path on small ensembles, 2-D with a 2-D measurement
+    (the general loops) and 1-D (their own loops): one regeneration and one tempered
+    shift update each."""
+
+    class _Sq(Measurement):
+        def __init__(self, n: int) -> None:
+            self.R = np.array([[0.5, 0.1], [0.1, 0.8]])[:n, :n]
+            self.space = VectorSpace(n)
+
+        def h(self, X):
+            return X * X
+
+    f = Hybrid(n_cloud=2)
+    close = []
+    for n in (2, 1):
+        rng = np.random.default_rng(n)
+        X = rng.standard_normal((15, n))
+        w = rng.uniform(0.5, 1.5, 15)
+        w /= w.sum()
+        E = Ensemble(X, VectorSpace(n), w)
+        me = _Sq(n)
+        z = np.array([0.7, 1.9])[:n]
+        a, ia = f._update_numpy(E, z, me, np.random.default_rng(2))
+        b, ib = f._update_compiled(nb, E, z, me, np.random.default_rng(2))
+        ga, gb = ensemble_estimate(a), ensemble_estimate(b)
+        ra = f._regenerate(E, np.random.default_rng(3))
+        rng = np.random.default_rng(3)  # systematic_resample's uniform, then the normals
+        u = rng.random()
+        rb = np.empty((15, n))
+        st = nb.regenerate(X, w, u, rng.standard_normal((15, n)), f.kernel, rb)
+        close += [st == 0] + [np.allclose(p, q, rtol=1e-12, atol=1e-12) for p, q in (
+            (a.X, b.X), (a.w, b.w), (ga.x, gb.x), (ga.P, gb.P), (ia.nu, ib.nu),
+            (ia.S, ib.S), (ia.nis, ib.nis), (ra.X, rb))]
+    return all(close)
 
 
 class _HybridBase(EnsembleFilter):
@@ -467,7 +547,95 @@ class Hybrid(_HybridBase):
         if not 0.0 < self.tau <= 1.0:
             raise ValueError("tau must be in (0, 1]")
 
+    def init(self, prior: Gaussian, space, rng) -> Ensemble:
+        if _SHIFT is None and type(space) is VectorSpace:
+            shift_kernels()  # numba's import and cache load here, not in the first step
+        return super().init(prior, space, rng)
+
+    # -- the compiled path (numba installed; vector spaces, one stage, one shift) -------
+    # What ``_HybridBase.predict`` and ``_update_numpy`` do, with the work between the
+    # model calls and the random draws in one kernel call each (uavest/core/
+    # _compiled_shift.py): the same draws in the same order and shapes, the same formulas,
+    # equal to rounding (tests/unit/test_fast_paths.py). Failures (non-finite weights or
+    # results, a covariance that is not positive definite) go to the numpy path, which
+    # raises or continues as it always has.
+
+    def predict(self, E: Ensemble, model: Transition, t, dt, u=None, rng=None) -> Ensemble:
+        """``_HybridBase.predict`` (regenerate if the ESS is low, then propagate with
+        process noise); with the shift kernels on a vector space with expanded sampling,
+        the regeneration and the noise in kernel calls (a failure of the chol of Q
+        raises before any draw here, after the regeneration's draws there)."""
+        nb = _SHIFT if _SHIFT is not None else shift_kernels()
+        space = model.space
+        if not nb or self.sampling != "expanded" or type(space) is not VectorSpace:
+            return super().predict(E, model, t, dt, u, rng)
+        X, w, M = E.X, E.w, E.M
+        regen = False
+        if w is not None:
+            e = ess(w)
+            if e < self.regen_ess * M:  # ``keeps_members`` is False: regenerate
+                if not 0.0 < e < math.inf:  # (non-finite weights: numpy raises)
+                    return super().predict(E, model, t, dt, u, rng)
+                regen = True
+            elif not e >= self.regen_ess * M:  # NaN: the numpy path decides
+                return super().predict(E, model, t, dt, u, rng)
+        L = chol(model.Q(t, dt, u))
+        if regen:
+            # systematic_resample's uniform, then the shrink kernel's normals and the
+            # process noise's in one call (the same numbers as two calls of M rows)
+            v = rng.random()
+            Z = rng.standard_normal((2 * M, X.shape[1]))
+            X = _empty(X.shape)
+            st = nb.regenerate(E.X, w, v, Z[:M], self.kernel, X)
+            if st:
+                raise NotPositiveDefinite("covariance has non-finite entries" if st == 1
+                                          else "covariance is not positive definite")
+            w = None
+            X = model.f(X, t, dt, u)
+            Z = Z[M:]
+        else:
+            X = model.f(X, t, dt, u)
+            Z = rng.standard_normal(X.shape)
+        out = _empty(X.shape)
+        nb.add_noise(X, Z, L, out)
+        return Ensemble(out, space, w)
+
     def update(self, E: Ensemble, z, model: Measurement, rng=None) -> tuple[Ensemble, Innovation]:
+        """Tempered confidence weights, then the EnKF shift (the module docstring;
+        :meth:`_update_numpy`); one kernel call for one stage and one shift on a vector
+        space with a plain measurement model and a float64 ``z`` of its size."""
+        nb = _SHIFT if _SHIFT is not None else shift_kernels()
+        if (nb and self.stages == 1 and self.shifts == 1 and type(model.space) is VectorSpace
+                and type(z) is np.ndarray and z.dtype == np.float64 and z.ndim == 1
+                and z.shape[0] == model.dim and plain_measurement(model)):
+            return self._update_compiled(nb, E, z, model, rng)
+        return self._update_numpy(E, z, model, rng)
+
+    def _update_compiled(self, nb: ModuleType, E: Ensemble, z: Array, model: Measurement, rng
+                         ) -> tuple[Ensemble, Innovation]:
+        """The update through :func:`uavest.core._compiled_shift.shift_update`; its
+        result carries its estimate (``Ensemble.gaussian``). A failure hands the drawn
+        normals to :meth:`_update_numpy`."""
+        M = E.M
+        w = _equal_writable(M) if E.w is None else E.w
+        Y = model.h(E.X)
+        V = rng.standard_normal((M, model.dim))  # the shift's perturbations
+        confidence = self.weights == "confidence"
+        n, m = E.X.shape[1], V.shape[1]
+        # the outputs, allocated here: arrays numba makes and returns cost ~1 us each
+        X, wn, nu, S, x, P = (_empty((M, n)), _empty(M), _empty(m), _empty((m, m)),
+                              _empty(n), _empty((n, n)))
+        st, nis = nb.shift_update(E.X, Y, z, w, model.R, V, self.tau, self.min_ess,
+                                  confidence, X, wn, nu, S, x, P)
+        if st:
+            return self._update_numpy(E, z, model, rng, V)
+        return (Ensemble(X, E.space, wn if confidence else None, gaussian=Gaussian(x, P)),
+                Innovation(nu, S, nis))
+
+    def _update_numpy(self, E: Ensemble, z, model: Measurement, rng=None, V0=None
+                      ) -> tuple[Ensemble, Innovation]:
+        """The update on numpy arrays (any space, stages and shifts; the reference of the
+        compiled path). ``V0``: the first shift's standard normals if already drawn."""
         space = model.space
         M = E.M
         w = equal_weights(M) if E.w is None else E.w
@@ -494,7 +662,7 @@ class Hybrid(_HybridBase):
         Rt = model.R * (self.shifts / tau)
         Lr = chol(Rt)
         flat = type(space) is VectorSpace
-        plain = flat and _plain_measurement(model)
+        plain = flat and plain_measurement(model)
         for i in range(self.shifts):
             if i:
                 Y = model.h(X)
@@ -513,8 +681,8 @@ class Hybrid(_HybridBase):
                 dX = space.local(_mean(space, X, w), X)
                 dX = dX - _dot(w, dX)
                 K = gain(_dot(c * (dX.T * w), dY), _dot(c * (dY.T * w), dY) + Rt)
-            V = _dot(rng.standard_normal((M, model.dim)), Lr.T)
-            X = space.retract(X, _dot(r + V, K.T))
+            V = rng.standard_normal((M, model.dim)) if i or V0 is None else V0
+            X = space.retract(X, _dot(r + _dot(V, Lr.T), K.T))
         return Ensemble(X, E.space, None if self.weights == "equal" else w), innov
 
 

@@ -17,8 +17,12 @@ update:   fresh sigma points of (x-, P-); Z_j = h(chi_j); z- = mean(Z, Wm)
 
 from __future__ import annotations
 
+import logging
+import math
+import os
 from dataclasses import dataclass, field
 from functools import lru_cache
+from types import ModuleType
 
 import numpy as np
 
@@ -32,6 +36,8 @@ from .spec import param
 
 Array = np.ndarray
 _dot = np.dot  # the same BLAS products as @ without the gufunc's per-call cost
+_array = np.array
+_empty = np.empty
 
 
 @lru_cache(maxsize=64)
@@ -69,6 +75,94 @@ def sigma_offsets(L: Array, c: float, points: str) -> Array:
     return np.vstack([np.zeros((1, L.shape[0])), cL, -cL])
 
 
+@lru_cache(maxsize=64)
+def _scalar_weights(alpha: float, beta: float, kappa: float) -> tuple[float, ...]:
+    """(c, Wm_0, Wm_1, Wc_0, Wc_1) of the 1-D Merwe set as Python floats (the entries of
+    :func:`sigma_weights`; Wm_2 = Wm_1, Wc_2 = Wc_1)."""
+    c, Wm, Wc, _ = sigma_weights(1, alpha, beta, kappa, "merwe")
+    return c, float(Wm[0]), float(Wm[1]), float(Wc[0]), float(Wc[1])
+
+
+def plain_measurement(model: Measurement) -> bool:
+    """True if the model's ``mean`` and ``residual`` are the plain weighted sum and
+    difference of :class:`Measurement` (a wrapper that delegates its attributes, e.g. the
+    adaptive filters' noise override, gives False: the safe answer)."""
+    t = type(model)
+    return (getattr(t, "mean", None) is Measurement.mean
+            and getattr(t, "residual", None) is Measurement.residual)
+
+
+#: the compiled unscented kernels (:mod:`uavest.core._compiled_ut`), False if numba is
+#: missing, disabled (``UAVEST_NUMBA=0``) or failed; None before the first call.
+_UT = None
+
+
+def ut_kernels() -> ModuleType | bool:
+    """The numba kernels of the UKF on vector spaces if they can be used here, else False
+    (the array path is used). Decided once per process at the first UKF step on a vector
+    space of more than one dimension: numba must import, ``UAVEST_NUMBA`` must not be
+    ``0``, and the kernels must compile (first time: some seconds, then numba's on-disk
+    cache) and agree with the array path on a small case; any failure is logged and
+    falls back to numpy."""
+    global _UT
+    if _UT is not None:
+        return _UT
+    _UT = False
+    if os.environ.get("UAVEST_NUMBA", "1") == "0":
+        return _UT
+    try:
+        import numba  # noqa: F401
+    except ImportError:
+        return _UT
+    log = logging.getLogger("uavest.core")
+    try:
+        from . import _compiled_ut as nb
+
+        log.info("numba unscented kernels: loading (the first use compiles them, then "
+                 "cached)")
+        ok = _ut_self_check(nb)
+    except Exception as e:  # noqa: BLE001 - any failure of an optional accelerator
+        log.warning("numba unscented kernels unavailable (%s: %s); using numpy",
+                    type(e).__name__, e)
+        return _UT
+    if not ok:
+        log.warning("numba unscented kernels disagree with the array path; using numpy")
+        return _UT
+    _UT = nb
+    return _UT
+
+
+def _ut_self_check(nb: ModuleType) -> bool:
+    """One predict and one update of a 3-D state with a 2-D measurement, the kernels
+    against the array path."""
+
+    class _T(Transition):
+        space = VectorSpace(3)
+
+        def f(self, X, t, dt=1.0, u=None):
+            return X + 0.1 * np.sin(X[:, ::-1])
+
+        def Q(self, t, dt=1.0, u=None):
+            return np.diag([0.1, 0.2, 0.3])
+
+    class _H(Measurement):
+        space = VectorSpace(3)
+        R = np.array([[0.5, 0.1], [0.1, 0.4]])
+
+        def h(self, X):
+            return np.stack([X[:, 0] * X[:, 1], X[:, 2]], axis=1)
+
+    f = UKF(alpha=0.7)
+    g = Gaussian(np.array([0.3, -1.2, 2.0]), np.array([[2.0, 0.3, 0.1], [0.3, 1.0, -0.2],
+                                                        [0.1, -0.2, 1.5]]))
+    a, b = f._predict(g, _T(), 1.0, 1.0, None)[0], f._predict_compiled(nb, g, _T(), 1.0,
+                                                                       1.0, None)
+    z = np.array([0.5, 1.0])
+    (ua, ia), (ub, ib) = f._update(g, z, _H()), f._update_compiled(nb, g, z, _H())
+    return all(np.allclose(p, q, rtol=1e-12, atol=1e-12) for p, q in (
+        (a.x, b.x), (a.P, b.P), (ua.x, ub.x), (ua.P, ub.P), (ia.S, ib.S), (ia.nis, ib.nis)))
+
+
 _MERWE = {"points": ("merwe",)}
 
 
@@ -93,6 +187,9 @@ class UKF(FilterBase):
         return sigma_weights(n, self.alpha, self.beta, self.kappa, self.points)
 
     def init(self, prior: Gaussian, space, rng=None) -> Gaussian:
+        if _UT is None and type(space) is VectorSpace and (
+                space.dim > 1 or self.points != "merwe"):
+            ut_kernels()  # numba's import and cache load here, not in the first step
         return prior
 
     def _predict(self, g: Gaussian, model: Transition, t, dt, u):
@@ -119,11 +216,121 @@ class UKF(FilterBase):
         return self.predict_cross(s_prev if prev is None else prev, model, t, dt, u)
 
     def predict(self, g: Gaussian, model: Transition, t: float, dt: float, u=None, rng=None):
+        space = model.space
+        if type(space) is VectorSpace:
+            if space.dim == 1 and self.points == "merwe":
+                out = self._predict_1d(g, model, t, dt, u)
+            else:
+                nb = _UT if _UT is not None else ut_kernels()
+                out = self._predict_compiled(nb, g, model, t, dt, u) if nb else None
+            if out is not None:
+                return out
         return self._predict(g, model, t, dt, u)[0]
+
+    # -- vector spaces with numba: the algebra between the model calls compiled ------------
+    def _predict_compiled(self, nb: ModuleType, g: Gaussian, model: Transition, t, dt, u
+                          ) -> Gaussian | None:
+        """``_predict`` with the sigma points and the moments in two kernel calls
+        (:mod:`uavest.core._compiled_ut`); None if P has no plain factor (the array path
+        then jitters or raises)."""
+        n = model.space.dim
+        _, Wm, Wc, U = self._w(n)
+        D, X = _empty(U.shape), _empty(U.shape)
+        if nb.sigma(g.x, g.P, U, D, X):
+            return None
+        Y = model.f(X, t, dt, u)
+        x, P = _empty(n), _empty((n, n))
+        nb.moments(Y, Wm, Wc, model.Q(t, dt, u), x, P)
+        return Gaussian(x, P)
+
+    def _update_compiled(self, nb: ModuleType, g: Gaussian, z, model: Measurement
+                         ) -> tuple[Gaussian, Innovation] | None:
+        """``_update`` with the sigma points and the gain algebra in two kernel calls, the
+        model's ``h``, ``mean`` and ``residual`` between them; None if P or S has no plain
+        factor (the array path then jitters or raises)."""
+        n = model.space.dim
+        _, Wm, Wc, U = self._w(n)
+        D, X = _empty(U.shape), _empty(U.shape)
+        if nb.sigma(g.x, g.P, U, D, X):
+            return None
+        Z = model.h(X)
+        zhat = model.mean(Z, Wm)
+        E = model.residual(Z, zhat)
+        nu = model.residual(z, zhat)
+        m = E.shape[1]
+        if nu.shape != (m,):  # (the array path's products raise on a wrong-sized z)
+            return None
+        x, P, S = _empty(n), _empty((n, n)), _empty((m, m))
+        st, nis = nb.update(g.x, g.P, D, E, Wc, model.R, nu, x, P, S)
+        if st:
+            return None
+        return Gaussian(x, P), Innovation(nu, S, nis)
+
+    # -- 1-D states: the same formulas on Python floats ----------------------------------
+    # On a 1-D state the step's cost is numpy's per-call floor (~1 us a call on 3 sigma
+    # points), not arithmetic: these do what ``_predict`` / ``update`` do for n = m = 1
+    # with the 1 x 1 factor, gain and solve on floats (as ``linalg``'s 1 x 1 shortcuts),
+    # sigma points x, x + c sqrt(p), x - c sqrt(p) and the weighted sums written out. The
+    # sums are the same products in the same order, but BLAS may fuse a multiply and an
+    # add where Python rounds both: equal to the array path to rounding (~1e-16
+    # relative; tests/unit/test_ukf_scalar.py). Anything outside the fast case (a factor
+    # or an innovation variance that is not finite and positive, a measurement model with
+    # its own ``mean`` / ``residual``) takes the array path, which also decides what a
+    # failure raises.
+
+    def _predict_1d(self, g: Gaussian, model: Transition, t, dt, u) -> Gaussian | None:
+        p = g.P.item(0)
+        if not 0.0 < p < math.inf:
+            return None
+        c, wm0, wm1, wc0, wc1 = _scalar_weights(self.alpha, self.beta, self.kappa)
+        x0 = g.x.item(0)
+        s = c * math.sqrt(p)
+        (y0,), (y1,), (y2,) = model.f(_array([[x0], [x0 + s], [x0 - s]]), t, dt, u).tolist()
+        x = wm0 * y0 + wm1 * y1 + wm1 * y2
+        d0, d1, d2 = y0 - x, y1 - x, y2 - x
+        P = wc0 * d0 * d0 + wc1 * d1 * d1 + wc1 * d2 * d2 + model.Q(t, dt, u).item(0)
+        return Gaussian(_array([x]), _array([[P]]))
+
+    def _update_1d(self, g: Gaussian, z, model: Measurement
+                   ) -> tuple[Gaussian, Innovation] | None:
+        p = g.P.item(0)
+        if not 0.0 < p < math.inf or type(z) is not np.ndarray or z.shape != (1,):
+            return None
+        c, wm0, wm1, wc0, wc1 = _scalar_weights(self.alpha, self.beta, self.kappa)
+        x0 = g.x.item(0)
+        s = c * math.sqrt(p)
+        (z0,), (z1,), (z2,) = model.h(_array([[x0], [x0 + s], [x0 - s]])).tolist()
+        zhat = wm0 * z0 + wm1 * z1 + wm1 * z2
+        e0, e1, e2 = z0 - zhat, z1 - zhat, z2 - zhat
+        S = wc0 * e0 * e0 + wc1 * e1 * e1 + wc1 * e2 * e2 + model.R.item(0)
+        if not 0.0 < S < math.inf:
+            return None
+        Pxz = wc1 * s * e1 + wc1 * -s * e2  # the centre's offset is 0
+        i = 1.0 / math.sqrt(S)
+        K = Pxz * i * i
+        v = z.item() - zhat
+        return (Gaussian(_array([x0 + K * v]), _array([[p - K * Pxz]])),
+                Innovation(_array([v]), _array([[S]]), v * (v * i * i)))
 
     def update(
         self, g: Gaussian, z: Array, model: Measurement, rng=None
     ) -> tuple[Gaussian, Innovation]:
+        space = model.space
+        if type(space) is VectorSpace:
+            if (space.dim == 1 and self.points == "merwe" and model.dim == 1
+                    and plain_measurement(model)):
+                out = self._update_1d(g, z, model)
+            else:
+                nb = _UT if _UT is not None else ut_kernels()
+                out = self._update_compiled(nb, g, z, model) if nb else None
+            if out is not None:
+                return out
+        return self._update(g, z, model)
+
+    def _update(self, g: Gaussian, z: Array, model: Measurement
+                ) -> tuple[Gaussian, Innovation]:
+        """The update on arrays (any space and measurement model; the reference of the
+        1-D float path)."""
         space = model.space
         _, Wm, Wc, U = self._w(space.dim)
         D = _dot(U, chol(g.P).T)
