@@ -26,7 +26,8 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-__all__ = ["centres", "local_draw", "local_gains", "moments", "prior_moments", "tag"]
+__all__ = ["centres", "local_draw", "local_gains", "moments", "prior_moments",
+           "systematic_indices", "tag"]
 
 #: LLVM may fuse a * b + c into one rounding (FMA): the results stay equal to the numpy
 #: path to rounding; no flag that assumes finite values (the NaN checks must hold).
@@ -200,6 +201,34 @@ def local_gains(Hs, B, R, nu, dY, w, confidence, tag):  # pragma: no cover - com
     for j in range(M):
         wu[j] /= tot
     return HB, Si, Pyy, wu, status
+
+
+@njit(cache=True)
+def systematic_indices(w, u):  # pragma: no cover - compiled
+    """:func:`uavest.core.particle.systematic_resample`'s indices for the uniform draw
+    ``u``: the first j with cs_j >= (u + i) / M, cs the running sum of ``w`` (its last
+    entry set to 1), by one merge of the two sorted sequences instead of M binary
+    searches (the same sums in the same order, no fast-math: the same indices).
+    Returns -1 in the first entry if the weights are not finite."""
+    M = w.shape[0]
+    cs = np.empty(M)
+    s = 0.0
+    for j in range(M):
+        s += w[j]
+        cs[j] = s
+    idx = np.empty(M, dtype=np.int64)
+    if not math.isfinite(s):
+        idx[0] = -1
+        return idx
+    cs[M - 1] = 1.0
+    step = 1.0 / M
+    j = 0
+    for i in range(M):
+        t = (u + i) * step
+        while j < M and cs[j] < t:
+            j += 1
+        idx[i] = j
+    return idx
 
 
 @njit(cache=True, fastmath=_FM)

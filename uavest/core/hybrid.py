@@ -671,10 +671,13 @@ class HybridLocal(_HybridBase):
                                           w, conf, tg)
         if bad:
             raise NumericalError("innovation covariance not positive definite")
-        innov = innovation(model.residual(z, ybar), Pyy)
+        innov = _innovation2(model.residual(z, ybar), Pyy)
         resample = ess(wu) < self.regen_ess * M
-        if resample:
-            idx = systematic_resample(wu, rng)
+        if resample:  # systematic_resample's draw and indices (the weights are finite
+            # here: NaN weights have a NaN ESS, which never resamples)
+            idx = nb.systematic_indices(wu, rng.random())
+            if idx[0] < 0:
+                raise NumericalError("resampling weights are not finite")
             wn = None
         else:
             idx = _NO_INDEX
@@ -686,7 +689,22 @@ class HybridLocal(_HybridBase):
         wp = equal_weights(M) if wn is None else wn
         X, xp, dXp, Pp = nb.local_draw(C, HB, Si, Hs, nu, En, Lb, Vn, Lr, idx, resample,
                                      wp, tg)
-        return Ensemble(X, space, wn, moments=(xp, dXp, wp, Pp)), innov
+        # Pp is symmetric by construction: the Gaussian ensemble_estimate would build
+        return Ensemble(X, space, wn, moments=(xp, dXp, wp, Pp),
+                        gaussian=Gaussian(xp, Pp)), innov
+
+
+def _innovation2(nu: Array, S: Array) -> Innovation:
+    """:func:`~uavest.core.base.innovation` with the NIS of a 2 x 2 ``S`` in closed form
+    on floats (equal to the Cholesky solve to rounding); other sizes, and an ``S`` that
+    is not positive definite or not finite (the Cholesky then raises), through it."""
+    if S.shape[0] == 2:
+        (a, b), (_, d) = S.tolist()
+        det = a * d - b * b
+        if a > 0.0 and det > 0.0 and math.isfinite(a + d + det):
+            n0, n1 = nu.tolist()
+            return Innovation(nu, S, (d * n0 * n0 - 2.0 * b * n0 * n1 + a * n1 * n1) / det)
+    return innovation(nu, S)
 
 
 #: ``local_draw``'s member indices when there is no resampling (not read).
