@@ -658,8 +658,10 @@ class HybridLocal(_HybridBase):
         B = (h * h) * P
         Y, Hs = model.h_H_rows(C)  # (M, m), (M, m, n)
         nu = model.residual(z, Y)
-        if nu.shape[-1] != m:  # (the kernel would read a wrong-sized z out of bounds)
+        if nu.shape[-1] != m:  # (the kernels would read a wrong-sized z out of bounds)
             raise ValueError(f"measurement has {nu.shape[-1]} components, the model {m}")
+        if Hs.shape != (M, m, n):
+            raise ValueError(f"h_H_rows gave Jacobians {Hs.shape}, expected {(M, m, n)}")
         ybar = model.mean(Y, w)
         dY = model.residual(Y, ybar)
         # (one array type per argument: a broadcast H_rows, an integer R... are copied,
@@ -667,8 +669,8 @@ class HybridLocal(_HybridBase):
         Hs, nu = np.ascontiguousarray(Hs, dtype=float), np.ascontiguousarray(nu, dtype=float)
         R = np.ascontiguousarray(model.R, dtype=float)
         conf = self.weights == "confidence"
-        HB, Si, Pyy, wu, bad = nb.local_gains(Hs, B, R, nu, np.ascontiguousarray(dY, dtype=float),
-                                          w, conf, tg)
+        dY = np.ascontiguousarray(dY, dtype=float)
+        HB, Si, Pyy, wu, bad = nb.local_gains(Hs, B, R, nu, dY, w, conf, tg)
         if bad:
             raise NumericalError("innovation covariance not positive definite")
         innov = _innovation2(model.residual(z, ybar), Pyy)
