@@ -764,9 +764,9 @@ def _kernels_agree(nb) -> bool:
     g = np.random.default_rng(7)
     X = g.standard_normal((15, 3)) * [1.0, 2.0, 0.5]
     f = HybridLocal(n_cloud=2)
-    cases = (  # (H, R, weights, z): a sharp measurement resamples, a loose one does not
+    cases = (  # (H, R, weights, z): the first resamples (ESS < M / 2), the second not
         (np.array([[1.0, 0.5, 0.0], [0.0, 1.0, -1.0]]), np.diag([0.01, 0.04]),
-         None, np.array([0.3, -0.2])),
+         None, np.array([1.5, -1.0])),
         (np.array([[0.5, -1.0, 2.0]]), np.array([[25.0]]), g.dirichlet(np.full(15, 9.0)),
          np.array([1.0])),
     )
@@ -776,7 +776,8 @@ def _kernels_agree(nb) -> bool:
         for upd in (lambda *a: f._update_compiled(nb, *a), f._update_numpy):
             E1, inn = upd(Ensemble(X.copy(), model.space, w), z, model,
                           np.random.default_rng(3))
-            out.append((E1.X, equal_weights(15) if E1.w is None else E1.w, inn.S,
+            out.append((E1.X, np.array([E1.w is None]),
+                        equal_weights(15) if E1.w is None else E1.w, inn.S,
                         np.array([inn.nis])))
         for a, b in zip(*out, strict=True):
             if a.shape != b.shape or not np.allclose(a, b, rtol=1e-10, atol=1e-12):
