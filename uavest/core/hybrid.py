@@ -739,7 +739,23 @@ class HybridLocal(_HybridBase):
         N(C_j+, B_j+) without a Cholesky factor per component. Everything is vectorised
         over the components; the m x m innovation covariances (m <= 2) are inverted in
         closed form on the whole stack.
+
+        On a :class:`~uavest.geometry.spaces.VectorSpace` with m <= 2 and numba installed
+        (``uavest[fast]``; ``UAVEST_NUMBA=0`` switches it off) the same update runs as
+        compiled loops over the members (:func:`local_kernels`, :meth:`_update_compiled`):
+        the same model calls and random draws in the same order, equal to this numpy
+        path to rounding.
         """
+        if type(E.space) is VectorSpace and model.dim <= 2:
+            nb = _LOCAL if _LOCAL is not None else local_kernels()
+            if nb:
+                return self._update_compiled(nb, E, z, model, rng)
+        return self._update_numpy(E, z, model, rng)
+
+    def _update_numpy(self, E: Ensemble, z, model: Measurement, rng=None
+                      ) -> tuple[Ensemble, Innovation]:
+        """:meth:`update` in numpy, vectorised over the members (every space, every m;
+        the reference of the compiled path)."""
         space = E.space
         x, dX, w, P = ensemble_moments(E)
         M, n = dX.shape
@@ -785,6 +801,155 @@ class HybridLocal(_HybridBase):
             d = nu + v - np.einsum("jmn,jn->jm", Hs, e)
         X = space.retract(Cp, e + np.einsum("jm,jmn->jn", d, KT))
         return Ensemble(X, space, wn), innov
+
+    def _update_compiled(self, nb, E: Ensemble, z, model: Measurement, rng=None
+                         ) -> tuple[Ensemble, Innovation]:
+        """:meth:`update` on a vector space with m <= 2 through the compiled kernels
+        ``nb`` (:mod:`uavest.core._compiled_local`): the numpy path's model calls and
+        ``rng`` draws, in the same order and shapes; the member loops compiled. Also
+        leaves the moments of the prior and of the posterior ensemble in their memos
+        (the estimate and the guard read them)."""
+        space = E.space
+        M, n = E.X.shape
+        m = model.dim
+        h = self.bandwidth or silverman_bandwidth(M, n)
+        a = math.sqrt(1.0 - h * h)
+        tg = nb.tag(n)
+        if E.moments is None:
+            w = equal_weights(M) if E.w is None else E.w
+            x, dX, P, C = nb.prior_moments(E.X, w, a, tg)
+            object.__setattr__(E, "moments", (x, dX, w, P))  # as ensemble_moments does
+        else:
+            x, dX, w, P = E.moments
+            C = nb.centres(x, dX, a, tg)
+        B = (h * h) * P
+        Y, Hs = model.h_H_rows(C)  # (M, m), (M, m, n)
+        nu = model.residual(z, Y)
+        if nu.shape[-1] != m:  # (the kernels would read a wrong-sized z out of bounds)
+            raise ValueError(f"measurement has {nu.shape[-1]} components, the model {m}")
+        if Hs.shape != (M, m, n):
+            raise ValueError(f"h_H_rows gave Jacobians {Hs.shape}, expected {(M, m, n)}")
+        ybar = model.mean(Y, w)
+        dY = model.residual(Y, ybar)
+        # (one array type per argument: a broadcast H_rows, an integer R... are copied,
+        # so that numba compiles each kernel once; the radar's arrays pass as they are)
+        Hs, nu = np.ascontiguousarray(Hs, dtype=float), np.ascontiguousarray(nu, dtype=float)
+        R = np.ascontiguousarray(model.R, dtype=float)
+        conf = self.weights == "confidence"
+        dY = np.ascontiguousarray(dY, dtype=float)
+        HB, Si, Pyy, wu, bad = nb.local_gains(Hs, B, R, nu, dY, w, conf, tg)
+        if bad:
+            raise NumericalError("innovation covariance not positive definite")
+        innov = _innovation2(model.residual(z, ybar), Pyy)
+        resample = ess(wu) < self.regen_ess * M
+        if resample:  # systematic_resample's draw and indices (the weights are finite
+            # here: NaN weights have a NaN ESS, which never resamples)
+            idx = nb.systematic_indices(wu, rng.random())
+            if idx[0] < 0:
+                raise NumericalError("resampling weights are not finite")
+            wn = None
+        else:
+            idx = _NO_INDEX
+            wn = wu if conf else None
+        En = rng.standard_normal((M, n))
+        Lb = chol(B)
+        Vn = rng.standard_normal((M, m))
+        Lr = chol(R)
+        wp = equal_weights(M) if wn is None else wn
+        X, xp, dXp, Pp = nb.local_draw(C, HB, Si, Hs, nu, En, Lb, Vn, Lr, idx, resample,
+                                     wp, tg)
+        # Pp is symmetric by construction: the Gaussian ensemble_estimate would build
+        return Ensemble(X, space, wn, moments=(xp, dXp, wp, Pp),
+                        gaussian=Gaussian(xp, Pp)), innov
+
+
+def _innovation2(nu: Array, S: Array) -> Innovation:
+    """:func:`~uavest.core.base.innovation` with the NIS of a 2 x 2 ``S`` in closed form
+    on floats (equal to the Cholesky solve to rounding); other sizes, and an ``S`` that
+    is not positive definite or not finite (the Cholesky then raises), through it."""
+    if S.shape[0] == 2:
+        (a, b), (_, d) = S.tolist()
+        det = a * d - b * b
+        if a > 0.0 and det > 0.0 and math.isfinite(a + d + det):
+            n0, n1 = nu.tolist()
+            return Innovation(nu, S, (d * n0 * n0 - 2.0 * b * n0 * n1 + a * n1 * n1) / det)
+    return innovation(nu, S)
+
+
+#: ``local_draw``'s member indices when there is no resampling (not read).
+_NO_INDEX = np.zeros(0, dtype=np.int64)
+
+#: The compiled kernels (module :mod:`uavest.core._compiled_local`) once loaded, False
+#: when numba is missing, disabled (``UAVEST_NUMBA=0``) or failed; None before the first
+#: call.
+_LOCAL = None
+
+
+def local_kernels():
+    """The compiled kernels of :meth:`HybridLocal.update` if they can be used here, else
+    False (the numpy path is used). Decided once per process at the first call, as
+    :func:`uavest.geometry.rotation.compiled_kernels` decides: numba must import,
+    ``UAVEST_NUMBA`` must not be ``0``, and the kernels must compile (first time: some
+    seconds, then numba's on-disk cache) and give the numpy path's update on a small
+    case (m = 1 and 2, weighted and equal, with and without resampling); any failure is
+    logged and falls back to numpy."""
+    global _LOCAL
+    if _LOCAL is not None:
+        return _LOCAL
+    _LOCAL = False
+    if os.environ.get("UAVEST_NUMBA", "1") == "0":
+        return _LOCAL
+    try:
+        import numba  # noqa: F401
+    except ImportError:
+        return _LOCAL
+    import logging
+
+    log = logging.getLogger("uavest.core")
+    try:
+        from . import _compiled_local as nb
+
+        log.info("numba kernels (local hybrid): loading (first use compiles, then cached)")
+        ok = _kernels_agree(nb)
+    except Exception as e:  # noqa: BLE001 - any failure of an optional accelerator
+        log.warning("numba kernels unavailable (%s: %s); using numpy", type(e).__name__, e)
+        return _LOCAL
+    if not ok:
+        log.warning("numba kernels of the local hybrid disagree with numpy; using numpy")
+        return _LOCAL
+    _LOCAL = nb
+    return _LOCAL
+
+
+def _kernels_agree(nb) -> bool:
+    """True if :meth:`HybridLocal._update_compiled` with ``nb`` gives
+    :meth:`HybridLocal._update_numpy`'s members, weights and innovation (to 1e-10
+    relative) on small linear cases: m = 2 and 1, a weighted and an equally weighted
+    ensemble, one that resamples and one that does not."""
+    from .model import LinearMeasurement
+
+    g = np.random.default_rng(7)
+    X = g.standard_normal((15, 3)) * [1.0, 2.0, 0.5]
+    f = HybridLocal(n_cloud=2)
+    cases = (  # (H, R, weights, z): the first resamples (ESS < M / 2), the second not
+        (np.array([[1.0, 0.5, 0.0], [0.0, 1.0, -1.0]]), np.diag([0.01, 0.04]),
+         None, np.array([1.5, -1.0])),
+        (np.array([[0.5, -1.0, 2.0]]), np.array([[25.0]]), g.dirichlet(np.full(15, 9.0)),
+         np.array([1.0])),
+    )
+    for H, R, w, z in cases:
+        model = LinearMeasurement(H, R)
+        out = []
+        for upd in (lambda *a: f._update_compiled(nb, *a), f._update_numpy):
+            E1, inn = upd(Ensemble(X.copy(), model.space, w), z, model,
+                          np.random.default_rng(3))
+            out.append((E1.X, np.array([E1.w is None]),
+                        equal_weights(15) if E1.w is None else E1.w, inn.S,
+                        np.array([inn.nis])))
+        for a, b in zip(*out, strict=True):
+            if a.shape != b.shape or not np.allclose(a, b, rtol=1e-10, atol=1e-12):
+                return False
+    return True
 
 
 

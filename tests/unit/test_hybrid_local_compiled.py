@@ -1,0 +1,148 @@
+"""The compiled local-gain hybrid update (``uavest.core._compiled_local``, numba) equals
+the numpy path (``HybridLocal._update_numpy``, the reference and the fallback without
+numba or with ``UAVEST_NUMBA=0``): the same random draws, the same members, weights and
+innovations to rounding, on seeded radar data and on small linear cases."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+from uavest.core import hybrid
+from uavest.core.base import Ensemble, ensemble_estimate, equal_weights
+from uavest.core.gaussian import Gaussian
+from uavest.core.hybrid import HybridLocal
+from uavest.core.linalg import NumericalError
+from uavest.core.model import LinearMeasurement
+
+nb = pytest.importorskip("uavest.core._compiled_local", exc_type=ImportError)
+
+
+def _assert_cov_close(a, b, tol: float = 1e-12) -> None:
+    """Covariances equal to ``tol`` relative to the standard deviations: |a_ij - b_ij| <=
+    tol sqrt(b_ii b_jj) (an off-diagonal entry near 0 has its neighbours' rounding)."""
+    d = np.sqrt(np.diag(b))
+    assert np.all(np.abs(a - b) <= tol * np.outer(d, d)), (a, b)
+
+
+def _radar_run(steps: int):
+    from uavest.experiments.radar import data_rng
+    from uavest.scenarios import load_scenario
+    from uavest.tracking.scenario import build_models, generate_run, prior
+
+    sc = load_scenario("radar_far", ["radar.sigma_az_deg=5"])
+    motion, radar = build_models(sc)
+    _, P0 = prior(sc)
+    rd = generate_run(sc, data_rng(0, 0))
+    Z = [s[o == 0][0] if np.any(o == 0) else None
+         for s, o in zip(rd.scans, rd.origins, strict=True)][:steps]
+    return motion, radar, Gaussian(rd.x0, P0), Z
+
+
+def _run(f, motion, radar, prior, Z, compiled: bool):
+    """Members, weights, estimates and innovations of every step, through one path."""
+    rng = np.random.default_rng([1, 0])
+    E = f.init(prior, motion.space, rng)
+    out = []
+    for k, z in enumerate(Z):
+        E = f.predict(E, motion, float(k + 1), 1.0, None, rng)
+        inn = None
+        if z is not None:
+            if compiled:
+                E, inn = f._update_compiled(nb, E, z, radar, rng)
+            else:
+                E, inn = f._update_numpy(E, z, radar, rng)
+        g = ensemble_estimate(E)
+        out.append((E.X.copy(), equal_weights(E.M) if E.w is None else E.w.copy(), g.x, g.P,
+                    inn))
+    return out
+
+
+def test_compiled_update_equals_the_numpy_path_on_radar_data():
+    """The radar preset (M = 585, 4-D CV, range / azimuth) over 60 scans of radar_far at
+    5 deg: members, weights, the estimate (from the memo the compiled path leaves) and
+    the innovation equal to 1e-12 relative, at every step (resampling steps included)."""
+    from uavest.presets import build
+
+    motion, radar, prior, Z = _radar_run(60)
+    f = build("hybrid", "radar", 4)
+    assert isinstance(f, HybridLocal) and f.members(4) == 585
+    a = _run(f, motion, radar, prior, Z, compiled=False)
+    b = _run(f, motion, radar, prior, Z, compiled=True)
+    resampled = 0
+    for (Xa, wa, xa, Pa, ia), (Xb, wb, xb, Pb, ib) in zip(a, b, strict=True):
+        scale = np.abs(Xa).max()
+        np.testing.assert_allclose(Xb, Xa, rtol=0, atol=1e-12 * scale)
+        np.testing.assert_allclose(wb, wa, rtol=1e-10, atol=1e-300)
+        np.testing.assert_allclose(xb, xa, rtol=0, atol=1e-12 * scale)
+        np.testing.assert_allclose(Pb, Pa, rtol=0, atol=1e-12 * np.abs(Pa).max())
+        assert (ia is None) == (ib is None)
+        if ia is not None:
+            # nu = z - ybar: the range's rounding is relative to the range (~ |X|)
+            np.testing.assert_allclose(ib.nu, ia.nu, rtol=0, atol=1e-12 * scale)
+            _assert_cov_close(ib.S, ia.S)
+            assert ib.nis == pytest.approx(ia.nis, rel=1e-8, abs=1e-10)
+        resampled += bool(np.all(wa == wa[0]))
+    assert 0 < resampled < len(a)  # both branches of the draw ran
+
+
+@pytest.mark.parametrize("m", [1, 2])
+@pytest.mark.parametrize("weighted", [False, True])
+@pytest.mark.parametrize("sharp", [False, True])
+@pytest.mark.parametrize("weights", ["confidence", "equal"])
+def test_compiled_update_equals_the_numpy_path_on_linear_cases(m, weighted, sharp, weights):
+    """m = 1 and 2, equal and unequal prior weights, a sharp measurement (resamples) and
+    a loose one, confidence and equal weights; n = 3 (the kernels compile per n)."""
+    g = np.random.default_rng(100 * m + 10 * weighted + sharp)
+    X = g.standard_normal((35, 3)) * [10.0, 2.0, 0.5] + [100.0, -3.0, 1.0]
+    w = g.dirichlet(np.full(35, 5.0)) if weighted else None
+    H = g.standard_normal((m, 3))
+    H[:, 2] = 0.0  # a zero column (skipped by the kernels)
+    R = np.diag([0.01, 0.04][:m] if sharp else [25.0, 9.0][:m])
+    if m == 2:
+        R[0, 1] = R[1, 0] = 0.3 * np.sqrt(R[0, 0] * R[1, 1])
+    model = LinearMeasurement(H, R)
+    z = H @ X.mean(axis=0) + g.standard_normal(m)
+    f = HybridLocal(n_cloud=4, weights=weights)
+    Ea, ia = f._update_numpy(Ensemble(X.copy(), model.space, w), z, model,
+                             np.random.default_rng(5))
+    Eb, ib = f._update_compiled(nb, Ensemble(X.copy(), model.space, w), z, model,
+                                np.random.default_rng(5))
+    assert (Ea.w is None) == (Eb.w is None)
+    np.testing.assert_allclose(Eb.X, Ea.X, rtol=0, atol=1e-12 * np.abs(Ea.X).max())
+    if Ea.w is not None:
+        np.testing.assert_allclose(Eb.w, Ea.w, rtol=1e-12)
+    _assert_cov_close(ib.S, ia.S)
+    assert ib.nis == pytest.approx(ia.nis, rel=1e-10)
+    ga = ensemble_estimate(Ensemble(Ea.X, Ea.space, Ea.w))  # recomputed by numpy
+    gb = ensemble_estimate(Eb)  # the memo the compiled path left
+    np.testing.assert_allclose(gb.x, ga.x, rtol=0, atol=1e-12 * np.abs(ga.x).max())
+    np.testing.assert_allclose(gb.P, ga.P, rtol=0, atol=1e-11 * np.abs(ga.P).max())
+
+
+def test_compiled_update_raises_numerical_errors_like_the_numpy_path():
+    """A non-positive innovation covariance is a NumericalError (the guard recovers) in
+    both paths; a wrong-sized measurement a ValueError."""
+    X = np.random.default_rng(0).standard_normal((35, 3))
+    model = LinearMeasurement(np.array([[1.0, 0.0, 0.0]]), np.array([[-10.0]]))
+    f = HybridLocal(n_cloud=4)
+    for upd in (f._update_numpy, lambda *a: f._update_compiled(nb, *a)):
+        with pytest.raises(NumericalError):
+            upd(Ensemble(X.copy(), model.space), np.array([0.0]), model,
+                np.random.default_rng(0))
+    good = LinearMeasurement(np.eye(2, 3), np.eye(2))
+    with pytest.raises(ValueError):
+        f._update_compiled(nb, Ensemble(X.copy(), good.space), np.zeros(3), good,
+                           np.random.default_rng(0))
+
+
+def test_update_dispatches_to_the_kernels_unless_switched_off():
+    """``update`` uses the kernels on a vector space with m <= 2 when numba is enabled and
+    the numpy path with ``UAVEST_NUMBA=0`` (decided once per process)."""
+    k = hybrid.local_kernels()
+    if os.environ.get("UAVEST_NUMBA", "1") == "0":
+        assert k is False
+    else:
+        assert k is nb

@@ -1,0 +1,279 @@
+"""Compiled (numba) kernels of :meth:`uavest.core.hybrid.HybridLocal.update` on a vector
+space: the optional fast path (``pip install "uavest[fast]"``), chosen by measurement
+(docs/speed.md, "Radar hybrid").
+
+The numpy update costs a few dozen array operations per step on (M, m, n) stacks of
+M = 585 members (the ``radar`` preset), each paying numpy's per-call floor; here each
+stage is one loop over the members. The formulas are those of the numpy path in
+:mod:`uavest.core.hybrid` (``_innovation_stack`` and ``HybridLocal.update``): S_j's
+inverse and log-determinant in closed form for m <= 2, the local gains, the
+log-likelihood weights, the posterior draw from normals drawn by the caller (the random
+path is the numpy path's), and the ensemble moments of ``ensemble_moments``
+(:mod:`uavest.core.base`). Equal to the numpy path to rounding
+(``tests/unit/test_hybrid_local_compiled.py``). Importing this module imports numba and
+compiles nothing; each kernel compiles at its first call (cached on disk by numba).
+
+Shapes: M members, n state (tangent) dimension, m <= 2 measurement components; all
+arrays float64 (``idx`` int64). Units are the state's and the measurement's own (the
+radar: m, m/s, rad).
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import numpy as np
+from numba import njit
+
+__all__ = ["centres", "local_draw", "local_gains", "moments", "prior_moments",
+           "systematic_indices", "tag"]
+
+#: LLVM may fuse a * b + c into one rounding (FMA): the results stay equal to the numpy
+#: path to rounding; no flag that assumes finite values (the NaN checks must hold).
+_FM = {"contract"}
+
+
+@lru_cache(maxsize=16)
+def tag(n: int) -> tuple:
+    """The tuple of n zeros that the kernels take as their last argument: its length is
+    part of its numba type, so each kernel compiles once per state dimension n with n a
+    constant (its loops over the state components unrolled), not once per call."""
+    return (0.0,) * n
+
+
+@njit(cache=True, fastmath=_FM)
+def moments(X, w, tag):  # pragma: no cover - compiled
+    """Weighted mean ``x`` (n,), deviations ``dX`` = X - x (M, n) and covariance
+    ``P`` = sum_j w_j dX_j dX_j^T / max(1 - sum_j w_j^2, 1e-12) (n, n), symmetric by
+    construction (:func:`uavest.core.base.ensemble_moments` on a vector space). ``tag``:
+    any tuple of n floats (see :func:`tag`)."""
+    n = len(tag)
+    M = X.shape[0]
+    x = np.zeros(n)
+    for j in range(M):
+        for k in range(n):
+            x[k] += w[j] * X[j, k]
+    dX = np.empty((M, n))
+    P = np.zeros((n, n))
+    s2 = 0.0
+    for j in range(M):
+        wj = w[j]
+        s2 += wj * wj
+        for k in range(n):
+            dX[j, k] = X[j, k] - x[k]
+        for k in range(n):
+            c = wj * dX[j, k]
+            for i in range(k + 1):
+                P[k, i] += c * dX[j, i]
+    den = max(1.0 - s2, 1e-12)
+    for k in range(n):
+        for i in range(k + 1):
+            P[k, i] /= den
+            P[i, k] = P[k, i]
+    return x, dX, P
+
+
+@njit(cache=True, fastmath=_FM)
+def centres(x, dX, a, tag):  # pragma: no cover - compiled
+    """Mixture centres C_j = x + a dX_j (M, n) (the kernel's shrink towards the mean)."""
+    n = len(tag)
+    M = dX.shape[0]
+    C = np.empty((M, n))
+    for j in range(M):
+        for k in range(n):
+            C[j, k] = x[k] + a * dX[j, k]
+    return C
+
+
+@njit(cache=True, fastmath=_FM)
+def prior_moments(X, w, a, tag):  # pragma: no cover - compiled
+    """:func:`moments` and :func:`centres` of them in one call: x, dX, P, C."""
+    x, dX, P = moments(X, w, tag)
+    return x, dX, P, centres(x, dX, a, tag)
+
+
+@njit(cache=True, fastmath=_FM)
+def local_gains(Hs, B, R, nu, dY, w, confidence, tag):  # pragma: no cover - compiled
+    """Innovation covariances and confidence weights of the Gaussian-mixture update
+    (m = 1 or 2).
+
+    Per member j: ``HB`` (M, m, n) = H_j B and S_j = H_j B H_j^T + R, returned as its
+    inverse's entries ``Si`` (M, 3): (S^-1)_00, (S^-1)_11, (S^-1)_01 (m = 1: the first
+    only); the local gain is K_j = (H_j B)^T S_j^-1. If ``confidence``, the weights
+    w_j N(nu_j; 0, S_j), normalised (``wu`` (M,); otherwise a copy of ``w``). ``Pyy``
+    (m, m) = sum_j w_j (dY_j dY_j^T + S_j) with the prior weights: the innovation
+    covariance. ``status`` is 1 if B is not finite or some S_j not positive definite
+    (variance or determinant <= 0, or NaN), else 0; the other outputs are then
+    meaningless. Terms with H_j entries equal to zero are skipped (the radar's velocity
+    columns): the same sums."""
+    n = len(tag)
+    M, m = Hs.shape[0], Hs.shape[1]
+    HB = np.empty((M, m, n))
+    Si = np.empty((M, 3))
+    t = np.empty(M)  # -1/2 nu_j^T S_j^-1 nu_j
+    r = np.empty(M)  # max(w_j, 1e-300) / sqrt(det S_j)
+    Pyy = np.zeros((m, m))
+    status = 0
+    for c in range(n):
+        for k in range(n):
+            if not math.isfinite(B[c, k]):
+                status = 1
+    mx = -np.inf
+    for j in range(M):
+        for a in range(m):
+            for k in range(n):
+                HB[j, a, k] = 0.0
+            for c in range(n):
+                h = Hs[j, a, c]
+                if h != 0.0:
+                    for k in range(n):
+                        HB[j, a, k] += h * B[c, k]
+        s00 = R[0, 0]
+        for k in range(n):
+            s00 += HB[j, 0, k] * Hs[j, 0, k]
+        wj = w[j]
+        if m == 1:
+            det = s00
+            if not det > 0.0:
+                status = 1
+                det = 1.0
+            i00 = 1.0 / det
+            Si[j, 0] = i00
+            n0 = nu[j, 0]
+            q = n0 * n0 * i00
+            d0 = dY[j, 0]
+            Pyy[0, 0] += wj * (d0 * d0 + s00)
+        else:
+            s11 = R[1, 1]
+            s01 = R[0, 1]
+            for k in range(n):
+                s11 += HB[j, 1, k] * Hs[j, 1, k]
+                s01 += HB[j, 0, k] * Hs[j, 1, k]
+            det = s00 * s11 - s01 * s01
+            if not det > 0.0:
+                status = 1
+                det = 1.0
+            i = 1.0 / det
+            i00 = s11 * i
+            i11 = s00 * i
+            i01 = -s01 * i
+            Si[j, 0] = i00
+            Si[j, 1] = i11
+            Si[j, 2] = i01
+            n0 = nu[j, 0]
+            n1 = nu[j, 1]
+            q = n0 * (i00 * n0 + i01 * n1) + n1 * (i01 * n0 + i11 * n1)
+            d0 = dY[j, 0]
+            d1 = dY[j, 1]
+            Pyy[0, 0] += wj * (d0 * d0 + s00)
+            Pyy[1, 1] += wj * (d1 * d1 + s11)
+            Pyy[0, 1] += wj * (d0 * d1 + s01)
+        if confidence:
+            tj = -0.5 * q
+            t[j] = tj
+            r[j] = max(wj, 1e-300) / math.sqrt(det)
+            if tj > mx or tj != tj:  # a NaN sticks (tj > NaN is False), as in numpy
+                mx = tj
+    if m == 2:
+        Pyy[1, 0] = Pyy[0, 1]
+    if not confidence:
+        return HB, Si, Pyy, w.copy(), status
+    # w_j |S_j|^-1/2 exp(t_j) normalised: the numpy path's exp(log w + loglik - max) with
+    # one exponential per member and no logarithm; the log domain if that under/overflows
+    wu = np.empty(M)
+    tot = 0.0
+    for j in range(M):
+        e = r[j] * math.exp(t[j] - mx)
+        wu[j] = e
+        tot += e
+    if not 1e-250 < tot < 1e250:
+        mx = -np.inf
+        for j in range(M):
+            t[j] += math.log(r[j])
+            if t[j] > mx or t[j] != t[j]:
+                mx = t[j]
+        tot = 0.0
+        for j in range(M):
+            e = math.exp(t[j] - mx)
+            wu[j] = e
+            tot += e
+    for j in range(M):
+        wu[j] /= tot
+    return HB, Si, Pyy, wu, status
+
+
+@njit(cache=True)
+def systematic_indices(w, u):  # pragma: no cover - compiled
+    """:func:`uavest.core.particle.systematic_resample`'s indices for the uniform draw
+    ``u``: the first j with cs_j >= (u + i) / M, cs the running sum of ``w`` (its last
+    entry set to 1), by one merge of the two sorted sequences instead of M binary
+    searches (the same sums in the same order, no fast-math: the same indices).
+    Returns -1 in the first entry if the weights are not finite."""
+    M = w.shape[0]
+    cs = np.empty(M)
+    s = 0.0
+    for j in range(M):
+        s += w[j]
+        cs[j] = s
+    idx = np.empty(M, dtype=np.int64)
+    if not math.isfinite(s):
+        idx[0] = -1
+        return idx
+    cs[M - 1] = 1.0
+    step = 1.0 / M
+    j = 0
+    for i in range(M):
+        t = (u + i) * step
+        while j < M and cs[j] < t:
+            j += 1
+        idx[i] = j
+    return idx
+
+
+@njit(cache=True, fastmath=_FM)
+def local_draw(C, HB, Si, Hs, nu, En, Lb, Vn, Lr, idx, resample, wp, tag
+               ):  # pragma: no cover - compiled
+    """Posterior members and their moments.
+
+    Member i is drawn from component j (j = idx[i] if ``resample`` else i) as
+    X_i = C_j + e_i + K_j (nu_j + v_i - H_j e_i), K_j = (H_j B)^T S_j^-1 (``HB``, ``Si``
+    of :func:`local_gains`), with e_i = Lb En_i ~ N(0, B) and v_i = Lr Vn_i ~ N(0, R)
+    from the caller's standard normals ``En`` (M, n), ``Vn`` (M, m) and lower factors
+    ``Lb``, ``Lr``: a draw from N(C_j + K_j nu_j, B - K_j H_j B). Returns ``X`` (M, n) and
+    :func:`moments` of it under the posterior weights ``wp`` (M,)."""
+    n = len(tag)
+    M, m = HB.shape[0], HB.shape[1]
+    X = np.empty((M, n))
+    e = np.empty(n)
+    for i in range(M):
+        j = idx[i] if resample else i
+        for k in range(n):
+            s = 0.0
+            for c in range(k + 1):
+                s += En[i, c] * Lb[k, c]
+            e[k] = s
+        # d = nu_j + v_i - H_j e_i, then g = S_j^-1 d
+        s = 0.0
+        for c in range(n):
+            h = Hs[j, 0, c]
+            if h != 0.0:
+                s += h * e[c]
+        d0 = nu[j, 0] + Vn[i, 0] * Lr[0, 0] - s
+        if m == 1:
+            g0 = Si[j, 0] * d0
+            for k in range(n):
+                X[i, k] = C[j, k] + (e[k] + g0 * HB[j, 0, k])
+        else:
+            s = 0.0
+            for c in range(n):
+                h = Hs[j, 1, c]
+                if h != 0.0:
+                    s += h * e[c]
+            d1 = nu[j, 1] + (Vn[i, 0] * Lr[1, 0] + Vn[i, 1] * Lr[1, 1]) - s
+            g0 = Si[j, 0] * d0 + Si[j, 2] * d1
+            g1 = Si[j, 2] * d0 + Si[j, 1] * d1
+            for k in range(n):
+                X[i, k] = C[j, k] + (e[k] + (g0 * HB[j, 0, k] + g1 * HB[j, 1, k]))
+    x, dX, P = moments(X, wp, tag)
+    return X, x, dX, P
