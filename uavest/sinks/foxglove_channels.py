@@ -251,9 +251,9 @@ def _ns_rows(T: Array) -> list[int]:
     return np.maximum(np.rint(T * 1e9), 0.0).astype(np.int64).tolist()
 
 
-def _stack3(vs) -> Array:
-    """Rows of 3-vectors (an iterable of (3,) arrays) as (N, 3) float."""
-    return np.array(list(vs), float).reshape(-1, 3)
+def _stack3(vs: list) -> Array:
+    """Rows of 3-vectors (a list of (3,) arrays) as (N, 3) float."""
+    return np.array(vs, float).reshape(-1, 3)
 
 
 def _clean(v):
@@ -463,6 +463,7 @@ class Publisher:
         self._sbuf: dict[tuple[str, str], list] = {}
         self._senc: dict[tuple[str, str], tuple] = {}
         self._raw: dict[tuple[type, str], list] = {}  # (sample type, source) -> its buffer
+        self._kinds: dict[type, int] = {}  # queued item type -> 0 sample, 1 raw, 2 record
         self._frames: dict[str, tuple] = {}
         self._fq: list[tuple] = []  # frames not yet encoded
         self.spacing = float(spacing_m)
@@ -573,15 +574,19 @@ class Publisher:
         if len(q) >= self.batch:
             self.flush()
 
+    def _raw_buffer(self, s) -> list:
+        """The buffer of IMU / magnetometer samples of ``s``'s type and source."""
+        key = (type(s), s.source)
+        buf = self._raw.get(key)
+        if buf is None:
+            buf = self._raw[key] = self._sbuf.setdefault(
+                ("imu" if type(s).__name__ == "ImuSample" else "mag", s.source), [])
+        return buf
+
     def _sample(self, s) -> None:
         name = type(s).__name__
         if name == "ImuSample" or name == "MagSample":
-            key = (type(s), s.source)
-            buf = self._raw.get(key)
-            if buf is None:
-                buf = self._raw[key] = self._sbuf.setdefault(
-                    ("imu" if name == "ImuSample" else "mag", s.source), [])
-            buf.append(s)
+            self._raw_buffer(s).append(s)
         elif name == "AttitudeRef":
             self._reference(s)
         elif name == "PositionSample":
@@ -616,16 +621,16 @@ class Publisher:
             n = len(buf)
             if not self.only_subscribed or ch.has_sinks():
                 if key[0] == "ref":
-                    T = np.fromiter((b[0] for b in buf), float, n)
+                    T = np.array([b[0] for b in buf], float)
                     Q = np.array([b[1] for b in buf], float).reshape(n, 4)
                     cols = {"t": T, "q": Q, "rpy_deg": _rpy_rows(Q)}
                 else:
-                    T = np.fromiter((b.t for b in buf), float, n)
+                    T = np.array([b.t for b in buf], float)
                     if key[0] == "imu":
-                        cols = {"t": T, "gyro_rad_s": _stack3(b.gyro for b in buf),
-                                "accel_m_s2": _stack3(b.accel for b in buf)}
+                        cols = {"t": T, "gyro_rad_s": _stack3([b.gyro for b in buf]),
+                                "accel_m_s2": _stack3([b.accel for b in buf])}
                     else:
-                        cols = {"t": T, "field_gauss": _stack3(b.field for b in buf)}
+                        cols = {"t": T, "field_gauss": _stack3([b.field for b in buf])}
                 self._log_many(ch, topic, enc.encode(n, cols), _ns_rows(T))
             buf.clear()
 
@@ -713,7 +718,7 @@ class Publisher:
         self._fq = []
         m = len(fq)
         W = _enu_flu_rows(np.array([r[3] for r in fq], float).reshape(m, 4)).tolist()
-        NS = _ns_rows(np.fromiter((r[2] for r in fq), float, m))
+        NS = _ns_rows(np.array([r[2] for r in fq], float))
         osub = self.only_subscribed
         c = self.counts
         frames = self._frames
@@ -828,8 +833,19 @@ class Publisher:
             # working set from the caches)
             self._queue = []
             sample, record = self._sample, self._record
+            kinds, raw = self._kinds, self._raw
             for it in q:
-                if type(it) is StepRecord or isinstance(it, ScanRecord):
+                tp = type(it)
+                k = kinds.get(tp)
+                if k is None:
+                    k = kinds[tp] = (2 if tp is StepRecord or issubclass(tp, ScanRecord) else
+                                     1 if tp.__name__ in ("ImuSample", "MagSample") else 0)
+                if k == 1:  # a raw sample: into its buffer (the hot case, inline)
+                    b = raw.get((tp, it.source))
+                    if b is None:
+                        b = self._raw_buffer(it)
+                    b.append(it)
+                elif k == 2:
                     record(it)
                 else:
                     sample(it)
@@ -855,8 +871,8 @@ class Publisher:
         recs = ln.buf
         ln.buf = []
         n = len(recs)
-        T = np.fromiter((r.t for r in recs), float, n)
-        K = np.fromiter((r.k for r in recs), np.int64, n)
+        T = np.array([r.t for r in recs], float)
+        K = np.array([r.k for r in recs], np.int64)
         try:
             X = np.array([r.x for r in recs], float)
             P = np.array([r.P for r in recs], float)
@@ -884,13 +900,12 @@ class Publisher:
         if not osub or ln.health.has_sinks():
             nis = np.full(n, math.nan)
             dof = np.zeros(n, np.int64)
-            extra: list[bytes] = []
+            extra: dict[int, bytes] = {}  # message index -> its variable fields
             upd = pb.update_bytes
             for m, r in enumerate(recs):
-                b = b""
                 ups = r.updates
                 if ups:
-                    d, v = 0, 0.0
+                    b, d, v = b"", 0, 0.0
                     for u in ups:
                         nu = u.nu
                         dd = nu.size if type(nu) is np.ndarray else int(np.size(nu))
@@ -898,16 +913,17 @@ class Publisher:
                         v += u.nis
                         b += upd(5, u.kind, float(u.nis), dd)
                     nis[m], dof[m] = v, d
+                    extra[m] = b
                 if r.reason:
-                    b += pb.field_bytes(7, str(r.reason))
-                extra.append(b)
+                    extra[m] = extra.get(m, b"") + pb.field_bytes(7, str(r.reason))
             msgs = enc["health"].encode(n, {
                 "t": T, "k": K, "nis": nis, "nis_dof": dof,
-                "reset": np.fromiter((bool(r.reset) for r in recs), bool, n),
-                "resets": np.fromiter((int(r.resets) for r in recs), np.int64, n),
-                "wall_us": 1e6 * np.fromiter((r.wall_s for r in recs), float, n)})
-            self._log_many(ln.health, ln.t_health,
-                           [m + e if e else m for m, e in zip(msgs, extra, strict=True)], ns)
+                "reset": np.array([r.reset for r in recs], bool),
+                "resets": np.array([r.resets for r in recs], np.int64),
+                "wall_us": 1e6 * np.array([r.wall_s for r in recs], float)})
+            for m, e in extra.items():
+                msgs[m] += e
+            self._log_many(ln.health, ln.t_health, msgs, ns)
         if self.refs:
             ln.pend.append({"t": T, "ns": np.asarray(ns, np.int64), "k": K, "q": Q,
                             "P3": P3, "s3": s3, "rpy": rpy})
