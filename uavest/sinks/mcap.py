@@ -39,8 +39,8 @@ class McapSink(Sink):
 
     ``frame_rate_hz``: limit of the 3-D channels (``/tf/*``, ``/attitude/*/pose``) per
     estimator and per reference in Hz of data time (default
-    :data:`~uavest.sinks.foxglove_channels.DEFAULT_FRAME_RATE_HZ` = 30 Hz, plenty for the
-    3-D panel; None or 0: every step). The per-step channels always carry every step.
+    :data:`~uavest.sinks.foxglove_channels.DEFAULT_FRAME_RATE_HZ` = 15 Hz: the bodies in the
+    3-D view move at that rate; None or 0: every step). The per-step channels always carry every step.
     ``chunk_size``: target uncompressed chunk size in bytes; ``flush_s``: close the open
     chunk at least this often (s of wall time); ``compression``: ``"lz4"`` (default: the
     recorder's CPU 9-15 % lower than with zstd level 1, files about 20 % larger; both are
