@@ -11,6 +11,11 @@ runs by CPU time; the CPU-time ratio
 is the robust one on a shared machine), the time spent inside the recorder (wall and
 thread CPU time, timed around every sink call), the file size, MB per minute of data and
 the write speed.
+
+``--cli``: the command a user runs instead, ``uavest replay LOG --rate R --no-progress``
+without and with ``--mcap``, in alternating subprocesses (wall and CPU time of each
+process: start-up, log parsing, the replay, the table, the layout file), medians and
+ratios.
 """
 
 from __future__ import annotations
@@ -21,7 +26,10 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
+import resource  # noqa: E402
 import statistics  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -72,7 +80,11 @@ def main(argv: list[str] | None = None) -> int:
                     "sink's, 30 Hz; 0: every step)")
     ap.add_argument("--seconds", type=float, default=None,
                     help="replay only this many seconds of data")
+    ap.add_argument("--cli", action="store_true",
+                    help="time the `uavest replay` command in subprocesses instead")
     args = ap.parse_args(argv)
+    if args.cli:
+        return _cli(args)
     cfg = ReplayConfig(rate_hz=args.rate_hz)
     if args.seconds:
         from uavest.ingest import open_source
@@ -124,6 +136,42 @@ def main(argv: list[str] | None = None) -> int:
     print(f"file {mb:.2f} MB for {dur:.1f} s of data = {60 * mb / dur:.2f} MB per minute; "
           f"{steps / dur:.0f} steps/s x 3 filters; write speed {mb / s:.2f} MB/s of recorder "
           f"time, {mb / r:.2f} MB/s of replay wall time")
+    return 0
+
+
+def _cli(args) -> int:
+    """``uavest replay`` without and with ``--mcap``, alternating subprocesses."""
+    rate = "0" if args.rate_hz == 0 else f"{args.rate_hz:g}"
+    wall: dict[bool, list[float]] = {False: [], True: []}
+    cpu: dict[bool, list[float]] = {False: [], True: []}
+    with tempfile.TemporaryDirectory() as d:
+        for i in range(args.pairs):
+            for with_rec in (False, True) if i % 2 == 0 else (True, False):
+                cmd = [sys.executable, "-m", "uavest", "replay", args.log, "--rate", rate,
+                       "--no-progress"]
+                if args.seconds:
+                    from uavest.ingest import open_source
+
+                    t0 = next(iter(open_source(args.log))).t
+                    cmd += ["--end", repr(t0 + args.seconds)]
+                if with_rec:
+                    cmd += ["--mcap", str(Path(d) / f"run{i}.mcap")]
+                r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+                c = time.perf_counter()
+                subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+                w = time.perf_counter() - c
+                r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+                u = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+                wall[with_rec].append(w)
+                cpu[with_rec].append(u)
+                print(f"run {i} {'with   ' if with_rec else 'without'} --mcap: {w:6.2f} s wall, "
+                      f"{u:6.2f} s CPU", flush=True)
+    m = statistics.median
+    print(f"uavest replay {args.log} --rate {rate}: median of {args.pairs}")
+    print(f"wall without / with  {m(wall[False]):6.2f} / {m(wall[True]):6.2f} s: ratio "
+          f"{m(wall[True]) / m(wall[False]):.3f}")
+    print(f"CPU  without / with  {m(cpu[False]):6.2f} / {m(cpu[True]):6.2f} s: ratio "
+          f"{m(cpu[True]) / m(cpu[False]):.3f}")
     return 0
 
 

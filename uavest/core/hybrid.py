@@ -36,9 +36,7 @@ irrelevant are refused in specs (their ``when`` declaration).
 
 from __future__ import annotations
 
-import logging
 import math
-import os
 from dataclasses import dataclass, field
 from functools import lru_cache
 from types import ModuleType
@@ -46,6 +44,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from ..geometry.kernels import load_kernels
 from ..geometry.spaces import Space, VectorSpace
 from .base import (
     Ensemble,
@@ -363,29 +362,9 @@ def shift_kernels() -> ModuleType | bool:
     compile (first time: some seconds, then numba's on-disk cache) and agree with the
     numpy path on a small case; any failure is logged and falls back to numpy."""
     global _SHIFT
-    if _SHIFT is not None:
-        return _SHIFT
-    _SHIFT = False
-    if os.environ.get("UAVEST_NUMBA", "1") == "0":
-        return _SHIFT
-    try:
-        import numba  # noqa: F401
-    except ImportError:
-        return _SHIFT
-    log = logging.getLogger("uavest.core")
-    try:
-        from . import _compiled_shift as nb
-
-        log.info("numba shift kernels: loading (the first use compiles them, then cached)")
-        ok = _self_check(nb)
-    except Exception as e:  # noqa: BLE001 - any failure of an optional accelerator
-        log.warning("numba shift kernels unavailable (%s: %s); using numpy",
-                    type(e).__name__, e)
-        return _SHIFT
-    if not ok:
-        log.warning("numba shift kernels disagree with the numpy path; using numpy")
-        return _SHIFT
-    _SHIFT = nb
+    if _SHIFT is None:
+        _SHIFT = load_kernels("uavest.core._compiled_shift", "numba shift kernels",
+                              _self_check, "uavest.core")
     return _SHIFT
 
 
@@ -894,30 +873,10 @@ def local_kernels():
     case (m = 1 and 2, weighted and equal, with and without resampling); any failure is
     logged and falls back to numpy."""
     global _LOCAL
-    if _LOCAL is not None:
-        return _LOCAL
-    _LOCAL = False
-    if os.environ.get("UAVEST_NUMBA", "1") == "0":
-        return _LOCAL
-    try:
-        import numba  # noqa: F401
-    except ImportError:
-        return _LOCAL
-    import logging
-
-    log = logging.getLogger("uavest.core")
-    try:
-        from . import _compiled_local as nb
-
-        log.info("numba kernels (local hybrid): loading (first use compiles, then cached)")
-        ok = _kernels_agree(nb)
-    except Exception as e:  # noqa: BLE001 - any failure of an optional accelerator
-        log.warning("numba kernels unavailable (%s: %s); using numpy", type(e).__name__, e)
-        return _LOCAL
-    if not ok:
-        log.warning("numba kernels of the local hybrid disagree with numpy; using numpy")
-        return _LOCAL
-    _LOCAL = nb
+    if _LOCAL is None:
+        _LOCAL = load_kernels("uavest.core._compiled_local",
+                              "numba kernels of the local hybrid", _kernels_agree,
+                              "uavest.core")
     return _LOCAL
 
 

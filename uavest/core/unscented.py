@@ -17,15 +17,14 @@ update:   fresh sigma points of (x-, P-); Z_j = h(chi_j); z- = mean(Z, Wm)
 
 from __future__ import annotations
 
-import logging
 import math
-import os
 from dataclasses import dataclass, field
 from functools import lru_cache
 from types import ModuleType
 
 import numpy as np
 
+from ..geometry.kernels import load_kernels
 from ..geometry.spaces import VectorSpace
 from .base import Innovation, innovation
 from .contract import FilterBase
@@ -105,30 +104,9 @@ def ut_kernels() -> ModuleType | bool:
     cache) and agree with the array path on a small case; any failure is logged and
     falls back to numpy."""
     global _UT
-    if _UT is not None:
-        return _UT
-    _UT = False
-    if os.environ.get("UAVEST_NUMBA", "1") == "0":
-        return _UT
-    try:
-        import numba  # noqa: F401
-    except ImportError:
-        return _UT
-    log = logging.getLogger("uavest.core")
-    try:
-        from . import _compiled_ut as nb
-
-        log.info("numba unscented kernels: loading (the first use compiles them, then "
-                 "cached)")
-        ok = _ut_self_check(nb)
-    except Exception as e:  # noqa: BLE001 - any failure of an optional accelerator
-        log.warning("numba unscented kernels unavailable (%s: %s); using numpy",
-                    type(e).__name__, e)
-        return _UT
-    if not ok:
-        log.warning("numba unscented kernels disagree with the array path; using numpy")
-        return _UT
-    _UT = nb
+    if _UT is None:
+        _UT = load_kernels("uavest.core._compiled_ut", "numba unscented kernels",
+                           _ut_self_check, "uavest.core")
     return _UT
 
 

@@ -19,7 +19,6 @@ the test-suite checks both agree.
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 
@@ -303,50 +302,36 @@ _NB = None
 
 def compiled_kernels():
     """The numba kernels module if they can be used here, else False (the fused numpy
-    kernels below are used). Decided once per process at the first kernel call: numba must
-    import, ``UAVEST_NUMBA`` must not be ``0``, and the four kernels must compile (first
-    time: some seconds, then numba's on-disk cache) and agree with the numpy kernels on a
-    small case; any failure is logged and falls back to numpy."""
+    kernels below are used). Decided once per process at the first kernel call
+    (:func:`uavest.geometry.kernels.load_kernels`: numba importable, ``UAVEST_NUMBA`` not
+    ``0``, the kernels compile and agree with the numpy kernels on a small case)."""
     global _NB
-    if _NB is not None:
-        return _NB
-    _NB = False
-    if os.environ.get("UAVEST_NUMBA", "1") == "0":
-        return _NB
-    try:
-        import numba  # noqa: F401
-    except ImportError:
-        return _NB
-    import logging
+    if _NB is None:
+        from .kernels import load_kernels
 
-    log = logging.getLogger("uavest.geometry")
-    try:
-        from . import _compiled as nb
-
-        log.info("numba kernels: loading (the first use compiles them, then cached)")
-        x = np.array([0.9, 0.1, -0.3, 0.2, 1e-3, -2e-3, 3e-3])
-        x[:4] /= np.sqrt(x[:4] @ x[:4])
-        d = np.array([[1e-3, -2e-2, 3e-1, 1e-4, 0.0, -1e-4], [0.0, 1e-7, 0.0, 0.0, 0.0, 0.0]])
-        X = _np_retract_rows(x, d)
-        w = np.array([0.25, 0.75])
-        ok = (np.allclose(nb.retract_rows(x[None, :], d), X, rtol=0, atol=1e-12)
-              and np.allclose(nb.local_rows(x[None, :], X), _np_local_rows(x, X), rtol=0,
-                              atol=1e-12)
-              and np.allclose(nb.gyro_propagate(X, d[0, :3], 0.01),
-                              _np_gyro_propagate(X, d[0, :3], 0.01), rtol=0, atol=1e-12)
-              and np.allclose(nb.mean(X, w, X[0]), _np_mean(X, w, X[0]), rtol=0,
-                              atol=1e-12)
-              and np.allclose(nb.rotate_inv_rows(X[:, :4], d[0, :3]),
-                              np.einsum("...ji,...j->...i", quat_to_dcm(X[:, :4]), d[0, :3]),
-                              rtol=0, atol=1e-12))
-    except Exception as e:  # noqa: BLE001 - any failure of an optional accelerator
-        log.warning("numba kernels unavailable (%s: %s); using numpy", type(e).__name__, e)
-        return _NB
-    if not ok:
-        log.warning("numba kernels disagree with the numpy kernels; using numpy")
-        return _NB
-    _NB = nb
+        _NB = load_kernels("uavest.geometry._compiled", "numba kernels", _kernels_agree,
+                           "uavest.geometry")
     return _NB
+
+
+def _kernels_agree(nb) -> bool:
+    """The compiled retract, local, gyro propagation, mean and inverse rotation against
+    the numpy kernels on a small case (1e-12)."""
+    x = np.array([0.9, 0.1, -0.3, 0.2, 1e-3, -2e-3, 3e-3])
+    x[:4] /= np.sqrt(x[:4] @ x[:4])
+    d = np.array([[1e-3, -2e-2, 3e-1, 1e-4, 0.0, -1e-4], [0.0, 1e-7, 0.0, 0.0, 0.0, 0.0]])
+    X = _np_retract_rows(x, d)
+    w = np.array([0.25, 0.75])
+    return bool(np.allclose(nb.retract_rows(x[None, :], d), X, rtol=0, atol=1e-12)
+                and np.allclose(nb.local_rows(x[None, :], X), _np_local_rows(x, X), rtol=0,
+                                atol=1e-12)
+                and np.allclose(nb.gyro_propagate(X, d[0, :3], 0.01),
+                                _np_gyro_propagate(X, d[0, :3], 0.01), rtol=0, atol=1e-12)
+                and np.allclose(nb.mean(X, w, X[0]), _np_mean(X, w, X[0]), rtol=0,
+                                atol=1e-12)
+                and np.allclose(nb.rotate_inv_rows(X[:, :4], d[0, :3]),
+                                np.einsum("...ji,...j->...i", quat_to_dcm(X[:, :4]),
+                                          d[0, :3]), rtol=0, atol=1e-12))
 
 
 #: Gather indices and signs of the left-multiplication matrix: p * q = L(p) q with
