@@ -563,18 +563,13 @@ class Publisher:
 
     # -- samples --------------------------------------------------------------------------
     def sample(self, s) -> None:
-        """Queue a sample (handled with the batch, in order with the records)."""
+        """Queue a sample or a record (handled with the batch, in order)."""
         q = self._queue
         q.append(s)
         if len(q) >= self.batch:
             self.flush()
 
-    def record(self, rec: StepRecord | ScanRecord) -> None:
-        """Queue a record (handled with the batch, in order with the samples)."""
-        q = self._queue
-        q.append(rec)
-        if len(q) >= self.batch:
-            self.flush()
+    record = sample  # records and samples share the queue
 
     def _raw_buffer(self, s) -> list:
         """The buffer of IMU / magnetometer samples of ``s``'s type and source."""

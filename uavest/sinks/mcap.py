@@ -24,7 +24,7 @@ import json
 import time
 from pathlib import Path
 
-from ..engine.records import RunInfo, ScanRecord, StepRecord
+from ..engine.records import RunInfo
 from .base import Sink
 from .foxglove_channels import DEFAULT_FRAME_RATE_HZ, Publisher, _jsonable
 
@@ -145,8 +145,9 @@ class McapSink(Sink):
         self._last_flush = time.monotonic()
 
     def sample(self, s) -> None:
-        # the publisher's queue filled here (its sample() does the same; one call level
-        # less on the hot path, which runs cold between the filters' steps)
+        """A sample or a record into the publisher's queue (its sample() / record() do the
+        same; one call level less on the hot path, which runs cold between the filters'
+        steps)."""
         pub = self.pub or self._ensure()
         q = pub._queue
         q.append(s)
@@ -159,15 +160,7 @@ class McapSink(Sink):
     def start(self, label, t0, x0, P0) -> None:
         self._ensure().start(label, t0, x0, P0)
 
-    def record(self, rec: StepRecord | ScanRecord) -> None:
-        pub = self.pub or self._ensure()
-        q = pub._queue
-        q.append(rec)
-        n = len(q)
-        if n >= pub.batch:
-            pub.flush()
-        elif not n & 7:
-            self._tick()
+    record = sample  # records and samples share the queue, in order
 
     def close(self) -> None:
         if self.closed or self.pub is None:
