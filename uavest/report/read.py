@@ -1,6 +1,7 @@
 """Reading a uavest recording back with the ``mcap`` package (independently of the
-recorder): channels with their schemas, message counts, JSON channels decoded, the
-well-known protobuf channels decodable on demand, MCAP metadata records.
+recorder): channels with their schemas, message counts, the JSON channels and uavest's own
+protobuf channels decoded, the well-known protobuf channels decodable on demand, MCAP
+metadata records.
 
 A complete file and a file torn by a killed recorder are read the same way: a
 sequential scan of the records (``mcap.stream_reader.StreamReader``) that decompresses

@@ -18,7 +18,9 @@ already ENU (world) and are published unchanged. The root frame is ``world`` (EN
 Times. ``log_time`` of every message is the data time ``t`` (s, the source's clock: vehicle
 time since boot for logs) in nanoseconds; JSON messages also carry ``t`` in seconds.
 
-JSON channels have a JSON schema with a ``title`` (``uavest.*``); NaN is written as null.
+uavest's per-step attitude channels and raw samples are protobuf messages of its own schema
+(:mod:`uavest.sinks.protobuf`); its other channels are JSON with a JSON schema with a
+``title`` (``uavest.*``), NaN written as null.
 """
 
 from __future__ import annotations
@@ -445,9 +447,9 @@ class Publisher:
     ``spacing_m``: the 3-D view puts filter i's body frame ``spacing_m * (i + 1)`` m east
     of the vehicle position (references at the position itself), so the bodies stand side
     by side instead of on top of each other (a display offset only: ``PoseInFrame`` and
-    the JSON channels carry the true position). ``frame_rate_hz``: limit of the 3-D
+    the per-step channels carry the true position). ``frame_rate_hz``: limit of the 3-D
     channels (``/tf/*``, ``/attitude/*/pose``) per estimator in data time (None: every
-    step); the JSON channels always carry every step. ``history``: points of a track's
+    step); the per-step channels always carry every step. ``history``: points of a track's
     history line. ``only_subscribed``: skip building messages for channels nobody
     listens to (the live view). ``batch``: :meth:`sample` and :meth:`record` queue their
     argument; every ``batch`` calls (1: at once, the live view) :meth:`flush` handles the
