@@ -703,6 +703,11 @@ class HybridLocal(_HybridBase):
         if self.bandwidth is not None and not 0.0 < self.bandwidth < 1.0:
             raise ValueError("bandwidth must be in (0, 1)")
 
+    def init(self, prior: Gaussian, space, rng) -> Ensemble:
+        if _LOCAL is None and type(space) is VectorSpace:
+            local_kernels()  # numba's import and cache load here, not in the first step
+        return super().init(prior, space, rng)
+
     def update(self, E: Ensemble, z, model: Measurement, rng=None
                ) -> tuple[Ensemble, Innovation]:
         """Kernel (Gaussian-mixture) update with a local gain per member.

@@ -35,6 +35,17 @@ dposv = _lapack("dposv")
 dpotrf = _lapack("dpotrf")
 dpotrs = _lapack("dpotrs")
 dtrtrs = _lapack("dtrtrs")
+_LAPACK = ("dposv", "dpotrf", "dpotrs", "dtrtrs")
+
+
+def bind_lapack() -> None:
+    """Bind the LAPACK routines now (scipy's import, 0.3-0.8 s once per process): for a
+    caller that times its steps and should not charge that to the first one."""
+    from scipy.linalg import lapack
+
+    g = globals()
+    for name in _LAPACK:
+        g[name] = getattr(lapack, name)
 
 
 class NumericalError(np.linalg.LinAlgError):

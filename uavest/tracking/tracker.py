@@ -57,7 +57,7 @@ import numpy as np
 
 from ..core.gaussian import Gaussian
 from ..core.guard import Guarded, nis_gate
-from ..core.linalg import chol
+from ..core.linalg import bind_lapack, chol
 from ..core.unscented import sigma_weights
 from ..models.radar import RadarMeasurement
 
@@ -245,6 +245,16 @@ class Tracker:
         self._next_id = 1
         self.seconds = 0.0
         self.n_scans = 0
+        # LAPACK and the gate's chi-square quantile bound, and one throwaway init, with its
+        # own generator (the tracker's draws unchanged), now: scipy's imports and a
+        # filter's compiled kernels (numba's import and cache, 0.5-1 s once per process)
+        # would otherwise land in the first scans' times
+        bind_lapack()
+        nis_gate(2, 0.99)
+        from scipy.optimize import linear_sum_assignment  # noqa: F401 - GNN's, imported now
+        n = motion.space.dim
+        self.filter.init(Gaussian(np.zeros(n), np.eye(n)), motion.space,
+                         np.random.default_rng(0))
 
     # -- helpers --------------------------------------------------------------------------
     def _init_state(self, z: Array, meas: RadarMeasurement) -> Gaussian:
