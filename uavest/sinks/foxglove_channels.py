@@ -135,15 +135,6 @@ def ned_frd_to_enu_flu(q: Array) -> Array:
                     np.broadcast_to(Q_FRD2FLU, q.shape))
 
 
-def _enu_flu(q) -> tuple[float, float, float, float]:
-    """Scalar form of :func:`ned_frd_to_enu_flu` (the recorder's hot path): with
-    a = q_ned2enu * q = s (-(x + y), w + z, w - z, y - x), s = 1/sqrt 2, the product
-    a * [0, 1, 0, 0] = (-a_x, a_w, a_z, -a_y)."""
-    w, x, y, z = q if type(q) is list or type(q) is tuple else (float(v) for v in q)
-    aw, ax, ay, az = _S2 * (-x - y), _S2 * (w + z), _S2 * (w - z), _S2 * (y - x)
-    return (-ax, aw, az, -ay)
-
-
 def quat_to_rpy_deg(q) -> tuple[float, float, float]:
     """ZYX roll, pitch, yaw (deg) of one quaternion [w, x, y, z] (as
     :func:`uavest.geometry.rotation.quat_to_euler`)."""
@@ -220,7 +211,9 @@ def _sigma3_rows(rpy: Array, P3: Array) -> Array:
 
 
 def _enu_flu_rows(Q: Array) -> Array:
-    """:func:`_enu_flu` of rows (N, 4) (the same operations, vectorised)."""
+    """:func:`ned_frd_to_enu_flu` of rows (N, 4), written out (the recorder's hot path):
+    with a = q_ned2enu * q = s (-(x + y), w + z, w - z, y - x), s = 1/sqrt 2, the product
+    a * [0, 1, 0, 0] = (-a_x, a_w, a_z, -a_y)."""
     w, x, y, z = Q[:, 0], Q[:, 1], Q[:, 2], Q[:, 3]
     out = np.empty_like(Q)
     out[:, 0] = -(_S2 * (w + z))
@@ -396,6 +389,7 @@ def _ref_rank(source: str, kind: str) -> tuple:
 #: 30 Hz (docs/recording.md, "Cost").
 DEFAULT_FRAME_RATE_HZ = 15.0
 
+
 class _FramePack:
     """A translation (Vector3 x, y, z) and a rotation (Quaternion x, y, z, w) as two
     protobuf fields, tags ``tag_t`` and ``tag_r``, packed in one ``struct`` call."""
@@ -438,7 +432,6 @@ class _Lane:
         self.pend: list[dict] = []  # encoded steps waiting for the reference (row chunks)
         self.enc: dict[str, pb.FixedEncoder] = {}
         self.enc_dims: tuple | None = None
-
 
 
 class Publisher:
@@ -493,7 +486,6 @@ class Publisher:
         self.track_labels: list[str] = []  # labels of trackers (ScanRecord)
         self.health_lanes: dict[str, _Lane] = {}
         self._drains = 0
-        self._src: dict[tuple[str, str], tuple] = {}
         self.counts: dict[str, int] = {}
         self.info: dict | None = None
 
@@ -583,10 +575,10 @@ class Publisher:
         return buf
 
     def _sample(self, s) -> None:
+        """A queued sample other than IMU / magnetometer (:meth:`flush` puts those in their
+        buffers itself)."""
         name = type(s).__name__
-        if name == "ImuSample" or name == "MagSample":
-            self._raw_buffer(s).append(s)
-        elif name == "AttitudeRef":
+        if name == "AttitudeRef":
             self._reference(s)
         elif name == "PositionSample":
             self._position(s)
@@ -1192,12 +1184,6 @@ def _triu(n: int) -> tuple:
     return _TRIU[n]
 
 
-
-
-def _b64(a: Array) -> str:
-    return base64.b64encode(np.ascontiguousarray(a, "<f8").tobytes()).decode()
-
-
 def b64_floats(s: str | list[str]) -> Array:
     """float64 array(s) from the recorder's base64 fields (a list gives a stacked array)."""
     if isinstance(s, str):
@@ -1239,8 +1225,6 @@ def _g(v: float) -> str:
     text: 10 significant digits (%.10g, about 4x cheaper to format than the exact
     %.17g), null for NaN/inf."""
     return "%.10g" % v if v - v == 0.0 else "null"  # noqa: UP031
-
-
 
 
 _QUOTED: dict[str, str] = {}

@@ -7,7 +7,7 @@ rest as JSON with titled JSON schemas). Read recordings back with the ``mcap`` p
 
 Durability: chunks (lz4) close when they reach ``chunk_size`` bytes (uncompressed) or
 when ``flush_s`` seconds of wall time have passed since the last close, whichever comes
-first (checked at every sample and record), so a recorder killed mid-run (SIGKILL, power
+first (checked every 8th sample or record), so a recorder killed mid-run (SIGKILL, power
 loss) loses at most about ``flush_s`` s of data: everything in the closed chunks stays
 readable without the summary and footer (:func:`uavest.report.read.read_recording` falls
 back to a sequential record scan that stops at the torn tail).

@@ -91,9 +91,6 @@ def len_field(num: int, payload: bytes) -> bytes:
     return _key(num, 2) + _varint(len(payload)) + payload
 
 
-_len_field = len_field
-
-
 _SECONDS: dict[int, bytes] = {}
 
 
@@ -107,15 +104,14 @@ def timestamp_field(num: int, ns: int) -> bytes:
         if len(_SECONDS) > 4096:
             _SECONDS.clear()
         _SECONDS[sec] = head
-    body = head + b"\x10" + _varint(nsec) if nsec else head
-    return _key(num, 2) + bytes((len(body),)) + body
+    return len_field(num, head + b"\x10" + _varint(nsec) if nsec else head)
 
 
 def field_bytes(num: int, value) -> bytes:
     """One field: a str (length-delimited), a bool (varint), an int (sfixed64) or a
     float (double)."""
     if isinstance(value, str):
-        return _len_field(num, value.encode())
+        return len_field(num, value.encode())
     if isinstance(value, bool):
         return _key(num, 0) + (b"\x01" if value else b"\x00")
     if isinstance(value, int):
@@ -132,7 +128,8 @@ def update_bytes(num: int, kind: str, nis: float, dof: int) -> bytes:
     head = _UPDATE_HEAD.get((num, kind))
     if head is None:
         body = field_bytes(1, str(kind))
-        head = _UPDATE_HEAD[(num, kind)] = (_key(num, 2) + _varint(len(body) + 18) + body)
+        head = _UPDATE_HEAD[(num, kind)] = (_key(num, 2) + _varint(len(body) + _UPDATE_TAIL.size)
+                                            + body)
     return head + _UPDATE_TAIL.pack(0x11, nis, 0x19, dof)
 
 
@@ -141,23 +138,23 @@ def _descriptor_set() -> bytes:
     (``google/protobuf/descriptor.proto``'s field numbers)."""
     msgs = b""
     for name, fields in MESSAGES.items():
-        body = _len_field(1, name.encode())
+        body = len_field(1, name.encode())
         for fname, num, ftype in fields:
             rep = ftype.endswith("[]")
             base = ftype[:-2] if rep else ftype
-            fd = _len_field(1, fname.encode()) + _key(3, 0) + _varint(num)
+            fd = len_field(1, fname.encode()) + _key(3, 0) + _varint(num)
             fd += _key(4, 0) + _varint(_REPEATED if rep else _OPTIONAL)
             if base in _TYPES:
                 fd += _key(5, 0) + _varint(_TYPES[base])
             else:
                 fd += _key(5, 0) + _varint(_MESSAGE)
-                fd += _len_field(6, f".{_PACKAGE}.{base}".encode())
-            fd += _len_field(10, fname.encode())  # json_name: the field name as is
-            body += _len_field(2, fd)
-        msgs += _len_field(4, body)
-    f = (_len_field(1, b"uavest.proto") + _len_field(2, _PACKAGE.encode()) + msgs
-         + _len_field(12, b"proto3"))
-    return _len_field(1, f)
+                fd += len_field(6, f".{_PACKAGE}.{base}".encode())
+            fd += len_field(10, fname.encode())  # json_name: the field name as is
+            body += len_field(2, fd)
+        msgs += len_field(4, body)
+    f = (len_field(1, b"uavest.proto") + len_field(2, _PACKAGE.encode()) + msgs
+         + len_field(12, b"proto3"))
+    return len_field(1, f)
 
 
 #: The ``FileDescriptorSet`` of :data:`MESSAGES` (the schema data of every channel).
@@ -208,7 +205,7 @@ class FixedEncoder:
                 slot(fname, "u1", 1)
             elif ftype == "string":
                 if fname in strings:
-                    tpl += _len_field(num, strings[fname].encode())
+                    tpl += len_field(num, strings[fname].encode())
             elif ftype == "double[]":
                 n = int(lengths[fname])
                 tpl += _key(num, 2) + _varint(8 * n)
