@@ -206,16 +206,25 @@ class UKF(FilterBase):
         return self._predict(g, model, t, dt, u)[0]
 
     # -- vector spaces with numba: the algebra between the model calls compiled ------------
-    def _predict_compiled(self, nb: ModuleType, g: Gaussian, model: Transition, t, dt, u
-                          ) -> Gaussian | None:
-        """``_predict`` with the sigma points and the moments in two kernel calls
-        (:mod:`uavest.core._compiled_ut`); None if P has no plain factor (the array path
-        then jitters or raises)."""
-        n = model.space.dim
+    def _sigma_compiled(self, nb: ModuleType, g: Gaussian, n: int) -> tuple | None:
+        """(Wm, Wc, D, X): the weights, the offsets D = U L^T and the sigma points X of
+        ``g`` by the kernel; None if P has no plain factor (the array path then jitters or
+        raises)."""
         _, Wm, Wc, U = self._w(n)
         D, X = _empty(U.shape), _empty(U.shape)
         if nb.sigma(g.x, g.P, U, D, X):
             return None
+        return Wm, Wc, D, X
+
+    def _predict_compiled(self, nb: ModuleType, g: Gaussian, model: Transition, t, dt, u
+                          ) -> Gaussian | None:
+        """``_predict`` with the sigma points and the moments in two kernel calls
+        (:mod:`uavest.core._compiled_ut`); None if P has no plain factor."""
+        n = model.space.dim
+        sp = self._sigma_compiled(nb, g, n)
+        if sp is None:
+            return None
+        Wm, Wc, _, X = sp
         Y = model.f(X, t, dt, u)
         x, P = _empty(n), _empty((n, n))
         nb.moments(Y, Wm, Wc, model.Q(t, dt, u), x, P)
@@ -227,10 +236,10 @@ class UKF(FilterBase):
         model's ``h``, ``mean`` and ``residual`` between them; None if P or S has no plain
         factor (the array path then jitters or raises)."""
         n = model.space.dim
-        _, Wm, Wc, U = self._w(n)
-        D, X = _empty(U.shape), _empty(U.shape)
-        if nb.sigma(g.x, g.P, U, D, X):
+        sp = self._sigma_compiled(nb, g, n)
+        if sp is None:
             return None
+        Wm, Wc, D, X = sp
         Z = model.h(X)
         zhat = model.mean(Z, Wm)
         E = model.residual(Z, zhat)
@@ -251,19 +260,29 @@ class UKF(FilterBase):
     # sigma points x, x + c sqrt(p), x - c sqrt(p) and the weighted sums written out. The
     # sums are the same products in the same order, but BLAS may fuse a multiply and an
     # add where Python rounds both: equal to the array path to rounding (~1e-16
-    # relative; tests/unit/test_ukf_scalar.py). Anything outside the fast case (a factor
+    # relative; tests/unit/test_fast_paths.py). Anything outside the fast case (a factor
     # or an innovation variance that is not finite and positive, a measurement model with
     # its own ``mean`` / ``residual``) takes the array path, which also decides what a
     # failure raises.
 
-    def _predict_1d(self, g: Gaussian, model: Transition, t, dt, u) -> Gaussian | None:
+    def _sigma_1d(self, g: Gaussian) -> tuple | None:
+        """(p, x0, s, (wm0, wm1, wc0, wc1), X): the 1-D prior's variance and mean, the
+        sigma offset s = c sqrt(p), the weights and the points x0, x0 + s, x0 - s (3, 1);
+        None if p is not finite and positive."""
         p = g.P.item(0)
         if not 0.0 < p < math.inf:
             return None
         c, wm0, wm1, wc0, wc1 = _scalar_weights(self.alpha, self.beta, self.kappa)
         x0 = g.x.item(0)
         s = c * math.sqrt(p)
-        (y0,), (y1,), (y2,) = model.f(_array([[x0], [x0 + s], [x0 - s]]), t, dt, u).tolist()
+        return p, x0, s, (wm0, wm1, wc0, wc1), _array([[x0], [x0 + s], [x0 - s]])
+
+    def _predict_1d(self, g: Gaussian, model: Transition, t, dt, u) -> Gaussian | None:
+        sp = self._sigma_1d(g)
+        if sp is None:
+            return None
+        _, _, _, (wm0, wm1, wc0, wc1), X = sp
+        (y0,), (y1,), (y2,) = model.f(X, t, dt, u).tolist()
         x = wm0 * y0 + wm1 * y1 + wm1 * y2
         d0, d1, d2 = y0 - x, y1 - x, y2 - x
         P = wc0 * d0 * d0 + wc1 * d1 * d1 + wc1 * d2 * d2 + model.Q(t, dt, u).item(0)
@@ -271,13 +290,13 @@ class UKF(FilterBase):
 
     def _update_1d(self, g: Gaussian, z, model: Measurement
                    ) -> tuple[Gaussian, Innovation] | None:
-        p = g.P.item(0)
-        if not 0.0 < p < math.inf or type(z) is not np.ndarray or z.shape != (1,):
+        if type(z) is not np.ndarray or z.shape != (1,):
             return None
-        c, wm0, wm1, wc0, wc1 = _scalar_weights(self.alpha, self.beta, self.kappa)
-        x0 = g.x.item(0)
-        s = c * math.sqrt(p)
-        (z0,), (z1,), (z2,) = model.h(_array([[x0], [x0 + s], [x0 - s]])).tolist()
+        sp = self._sigma_1d(g)
+        if sp is None:
+            return None
+        p, x0, s, (wm0, wm1, wc0, wc1), X = sp
+        (z0,), (z1,), (z2,) = model.h(X).tolist()
         zhat = wm0 * z0 + wm1 * z1 + wm1 * z2
         e0, e1, e2 = z0 - zhat, z1 - zhat, z2 - zhat
         S = wc0 * e0 * e0 + wc1 * e1 * e1 + wc1 * e2 * e2 + model.R.item(0)
