@@ -67,6 +67,21 @@ class Measurement:
         local-gain hybrid needs). Models whose two share work override it (the radar)."""
         return self.h(X), self.H_rows(X)
 
+    def linearise_rows(self, X: Array, z: Array, w: Array
+                       ) -> tuple[Array, Array, Array, Array]:
+        """What the local-gain hybrid's update reads of the model at the rows ``X``
+        (M, size) given the measurement ``z`` (m,) and weights ``w`` (M,): the Jacobians
+        ``Hs`` (M, m, n), the residuals ``nu`` = residual(z, h(X_j)) (M, m), the rows'
+        deviations ``dY`` = residual(h(X_j), ybar) (M, m) from their weighted mean
+        ``ybar`` = mean(h(X), w), and ``nubar`` = residual(z, ybar) (m,).
+
+        Composed here from :meth:`h_H_rows`, :meth:`residual` and :meth:`mean`; a model
+        may override it with a fused (compiled) version giving the same arrays to
+        rounding (the radar)."""
+        Y, Hs = self.h_H_rows(X)
+        ybar = self.mean(Y, w)
+        return Hs, self.residual(z, Y), self.residual(Y, ybar), self.residual(z, ybar)
+
     def H_rows(self, X: Array) -> Array:
         """Jacobians at every row of ``X`` (M, size) -> (M, m, n), tangent-space; batched
         central finite differences through ``retract`` and ``residual`` by default."""
