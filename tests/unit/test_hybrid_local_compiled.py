@@ -41,8 +41,10 @@ def _radar_run(steps: int):
     return motion, radar, Gaussian(rd.x0, P0), Z
 
 
-def _run(f, motion, radar, prior, Z, compiled: bool):
-    """Members, weights, estimates and innovations of every step, through one path."""
+def _run(f, motion, radar, prior, Z, compiled: bool, monkeypatch):
+    """Members, weights, estimates, innovations and the generator's state of every step,
+    through one path (the predict's process noise too: compiled or numpy)."""
+    monkeypatch.setattr(hybrid, "_LOCAL", nb if compiled else False)
     rng = np.random.default_rng([1, 0])
     E = f.init(prior, motion.space, rng)
     out = []
@@ -56,23 +58,26 @@ def _run(f, motion, radar, prior, Z, compiled: bool):
                 E, inn = f._update_numpy(E, z, radar, rng)
         g = ensemble_estimate(E)
         out.append((E.X.copy(), equal_weights(E.M) if E.w is None else E.w.copy(), g.x, g.P,
-                    inn))
+                    inn, rng.bit_generator.state["state"]["state"]))
     return out
 
 
-def test_compiled_update_equals_the_numpy_path_on_radar_data():
+def test_compiled_update_equals_the_numpy_path_on_radar_data(monkeypatch):
     """The radar preset (M = 585, 4-D CV, range / azimuth) over 60 scans of radar_far at
     5 deg: members, weights, the estimate (from the memo the compiled path leaves) and
-    the innovation equal to 1e-12 relative, at every step (resampling steps included)."""
+    the innovation equal to 1e-12 relative, at every step (resampling steps included);
+    the compiled predict and update draw the numpy path's normals from the same
+    generator, so its state is the same after every step."""
     from uavest.presets import build
 
     motion, radar, prior, Z = _radar_run(60)
     f = build("hybrid", "radar", 4)
     assert isinstance(f, HybridLocal) and f.members(4) == 585
-    a = _run(f, motion, radar, prior, Z, compiled=False)
-    b = _run(f, motion, radar, prior, Z, compiled=True)
+    a = _run(f, motion, radar, prior, Z, False, monkeypatch)
+    b = _run(f, motion, radar, prior, Z, True, monkeypatch)
     resampled = 0
-    for (Xa, wa, xa, Pa, ia), (Xb, wb, xb, Pb, ib) in zip(a, b, strict=True):
+    for (Xa, wa, xa, Pa, ia, sa), (Xb, wb, xb, Pb, ib, sb) in zip(a, b, strict=True):
+        assert sa == sb
         scale = np.abs(Xa).max()
         np.testing.assert_allclose(Xb, Xa, rtol=0, atol=1e-12 * scale)
         np.testing.assert_allclose(wb, wa, rtol=1e-10, atol=1e-300)
@@ -106,10 +111,10 @@ def test_compiled_update_equals_the_numpy_path_on_linear_cases(m, weighted, shar
     model = LinearMeasurement(H, R)
     z = H @ X.mean(axis=0) + g.standard_normal(m)
     f = HybridLocal(n_cloud=4, weights=weights)
-    Ea, ia = f._update_numpy(Ensemble(X.copy(), model.space, w), z, model,
-                             np.random.default_rng(5))
-    Eb, ib = f._update_compiled(nb, Ensemble(X.copy(), model.space, w), z, model,
-                                np.random.default_rng(5))
+    ra, rb = np.random.default_rng(5), np.random.default_rng(5)
+    Ea, ia = f._update_numpy(Ensemble(X.copy(), model.space, w), z, model, ra)
+    Eb, ib = f._update_compiled(nb, Ensemble(X.copy(), model.space, w), z, model, rb)
+    assert ra.bit_generator.state == rb.bit_generator.state  # the same draws
     assert (Ea.w is None) == (Eb.w is None)
     np.testing.assert_allclose(Eb.X, Ea.X, rtol=0, atol=1e-12 * np.abs(Ea.X).max())
     if Ea.w is not None:

@@ -44,7 +44,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..geometry.kernels import load_kernels
+from ..geometry.kernels import bitgen_pointers, load_kernels
 from ..geometry.spaces import Space, VectorSpace
 from .base import (
     Ensemble,
@@ -454,6 +454,10 @@ class _HybridBase(EnsembleFilter):
             E = Ensemble(self._draw(ensemble_estimate(E), E.space, rng), E.space)
         elif not self.keeps_members(E):
             E = self._regenerate(E, rng)
+        return self._propagate(E, model, t, dt, u, rng)
+
+    def _propagate(self, E: Ensemble, model: Transition, t, dt, u, rng) -> Ensemble:
+        """f on every member plus process noise (:func:`propagate_members`)."""
         return propagate_members(E, model, t, dt, u, rng)
 
     def estimate(self, E: Ensemble) -> Gaussian:
@@ -708,6 +712,19 @@ class HybridLocal(_HybridBase):
             local_kernels()  # numba's import and cache load here, not in the first step
         return super().init(prior, space, rng)
 
+    def _propagate(self, E: Ensemble, model: Transition, t, dt, u, rng) -> Ensemble:
+        """:func:`propagate_members`; on a vector space with the compiled kernels the
+        process noise is drawn and added in one compiled loop (``add_noise``: the same
+        normals from ``rng``, in the same order; the sum equal to rounding)."""
+        if type(model.space) is VectorSpace:
+            nb = _LOCAL if _LOCAL is not None else local_kernels()
+            if nb:
+                X = np.ascontiguousarray(model.f(E.X, t, dt, u), dtype=float)
+                L = np.ascontiguousarray(chol(model.Q(t, dt, u)))
+                return Ensemble(nb.add_noise(bitgen_pointers(rng), X, L, nb.tag(model.space.dim)),
+                                model.space, E.w)
+        return propagate_members(E, model, t, dt, u, rng)
+
     def update(self, E: Ensemble, z, model: Measurement, rng=None
                ) -> tuple[Ensemble, Innovation]:
         """Kernel (Gaussian-mixture) update with a local gain per member.
@@ -807,41 +824,27 @@ class HybridLocal(_HybridBase):
             x, dX, w, P = E.moments
             C = nb.centres(x, dX, a, tg)
         B = (h * h) * P
-        Y, Hs = model.h_H_rows(C)  # (M, m), (M, m, n)
-        nu = model.residual(z, Y)
+        Hs, nu, dY, nubar = model.linearise_rows(C, z, w)  # (M, m, n), (M, m) x 2, (m,)
         if nu.shape[-1] != m:  # (the kernels would read a wrong-sized z out of bounds)
             raise ValueError(f"measurement has {nu.shape[-1]} components, the model {m}")
         if Hs.shape != (M, m, n):
-            raise ValueError(f"h_H_rows gave Jacobians {Hs.shape}, expected {(M, m, n)}")
-        ybar = model.mean(Y, w)
-        dY = model.residual(Y, ybar)
+            raise ValueError(f"linearise_rows gave Jacobians {Hs.shape}, expected {(M, m, n)}")
         # (one array type per argument: a broadcast H_rows, an integer R... are copied,
         # so that numba compiles each kernel once; the radar's arrays pass as they are)
         Hs, nu = np.ascontiguousarray(Hs, dtype=float), np.ascontiguousarray(nu, dtype=float)
         R = np.ascontiguousarray(model.R, dtype=float)
-        conf = self.weights == "confidence"
         dY = np.ascontiguousarray(dY, dtype=float)
-        HB, Si, Pyy, wu, bad = nb.local_gains(Hs, B, R, nu, dY, w, conf, tg)
-        if bad:
+        conf = self.weights == "confidence"
+        Lb, Lr = chol(B), chol(R)  # (before the draws: nothing random in either)
+        X, xp, dXp, Pp, wu, Pyy, resample, bad = nb.local_update(
+            bitgen_pointers(rng), C, Hs, B, R, nu, dY, w, conf, self.regen_ess, Lb, Lr, tg)
+        if bad == 1:
             raise NumericalError("innovation covariance not positive definite")
-        innov = _innovation2(model.residual(z, ybar), Pyy)
-        resample = ess(wu) < self.regen_ess * M
-        if resample:  # systematic_resample's draw and indices (the weights are finite
-            # here: NaN weights have a NaN ESS, which never resamples)
-            idx = nb.systematic_indices(wu, rng.random())
-            if idx[0] < 0:
-                raise NumericalError("resampling weights are not finite")
-            wn = None
-        else:
-            idx = _NO_INDEX
-            wn = wu if conf else None
-        En = rng.standard_normal((M, n))
-        Lb = chol(B)
-        Vn = rng.standard_normal((M, m))
-        Lr = chol(R)
+        if bad:  # (NaN weights have a NaN ESS, which never resamples: not reached so far)
+            raise NumericalError("resampling weights are not finite")
+        innov = _innovation2(nubar, Pyy)
+        wn = wu if conf and not resample else None
         wp = equal_weights(M) if wn is None else wn
-        X, xp, dXp, Pp = nb.local_draw(C, HB, Si, Hs, nu, En, Lb, Vn, Lr, idx, resample,
-                                     wp, tg)
         # Pp is symmetric by construction: the Gaussian ensemble_estimate would build
         return Ensemble(X, space, wn, moments=(xp, dXp, wp, Pp),
                         gaussian=Gaussian(xp, Pp)), innov
@@ -859,9 +862,6 @@ def _innovation2(nu: Array, S: Array) -> Innovation:
             return Innovation(nu, S, (d * n0 * n0 - 2.0 * b * n0 * n1 + a * n1 * n1) / det)
     return innovation(nu, S)
 
-
-#: ``local_draw``'s member indices when there is no resampling (not read).
-_NO_INDEX = np.zeros(0, dtype=np.int64)
 
 #: The compiled kernels (module :mod:`uavest.core._compiled_local`) once loaded, False
 #: when numba is missing, disabled (``UAVEST_NUMBA=0``) or failed; None before the first

@@ -14,7 +14,7 @@ import os
 from collections.abc import Callable
 from types import ModuleType
 
-__all__ = ["load_kernels"]
+__all__ = ["bitgen_pointers", "load_kernels"]
 
 
 def load_kernels(module: str, what: str, agrees: Callable[[ModuleType], bool],
@@ -42,3 +42,35 @@ def load_kernels(module: str, what: str, agrees: Callable[[ModuleType], bool],
         log.warning("%s disagree with the numpy path; using numpy", what)
         return False
     return nb
+
+
+#: id(bit generator) -> (the bit generator, its pointers): a strong reference keeps the
+#: id from being reused while the entry lives; bounded (the oldest entries go first).
+_POINTERS: dict[int, tuple[object, object]] = {}
+_POINTERS_MAX = 64
+
+
+def bitgen_pointers(rng):
+    """The addresses a compiled kernel needs to draw from the ``numpy.random.Generator``
+    ``rng`` itself (numba's own Generator support does the same at every call, for
+    ~8 us): an int array (4,) of the bit generator's state address and its
+    ``next_uint64``, ``next_uint32`` and ``next_double`` functions (numpy's documented
+    ``BitGenerator.ctypes`` interface). Remembered per bit generator; valid while it
+    lives (the caller holds ``rng`` during the kernel call)."""
+    import ctypes
+
+    import numpy as np
+
+    bg = rng.bit_generator
+    hit = _POINTERS.get(id(bg))
+    if hit is not None and hit[0] is bg:
+        return hit[1]
+    c = bg.ctypes
+    p = np.array([c.state_address]
+                 + [ctypes.cast(f, ctypes.c_void_p).value
+                    for f in (c.next_uint64, c.next_uint32, c.next_double)], dtype=np.intp)
+    p.flags.writeable = False
+    while len(_POINTERS) >= _POINTERS_MAX:
+        del _POINTERS[next(iter(_POINTERS))]
+    _POINTERS[id(bg)] = (bg, p)
+    return p
