@@ -151,3 +151,21 @@ def test_update_dispatches_to_the_kernels_unless_switched_off():
         assert k is False
     else:
         assert k is nb
+
+
+@pytest.mark.parametrize("bitgen", [np.random.PCG64, np.random.SFC64, np.random.Philox])
+def test_kernels_draw_the_generators_own_normals(bitgen):
+    """``add_noise`` draws from the caller's generator through its pointers: numpy's
+    normals in numpy's order for any bit generator, the generator left where numpy
+    leaves it, so that the compiled and numpy paths share one random stream."""
+    from uavest.geometry.kernels import bitgen_pointers
+
+    X = np.arange(21.0).reshape(7, 3)
+    L = np.linalg.cholesky(np.array([[4.0, 1.0, 0.0], [1.0, 2.0, 0.5], [0.0, 0.5, 1.0]]))
+    ra, rb = np.random.Generator(bitgen(11)), np.random.Generator(bitgen(11))
+    for _ in range(3):  # the pointers are remembered: later calls continue the stream
+        got = nb.add_noise(bitgen_pointers(ra), X, L, nb.tag(3))
+        np.testing.assert_allclose(got, X + rb.standard_normal((7, 3)) @ L.T,
+                                   rtol=0, atol=1e-13)
+    np.testing.assert_array_equal(ra.random(5), rb.random(5))  # the same state after    assert bitgen_pointers(ra) is bitgen_pointers(ra)
+    assert not np.array_equal(bitgen_pointers(ra), bitgen_pointers(rb))
