@@ -7,9 +7,11 @@ M = 585 members (the ``radar`` preset), each paying numpy's per-call floor; here
 stage is one loop over the members. The formulas are those of the numpy path in
 :mod:`uavest.core.hybrid` (``_innovation_stack`` and ``HybridLocal.update``): S_j's
 inverse and log-determinant in closed form for m <= 2, the local gains, the
-log-likelihood weights, the posterior draw from normals drawn by the caller (the random
-path is the numpy path's), and the ensemble moments of ``ensemble_moments``
-(:mod:`uavest.core.base`). Equal to the numpy path to rounding
+log-likelihood weights, the posterior draw, the predict's process noise, and the
+ensemble moments of ``ensemble_moments`` (:mod:`uavest.core.base`). The kernels draw
+their normals and uniforms from the caller's ``numpy.random.Generator`` itself, through
+numba's implementation of numpy's algorithms: the numpy path's values in its order,
+about 3.5x faster per normal than numpy's own call here (docs/speed.md). Equal to the numpy path to rounding
 (``tests/unit/test_hybrid_local_compiled.py``). Importing this module imports numba and
 compiles nothing; each kernel compiles at its first call (cached on disk by numba).
 
