@@ -1,0 +1,222 @@
+"""Compiled (numba) kernel of :meth:`uavest.models.radar.RadarMeasurement.linearise_rows`
+for the 2-D range / azimuth radar (no range rate): the optional fast path (``pip install
+"uavest[fast]"``), dispatched by :func:`uavest.models.radar.radar_kernels`.
+
+The composed default (:meth:`uavest.core.model.Measurement.linearise_rows`: ``h_H_rows``,
+one circular ``mean``, three ``residual`` calls) costs ~15 numpy calls on (M, 2) and
+(M, 2, n) stacks of M = 585 members (the ``radar`` preset), each paying numpy's per-call
+floor; here the same formulas (``_los``, ``h_H_rows``, ``_H2_rows``, ``residual``,
+``mean`` of :mod:`uavest.models.radar`) run as a few loops over the members:
+
+* the line of sight D_j = R_ws^T (p_j - position) (m, sensor frame), range |D_j| (m),
+  azimuth atan2(D_y, D_x) (rad), the Jacobian rows D / r and [-D_y, D_x] / r^2 (r^2
+  floored at ``eps2``; as products by 1 / r and its square, one division a member),
+  times R_ws^T on the right unless the sensor axes are the world's;
+* the weighted mean: sum_j w_j r_j and the circular atan2(sum_j w_j sin a_j, sum_j w_j
+  cos a_j), with sin a_j = D_y / r_j and cos a_j = D_x / r_j (the same numbers to
+  rounding; ``math.sin`` / ``math.cos`` of the angle where r_j^2 is outside [1e-300,
+  1e300] or not finite, e.g. a member at the sensor, where the quotient is not the sine);
+* the residuals, the azimuth wrapped to [-pi, pi) as (d + pi) mod 2 pi - pi with Python's
+  (numpy's) modulo: exact for d + pi in [-2 pi, 4 pi) by one addition or (exact)
+  subtraction of 2 pi, the modulo itself elsewhere.
+
+The azimuth is :func:`atan2`, a branch-free rational approximation (Cephes' ``atan``)
+that LLVM vectorises: libm's ``atan2`` costs ~20 ns a call, more than all the rest of
+the kernel; within 1 ulp of the exact value, as libm's and numpy's (SIMD) are. Sums run
+in index order (numpy's ``dot`` groups them differently): equal to the composed numpy
+path to rounding (``tests/unit/test_radar_compiled.py``). Importing this module imports
+numba and compiles nothing; the kernel compiles at its first call (cached on disk).
+
+All arrays float64; units m (ranges, positions) and rad (angles).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["atan2", "linearise2"]
+
+#: LLVM may fuse a * b + c into one rounding (FMA): the results stay equal to the numpy
+#: path to rounding; no flag that assumes finite values. ``error_model="numpy"``: IEEE
+#: division (no zero-division check, whose branch would stop the loops vectorising).
+_FM = {"contract"}
+
+# Cephes atan: atan(t) = t + t z P(z) / Q(z), z = t^2, for |t| <= 0.66 (relative error
+# 1.8e-16); Q monic
+_P0, _P1, _P2, _P3, _P4 = (-8.750608600031904122785e-1, -1.615753718733365076637e1,
+                           -7.500855792314704667340e1, -1.228866684490136173410e2,
+                           -6.485021904942025371773e1)
+_Q0, _Q1, _Q2, _Q3, _Q4 = (2.485846490142306297962e1, 1.650270098316988542046e2,
+                           4.328810604912902668951e2, 4.853903996359136964868e2,
+                           1.945506571482613964425e2)
+#: pi / 4 to 50 bits (k * _PIO4_A is exact for k = 0..4) and the rest of it
+_PIO4_A = 0.7853981633974483
+_PIO4_B = 3.061616997868383e-17
+_PI = math.pi
+_TWO_PI = 2.0 * math.pi
+_FOUR_PI = 4.0 * math.pi
+#: r^2 (m^2) between which sin a = D_y / r and cos a = D_x / r hold to rounding (no
+#: underflow in the squares, no overflow); elsewhere math.sin / math.cos of the angle
+_RR_LO, _RR_HI = 1e-300, 1e300
+
+
+@njit(cache=True, fastmath=_FM, error_model="numpy", inline="always")
+def atan2(y, x):  # pragma: no cover - compiled
+    """atan2(y, x) (rad, in [-pi, pi]) for finite ``x``, ``y`` (m or any unit), without
+    branches: within 1 ulp of the exact value; signed zeros (atan2(+-0, -0) = +-pi) and
+    NaN as libm's. (Both infinite gives NaN: the caller takes ``math.atan2`` there.)
+
+    t = min / max of |x|, |y| in [0, 1]; for t > 0.66, (min - max) / (min + max) and
+    pi / 4 added; then the octant: the result is k pi / 4 +- atan(t) with k = 0..4, the
+    multiple of pi / 4 in two parts so that it rounds once."""
+    ax = abs(x)
+    ay = abs(y)
+    swap = ay > ax
+    mn = ax if swap else ay
+    mx = ay if swap else ax
+    big = mn > 0.66 * mx
+    num = mn - mx if big else mn
+    den = mn + mx if big else mx
+    t = num / den if den != 0.0 else num  # 0 / 0 at the origin: 0 (a NaN stays NaN)
+    z = t * t
+    p = (((_P0 * z + _P1) * z + _P2) * z + _P3) * z + _P4
+    q = ((((z + _Q0) * z + _Q1) * z + _Q2) * z + _Q3) * z + _Q4
+    v = t + t * (z * p / q)
+    neg = math.copysign(1.0, x) < 0.0  # -0 counts as negative
+    b = 1.0 if big else 0.0
+    if swap:  # |y| > |x|: pi / 2 -+ atan(|x| / |y|)
+        k = 2.0 + b if neg else 2.0 - b
+        v = v if neg else -v
+    else:  # pi - atan(|y| / |x|) for x < 0
+        k = 4.0 - b if neg else b
+        v = -v if neg else v
+    return math.copysign(k * _PIO4_A + (k * _PIO4_B + v), y)
+
+
+@njit(cache=True, fastmath=_FM, error_model="numpy")
+def _wrap(d):  # pragma: no cover - compiled
+    """(d + pi) mod 2 pi - pi with Python's float modulo (the sign of the divisor)."""
+    return (d + _PI) % _TWO_PI - _PI
+
+
+@njit(cache=True, fastmath=_FM, error_model="numpy", inline="always")
+def _wrap_fast(d):  # pragma: no cover - compiled
+    """:func:`_wrap` for d + pi in [-2 pi, 4 pi) (the modulo is then t, t - 2 pi exactly
+    or t + 2 pi rounded once, as fmod and the sign fix-up give it), without branches;
+    and whether d was outside that range or NaN (the value is then not used)."""
+    t = d + _PI
+    m = t - _TWO_PI if t >= _TWO_PI else (t + _TWO_PI if t < 0.0 else t)
+    return m - _PI, (t < -_TWO_PI) | (t >= _FOUR_PI) | (t != t)
+
+
+@njit(cache=True, fastmath=_FM, error_model="numpy")
+def linearise2(X, pose, z, w, Hs, nu, dY, nubar, tag):  # pragma: no cover - compiled
+    """The range / azimuth radar's ``linearise_rows`` into the caller's arrays ``Hs``
+    (M, 2, n), ``nu`` (M, 2), ``dY`` (M, 2), ``nubar`` (2,) (C-contiguous; arrays made
+    here would cost numba ~0.4 us each to return).
+
+    ``X`` (M, >= 2): target states (world ENU, positions in columns 0 and 1, m; the rest
+    is not read). ``pose``: the tuple (px, py, R00, R01, R10, R11, aligned, eps2) of
+    the antenna position (m, world), the world-from-sensor rotation R_ws, 1.0 if R_ws is
+    the identity (the Jacobian rows are then not multiplied by it, as in ``_H2_rows``)
+    else 0.0, and the floor of r^2 in the Jacobian (m^2). ``z`` (2,): measured range
+    (m) and azimuth (rad). ``w`` (M,): the weights. ``tag``: any tuple of n floats, n
+    the state's tangent dimension (the columns of ``Hs``; those past 2, velocity and any
+    extra, are zero), a constant of each compiled version."""
+    px, py, c00, c01, c10, c11, aligned, eps2 = pose
+    z0 = z[0]
+    z1 = z[1]
+    n = len(tag)
+    M = X.shape[0]
+    T = np.empty((10, M))  # per member: D_x, D_y, range, azimuth, sin, cos, 4 H entries
+    Dx = T[0]
+    Dy = T[1]
+    rg = T[2]
+    az = T[3]
+    sn = T[4]
+    cs = T[5]
+    for j in range(M):  # D = (p - s) @ R_ws, summed onto +0 as the BLAS product does
+        ex = X[j, 0] - px
+        ey = X[j, 1] - py
+        Dx[j] = (0.0 + ex * c00) + ey * c10
+        Dy[j] = (0.0 + ex * c01) + ey * c11
+    iq_floor = 1.0 / math.sqrt(eps2)
+    odd = 0
+    for j in range(M):  # vectorised (no calls, no branches; the stores contiguous)
+        dx = Dx[j]
+        dy = Dy[j]
+        rr = dx * dx + dy * dy
+        r = math.sqrt(rr)
+        ir = 1.0 / r
+        rg[j] = r
+        az[j] = atan2(dy, dx)
+        sn[j] = dy * ir
+        cs[j] = dx * ir
+        odd += (rr < _RR_LO) | (rr > _RR_HI) | (rr != rr)
+        # 1 / sqrt(max(r^2, eps2)) and its square (a NaN stays NaN, as np.maximum's)
+        iq = iq_floor if rr < eps2 else ir
+        ir2 = iq * iq
+        g00 = dx * iq
+        g01 = dy * iq
+        g10 = -dy * ir2
+        g11 = dx * ir2
+        if aligned != 0.0:
+            T[6, j] = g00
+            T[7, j] = g01
+            T[8, j] = g10
+            T[9, j] = g11
+        else:  # g @ R_ws^T
+            T[6, j] = g00 * c00 + g01 * c01
+            T[7, j] = g00 * c10 + g01 * c11
+            T[8, j] = g10 * c00 + g11 * c01
+            T[9, j] = g10 * c10 + g11 * c11
+    if odd:  # members within 1e-150 m of the sensor, beyond 1e150 m or not finite
+        for j in range(M):
+            rr = Dx[j] * Dx[j] + Dy[j] * Dy[j]
+            if not _RR_LO <= rr <= _RR_HI:
+                a = math.atan2(Dy[j], Dx[j])
+                az[j] = a
+                sn[j] = math.sin(a)
+                cs[j] = math.cos(a)
+    s0 = 0.0
+    ss = 0.0
+    sc = 0.0
+    for j in range(M):
+        wj = w[j]
+        s0 += wj * rg[j]
+        ss += wj * sn[j]
+        sc += wj * cs[j]
+    m1 = math.atan2(ss, sc)
+    # (M, 2) and (M, 2, n) through flat views: constant strides, so the stores vectorise
+    nu2 = nu.reshape(2 * M)
+    dY2 = dY.reshape(2 * M)
+    odd = 0
+    for j in range(M):
+        a = az[j]
+        nu2[2 * j] = z0 - rg[j]
+        dY2[2 * j] = rg[j] - s0
+        e, out1 = _wrap_fast(z1 - a)
+        nu2[2 * j + 1] = e
+        f, out2 = _wrap_fast(a - m1)
+        dY2[2 * j + 1] = f
+        odd += out1 | out2
+    if odd:  # an azimuth residual outside [-3 pi, 3 pi): the modulo
+        for j in range(M):
+            nu2[2 * j + 1] = _wrap(z1 - az[j])
+            dY2[2 * j + 1] = _wrap(az[j] - m1)
+    H2 = Hs.reshape(2 * n * M)
+    for j in range(M):
+        b = 2 * n * j
+        H2[b] = T[6, j]
+        H2[b + 1] = T[7, j]
+        for k in range(2, n):
+            H2[b + k] = 0.0
+        H2[b + n] = T[8, j]
+        H2[b + n + 1] = T[9, j]
+        for k in range(n + 2, 2 * n):
+            H2[b + k] = 0.0
+    nubar[0] = z0 - s0
+    nubar[1] = _wrap(z1 - m1)
