@@ -167,5 +167,6 @@ def test_kernels_draw_the_generators_own_normals(bitgen):
         got = nb.add_noise(bitgen_pointers(ra), X, L, nb.tag(3))
         np.testing.assert_allclose(got, X + rb.standard_normal((7, 3)) @ L.T,
                                    rtol=0, atol=1e-13)
-    np.testing.assert_array_equal(ra.random(5), rb.random(5))  # the same state after    assert bitgen_pointers(ra) is bitgen_pointers(ra)
+    np.testing.assert_array_equal(ra.random(5), rb.random(5))  # the same state after
+    assert bitgen_pointers(ra) is bitgen_pointers(ra)
     assert not np.array_equal(bitgen_pointers(ra), bitgen_pointers(rb))

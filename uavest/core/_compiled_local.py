@@ -11,9 +11,10 @@ log-likelihood weights, the posterior draw, the predict's process noise, and the
 ensemble moments of ``ensemble_moments`` (:mod:`uavest.core.base`). The kernels draw
 their normals and uniforms from the caller's ``numpy.random.Generator`` itself, through
 numba's implementation of numpy's algorithms: the numpy path's values in its order,
-about 3.5x faster per normal than numpy's own call here (docs/speed.md). Equal to the numpy path to rounding
-(``tests/unit/test_hybrid_local_compiled.py``). Importing this module imports numba and
-compiles nothing; each kernel compiles at its first call (cached on disk by numba).
+about 3.5x faster per normal than numpy's own call here (docs/speed.md). Equal to the
+numpy path to rounding (``tests/unit/test_hybrid_local_compiled.py``). Importing this
+module imports numba and compiles nothing; each kernel compiles at its first call
+(cached on disk by numba).
 
 Shapes: M members, n state (tangent) dimension, m <= 2 measurement components; all
 arrays float64 (``idx`` int64). Units are the state's and the measurement's own (the

@@ -59,7 +59,7 @@ from ..core.gaussian import Gaussian
 from ..core.guard import Guarded, nis_gate
 from ..core.linalg import bind_lapack, chol
 from ..core.unscented import sigma_weights
-from ..models.radar import RadarMeasurement
+from ..models.radar import RadarMeasurement, radar_kernels
 
 Array = np.ndarray
 
@@ -255,6 +255,8 @@ class Tracker:
         n = motion.space.dim
         self.filter.init(Gaussian(np.zeros(n), np.eye(n)), motion.space,
                          np.random.default_rng(0))
+        if getattr(filt, "update_mode", None) == "local":  # it reads linearise_rows
+            radar_kernels()
 
     # -- helpers --------------------------------------------------------------------------
     def _init_state(self, z: Array, meas: RadarMeasurement) -> Gaussian:
