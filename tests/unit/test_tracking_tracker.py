@@ -252,3 +252,17 @@ def test_mix_states_gaussian_is_moment_matched():
 def test_tracker_config_rejects_unknown_association():
     with pytest.raises(ValueError, match="association"):
         TrackerConfig(association="mht")
+
+
+@pytest.mark.parametrize("name,loads", [("hybrid(update_mode=local, n_cloud=4)", True),
+                                        ("ukf", False)])
+def test_tracker_loads_the_radar_kernel_when_made_for_the_local_hybrid(monkeypatch, name,
+                                                                       loads):
+    """The local hybrid reads the radar through ``linearise_rows``: a tracker around it
+    decides the radar's compiled kernel when it is made (numba's load is then not in its
+    first scan's time); a tracker around another filter leaves it undecided."""
+    from uavest.models import radar
+
+    monkeypatch.setattr(radar, "_RADAR", None)
+    Tracker(make_filter(name), MOT, TrackerConfig(), np.random.default_rng(0))
+    assert (radar._RADAR is not None) == loads
