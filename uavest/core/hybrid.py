@@ -764,8 +764,7 @@ class HybridLocal(_HybridBase):
         h = self.bandwidth or silverman_bandwidth(M, n)
         C = space.retract(x, math.sqrt(1.0 - h * h) * dX)
         B = (h * h) * P
-        Y, Hs = model.h_H_rows(C)  # (M, m), (M, m, n)
-        nu = model.residual(z, Y)
+        Hs, nu, dY, nubar = model.linearise_rows(C, z, w)  # (M, m, n), (M, m) x 2, (m,)
         if nu.shape[-1] != m:  # (einsum would broadcast a wrong-sized z silently)
             raise ValueError(f"measurement has {nu.shape[-1]} components, the model {m}")
         HB = _dot(Hs.reshape(M * m, n), B).reshape(M, m, n)  # H_j B, one product
@@ -773,9 +772,7 @@ class HybridLocal(_HybridBase):
         Si, logdet, Sw = _innovation_stack(HB, Hs, model.R, w)
         u = np.einsum("jab,jb->ja", Si, nu)  # S_j^-1 nu_j
         KT = Si @ HB  # the local gains K_j = B H_j^T S_j^-1, transposed (M, m, n)
-        ybar = model.mean(Y, w)
-        dY = model.residual(Y, ybar)
-        innov = innovation(model.residual(z, ybar), _dot(dY.T * w, dY) + Sw)
+        innov = innovation(nubar, _dot(dY.T * w, dY) + Sw)
         if self.weights == "confidence":
             loglik = -0.5 * (np.einsum("jm,jm->j", nu, u) + logdet)
             logw = np.log(np.maximum(w, 1e-300)) + loglik
