@@ -313,6 +313,14 @@ def local_draw(C, HB, Si, Hs, nu, En, Lb, Vn, Lr, idx, resample, wp, tag
     return X, x, dX, P
 
 
+@njit(cache=True)
+def _no_draw(n, wu, Pyy, resampled, status):  # pragma: no cover - compiled
+    """:func:`local_update`'s outputs when it stops before drawing (empty members and
+    moments, not read: the caller raises on ``status``)."""
+    X = np.empty((0, n))
+    return X, np.empty(n), X, np.empty((n, n)), wu, Pyy, resampled, status
+
+
 @njit(cache=True, fastmath=_FM)
 def local_update(bits, C, Hs, B, R, nu, dY, w, confidence, regen_ess, Lb, Lr, tag
                  ):  # pragma: no cover - compiled
@@ -331,11 +339,8 @@ def local_update(bits, C, Hs, B, R, nu, dY, w, confidence, regen_ess, Lb, Lr, ta
     n = len(tag)
     M, m = Hs.shape[0], Hs.shape[1]
     HB, Si, Pyy, wu, status = local_gains(Hs, B, R, nu, dY, w, confidence, tag)
-    X = np.empty((0, n))
-    x = np.empty(n)
-    P = np.empty((n, n))
     if status:
-        return X, x, X, P, wu, Pyy, False, status
+        return _no_draw(n, wu, Pyy, False, status)
     s2 = 0.0
     for j in range(M):
         s2 += wu[j] * wu[j]
@@ -344,7 +349,7 @@ def local_update(bits, C, Hs, B, R, nu, dY, w, confidence, regen_ess, Lb, Lr, ta
     if resample:
         idx = systematic_indices(wu, next_double(bg))
         if idx[0] < 0:
-            return X, x, X, P, wu, Pyy, True, 2
+            return _no_draw(n, wu, Pyy, True, 2)
     else:
         idx = np.zeros(0, dtype=np.int64)
     En = np.empty((M, n))

@@ -8,11 +8,14 @@ so tests can force a path) and asks :func:`load_kernels` once."""
 
 from __future__ import annotations
 
+import ctypes
 import importlib
 import logging
 import os
 from collections.abc import Callable
 from types import ModuleType
+
+import numpy as np
 
 __all__ = ["bitgen_pointers", "load_kernels"]
 
@@ -57,10 +60,6 @@ def bitgen_pointers(rng):
     ``next_uint64``, ``next_uint32`` and ``next_double`` functions (numpy's documented
     ``BitGenerator.ctypes`` interface). Remembered per bit generator; valid while it
     lives (the caller holds ``rng`` during the kernel call)."""
-    import ctypes
-
-    import numpy as np
-
     bg = rng.bit_generator
     hit = _POINTERS.get(id(bg))
     if hit is not None and hit[0] is bg:
