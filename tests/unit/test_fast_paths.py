@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import compiled_kernels
 
 from uavest.core import make_filter
 from uavest.core.gaussian import Gaussian
@@ -112,17 +113,9 @@ def test_ukf_plain_measurement_check():
 
 # ------------------------------------------------------------------ the hybrid's kernels
 def _shift_kernels():
-    import os
-
     from uavest.core import hybrid
 
-    pytest.importorskip("numba", reason="numba not installed (the optional uavest[fast])")
-    if os.environ.get("UAVEST_NUMBA") == "0":
-        pytest.skip("UAVEST_NUMBA=0: the numpy path only (.ci/run's second pass)")
-    nb = hybrid.shift_kernels()
-    if not nb:
-        pytest.fail("numba is installed but the shift kernels were refused (see log)")
-    return hybrid, nb
+    return hybrid, compiled_kernels(hybrid.shift_kernels, "shift kernels")
 
 
 def _states(name: str, spec: str, steps: int = 30):
@@ -315,17 +308,9 @@ def test_shift_kernels_can_be_switched_off(monkeypatch):
 
 # ------------------------------------------------------------------- the UKF's kernels
 def _ut_kernels():
-    import os
-
     from uavest.core import unscented
 
-    pytest.importorskip("numba", reason="numba not installed (the optional uavest[fast])")
-    if os.environ.get("UAVEST_NUMBA") == "0":
-        pytest.skip("UAVEST_NUMBA=0: the numpy path only (.ci/run's second pass)")
-    nb = unscented.ut_kernels()
-    if not nb:
-        pytest.fail("numba is installed but the unscented kernels were refused (see log)")
-    return nb
+    return compiled_kernels(unscented.ut_kernels, "unscented kernels")
 
 
 def _radar_models():

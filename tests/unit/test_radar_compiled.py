@@ -7,10 +7,10 @@ to rounding; the other layouts and the forced-off kernel take the default."""
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 import pytest
+from conftest import compiled_kernels
 
 from uavest.core.model import Measurement
 from uavest.models import radar as radar_mod
@@ -23,12 +23,7 @@ TOL = 1e-12
 def nb():
     """The kernel module, loaded through :func:`radar_kernels` (its self-check must
     pass: a failure there is a failure here, not a skip)."""
-    if os.environ.get("UAVEST_NUMBA", "1") == "0":
-        pytest.skip("UAVEST_NUMBA=0: the numpy default only (the compiled tests skip)")
-    pytest.importorskip("numba", reason="numba is not installed (uavest[fast])")
-    k = radar_mod.radar_kernels()
-    assert k, "the radar kernel did not load or disagreed with the default (see the log)"
-    return k
+    return compiled_kernels(radar_mod.radar_kernels, "radar kernel")
 
 
 @pytest.fixture

@@ -276,19 +276,11 @@ def test_slerp_one_equals_the_composed_slerp():
 
 
 def _numba_kernels():
-    import os
-
-    import pytest
+    from conftest import compiled_kernels
 
     from uavest.geometry import rotation
 
-    pytest.importorskip("numba", reason="numba not installed (the optional uavest[fast])")
-    if os.environ.get("UAVEST_NUMBA") == "0":
-        pytest.skip("UAVEST_NUMBA=0: the numpy kernels only (.ci/run's second pass)")
-    nb = rotation.compiled_kernels()
-    if not nb:
-        pytest.fail("numba is installed but the compiled kernels were refused (see log)")
-    return rotation, nb
+    return rotation, compiled_kernels(rotation.compiled_kernels, "attitude kernels")
 
 
 def test_compiled_kernels_equal_the_numpy_kernels():
