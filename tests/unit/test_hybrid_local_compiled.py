@@ -44,7 +44,13 @@ def _radar_run(steps: int):
 def _run(f, motion, radar, prior, Z, compiled: bool, monkeypatch):
     """Members, weights, estimates, innovations and the generator's state of every step,
     through one path (the predict's process noise too: compiled or numpy)."""
+    from uavest.models import radar as radar_mod
+
     monkeypatch.setattr(hybrid, "_LOCAL", nb if compiled else False)
+    if not compiled:  # the whole numpy path: the radar's composed terms too
+        monkeypatch.setattr(radar_mod, "_RADAR", False)
+    else:
+        monkeypatch.setattr(radar_mod, "_RADAR", None)  # decided again (UAVEST_NUMBA)
     rng = np.random.default_rng([1, 0])
     E = f.init(prior, motion.space, rng)
     out = []
