@@ -22,3 +22,49 @@ def compiled_kernels(loader, what: str):
     if not nb:
         pytest.fail(f"numba is installed but the {what} were refused (see the log)")
     return nb
+
+
+# ----------------------------------------------------------------------------- shared logs
+# The real logs written by autopilots (not by us) live beside the repository, read-only, at
+# repo_root/../shared/logs; UAVEST_LOGS overrides. Tests reach them only through
+# ``shared_logs_dir()`` / the ``shared_logs`` fixture / ``shared_log(name)``, which skip
+# with the reason when they are absent (a source tarball, a clone without shared/).
+
+from pathlib import Path as _Path  # noqa: E402
+
+REPO_ROOT = _Path(__file__).resolve().parents[1]
+
+
+def shared_logs_dir() -> _Path:
+    """Where the shared logs are: ``$UAVEST_LOGS`` or ``repo_root/../shared/logs``."""
+    env = os.environ.get("UAVEST_LOGS")
+    return _Path(env) if env else REPO_ROOT.parent / "shared" / "logs"
+
+
+def shared_log(name: str) -> _Path:
+    """The path of one shared log, or skip the calling test with the reason."""
+    import pytest
+
+    p = shared_logs_dir() / name
+    if not p.exists():
+        pytest.skip(f"shared log {name} not found in {shared_logs_dir()} "
+                    "(repo_root/../shared/logs, or set UAVEST_LOGS)")
+    return p
+
+
+def _shared_logs_fixture():
+    import pytest
+
+    @pytest.fixture(scope="session")
+    def shared_logs() -> _Path:
+        """The shared logs folder; skips the test with the reason when it is absent."""
+        d = shared_logs_dir()
+        if not d.is_dir():
+            pytest.skip(f"shared logs not found at {d} (repo_root/../shared/logs, or set "
+                        "UAVEST_LOGS)")
+        return d
+
+    return shared_logs
+
+
+shared_logs = _shared_logs_fixture()

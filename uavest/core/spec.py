@@ -23,8 +23,10 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any
 
+from ..errors import InputError
 
-class SpecError(ValueError):
+
+class SpecError(InputError):
     """A filter spec that cannot be built; the message is one line."""
 
 

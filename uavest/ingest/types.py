@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import InputError
+
 __all__ = [
     "IngestError",
     "ImuSample",
@@ -43,7 +45,7 @@ __all__ = [
 ]
 
 
-class IngestError(ValueError):
+class IngestError(InputError):
     """A file or connection could not be read as any supported log format."""
 
 

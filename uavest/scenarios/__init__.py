@@ -13,6 +13,8 @@ import copy
 import tomllib
 from pathlib import Path
 
+from ..errors import InputError
+
 BUILTIN: dict[str, dict] = {
     "ungm": {
         "name": "ungm",
@@ -56,7 +58,7 @@ BUILTIN: dict[str, dict] = {
 }
 
 
-class ScenarioError(ValueError):
+class ScenarioError(InputError):
     """A scenario name, file or override could not be used."""
 
 
