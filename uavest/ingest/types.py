@@ -28,6 +28,10 @@ __all__ = [
     "MagSample",
     "AttitudeRef",
     "PositionSample",
+    "GnssSample",
+    "BaroSample",
+    "GnssSeries",
+    "BaroSeries",
     "DetectionSample",
     "DetectionScan",
     "AdsbSample",
@@ -139,6 +143,54 @@ class PositionSample:
     vel_ned: np.ndarray | None
     lat_lon_alt: np.ndarray | None
     source: str
+
+
+@dataclass(frozen=True, slots=True)
+class GnssSample:
+    """One raw GNSS receiver solution: a measurement, never the autopilot's fused output.
+
+    t: s, vehicle clock of the fix (receivers' own UNIX/GPS time stamps are mapped onto
+    the vehicle clock by the reader).  lat_lon_alt: (3,) deg, deg, m above mean sea level.
+    vel_ned: (3,) m/s NED, NaN where the message lacks a component (GPS_RAW_INT has ground
+    speed and course but no vertical speed).  fix_type: MAVLink GPS_FIX_TYPE (0 no GPS,
+    1 no fix, 2 2-D, 3 3-D, 4 DGPS, 5 RTK float, 6 RTK fixed).  h_acc, v_acc: m, 1-sigma
+    position accuracy the receiver reports (NaN if it reports none); s_acc: m/s, 1-sigma
+    speed accuracy (NaN if none).  hdop, vdop: dimensionless (NaN if none).
+    satellites: visible satellites (-1 unknown).  source: ``"GPS_RAW_INT"``,
+    ``"GPS2_RAW"``, ``"GPS_INPUT"``, ``"GPS[0]"`` (DataFlash), ``"vehicle_gps_position"``,
+    ``"sensor_gps"``.
+    """
+
+    t: float
+    lat_lon_alt: np.ndarray
+    vel_ned: np.ndarray
+    fix_type: int
+    h_acc: float
+    v_acc: float
+    s_acc: float
+    hdop: float
+    vdop: float
+    satellites: int
+    source: str
+    instance: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class BaroSample:
+    """One barometer reading.
+
+    t: s, vehicle clock.  pressure: Pa (absolute).  temperature: deg C (NaN if none).
+    alt: m, the pressure altitude the autopilot logged with it (DataFlash ``BARO.Alt``,
+    ULog ``sensor_baro`` has none: NaN); relative to its own zero, not AMSL.
+    source: ``"SCALED_PRESSURE"``, ``"SCALED_PRESSURE2"``, ``"BARO[0]"``, ``"sensor_baro"``.
+    """
+
+    t: float
+    pressure: float
+    temperature: float
+    alt: float
+    source: str
+    instance: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -257,7 +309,8 @@ class LinkEvent:
 
 #: One typed, timestamped sample from a source (data, not a measurement *model*).
 Sample = (
-    ImuSample | MagSample | AttitudeRef | PositionSample | DetectionSample | AdsbSample
+    ImuSample | MagSample | AttitudeRef | PositionSample | GnssSample | BaroSample
+    | DetectionSample | AdsbSample
 )
 
 
@@ -405,6 +458,48 @@ class PositionSeries:
         return int(self.t.shape[0])
 
 
+@dataclass(frozen=True, slots=True)
+class GnssSeries:
+    """Raw GNSS fixes of one receiver, the fields of :class:`GnssSample` as arrays.
+
+    t (G,) s; lat_lon_alt (G,3) deg, deg, m AMSL; vel_ned (G,3) m/s (NaN where absent);
+    fix_type (G,) int; h_acc, v_acc (G,) m; s_acc (G,) m/s; hdop, vdop (G,); satellites
+    (G,) int.
+    """
+
+    t: np.ndarray
+    lat_lon_alt: np.ndarray
+    vel_ned: np.ndarray
+    fix_type: np.ndarray
+    h_acc: np.ndarray
+    v_acc: np.ndarray
+    s_acc: np.ndarray
+    hdop: np.ndarray
+    vdop: np.ndarray
+    satellites: np.ndarray
+    source: str
+    instance: int = 0
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+
+@dataclass(frozen=True, slots=True)
+class BaroSeries:
+    """Barometer readings of one sensor: t (B,) s; pressure (B,) Pa; temperature (B,)
+    deg C; alt (B,) m pressure altitude as logged (NaN where absent)."""
+
+    t: np.ndarray
+    pressure: np.ndarray
+    temperature: np.ndarray
+    alt: np.ndarray
+    source: str
+    instance: int = 0
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+
 @dataclass(slots=True)
 class LogData:
     """A whole log as time-sorted, de-duplicated numpy arrays (see :func:`read_log`).
@@ -425,6 +520,11 @@ class LogData:
     stats: IngestStats
     imu_sources: dict[str, int] = field(default_factory=dict)
     mag_sources: dict[str, int] = field(default_factory=dict)
+    #: raw GNSS receivers by source name (``"GPS_RAW_INT"``, ``"GPS[0]"``, ...): aiding
+    #: measurements for the navigation filter (never the autopilot's fused positions)
+    gnss: dict[str, GnssSeries] = field(default_factory=dict)
+    #: barometers by source name (``"SCALED_PRESSURE"``, ``"BARO[0]"``, ``"sensor_baro"``)
+    baro: dict[str, BaroSeries] = field(default_factory=dict)
 
     @property
     def duration(self) -> float:
