@@ -7,10 +7,10 @@ import json
 import numpy as np
 
 from uavest.engine.records import RunInfo, StepRecord
+from uavest.geometry.geodesy import LocalFrame
 from uavest.ingest.types import AttitudeRef, PositionSample
 from uavest.report import read_recording, write_report
 from uavest.report.build import ATTITUDE_FIGURES, attitude_data, lla_to_local_ned
-from uavest.sim.geo import LocalFrame
 from uavest.sinks.mcap import McapSink
 
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from uavest.geometry.geodesy import LocalFrame
 from uavest.geometry.rotation import G0, quat_exp, quat_log, quat_mul, quat_to_dcm
 from uavest.scenarios import load_scenario
 from uavest.sim import Simulator
-from uavest.sim.geo import LocalFrame
 from uavest.sim.radar import Radar, Targets
 from uavest.sim.vehicle import ImuModel, Manoeuvres, VehicleModel, stream_rng
 

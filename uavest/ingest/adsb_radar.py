@@ -28,34 +28,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..geometry.geodesy import geodetic_to_ned
 from ..geometry.rotation import quat_rotate_inv
 from .detections import frd_from_rae, rae_from_frd
 from .types import AdsbSample, AttitudeRef, DetectionSample, DetectionScan, PositionSample
 
-__all__ = ["RadarConfig", "AdsbRadar", "virtual_radar", "geodetic_to_ned", "geodetic_to_ecef"]
+__all__ = ["RadarConfig", "AdsbRadar", "virtual_radar", "geodetic_to_ned"]
 
-_A = 6378137.0  # WGS84 semi-major axis, m
-_F = 1.0 / 298.257223563
-_E2 = _F * (2.0 - _F)
 _UNKNOWN_ID = 65535
-
-
-def geodetic_to_ecef(lat_deg: float, lon_deg: float, h_m: float) -> np.ndarray:
-    """WGS84 geodetic (deg, deg, m above the ellipsoid) -> ECEF (3,) m."""
-    la, lo = math.radians(lat_deg), math.radians(lon_deg)
-    n = _A / math.sqrt(1.0 - _E2 * math.sin(la) ** 2)
-    return np.array([(n + h_m) * math.cos(la) * math.cos(lo),
-                     (n + h_m) * math.cos(la) * math.sin(lo),
-                     (n * (1.0 - _E2) + h_m) * math.sin(la)])
-
-
-def geodetic_to_ned(lla: np.ndarray, origin: np.ndarray) -> np.ndarray:
-    """Local NED (3,) m of geodetic ``lla`` (deg, deg, m) relative to ``origin`` (same units)."""
-    d = geodetic_to_ecef(*lla) - geodetic_to_ecef(*origin)
-    la, lo = math.radians(origin[0]), math.radians(origin[1])
-    sl, cl, so, co = math.sin(la), math.cos(la), math.sin(lo), math.cos(lo)
-    r = np.array([[-sl * co, -sl * so, cl], [-so, co, 0.0], [-cl * co, -cl * so, -sl]])
-    return r @ d
 
 
 @dataclass

@@ -131,11 +131,11 @@ _LLA_ORDER = ("GLOBAL_POSITION_INT", "vehicle_global_position", "POS", "GPS_RAW_
 def lla_to_local_ned(lla: Array, origin: Array | None = None) -> Array:
     """NED (K, 3) m of fixes ``lla`` (K, 3) [lat deg, lon deg, alt m] in the local
     tangent plane at ``origin`` [lat deg, lon deg, alt m] (default: the first fix), WGS84
-    through ECEF (:class:`uavest.sim.geo.LocalFrame`; the altitude is taken as the
+    through ECEF (:class:`uavest.geometry.geodesy.LocalFrame`; the altitude is taken as the
     ellipsoidal height, which moves only the origin's height). A tangent plane, not a
     map projection: fine for a flight of a few km (at a distance d the plane's "down"
     is d^2 / (2 R) below the sphere, 0.08 m at 1 km, 8 m at 10 km)."""
-    from ..sim.geo import LocalFrame
+    from ..geometry.geodesy import LocalFrame
 
     lla = np.asarray(lla, float).reshape(-1, 3)
     if not len(lla):

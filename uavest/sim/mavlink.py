@@ -33,8 +33,8 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mav2  # noqa: E402
 
+from ..geometry.geodesy import LocalFrame  # noqa: E402
 from ..geometry.rotation import G0  # noqa: E402
-from .geo import LocalFrame  # noqa: E402
 from .radar import Detection, Radar, Targets  # noqa: E402
 from .vehicle import (  # noqa: E402
     GaussMarkov,

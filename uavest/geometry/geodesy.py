@@ -1,6 +1,6 @@
 """WGS84 geodetic <-> local NED (exact, through ECEF).
 
-The simulator's world frame is the local tangent plane NED at the scenario origin
+The local frame is the tangent plane NED at an origin
 (lat0, lon0, h0): x north, y east, z down, metres. Geodetic heights are WGS84 ellipsoidal
 heights; the simulator takes the geoid undulation as 0, so they double as MSL altitudes
 in GPS_RAW_INT / GLOBAL_POSITION_INT / ADSB_VEHICLE.
@@ -84,3 +84,27 @@ class LocalFrame:
         """NED (..., 3) m of geodetic points (degrees, m)."""
         ecef = geodetic_to_ecef(np.deg2rad(lat_deg), np.deg2rad(lon_deg), h)
         return np.einsum("ji,...j->...i", self.R_en, ecef - self.origin_ecef)
+
+
+def geodetic_to_ned(lla_deg: Array, origin_deg: Array) -> Array:
+    """NED (..., 3) m of geodetic points ``lla_deg`` (..., 3) (deg, deg, m) relative to the
+    geodetic ``origin_deg`` (3,) (deg, deg, m)."""
+    lla = np.asarray(lla_deg, float)
+    return LocalFrame(*np.asarray(origin_deg, float)).geodetic_to_ned(
+        lla[..., 0], lla[..., 1], lla[..., 2])
+
+
+def gravity(lat: Array, h: Array) -> Array:
+    """Magnitude of normal gravity (m/s^2) at geodetic latitude ``lat`` (rad) and ellipsoidal
+    height ``h`` (m): Somigliana's formula with the free-air height correction of Groves
+    (2nd ed.) eqs. 2.134 and 2.139, WGS84 constants."""
+    lat, h = np.asarray(lat, float), np.asarray(h, float)
+    s2 = np.sin(lat) ** 2
+    g0 = 9.7803253359 * (1.0 + 0.001931853 * s2) / np.sqrt(1.0 - E2 * s2)
+    omega, mu = 7.292115e-5, 3.986004418e14
+    m = omega * omega * A * A * B / mu
+    return g0 * (1.0 - 2.0 / A * (1.0 + F + m - 2.0 * F * s2) * h + 3.0 * h * h / (A * A))
+
+
+#: Earth's rotation rate, rad/s (WGS84).
+EARTH_RATE = 7.292115e-5
