@@ -5,6 +5,7 @@ corruptions of one timestamp. Used by ``tests/hostile`` and ``benchmarks/hostile
 
 from __future__ import annotations
 
+import os
 import struct
 from pathlib import Path
 
@@ -14,8 +15,10 @@ LOGS = Path(__file__).resolve().parents[3] / "shared" / "logs"
 
 
 def logs_dir() -> Path:
-    """The shared logs (``repo_root/../shared/logs``)."""
-    return LOGS
+    """The shared logs: ``$UAVEST_LOGS`` or ``repo_root/../shared/logs`` (as tests/conftest.py;
+    this module is also imported by benchmarks/hostile_sweep.py, outside pytest)."""
+    env = os.environ.get("UAVEST_LOGS")
+    return Path(env) if env else LOGS
 
 
 def tlog_records(data: bytes) -> list[tuple[int, int, int]]:

@@ -9,10 +9,11 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import shared_logs_dir
 
 REPO = Path(__file__).resolve().parents[2]
 SIM = REPO / "logs" / "sim_200hz.tlog"
-SHARED = REPO.parent / "shared" / "logs"
+SHARED = shared_logs_dir()  # tests/conftest.py: $UAVEST_LOGS or repo_root/../shared/logs
 
 TIMING = {"wall_s", "realtime_factor", "us_per_step", "seconds", "elapsed_s", "cpu_s", "pid",
           "host", "run_id", "finished_at", "backend", "attempts"}
@@ -42,8 +43,8 @@ def make_windows(folder: Path, n: int, length: float = 2.5, step: float = 5.0) -
 def shared_log(name: str) -> Path:
     p = SHARED / name
     if not p.is_file():
-        pytest.skip(f"shared log {p} not present (create the symlink repo/../shared -> "
-                    "/work/shared to run this test)")
+        pytest.skip(f"shared log {p} not present (repo_root/../shared/logs, or set "
+                    "UAVEST_LOGS)")
     return p
 
 

@@ -18,12 +18,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import shared_logs_dir
 
 from uavest.apps.replay import ReplayConfig, replay
 from uavest.sinks.base import Collector
 
 ROOT = Path(__file__).resolve().parents[2]
-LOGS = ROOT.parent / "shared" / "logs"
+LOGS = shared_logs_dir()
 OLD = "05bb455"
 FILTERS = ("ekf", "ukf", "hybrid")
 

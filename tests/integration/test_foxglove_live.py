@@ -8,9 +8,9 @@ import json
 import struct
 import threading
 import time
-from pathlib import Path
 
 import pytest
+from conftest import shared_logs_dir
 
 from uavest.apps.replay import ReplayConfig, replay
 from uavest.report.protowire import ProtoDecoder
@@ -18,8 +18,8 @@ from uavest.sinks.base import Sink
 from uavest.sinks.foxglove_live import FoxgloveLiveSink
 
 websockets = pytest.importorskip("websockets")
-VTOL = Path("/work/shared/logs/vtol.tlog")
-pytestmark = pytest.mark.skipif(not VTOL.exists(), reason="needs /work/shared/logs/vtol.tlog")
+VTOL = shared_logs_dir() / "vtol.tlog"
+pytestmark = pytest.mark.skipif(not VTOL.exists(), reason=f"needs {VTOL} (or UAVEST_LOGS)")
 
 WANT = ("/attitude/ekf/estimate", "/tf/ekf", "/attitude/ukf/error")
 

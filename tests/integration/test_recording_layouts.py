@@ -13,9 +13,9 @@ offline."""
 import json
 import re
 from importlib import resources
-from pathlib import Path
 
 import pytest
+from conftest import shared_logs_dir
 
 from uavest.apps.replay import ReplayConfig, replay
 from uavest.cli import main
@@ -23,7 +23,7 @@ from uavest.report import read_recording
 from uavest.report.radar_demo import run_radar_demo
 from uavest.sinks.mcap import McapSink
 
-VTOL = Path("/work/shared/logs/vtol.tlog")
+VTOL = shared_logs_dir() / "vtol.tlog"
 PANEL_ID = re.compile(r"^(3D|Plot|RosOut|Map|RawMessages|Indicator|Table)![A-Za-z0-9_]+$")
 #: Foxglove message path (its grammar, the subset the layouts use): a topic of
 #: "/"-separated [A-Za-z0-9_-] names, or any topic double-quoted with \\ and \" escapes,
@@ -132,7 +132,7 @@ def test_shipped_layouts_have_the_import_structure():
         check_structure(lay)
 
 
-@pytest.mark.skipif(not VTOL.exists(), reason="needs /work/shared/logs/vtol.tlog")
+@pytest.mark.skipif(not VTOL.exists(), reason=f"needs {VTOL} (or UAVEST_LOGS)")
 def test_attitude_layouts_refer_only_to_recorded_topics(tmp_path):
     path = tmp_path / "vtol.mcap"
     sink = McapSink(path)

@@ -6,10 +6,10 @@ report recomputes the replay's metrics from the file alone."""
 import json
 import re
 from collections import Counter
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import shared_logs_dir
 
 from uavest.apps.replay import ReplayConfig, replay
 from uavest.ingest.types import AttitudeRef, ImuSample, MagSample
@@ -20,8 +20,8 @@ from uavest.sinks.base import Collector, Sink
 from uavest.sinks.foxglove_channels import ned_frd_to_enu_flu, triu_to_full
 from uavest.sinks.mcap import McapSink
 
-VTOL = Path("/work/shared/logs/vtol.tlog")
-pytestmark = pytest.mark.skipif(not VTOL.exists(), reason="needs /work/shared/logs/vtol.tlog")
+VTOL = shared_logs_dir() / "vtol.tlog"
+pytestmark = pytest.mark.skipif(not VTOL.exists(), reason=f"needs {VTOL} (or UAVEST_LOGS)")
 
 
 class Samples(Sink):

@@ -11,11 +11,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import shared_logs_dir
 
 from uavest.report import read_recording, write_report
 
-VTOL = Path("/work/shared/logs/vtol.tlog")
-pytestmark = pytest.mark.skipif(not VTOL.exists(), reason="needs /work/shared/logs/vtol.tlog")
+VTOL = shared_logs_dir() / "vtol.tlog"
+pytestmark = pytest.mark.skipif(not VTOL.exists(), reason=f"needs {VTOL} (or UAVEST_LOGS)")
 
 SCRIPT = r"""
 import sys, time

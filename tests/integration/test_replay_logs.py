@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import shared_logs_dir
 
 from uavest.apps.replay import ReplayConfig, replay
 from uavest.engine.attitude import AttitudeOptions, AttitudeStream
@@ -19,7 +20,7 @@ from uavest.eval.attitude import rmse_deg
 from uavest.geometry.rotation import quat_slerp_interp
 from uavest.ingest import open_source, read_log
 
-LOGS = Path(__file__).resolve().parents[2].parent / "shared" / "logs"
+LOGS = shared_logs_dir()
 VTOL = LOGS / "vtol.tlog"
 BIN = LOGS / "test.BIN"
 

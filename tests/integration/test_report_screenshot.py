@@ -7,15 +7,16 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import shared_logs_dir
 
 ROOT = Path(__file__).resolve().parents[2]
-VTOL = Path("/work/shared/logs/vtol.tlog")
+VTOL = shared_logs_dir() / "vtol.tlog"
 
 
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory):
     if not VTOL.exists():
-        pytest.skip("needs /work/shared/logs/vtol.tlog")
+        pytest.skip(f"needs {VTOL} (repo_root/../shared/logs, or set UAVEST_LOGS)")
     from uavest.apps.replay import ReplayConfig, replay
     from uavest.sinks.mcap import McapSink
 

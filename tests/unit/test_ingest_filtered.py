@@ -15,11 +15,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import shared_logs_dir
 
 from tests.hostile.corpus import df_records as _df_records
 from tests.hostile.corpus import flip_bits as _flip_bits
@@ -32,22 +32,17 @@ SIM_200HZ = REPO / "logs" / "sim_200hz.tlog"
 
 
 def _shared_logs() -> Path | None:
-    """The shared read-only logs: $UAVEST_SHARED_LOGS, repo_root/../shared/logs or
-    /work/shared/logs (a git worktree sits deeper than the main checkout)."""
-    cands = [os.environ.get("UAVEST_SHARED_LOGS"), REPO.parent / "shared" / "logs",
-             "/work/shared/logs"]
-    for c in cands:
-        if c and (Path(c) / "vtol.tlog").is_file():
-            return Path(c)
-    return None
+    """The shared read-only logs (tests/conftest.py: $UAVEST_LOGS or repo_root/../shared/logs)."""
+    d = shared_logs_dir()
+    return d if (d / "vtol.tlog").is_file() else None
 
 
 @pytest.fixture(scope="module")
 def shared() -> Path:
     d = _shared_logs()
     if d is None:
-        pytest.skip("shared logs (vtol.tlog, test.BIN) not found: set UAVEST_SHARED_LOGS or "
-                    "put them in repo_root/../shared/logs or /work/shared/logs")
+        pytest.skip(f"shared logs (vtol.tlog, test.BIN) not found in {shared_logs_dir()} "
+                    "(repo_root/../shared/logs, or set UAVEST_LOGS)")
     return d
 
 
