@@ -115,8 +115,12 @@ def format_doc(doc: dict) -> str:
     lines.append(table(rows, cols))
     bad = doc["bad_data"]
     parts = [f"{k} {bad[k]}" for k in bad
-             if isinstance(bad[k], int) and bad[k] and k not in ("bad_total",)]
+             if isinstance(bad[k], int) and bad[k] and k not in ("bad_total", "absent_sensor")]
     lines.append(f"bad data: {bad['bad_total']}" + (f" ({', '.join(parts)})" if parts else ""))
+    absent = bad.get("absent") or {}
+    if absent:
+        lines.append("absent sensors (all-zero records, not bad data, ignored): " + ", ".join(
+            f"{k.split(':', 1)[-1]} x{n}" for k, n in absent.items()))
     rep = doc.get("repaired") or {}
     if rep.get("time_outlier"):
         lines.append(f"repaired: {rep['time_outlier']} time stamps that were outliers against "

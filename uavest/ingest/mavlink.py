@@ -31,6 +31,8 @@ from .types import (
     Sample,
 )
 
+_SENSOR_CATS = ("imu", "mag")  # categories whose all-zero records may mean "not fitted"
+
 # Messages without a time field: timed from receive time (see docs/ingest.md).
 _UNTIMED = {"SIMSTATE", "AHRS2", "ADSB_VEHICLE"}
 _MAX_STALL = 1000  # reads without file progress before giving up (hang guard)
@@ -382,6 +384,7 @@ class MavlinkSource:
         gate = StreamGate(st)
         reorder = _Reorder(self.reorder_window, st)
         systime: dict[int, float] = {}  # sysid -> unix_us - boot_us offset (s)
+        fitted: set[str] = set()  # sensor instances that sent a non-zero record
 
         # clock payloads are (sysid, the converted items of one message): one message is
         # one push, so the IMU and mag parts of a message do not confirm a reset twice
@@ -445,6 +448,13 @@ class MavlinkSource:
                 bad = check(r)
                 if bad is None:
                     good.append(r)
+                    if r.cat in _SENSOR_CATS:
+                        fitted.add(stat_key(r))
+                elif bad == "empty" and r.cat in _SENSOR_CATS and stat_key(r) not in fitted:
+                    # all zeros from an instance that never sent anything else: a sensor
+                    # that is not fitted, not bad data (one info line at the end)
+                    st.absent_sensor += 1
+                    st.absent[stat_key(r)] += 1
                 else:
                     st.bad(bad, stat_key(r))
             if not good:

@@ -85,6 +85,8 @@ EVENT_KINDS = (
     "link_gap",  # live link: no message for gap_timeout s (see LinkEvent)
     "reconnect",  # live link: TCP connection re-established
     "pre_heartbeat",  # live link: messages discarded before the vehicle heartbeat
+    "absent_sensor",  # all-zero IMU/magnetometer records of an instance that never sent a
+    # non-zero one (ArduPilot sends SCALED_IMU3 zeros when there is no third IMU): ignored
 )
 
 
@@ -372,6 +374,9 @@ class IngestStats:
     link_gap: int = 0  # live link gaps (no message for gap_timeout s)
     reconnect: int = 0  # live TCP reconnections
     pre_heartbeat: int = 0  # live messages discarded before the vehicle heartbeat
+    absent_sensor: int = 0  # all-zero records of a sensor instance that is not fitted
+    #: the absent sensor instances (stat key, e.g. ``"imu:SCALED_IMU3"``) -> records ignored
+    absent: Counter = field(default_factory=Counter)
     messages: Counter = field(default_factory=Counter)
     accepted: Counter = field(default_factory=Counter)
     rejected: Counter = field(default_factory=Counter)
@@ -395,6 +400,7 @@ class IngestStats:
         for k in EVENT_KINDS:
             d[k] = getattr(self, k)
         d["bad_total"] = self.bad_total
+        d["absent"] = dict(sorted(self.absent.items()))
         d["messages"] = dict(sorted(self.messages.items()))
         d["accepted"] = dict(sorted(self.accepted.items()))
         d["rejected"] = dict(sorted(self.rejected.items()))
