@@ -246,6 +246,15 @@ def _ns_rows(T: Array) -> list[int]:
     return np.maximum(np.rint(T * 1e9), 0.0).astype(np.int64).tolist()
 
 
+def _rows(a) -> Array:
+    """``a`` as (N, m) rows; an empty scan (``[]``, (0,) or (0, m)) gives (0, m) (m = 0
+    when unknown) instead of the ``reshape(0, -1)`` error numpy raises for size 0."""
+    a = np.asarray(a, float)
+    if a.size == 0:
+        return a.reshape(0, a.shape[-1] if a.ndim > 1 else 0)
+    return a.reshape(len(a), -1)
+
+
 def _stack3(vs: list) -> Array:
     """Rows of 3-vectors (a list of (3,) arrays) as (N, 3) float."""
     return np.array(vs, float).reshape(-1, 3)
@@ -1062,7 +1071,7 @@ class Publisher:
     def _radar(self, s) -> None:
         self._saw_radar()
 
-        Z = np.asarray(s.Z, float).reshape(len(s.Z), -1)
+        Z = _rows(s.Z)
         m = s.model
         xyz = []
         for z in Z:
@@ -1088,7 +1097,7 @@ class Publisher:
                 color=_rgba("#d62728", 1.0))])]
         self._pb("/radar/detections", "SceneUpdate", s.t, lambda: SceneUpdate(entities=ents))
         if s.truths is not None:
-            X = np.asarray(s.truths, float)
+            X = _rows(s.truths)
             alive = [i for i in range(len(X)) if np.isfinite(X[i]).all()]
             self._json("/radar/truth/state", "uavest.TargetTruth", s.t, {
                 "t": s.t, "k": int(s.k), "n": len(alive),
@@ -1188,6 +1197,8 @@ def b64_floats(s: str | list[str]) -> Array:
     """float64 array(s) from the recorder's base64 fields (a list gives a stacked array)."""
     if isinstance(s, str):
         return np.frombuffer(base64.b64decode(s), "<f8")
+    if len(s) == 0:
+        return np.empty((0, 0))
     return np.stack([np.frombuffer(base64.b64decode(x), "<f8") for x in s])
 
 
