@@ -62,10 +62,14 @@ _T = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # NED <-> E
 
 #: What the live estimator asks the vehicle for (name -> Hz): the IMU, the autopilot's
 #: attitude (the radar's pose and the fallback reference), position (ownship of the
-#: virtual radar), SIMSTATE (a SITL's truth; a real vehicle ignores it) and time.
+#: virtual radar), SIMSTATE (a SITL's truth; a real vehicle ignores it), time, and the
+#: radar lanes' inputs: ADSB_VEHICLE (ArduPilot sends traffic only when asked on that link,
+#: about 1 Hz per aircraft at most) and OBSTACLE_DISTANCE_3D, and barometric pressure.
+#: Streams the vehicle does not serve are named by ``check_rates`` (a warning per stream).
 LIVE_STREAMS = {
     "HIGHRES_IMU": 100.0, "RAW_IMU": 50.0, "ATTITUDE": 10.0, "GLOBAL_POSITION_INT": 10.0,
     "GPS_RAW_INT": 5.0, "SIMSTATE": 10.0, "SYSTEM_TIME": 1.0,
+    "ADSB_VEHICLE": 10.0, "OBSTACLE_DISTANCE_3D": 10.0, "SCALED_PRESSURE": 10.0,
 }
 
 
