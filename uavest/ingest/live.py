@@ -431,6 +431,7 @@ class LiveLink(MavlinkSource):
         self._gen: Iterator | None = None
         self._connected_once = False
         self._connected_at = time.monotonic()
+        self._connect_error: str | None = None  # why the last connection attempt failed
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> LiveLink:
@@ -561,11 +562,13 @@ class LiveLink(MavlinkSource):
             if tr is None:
                 try:
                     tr = _Transport(self.conn, self.baud)
-                except OSError:
+                except OSError as e:  # e.g. a refused TCP connection: said while waiting
+                    self._connect_error = e.strerror or str(e) or type(e).__name__
                     self._stop.wait(backoff)
                     backoff = min(2 * backoff, 2.0)
                     continue
                 backoff = 0.1
+                self._connect_error = None
                 self._connected_at = time.monotonic()
                 with self._writer.lock:
                     self._writer.transport = tr
@@ -717,12 +720,20 @@ class LiveLink(MavlinkSource):
         who = f"system {self.sysid}" if self.sysid is not None else "a vehicle"
         while not self._hb.wait(0.05):
             now = time.monotonic()
+            refused = self._connect_error if self._writer.transport is None else None
             if now - t0 > self.heartbeat_timeout:
+                if refused:
+                    raise LinkTimeout(
+                        f"{self.conn}: cannot connect ({refused}) for "
+                        f"{self.heartbeat_timeout:g} s (is the vehicle/SITL listening on "
+                        "this address and port?)")
                 raise LinkTimeout(
                     f"{self.conn}: no HEARTBEAT from {who} within {self.heartbeat_timeout:g} s "
                     f"(is the vehicle/SITL sending to this address?)")
             if now >= next_note:
-                msg = f"{self.conn}: waiting for a HEARTBEAT from {who} ({now - t0:.0f} s)"
+                msg = (f"{self.conn}: cannot connect ({refused}), retrying "
+                       f"({now - t0:.0f} s)" if refused else
+                       f"{self.conn}: waiting for a HEARTBEAT from {who} ({now - t0:.0f} s)")
                 if self.on_wait is not None:
                     self.on_wait(msg)
                 else:
