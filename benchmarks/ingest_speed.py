@@ -1,7 +1,7 @@
 """Ingest speed: decoding only the record types the converters use (``uavest/ingest/skip.py``)
 against decoding every record (the former path, ``MavlinkSource._decode_all = True``).
 
-    PYTHONPATH=$PWD python benchmarks/ingest_speed.py [--rounds 5] [--logs /work/shared/logs]
+    PYTHONPATH=$PWD python benchmarks/ingest_speed.py [--rounds 5] [--logs ../shared/logs]
 
 In one process, for each log (``vtol.tlog`` and ``test.BIN`` from the shared logs,
 ``logs/sim_200hz.tlog``), old and new alternate (the order flips every round) for
@@ -27,12 +27,16 @@ import sys
 import time
 from pathlib import Path
 
+#: the shared real logs: $UAVEST_LOGS or repo_root/../shared/logs
+SHARED_LOGS = (Path(os.environ["UAVEST_LOGS"]) if os.environ.get("UAVEST_LOGS")
+               else Path(__file__).resolve().parents[1].parent / "shared" / "logs")
+
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _shared(arg: str | None) -> Path | None:
-    cands = [arg, os.environ.get("UAVEST_SHARED_LOGS"), ROOT.parent / "shared" / "logs",
-             "/work/shared/logs"]
+    cands = [arg, os.environ.get("UAVEST_SHARED_LOGS"), ROOT.parent / "shared" / "logs"]
     for c in cands:
         if c and (Path(c) / "vtol.tlog").is_file():
             return Path(c)

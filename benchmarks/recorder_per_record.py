@@ -34,6 +34,11 @@ from uavest.apps.replay import ReplayConfig, replay  # noqa: E402
 from uavest.engine.records import StepRecord  # noqa: E402
 from uavest.sinks.base import Sink  # noqa: E402
 
+#: the shared real logs: $UAVEST_LOGS or repo_root/../shared/logs
+SHARED_LOGS = (Path(os.environ["UAVEST_LOGS"]) if os.environ.get("UAVEST_LOGS")
+               else Path(__file__).resolve().parents[1].parent / "shared" / "logs")
+
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -88,7 +93,7 @@ def feed(sink, calls) -> float:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("log", nargs="?", default="/work/shared/logs/sample.ulg")
+    ap.add_argument("log", nargs="?", default=str(SHARED_LOGS / "sample.ulg"))
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--rate-hz", type=float, default=0.0)
     ap.add_argument("--repeats", type=int, default=5)

@@ -16,6 +16,11 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
+#: the shared real logs: $UAVEST_LOGS or repo_root/../shared/logs
+SHARED_LOGS = (Path(os.environ["UAVEST_LOGS"]) if os.environ.get("UAVEST_LOGS")
+               else Path(__file__).resolve().parents[1].parent / "shared" / "logs")
+
+
 def table(path: Path) -> str:
     from uavest.report import read_recording
 
@@ -42,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     d = Path(args.out or tempfile.mkdtemp())
     d.mkdir(parents=True, exist_ok=True)
     vt = d / "vtol.mcap"
-    replay("/work/shared/logs/vtol.tlog", ReplayConfig(), sinks=[McapSink(vt)],
+    replay(str(SHARED_LOGS / "vtol.tlog"), ReplayConfig(), sinks=[McapSink(vt)],
            command="uavest replay vtol.tlog --record vtol.mcap")
     print("### Replay of vtol.tlog (ekf, ukf, hybrid; default options)\n")
     print(table(vt))

@@ -4,7 +4,7 @@ side (alternating runs, so both see the same machine load), and the file size.
     OPENBLAS_NUM_THREADS=1 python benchmarks/recording_cost.py [LOG] [--pairs N]
         [--rate-hz 0] [--seconds S]
 
-Default: ``/work/shared/logs/sample.ulg`` (PX4, 248 Hz IMU) at ``rate_hz=0`` (every IMU
+Default: ``../shared/logs/sample.ulg`` (PX4, 248 Hz IMU) at ``rate_hz=0`` (every IMU
 sample a filter step) with the three default filters (ekf, ukf, hybrid). Prints per run
 the wall and CPU time, then the ratios (median with / median without, and of the fastest
 runs by CPU time; the CPU-time ratio
@@ -37,6 +37,10 @@ from pathlib import Path  # noqa: E402
 from uavest.apps.replay import ReplayConfig, replay  # noqa: E402
 from uavest.sinks.base import Sink  # noqa: E402
 from uavest.sinks.mcap import McapSink  # noqa: E402
+
+#: the shared real logs: $UAVEST_LOGS or repo_root/../shared/logs
+SHARED_LOGS = (Path(os.environ["UAVEST_LOGS"]) if os.environ.get("UAVEST_LOGS")
+               else Path(__file__).resolve().parents[1].parent / "shared" / "logs")
 
 
 class Timed(Sink):
@@ -72,7 +76,7 @@ class Timed(Sink):
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("log", nargs="?", default="/work/shared/logs/sample.ulg")
+    ap.add_argument("log", nargs="?", default=str(SHARED_LOGS / "sample.ulg"))
     ap.add_argument("--pairs", type=int, default=2)
     ap.add_argument("--rate-hz", type=float, default=0.0)
     ap.add_argument("--frame-rate-hz", type=float, default=None,

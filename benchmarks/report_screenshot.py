@@ -3,7 +3,7 @@ HTML renders with no network).
 
     python benchmarks/report_screenshot.py [RUN.mcap] [--out DIR]
 
-Without a recording it records a replay of ``/work/shared/logs/vtol.tlog`` (up to
+Without a recording it records a replay of ``../shared/logs/vtol.tlog`` (up to
 t = 700 s) first. Writes ``<DIR>/<stem>.html`` (via :func:`uavest.report.write_report`)
 and ``<DIR>/<stem>.screenshot.png`` (1400 x 3000), prints their paths and a check that
 the screenshot is not blank. Exit status 0 when the screenshot looks like a rendered page.
@@ -12,13 +12,19 @@ the screenshot is not blank. Exit status 0 when the screenshot looks like a rend
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
-VTOL = Path("/work/shared/logs/vtol.tlog")
+#: the shared real logs: $UAVEST_LOGS or repo_root/../shared/logs
+SHARED_LOGS = (Path(os.environ["UAVEST_LOGS"]) if os.environ.get("UAVEST_LOGS")
+               else Path(__file__).resolve().parents[1].parent / "shared" / "logs")
+
+
+VTOL = SHARED_LOGS / "vtol.tlog"
 
 
 def chromium() -> str | None:
