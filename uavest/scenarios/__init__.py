@@ -3,13 +3,15 @@
 ``load_scenario("ungm")`` finds ``scenarios/ungm.toml`` (next to the package in a source
 checkout, or in ./scenarios); a path to a .toml file works too. ``--set KEY=VALUE``
 overrides (dotted keys for tables, values parsed as TOML literals, bare words as
-strings) are applied with :func:`apply_sets`. Built-in defaults for ``ungm``,
+strings) are applied with :func:`apply_sets`; a key the scenario lacks (and not in
+:data:`OPTIONAL_KEYS`) is a ScenarioError naming the close matches. Built-in defaults for ``ungm``,
 ``nonlinear2d`` and ``linear_cv`` exist so that the benchmark runs even without the files.
 """
 
 from __future__ import annotations
 
 import copy
+import difflib
 import tomllib
 from pathlib import Path
 
@@ -196,6 +198,7 @@ def apply_sets(sc: dict, sets) -> dict:
         parts = [p for p in key.strip().split(".") if p]
         if not parts:
             raise ScenarioError(f"--set {item!r}: empty key")
+        _check_known(sc, parts, item)
         node = sc
         for p in parts[:-1]:
             nxt = node.setdefault(p, {})
@@ -204,3 +207,48 @@ def apply_sets(sc: dict, sets) -> dict:
             node = nxt
         node[parts[-1]] = parse_value(val.strip())
     return sc
+
+
+#: Keys the code reads with a default, so a scenario file may leave them out and ``--set``
+#: may still add them (dotted, from the top of the scenario). Everything else ``--set``
+#: names must already be in the scenario (TOML merged with its built-in defaults):
+#: a typo must not be silently ignored.
+OPTIONAL_KEYS: frozenset[str] = frozenset({
+    "ndim", "dt", "runs", "steps", "divergence_rmse", "filters", "mode", "metrics",
+    "motion.truth_q", "motion.q", "motion.q_omega", "motion.model",
+    # uavest.tracking.tracker.TrackerConfig fields (a [tracker] table overrides them)
+    "tracker.gate_prob", "tracker.confirm_m", "tracker.confirm_n", "tracker.delete_misses",
+    "tracker.init_vel_std", "tracker.init_omega_std", "tracker.max_pos_std",
+    "tracker.association", "tracker.pd", "tracker.clutter_density", "tracker.jpda_max_cluster",
+    "radar.pd", "radar.clutter_rate", "radar.enabled", "radar.rate_hz",
+    "adsb.enabled", "mag.declination_deg",
+})
+
+
+def _known_keys(sc: dict, prefix: str = "") -> set[str]:
+    out: set[str] = set()
+    for k, v in sc.items():
+        key = f"{prefix}{k}"
+        out.add(key)
+        if isinstance(v, dict):
+            out |= _known_keys(v, key + ".")
+    return out
+
+
+def _check_known(sc: dict, parts: list[str], item: str) -> None:
+    """Raise :class:`ScenarioError` if the dotted key is neither in ``sc`` nor optional,
+    naming the close matches (or the top-level sections)."""
+    key = ".".join(parts)
+    known = _known_keys(sc) | OPTIONAL_KEYS
+    if key in known:
+        return
+    cands = sorted(known)
+    close = difflib.get_close_matches(key, cands, n=3, cutoff=0.6)
+    # a bare leaf name ("clutter_rate") matches its dotted form ("radar.clutter_rate")
+    close += [c for c in cands if c.rsplit(".", 1)[-1] == parts[-1] and c not in close]
+    if close:
+        hint = f"did you mean {', '.join(close[:3])}?"
+    else:
+        secs = sorted(k for k, v in sc.items() if isinstance(v, dict))
+        hint = f"known sections: {', '.join(secs) or '(none)'}"
+    raise ScenarioError(f"unknown scenario key {key!r} ({hint})")
