@@ -222,6 +222,17 @@ OPTIONAL_KEYS: frozenset[str] = frozenset({
     "tracker.association", "tracker.pd", "tracker.clutter_density", "tracker.jpda_max_cluster",
     "radar.pd", "radar.clutter_rate", "radar.enabled", "radar.rate_hz",
     "adsb.enabled", "mag.declination_deg",
+    "targets", "source", "prior", "kind", "name", "uav", "model", "missed",
+    "prior.mean", "prior.std", "prior.truth_mean", "prior.truth_var", "prior.filter_mean",
+    "prior.filter_var", "prior.omega_std",
+})
+
+#: Sections the code reads with defaults (the simulator's and the radar's): when a scenario
+#: has no such table, any key under it may be set (its reader checks the values); when it
+#: has one, its keys are checked like the rest.
+OPTIONAL_SECTIONS: frozenset[str] = frozenset({
+    "tracker", "vehicle", "time", "origin", "mavlink", "mag", "imu", "gps", "baro", "ahrs",
+    "adsb", "radar", "motion", "prior", "uav",
 })
 
 
@@ -241,6 +252,9 @@ def _check_known(sc: dict, parts: list[str], item: str) -> None:
     key = ".".join(parts)
     known = _known_keys(sc) | OPTIONAL_KEYS
     if key in known:
+        return
+    if len(parts) > 1 and parts[0] in OPTIONAL_SECTIONS and not isinstance(sc.get(parts[0]),
+                                                                           dict):
         return
     cands = sorted(known)
     close = difflib.get_close_matches(key, cands, n=3, cutoff=0.6)
