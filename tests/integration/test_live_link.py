@@ -484,7 +484,7 @@ def test_tcp_vehicle_started_after_the_link():
 
 def test_unreachable_tcp_times_out_cleanly():
     port = free_port(socket.SOCK_STREAM)
-    with pytest.raises(LinkTimeout, match="no HEARTBEAT"):
+    with pytest.raises(LinkTimeout, match="cannot connect .*refused"):
         open_live(f"tcp:127.0.0.1:{port}", heartbeat_timeout=0.6)
     with pytest.raises(Exception, match="cannot open|host:port"):
         open_live("udpin:127.0.0.1:notaport", heartbeat_timeout=0.3)
