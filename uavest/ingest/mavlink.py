@@ -272,11 +272,7 @@ class MavlinkSource:
                 if rs is not None and len(conn.mav.buf) == conn.mav.buf_index:
                     o = conn.f.tell()
                     rs.bind(conn.mav)
-                    # the CRC too only before the first good record or after a bad one:
-                    # later, pymavlink's robust parsing gets back in step after a bad CRC
-                    last = conn._last_message
-                    full = last is None or last.get_type() == "BAD_DATA"
-                    if rs.frame_ok(o, full) is False:  # not a MAVLink record: find the next one
+                    if rs.frame_ok(o) is False:  # not a MAVLink record: find the next one
                         found = rs.resync(conn, o, conn._last_timestamp)
                         if found is not None:
                             q, text, junk = found

@@ -177,17 +177,14 @@ class TlogSkipper:
         if type(mav) is not self._mavtype:
             self._table(mav)
 
-    def frame_ok(self, o: int, crc: bool = True) -> bool | None:
+    def frame_ok(self, o: int) -> bool | None:
         """Whether the tlog record at offset ``o`` holds a good MAVLink frame: True (marker,
         flags and CRC good), False (bad marker, flags or CRC: not a MAVLink record) or None
-        (cannot tell: unknown message id, or cut by the end of the file). ``crc`` False:
-        the marker alone (None when it is a MAVLink STX), the cheap test."""
+        (cannot tell: unknown message id, or cut by the end of the file)."""
         mm = self.mm
         if mm is None or o + 18 > self.size:
             return None
         mk = mm[o + 8]
-        if not crc:
-            return None if mk in (0xFD, 0xFE) else False
         if mk == 0xFD:
             inc = mm[o + 10]
             if inc & 0xFE:
