@@ -263,23 +263,10 @@ class MavlinkSource:
         is_df = self.format.startswith("dataflash")
         stall = 0
         last_pos = -1
-        skip = rs = None
+        skip = None
         try:
             skip = self._skipper(conn)
-            if not is_df:  # finds the way back after records that are not MAVLink
-                rs = skip if isinstance(skip, TlogSkipper) else TlogSkipper(self.path)
             while True:
-                if rs is not None and len(conn.mav.buf) == conn.mav.buf_index:
-                    o = conn.f.tell()
-                    rs.bind(conn.mav)
-                    if rs.frame_ok(o) is False:  # not a MAVLink record: find the next one
-                        found = rs.resync(conn, o, conn._last_timestamp)
-                        if found is not None:
-                            q, text, junk = found
-                            st.bad("non_mavlink", "text", text)
-                            st.bad("corrupt", "resync", -(-junk // 271))
-                            conn.f.seek(q)
-                            self.bytes_read = last_pos = q
                 if skip is not None:
                     rec = skip.next(conn, last_pos)
                     if rec is not None:  # a good record of an unused type, not decoded
@@ -351,8 +338,6 @@ class MavlinkSource:
             if isinstance(skip, TlogSkipper):
                 skip.sync(conn)
                 skip.close()
-            if rs is not None and rs is not skip:
-                rs.close()
             self._check_truncated(conn)
             with contextlib.suppress(Exception):
                 conn.close()

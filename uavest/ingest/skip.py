@@ -34,8 +34,6 @@ DATAFLASH_DECODED = frozenset(DATAFLASH_CONVERTERS) | {
     "PARM", "FMT", "FMTU", "MODE", "MSG", "VER", "STAT", "TIME"}
 
 _T = struct.Struct(">Q")
-_SPAN = 3 * 24 * 3600.0  # s: a resynchronised record's time within this of the last (as pymavlink)
-_MIN_US, _MAX_US = 946_684_800_000_000, 4_102_444_800_000_000  # 2000..2100, UNIX us
 
 
 class Skipped:
@@ -170,80 +168,6 @@ class TlogSkipper:
         mav.expected_length = expect  # pymavlink's parser after a frame with this marker
         self.pos = end
         return Skipped(info[0], sysid, rx)
-
-    # ------------------------------------------------------------ resynchronising
-    def bind(self, mav) -> None:
-        """Use the message table (ids, CRC extras) of pymavlink parser ``mav``."""
-        if type(mav) is not self._mavtype:
-            self._table(mav)
-
-    def frame_ok(self, o: int) -> bool | None:
-        """Whether the tlog record at offset ``o`` holds a good MAVLink frame: True (marker,
-        flags and CRC good), False (bad marker, flags or CRC: not a MAVLink record) or None
-        (cannot tell: unknown message id, or cut by the end of the file)."""
-        mm = self.mm
-        if mm is None or o + 18 > self.size:
-            return None
-        mk = mm[o + 8]
-        if mk == 0xFD:
-            inc = mm[o + 10]
-            if inc & 0xFE:
-                return False
-            sig = 13 if inc & 1 else 0
-            mid = mm[o + 15] | mm[o + 16] << 8 | mm[o + 17] << 16
-            flen = mm[o + 9] + 12 + sig
-        elif mk == 0xFE:
-            sig = 0
-            mid = mm[o + 13]
-            flen = mm[o + 9] + 8
-        else:
-            return False
-        end = o + 8 + flen
-        cls = self._mod.mavlink_map.get(mid) if self._mod is not None else None
-        if cls is None or end > self.size:
-            return None
-        if self._ignore_crc:
-            return True
-        c = end - 2 - sig
-        return self._crc(mm[o + 9:c] + bytes((cls.crc_extra,))) == (mm[c] | mm[c + 1] << 8)
-
-    def resync(self, conn, o: int, last_t: float | None) -> tuple[int, int, int] | None:
-        """After a record at offset ``o`` that does not frame as MAVLink (:meth:`frame_ok`
-        False): find the next record that does, i.e. an 8-byte big-endian UNIX-us time
-        within 3 days of ``last_t`` (s UNIX; the last good record's, else the time at ``o``)
-        followed by a good frame. Returns (offset, text records, other bytes) skipped: the
-        one-byte printable records (an autopilot's console text) counted apart from the
-        rest, or None when no good record follows (the end of the file is left to
-        pymavlink). Slow (a byte-by-byte scan): only called when framing fails."""
-        mm, size = self.mm, self.size
-        if mm is None:
-            return None
-        self.bind(conn.mav)
-        if last_t is None and o + 8 <= size:
-            last_t = _T.unpack_from(mm, o)[0] * 1.0e-6
-        lo_us = int((last_t - _SPAN) * 1e6) if last_t is not None else _MIN_US
-        hi_us = int((last_t + _SPAN) * 1e6) if last_t is not None else _MAX_US
-        if not _MIN_US <= lo_us <= _MAX_US:  # no plausible reference: any plausible time
-            lo_us, hi_us = _MIN_US, _MAX_US
-        p = o + 1
-        while p + 18 <= size:
-            # next position whose frame marker is a MAVLink STX
-            q1, q2 = mm.find(b"\xfd", p + 8), mm.find(b"\xfe", p + 8)
-            q = min(x for x in (q1, q2, size) if x >= 0) - 8
-            if q + 18 > size:
-                return None
-            if lo_us <= _T.unpack_from(mm, q)[0] <= hi_us and self.frame_ok(q):
-                break
-            p = q + 1
-        else:
-            return None
-        # the skipped span: leading one-byte records of text, then anything else
-        text, r = 0, o
-        while r + 9 <= q and (32 <= mm[r + 8] < 127 or mm[r + 8] in (9, 10, 13)) and (
-                lo_us <= _T.unpack_from(mm, r)[0] <= hi_us):
-            text += 1
-            r += 9
-        return q, text, q - r
 
     def close(self) -> None:
         """Release the memory map."""
