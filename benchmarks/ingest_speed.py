@@ -22,21 +22,17 @@ the wall-clock ratio in brackets), and whether both paths gave the same samples 
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from pathlib import Path
 
-#: the shared real logs: $UAVEST_LOGS or repo_root/../shared/logs
-SHARED_LOGS = (Path(os.environ["UAVEST_LOGS"]) if os.environ.get("UAVEST_LOGS")
-               else Path(__file__).resolve().parents[1].parent / "shared" / "logs")
-
+from _shared_logs import SHARED_LOGS  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _shared(arg: str | None) -> Path | None:
-    cands = [arg, os.environ.get("UAVEST_SHARED_LOGS"), ROOT.parent / "shared" / "logs"]
+    cands = [arg, SHARED_LOGS]
     for c in cands:
         if c and (Path(c) / "vtol.tlog").is_file():
             return Path(c)

@@ -16,9 +16,7 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
-#: the shared real logs: $UAVEST_LOGS or repo_root/../shared/logs
-SHARED_LOGS = (Path(os.environ["UAVEST_LOGS"]) if os.environ.get("UAVEST_LOGS")
-               else Path(__file__).resolve().parents[1].parent / "shared" / "logs")
+from _shared_logs import SHARED_LOGS  # noqa: E402
 
 
 def table(path: Path) -> str:

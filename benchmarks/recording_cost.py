@@ -34,13 +34,11 @@ import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+from _shared_logs import SHARED_LOGS  # noqa: E402
+
 from uavest.apps.replay import ReplayConfig, replay  # noqa: E402
 from uavest.sinks.base import Sink  # noqa: E402
 from uavest.sinks.mcap import McapSink  # noqa: E402
-
-#: the shared real logs: $UAVEST_LOGS or repo_root/../shared/logs
-SHARED_LOGS = (Path(os.environ["UAVEST_LOGS"]) if os.environ.get("UAVEST_LOGS")
-               else Path(__file__).resolve().parents[1].parent / "shared" / "logs")
 
 
 class Timed(Sink):

@@ -12,17 +12,13 @@ the screenshot is not blank. Exit status 0 when the screenshot looks like a rend
 from __future__ import annotations
 
 import argparse
-import os
 import shutil
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
-#: the shared real logs: $UAVEST_LOGS or repo_root/../shared/logs
-SHARED_LOGS = (Path(os.environ["UAVEST_LOGS"]) if os.environ.get("UAVEST_LOGS")
-               else Path(__file__).resolve().parents[1].parent / "shared" / "logs")
-
+from _shared_logs import SHARED_LOGS  # noqa: E402
 
 VTOL = SHARED_LOGS / "vtol.tlog"
 

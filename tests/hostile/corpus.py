@@ -5,20 +5,18 @@ corruptions of one timestamp. Used by ``tests/hostile`` and ``benchmarks/hostile
 
 from __future__ import annotations
 
-import os
 import struct
 from pathlib import Path
 
 import numpy as np
-
-LOGS = Path(__file__).resolve().parents[3] / "shared" / "logs"
+from conftest import shared_logs_dir
 
 
 def logs_dir() -> Path:
-    """The shared logs: ``$UAVEST_LOGS`` or ``repo_root/../shared/logs`` (as tests/conftest.py;
-    this module is also imported by benchmarks/hostile_sweep.py, outside pytest)."""
-    env = os.environ.get("UAVEST_LOGS")
-    return Path(env) if env else LOGS
+    """The shared logs: tests/conftest.py's ``shared_logs_dir`` (``$UAVEST_LOGS`` or
+    ``repo_root/../shared/logs``); tests/ is on the path in pytest and in
+    benchmarks/hostile_sweep.py, which imports this module outside pytest."""
+    return shared_logs_dir()
 
 
 def tlog_records(data: bytes) -> list[tuple[int, int, int]]:
