@@ -198,7 +198,7 @@ def apply_sets(sc: dict, sets) -> dict:
         parts = [p for p in key.strip().split(".") if p]
         if not parts:
             raise ScenarioError(f"--set {item!r}: empty key")
-        _check_known(sc, parts, item)
+        _check_known(sc, parts)
         node = sc
         for p in parts[:-1]:
             nxt = node.setdefault(p, {})
@@ -246,7 +246,7 @@ def _known_keys(sc: dict, prefix: str = "") -> set[str]:
     return out
 
 
-def _check_known(sc: dict, parts: list[str], item: str) -> None:
+def _check_known(sc: dict, parts: list[str]) -> None:
     """Raise :class:`ScenarioError` if the dotted key is neither in ``sc`` nor optional,
     naming the close matches (or the top-level sections)."""
     key = ".".join(parts)
