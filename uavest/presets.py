@@ -12,17 +12,12 @@ them; a *preset* names such a tuning so that users can see it (``uavest list`` p
 ``attitude``
     ``uavest replay`` (attitude from IMU, n = 6): ``hybrid`` with n_cloud = 16 (M = 221)
     and tau = 0.9 (90 % of each measurement by the EnKF shift, 10 % by the confidence
-    weights). Both were chosen on vtol.tlog, which is also the log the results are
-    scored on (docs/attitude.md gives the sweep): over seeds 0-3, tau = 0.3 is
-    overconfident (NEES 5-7) and worse, tau = 0.6 in between; n_cloud = 8 let filtered
-    yaw exceed 4 degrees on one seed of four, 16 on none.
+    weights); docs/attitude.md gives the sweep they were chosen by.
 ``radar``
     ``uavest track`` and the radar scenarios of ``uavest bench``: ``hybrid`` with the
     local-gain (Gaussian-mixture) update and n_cloud = 64 (M = 585 in 4-D). The local
     update keeps the information of a 10 m range that the single EnKF shift loses
-    against a wide prior: radar_far 5 deg PCRLB ratio, seeds 0 / 1 of 100 runs, 1.517 /
-    1.830 -> 1.413 / 1.333, radar_multitarget GOSPA 117.5 -> 103.5 m (docs/tracking.md;
-    the local update's result varies with its own random draws, as documented there).
+    against a wide prior (docs/tracking.md gives the measurements).
     Write ``hybrid(update_mode=shift, n_cloud=32)`` for the core default.
 
 A preset's values apply to the registry name and its ``_sh`` variant; parameters the
