@@ -12,7 +12,7 @@ from mcap.reader import make_reader
 from uavest.engine.records import RunInfo, ScanRecord, TrackEstimate, package_versions
 from uavest.experiments.radar import data_rng
 from uavest.scenarios import load_scenario
-from uavest.sinks.foxglove_channels import RadarScanSample
+from uavest.engine.records import RadarScanSample
 from uavest.sinks.mcap import McapSink
 from uavest.tracking.scenario import build_models, generate_run
 

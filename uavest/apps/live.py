@@ -37,7 +37,15 @@ import numpy as np
 from ..engine.attitude import AttitudeOptions, AttitudeStream
 from ..engine.build import build_filters
 from ..engine.loop import Lane, run_lanes
-from ..engine.records import RunInfo, ScanRecord, Start, Step, StepRecord, package_versions
+from ..engine.records import (
+    RadarScanSample,
+    RunInfo,
+    ScanRecord,
+    Start,
+    Step,
+    StepRecord,
+    package_versions,
+)
 from ..engine.runner import FilterRunner, TrackerRunner
 from ..eval.attitude import AttitudeScorer, select_reference
 from ..eval.metrics import nees
@@ -48,7 +56,6 @@ from ..models.motion import NearlyConstantVelocity
 from ..models.radar import RadarMeasurement, SensorPose
 from ..seeding import filter_stream, rng
 from ..sinks.base import Sink
-from ..sinks.foxglove_channels import RadarScanSample
 from ..tracking.tracker import Tracker, TrackerConfig
 from .replay import _Score
 

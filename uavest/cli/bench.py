@@ -6,8 +6,9 @@ import sys
 
 from ..scenarios import load_scenario
 from ..sinks.jsonout import write_json
+from ..sinks.table import table
+from .progress import progress
 from .record import finish_recording, recording_sinks
-from .report import progress, table
 
 __all__ = ["cmd_bench"]
 

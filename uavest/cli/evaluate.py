@@ -17,7 +17,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     complete result files kept)."""
     from ..fleet import build_plan, make_backend
     from ..fleet.run import execute, summarize, terminal_report, write_outputs
-    from .report import progress
+    from .progress import progress
 
     if args.workers is not None and args.workers < 0:
         raise ValueError(f"--workers must be >= 0 (0 = serial), got {args.workers}")

@@ -14,8 +14,9 @@ from ..engine.attitude import DEFAULT_MAX_RATE_HZ
 from ..models.attitude import AttitudeNoise
 from ..sinks.base import ResetLog, Sink
 from ..sinks.jsonout import write_json
+from ..sinks.table import table
+from .progress import progress
 from .record import add_recording_options, finish_recording, recording_sinks
-from .report import progress, table
 
 __all__ = ["add_replay_parser", "cmd_replay", "format_doc"]
 

@@ -13,8 +13,8 @@ import threading
 from ..apps.live import LiveConfig, run_live
 from ..ingest.adsb_radar import RadarConfig
 from ..sinks.jsonout import write_json
+from ..sinks.table import table
 from .record import add_recording_options, finish_recording, recording_sinks
-from .report import table
 
 __all__ = ["add_demo_parser", "add_run_parser", "format_live"]
 

@@ -239,7 +239,7 @@ def local_gains(Hs, B, R, nu, dY, w, confidence, tag):  # pragma: no cover - com
 
 @njit(cache=True)
 def systematic_indices(w, u):  # pragma: no cover - compiled
-    """:func:`uavest.core.particle.systematic_resample`'s indices for the uniform draw
+    """:func:`uavest.core.resample.systematic_resample`'s indices for the uniform draw
     ``u``: the first j with cs_j >= (u + i) / M, cs the running sum of ``w`` (its last
     entry set to 1), by one merge of the two sorted sequences instead of M binary
     searches (the same sums in the same order, no fast-math: the same indices).

@@ -58,6 +58,8 @@ from ..geometry.spaces import Space
 from .base import Ensemble, Innovation
 from .gaussian import Gaussian
 from .model import Measurement, Transition
+from .resample import systematic_resample
+from .sigma import unscented_cross
 
 Array = np.ndarray
 Rng = np.random.Generator
@@ -97,11 +99,10 @@ def sigma_point_terms(
     g: Gaussian, model: Transition, t: float, dt: float, u: Array | None = None, ukf: Any = None
 ) -> tuple[Gaussian, Array]:
     """Unscented prediction of ``g`` and its cross-covariance C (the documented fallback):
-    ``ukf`` (default ``UKF()``: alpha=1, beta=2, kappa=0) ``.predict_cross``."""
+    ``ukf.predict_cross``, by default :func:`.sigma.unscented_cross` (what ``UKF()``'s
+    gives: alpha=1, beta=2, kappa=0)."""
     if ukf is None:
-        from .unscented import UKF
-
-        ukf = UKF()
+        return unscented_cross(g, model, t, dt, u)
     return ukf.predict_cross(g, model, t, dt, u)
 
 
@@ -135,8 +136,6 @@ def moment_match(gs: Sequence[Gaussian], w: Array, space: Space) -> Gaussian:
 def pool_ensembles(Es: Sequence[Ensemble], w: Array, rng: Rng) -> Ensemble:
     """Pool equal-size ensembles with weights w_h * w_hj and draw M members by systematic
     resampling (equal weights afterwards)."""
-    from .particle import systematic_resample
-
     M = Es[0].M
     X = np.concatenate([e.X for e in Es])
     wx = np.concatenate([wh * (np.full(M, 1.0 / M) if e.w is None else e.w)

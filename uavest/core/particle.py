@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from functools import lru_cache
 
 import numpy as np
 
@@ -20,29 +19,11 @@ from .base import Ensemble, Innovation, ensemble_estimate, innovation, sample_ga
 from .contract import EnsembleFilter
 from .ensemble import propagate_members
 from .gaussian import Gaussian
-from .linalg import NumericalError, chol, symmetrize
+from .linalg import chol, symmetrize
+from .resample import systematic_resample
 from .spec import param
 
 Array = np.ndarray
-
-
-def systematic_resample(w: Array, rng: np.random.Generator, n: int | None = None) -> Array:
-    """Indices (n,) drawn by systematic resampling from normalised weights ``w`` (N,);
-    n defaults to N. Raises :class:`NumericalError` for non-finite weights."""
-    N = w.shape[0] if n is None else n
-    cs = w.cumsum()
-    if not math.isfinite(cs[-1]):
-        raise NumericalError("resampling weights are not finite")
-    cs[-1] = 1.0
-    return cs.searchsorted((rng.random() + _arange(N)) * (1.0 / N))
-
-
-@lru_cache(maxsize=32)
-def _arange(N: int) -> Array:
-    """0, 1, ..., N-1 as floats (what ``u + np.arange(N)`` adds), shared and read-only."""
-    a = np.arange(N, dtype=float)
-    a.flags.writeable = False
-    return a
 
 
 def ess(w: Array) -> float:

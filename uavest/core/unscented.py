@@ -31,47 +31,13 @@ from .contract import FilterBase
 from .gaussian import Gaussian
 from .linalg import chol, gain_factor, nis_from_factor
 from .model import Measurement, Transition
+from .sigma import sigma_weights, unscented_predict
 from .spec import param
 
 Array = np.ndarray
 _dot = np.dot  # the same BLAS products as @ without the gufunc's per-call cost
 _array = np.array
 _empty = np.empty
-
-
-@lru_cache(maxsize=64)
-def sigma_weights(
-    n: int, alpha: float, beta: float, kappa: float, points: str
-) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
-    """(c, Wm, Wc, U) for ``points`` in {"merwe", "cubature"}; U is the unit offset
-    template so that the sigma offsets are U @ L.T. Arrays are read-only."""
-    if points == "cubature":
-        c = np.sqrt(n)
-        Wm = np.full(2 * n, 1.0 / (2 * n))
-        Wc = Wm.copy()
-    elif points == "merwe":
-        lam = alpha**2 * (n + kappa) - n
-        if n + lam <= 0:
-            raise ValueError(f"UKF: n + lambda = {n + lam} must be > 0 (alpha, kappa)")
-        c = np.sqrt(n + lam)
-        Wm = np.full(2 * n + 1, 1.0 / (2 * (n + lam)))
-        Wc = Wm.copy()
-        Wm[0] = lam / (n + lam)
-        Wc[0] = Wm[0] + 1.0 - alpha**2 + beta
-    else:
-        raise ValueError(f"unknown sigma points {points!r}: 'merwe' or 'cubature'")
-    U = sigma_offsets(np.eye(n), c, points)
-    for a in (Wm, Wc, U):
-        a.flags.writeable = False
-    return float(c), Wm, Wc, U
-
-
-def sigma_offsets(L: Array, c: float, points: str) -> Array:
-    """Tangent offsets (2n+1, n) (merwe, first row zero) or (2n, n) (cubature)."""
-    cL = c * L.T
-    if points == "cubature":
-        return np.vstack([cL, -cL])
-    return np.vstack([np.zeros((1, L.shape[0])), cL, -cL])
 
 
 @lru_cache(maxsize=64)
@@ -171,14 +137,8 @@ class UKF(FilterBase):
         return prior
 
     def _predict(self, g: Gaussian, model: Transition, t, dt, u):
-        space = model.space
-        _, Wm, Wc, U = self._w(space.dim)
-        D = _dot(U, chol(g.P).T)
-        Y = model.f(space.retract(g.x, D), t, dt, u)
-        x = space.mean(Y, Wm, Y[0])
-        dY = space.local(x, Y)
-        # sum of w_j d_j d_j^T + Q: symmetric PSD by construction for Wc >= 0
-        return Gaussian(x, _dot(dY.T * Wc, dY) + model.Q(t, dt, u)), D, dY, Wc
+        """(prediction, offsets D, deviations dY, Wc): :func:`.sigma.unscented_predict`."""
+        return unscented_predict(g, model, t, dt, u, self._w(model.space.dim))
 
     def predict_cross(
         self, g: Gaussian, model: Transition, t: float, dt: float, u: Array | None = None

@@ -27,8 +27,8 @@ import numpy as np
 Array = np.ndarray
 
 __all__ = [
-    "RunInfo", "ScanRecord", "Start", "Step", "StepRecord", "TrackEstimate", "Update",
-    "package_versions",
+    "RadarScanSample", "RunInfo", "ScanRecord", "Start", "StateSample", "Step", "StepRecord",
+    "TrackEstimate", "Update", "package_versions",
 ]
 
 
@@ -50,7 +50,7 @@ class Step:
     input ``u`` through ``transition``, then update with each ``(z, model)`` of
     ``updates`` in order. ``k`` counts steps from 1. ``info`` is for sinks, never for filters:
     ``info["samples"]``, samples the step builder derived (e.g. a radar scan as a
-    :class:`uavest.sinks.foxglove_channels.RadarScanSample`), is handed to every sink's
+    :class:`RadarScanSample`), is handed to every sink's
     ``sample`` before the estimators step."""
 
     k: int
@@ -60,6 +60,41 @@ class Step:
     updates: tuple[tuple[Array, Any], ...] = ()
     u: Array | None = None
     info: dict | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class RadarScanSample:
+    """One radar scan as a sample for sinks (the engine hook a radar source hands to
+    :meth:`~uavest.sinks.base.Sink.sample`): scan ``k`` at ``t`` (s), detections ``Z``
+    (N, m) [range m, azimuth rad, (elevation rad), (range rate m/s)], the radar model at
+    the scan's pose (``RadarMeasurement``, world ENU), optional ``origins`` (N,) (target
+    index, -1 clutter) and optional ``truths`` (n_targets, state) world ENU [p, v] with NaN
+    rows for absent targets (recorded as the truth for the report's GOSPA). Made by the
+    radar producers (experiments, the live app, the report's demo), read by the sinks."""
+
+    t: float
+    k: int
+    Z: Array
+    model: Any
+    origins: Array | None = None
+    truths: Array | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class StateSample:
+    """One step of a generic vector-state run (a Monte Carlo trial of the benchmark
+    systems: UNGM, nonlinear2d, linear_cv) as a sample for sinks, handed with the step
+    through ``Step.info["samples"]`` before the estimators step: step ``k`` at ``t`` (s),
+    the true state ``x`` (n,) (None when unknown) and the step's measurement ``z`` (m,)
+    (None without one), in the system's own units. A recorder that sees one records the
+    run's :class:`~uavest.engine.records.StepRecord` s on the generic ``/state/<label>/*``
+    channels (state = plain vector, covariance in the same coordinates) instead of the
+    attitude ones."""
+
+    t: float
+    k: int
+    x: Array | None = None
+    z: Array | None = None
 
 
 @dataclass(frozen=True, slots=True)

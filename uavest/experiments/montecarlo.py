@@ -39,7 +39,7 @@ def trial_data(sysm: System, seed: int, r: int) -> tuple[Array, Array]:
 def trial_steps(sysm: System, Z: Array, X: Array | None = None) -> Iterator[Start | Step]:
     """The engine's items for one trial: start at the filter prior, then one step per
     measurement (predict over dt, update with z_k). With the truth ``X`` (T, n) every step
-    also carries a :class:`~uavest.sinks.foxglove_channels.StateSample` (truth x_k and
+    also carries a :class:`~uavest.engine.records.StateSample` (truth x_k and
     z_k) in ``info["samples"]`` for recorders (filters never see ``info``)."""
     tr, me = sysm.transition, sysm.measurement
     yield Start(0.0, sysm.filter_prior, tr.space)
@@ -47,7 +47,7 @@ def trial_steps(sysm: System, Z: Array, X: Array | None = None) -> Iterator[Star
         for k in range(Z.shape[0]):
             yield Step(k + 1, (k + 1) * sysm.dt, sysm.dt, tr, ((Z[k], me),))
         return
-    from ..sinks.foxglove_channels import StateSample
+    from ..engine.records import StateSample
 
     for k in range(Z.shape[0]):
         t = (k + 1) * sysm.dt
@@ -72,7 +72,7 @@ def run_trial(sysm: System, specs: list[str], seed: int, r: int, sinks: Sequence
     """Per-filter metrics of trial ``r``: rmse, approx_error (mean |x_pred - x|),
     est_error (mean |x_est - x|), nees (mean over steps), resets, diverged, seconds.
     ``sinks`` (e.g. an MCAP recorder) see the same engine run (records, and the truth and
-    measurement of every step as :class:`~uavest.sinks.foxglove_channels.StateSample`);
+    measurement of every step as :class:`~uavest.engine.records.StateSample`);
     the numbers do not depend on them."""
     X, Z = trial_data(sysm, seed, r)
     n = sysm.transition.space.dim

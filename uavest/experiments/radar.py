@@ -219,7 +219,7 @@ def bench_filter_mode(sc: dict, filters: list[str], runs: int, seed: int, steps:
 def scan_steps(run, radar, motion, dt: float) -> Iterator[Start | Step]:
     """Engine items of one tracker-mode run: a start, then every scan's detections (with
     the scan and the truths as a sample for recorders)."""
-    from ..sinks.foxglove_channels import RadarScanSample
+    from ..engine.records import RadarScanSample
 
     yield Start(0.0, None, motion.space)
     for k, model in enumerate(_scan_models(radar, run), start=1):

@@ -158,7 +158,7 @@ MC_COLUMNS = ["trials", "rmse_mean", "rmse_median", "rmse_worst", "nees_mean",
 
 def terminal_report(summary: dict) -> str:
     """The tables printed at the end of ``uavest evaluate``."""
-    from ..cli.report import table
+    from ..sinks.table import table
 
     lines = []
     for g, s in summary["groups"].items():

@@ -1,6 +1,6 @@
 """A radar tracking run recorded through the sink interface, without the engine: the
 reference for the engine hook (a radar source hands each scan to ``Sink.sample`` as a
-:class:`~uavest.sinks.foxglove_channels.RadarScanSample`, with the truths when the
+:class:`~uavest.engine.records.RadarScanSample`, with the truths when the
 scenario has them, then every tracker's :class:`~uavest.engine.records.ScanRecord` to
 ``Sink.record``). Used by the tests, ``benchmarks/recording_channels.py`` and the docs."""
 
@@ -10,8 +10,7 @@ import time
 
 import numpy as np
 
-from ..engine.records import RunInfo, ScanRecord, TrackEstimate, package_versions
-from ..sinks.foxglove_channels import RadarScanSample
+from ..engine.records import RadarScanSample, RunInfo, ScanRecord, TrackEstimate, package_versions
 
 __all__ = ["run_radar_demo"]
 

@@ -2,7 +2,7 @@
 
 * :mod:`.vehicle`: multirotor truth motion (scenario manoeuvres) and IMU / magnetometer;
 * :mod:`.radar`: target aircraft, the body-fixed radar and ADS-B;
-* :mod:`.geo`: WGS84 geodetic <-> local NED;
+* :mod:`uavest.geometry.geodesy`: WGS84 geodetic <-> local NED (shared with ingest);
 * :mod:`.mavlink`: :class:`Simulator`, the ArduPilot-like MAVLink endpoint.
 
 See ``docs/sim.md``.

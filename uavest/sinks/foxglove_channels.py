@@ -32,7 +32,6 @@ import struct
 import time
 from bisect import bisect_right
 from collections import deque
-from dataclasses import dataclass
 from typing import Any
 
 import foxglove
@@ -60,7 +59,7 @@ from foxglove.messages import (
     Vector3,
 )
 
-from ..engine.records import RunInfo, ScanRecord, StepRecord
+from ..engine.records import RunInfo, ScanRecord, StateSample, StepRecord
 from ..geometry.rotation import (
     quat_conj,
     quat_log,
@@ -73,8 +72,8 @@ from . import protobuf as pb
 Array = np.ndarray
 
 __all__ = [
-    "DEFAULT_FRAME_RATE_HZ", "Publisher", "RadarScanSample", "SCHEMAS", "StateSample",
-    "euler_sigma_deg", "ned_frd_to_enu_flu", "b64_floats", "quat_to_rpy_deg", "triu_to_full",
+    "DEFAULT_FRAME_RATE_HZ", "Publisher", "SCHEMAS", "euler_sigma_deg", "ned_frd_to_enu_flu",
+    "b64_floats", "quat_to_rpy_deg", "triu_to_full",
 ]
 
 _S2 = math.sqrt(0.5)
@@ -86,40 +85,6 @@ Q_FRD2FLU = np.array([0.0, 1.0, 0.0, 0.0])
 #: :func:`uavest.eval.attitude.select_reference`).
 _REF_ORDER = ("SIMSTATE", "SIM", "ATTITUDE_QUATERNION", "ATTITUDE", "ATT", "vehicle_attitude")
 _KIND_RANK = {"truth": 0, "autopilot": 1, "ahrs2": 2}
-
-
-@dataclass(frozen=True, slots=True)
-class RadarScanSample:
-    """One radar scan as a sample for sinks (the engine hook a radar source hands to
-    :meth:`~uavest.sinks.base.Sink.sample`): scan ``k`` at ``t`` (s), detections ``Z``
-    (N, m) [range m, azimuth rad, (elevation rad), (range rate m/s)], the radar model at
-    the scan's pose (``RadarMeasurement``, world ENU), optional ``origins`` (N,) (target
-    index, -1 clutter) and optional ``truths`` (n_targets, state) world ENU [p, v] with NaN
-    rows for absent targets (recorded as the truth for the report's GOSPA)."""
-
-    t: float
-    k: int
-    Z: Array
-    model: Any
-    origins: Array | None = None
-    truths: Array | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class StateSample:
-    """One step of a generic vector-state run (a Monte Carlo trial of the benchmark
-    systems: UNGM, nonlinear2d, linear_cv) as a sample for sinks, handed with the step
-    through ``Step.info["samples"]`` before the estimators step: step ``k`` at ``t`` (s),
-    the true state ``x`` (n,) (None when unknown) and the step's measurement ``z`` (m,)
-    (None without one), in the system's own units. A recorder that sees one records the
-    run's :class:`~uavest.engine.records.StepRecord` s on the generic ``/state/<label>/*``
-    channels (state = plain vector, covariance in the same coordinates) instead of the
-    attitude ones."""
-
-    t: float
-    k: int
-    x: Array | None = None
-    z: Array | None = None
 
 
 # ------------------------------------------------------------------------- conversions

@@ -1,9 +1,9 @@
-"""The one table renderer of the command line (and its progress indicator)."""
+"""The one table renderer: the fixed-width metric tables the command line and
+``uavest evaluate``'s summary print (a sink-layer helper, so every layer above can use it)."""
 
 from __future__ import annotations
 
 import math
-import sys
 
 
 def _fmt(v) -> str:
@@ -32,13 +32,3 @@ def table(rows: dict[str, dict], columns: list[str], first: str = "filter") -> s
     widths = [max(len(x) for x in col) for col in zip(head, *body, strict=True)]
     line = lambda cells: "  ".join(c.rjust(w) if i else c.ljust(w) for i, (c, w) in enumerate(zip(cells, widths, strict=True)))  # noqa: E731,E501
     return "\n".join([line(head), line(["-" * w for w in widths])] + [line(b) for b in body])
-
-
-def progress(total: int | None, desc: str, enabled: bool | None = None):
-    """A tqdm progress bar on stderr, only on a terminal (``enabled`` None) or when asked;
-    otherwise a silent stand-in with the same ``update``/``close``/``set_postfix_str``."""
-    on = sys.stderr.isatty() if enabled is None else enabled
-    from tqdm import tqdm
-
-    return tqdm(total=total, desc=desc, disable=not on, leave=False, dynamic_ncols=True,
-                file=sys.stderr)
