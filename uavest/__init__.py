@@ -4,8 +4,8 @@ UKF/EnKF filter and a particle filter, side by side.
 Layers (data flows one way; each imports only those above it in this list; checked by
 ``lint-imports``, the contracts in ``pyproject.toml`` ``[tool.importlinter]``):
 
-- ``uavest.errors``, ``uavest.seeding``, ``uavest.layouts``: leaves usable anywhere (the
-  error types, the per-stream random generators, the Foxglove layouts' data).
+- ``uavest.errors`` (the error types), ``uavest.seeding`` (the per-stream random
+  generators), ``uavest.layouts`` (the Foxglove layouts' data): leaves usable anywhere.
 - ``uavest.geometry``: rotations, quaternions, state spaces (``retract``/``local``), geodesy.
 - ``uavest.core``: the filter core (knows nothing of MAVLink or files).
 - ``uavest.models``: transition and measurement models (know nothing of files).

@@ -21,13 +21,15 @@ import zlib
 
 import numpy as np
 
+from .errors import InputError
+
 __all__ = ["filter_stream", "rng"]
 
 
 def rng(seed: int, trial: int, stream: str) -> np.random.Generator:
     """The generator of ``stream`` in ``trial`` of a run seeded with ``seed``."""
     if seed < 0 or trial < 0:
-        raise ValueError(f"seed and trial must be >= 0, got seed={seed}, trial={trial}")
+        raise InputError(f"seed and trial must be >= 0, got seed={seed}, trial={trial}")
     return np.random.default_rng(
         np.random.SeedSequence([int(seed), int(trial), zlib.crc32(stream.encode())])
     )

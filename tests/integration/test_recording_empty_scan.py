@@ -9,10 +9,15 @@ import json
 import numpy as np
 from mcap.reader import make_reader
 
-from uavest.engine.records import RunInfo, ScanRecord, TrackEstimate, package_versions
+from uavest.engine.records import (
+    RadarScanSample,
+    RunInfo,
+    ScanRecord,
+    TrackEstimate,
+    package_versions,
+)
 from uavest.experiments.radar import data_rng
 from uavest.scenarios import load_scenario
-from uavest.engine.records import RadarScanSample
 from uavest.sinks.mcap import McapSink
 from uavest.tracking.scenario import build_models, generate_run
 

@@ -27,7 +27,7 @@ from ..engine.runner import FilterRunner
 from ..engine.smooth import smooth_records
 from ..eval.attitude import AttitudeScorer, choose_reference, nees_attitude, rmse_deg
 from ..geometry.rotation import quat_slerp_interp
-from ..ingest.types import AttitudeRef, ImuSample, MagSample
+from ..ingest.types import AttitudeRef, ImuSample, IngestError, MagSample, NoSamplesError
 from ..seeding import filter_stream, rng
 from ..sinks.base import Collector, Sink
 
@@ -272,17 +272,15 @@ def replay(
     try:
         out, stream, runners, scorer, coll = replay_samples(
             src, cfg, params=src.params, sinks=sinks, info=info, rng_for=rng_for)
-    except ValueError as e:
-        if "no samples" not in str(e) and "no IMU samples" not in str(e):
-            raise
+    except NoSamplesError:
         st = src.stats.as_dict()
         dmg = ", ".join(f"{k} {st[k]}" for k in st
                         if isinstance(st[k], int) and st[k] and k != "bad_total")
         window = (f" in the window {cfg.start}..{cfg.end} s"
                   if cfg.start is not None or cfg.end is not None else "")
-        raise ValueError(f"{path}: no IMU samples could be read{window} "
-                         f"({dmg or 'no bad data counted'}; "
-                         f"{sum(st['messages'].values())} records decoded)") from None
+        raise IngestError(f"{path}: no IMU samples could be read{window} "
+                          f"({dmg or 'no bad data counted'}; "
+                          f"{sum(st['messages'].values())} records decoded)") from None
     sm = stream.summary
     refs = scorer.refs
     ref_name, ap_name, rejected = choose_reference(refs, scorer.window)

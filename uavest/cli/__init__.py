@@ -1,8 +1,11 @@
 """The command line: a thin layer that parses, builds a configuration and calls.
 
 ``uavest`` with no command prints the help and the quick-start line. Every command exits
-with 2 and one line on stderr for bad usage or bad input (never a traceback), 130 on
-Ctrl-C; ``-v`` shows warnings and resets as they happen (``logging``), ``-q`` only errors.
+with 2 and one line on stderr for bad usage or bad input (``uavest.errors.InputError``,
+``OSError``; never a traceback), 130 on Ctrl-C, and 1 with one line
+"internal error: <Type>: <message>" for any other exception (a bug of ours; ``-v`` adds the
+traceback); ``-v`` shows warnings and resets as they happen (``logging``), ``-q`` only
+errors.
 """
 
 from __future__ import annotations
@@ -195,23 +198,42 @@ def main(argv: list[str] | None = None) -> int:
         _restore_logging(saved)
 
 
+def _one_line(e: BaseException) -> str:
+    """The first line of ``e``'s message (at most 300 characters); an ``OSError`` as
+    ``filename: reason`` ("out/x.json: No such file or directory") without the errno."""
+    if isinstance(e, OSError) and e.strerror:
+        where = e.filename if e.filename is not None else ""
+        msg = f"{where}: {e.strerror}" if where != "" else e.strerror
+    else:
+        msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+    return msg if len(msg) <= 300 else msg[:300] + "..."
+
+
 def _call(args) -> int:
-    """Run the command; bad usage or input -> one line on stderr and 2."""
-    from ..ingest.types import IngestError
-    from ..scenarios import ScenarioError
+    """Run the command. Bad usage or input (the project's :class:`~uavest.errors.InputError`
+    and its subclasses; an ``OSError``: a missing file, no permission, a refused
+    connection) -> one line on stderr and 2. Any other exception is a bug of ours, never
+    "bad input": one line naming it and 1; with ``-v`` the traceback first."""
+    from ..errors import InputError
 
     try:
         _check_filters(args)
         return int(args.func(args) or 0)
-    except (ScenarioError, IngestError, ValueError, OSError) as e:
-        msg = str(e).splitlines()[0] if str(e) else type(e).__name__
-        if len(msg) > 300:
-            msg = msg[:300] + "..."
-        print(f"uavest {args.command}: error: {msg}", file=sys.stderr)
+    except (InputError, OSError) as e:
+        print(f"uavest {args.command}: error: {_one_line(e)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("uavest: interrupted", file=sys.stderr)
         return 130
+    except Exception as e:  # noqa: BLE001 - reported as ours, with the traceback on -v
+        if args.verbose:
+            import traceback
+
+            traceback.print_exc(file=sys.stderr)
+        hint = "please report" if args.verbose else "run with -v for the traceback; please report"
+        print(f"uavest {args.command}: internal error: {type(e).__name__}: {_one_line(e)} "
+              f"({hint})", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 
+from ..errors import InputError
 from ..scenarios import load_scenario
 from ..sinks.jsonout import write_json
 from ..sinks.table import table
@@ -15,7 +16,7 @@ __all__ = ["cmd_bench"]
 
 def _positive(name: str, v: int | None) -> None:
     if v is not None and v < 1:
-        raise ValueError(f"--{name} must be >= 1, got {v}")
+        raise InputError(f"--{name} must be >= 1, got {v}")
 
 
 def cmd_bench(args) -> int:
@@ -36,9 +37,9 @@ def cmd_bench(args) -> int:
     recording = bool(getattr(args, "mcap", None) or getattr(args, "report", None))
     trial = int(getattr(args, "trial", 0) or 0)
     if recording and args.speed:
-        raise ValueError("--mcap/--report record a Monte Carlo trial; not with --speed")
+        raise InputError("--mcap/--report record a Monte Carlo trial; not with --speed")
     if recording and not 0 <= trial < runs:
-        raise ValueError(f"--trial must be in 0..{runs - 1} (--runs {runs}), got {trial}")
+        raise InputError(f"--trial must be in 0..{runs - 1} (--runs {runs}), got {trial}")
     sinks = recording_sinks(args) if recording else []
     doc = {"run": {"command": " ".join(sys.argv), "seed": args.seed},
            "scenario": sc["name"], "source": sc.get("source"), "runs": runs,

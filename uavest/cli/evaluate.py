@@ -9,6 +9,8 @@ import argparse
 import math
 import sys
 
+from ..errors import InputError
+
 __all__ = ["add_evaluate_parser", "cmd_evaluate"]
 
 
@@ -20,11 +22,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from .progress import progress
 
     if args.workers is not None and args.workers < 0:
-        raise ValueError(f"--workers must be >= 0 (0 = serial), got {args.workers}")
+        raise InputError(f"--workers must be >= 0 (0 = serial), got {args.workers}")
     if args.start is not None and not math.isfinite(args.start):
-        raise ValueError("--start must be a finite number of seconds")
+        raise InputError("--start must be a finite number of seconds")
     if args.end is not None and not math.isfinite(args.end):
-        raise ValueError("--end must be a finite number of seconds")
+        raise InputError("--end must be a finite number of seconds")
     replay = {k: v for k, v in (("start", args.start), ("end", args.end),
                                 ("rate_hz", args.rate)) if v is not None}
     filters = None
@@ -33,7 +35,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
         filters = split_filter_list(args.filters)
     if args.trials is None and (args.sets or args.steps is not None):
-        raise ValueError("--set and --steps apply to Monte Carlo scenarios (with --trials)")
+        raise InputError("--set and --steps apply to Monte Carlo scenarios (with --trials)")
     plan = build_plan(args.inputs, filters=filters, replay=replay, trials=args.trials,
                       seed=args.seed, shard_size=args.shard_size, sets=args.sets,
                       steps=args.steps)

@@ -8,6 +8,7 @@ import argparse
 import time
 from pathlib import Path
 
+from ..errors import InputError
 from ..sinks.base import Sink
 
 __all__ = ["add_recording_options", "finish_recording", "recording_sinks"]
@@ -35,9 +36,9 @@ def _hostport(s: str) -> tuple[str, int]:
     try:
         p = int(port)
     except ValueError:
-        raise ValueError(f"--foxglove expects HOST:PORT, got {s!r}") from None
+        raise InputError(f"--foxglove expects HOST:PORT, got {s!r}") from None
     if not 0 <= p <= 65535:
-        raise ValueError(f"--foxglove: port must be 0..65535, got {p}")
+        raise InputError(f"--foxglove: port must be 0..65535, got {p}")
     return host or "127.0.0.1", p
 
 
@@ -47,7 +48,7 @@ class Pace(Sink):
 
     def __init__(self, speed: float) -> None:
         if not speed > 0:
-            raise ValueError(f"--speed must be > 0, got {speed}")
+            raise InputError(f"--speed must be > 0, got {speed}")
         self.speed = speed
         self.t0: float | None = None
         self.w0 = 0.0

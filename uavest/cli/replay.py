@@ -11,6 +11,7 @@ from pathlib import Path
 
 from ..apps.replay import DEFAULT_FILTERS, ReplayConfig, replay
 from ..engine.attitude import DEFAULT_MAX_RATE_HZ
+from ..errors import InputError
 from ..models.attitude import AttitudeNoise
 from ..sinks.base import ResetLog, Sink
 from ..sinks.jsonout import write_json
@@ -30,7 +31,7 @@ def reject_linear_only(specs, command: str, models: str) -> None:
     for sp in specs or ():
         name = str(sp).split("(")[0].strip().lower()
         if name in LINEAR_ONLY:
-            raise ValueError(
+            raise InputError(
                 f"--filters {sp}: the linear Kalman filter needs linear models; {command} "
                 f"uses {models} (use ekf, ukf, srukf, enkf, hybrid, pf...)")
 
@@ -40,16 +41,16 @@ def _parse_noise(items: list[str]) -> dict:
     out = {}
     for it in items:
         if "=" not in it:
-            raise ValueError(f"--noise expects KEY=VALUE, got {it!r}")
+            raise InputError(f"--noise expects KEY=VALUE, got {it!r}")
         k, v = (x.strip() for x in it.split("=", 1))
         if k not in known:
-            raise ValueError(f"--noise: unknown parameter {k!r}; known: {', '.join(sorted(known))}")
+            raise InputError(f"--noise: unknown parameter {k!r}; known: {', '.join(sorted(known))}")
         try:
             f = float(v)
         except ValueError:
-            raise ValueError(f"--noise {k}: {v!r} is not a number") from None
+            raise InputError(f"--noise {k}: {v!r} is not a number") from None
         if not math.isfinite(f) or f < 0:
-            raise ValueError(f"--noise {k}: must be a finite number >= 0, got {v}")
+            raise InputError(f"--noise {k}: must be a finite number >= 0, got {v}")
         out[k] = f
     return out
 
@@ -139,28 +140,28 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from ..ingest import detect_format
 
     if not os.path.lexists(args.log):
-        raise ValueError(f"no such log file: {args.log}")
+        raise InputError(f"no such log file: {args.log}")
     detect_format(Path(args.log))  # one-line IngestError for missing/special/unknown files
     if args.declination is not None and not (
             math.isfinite(args.declination) and -180.0 <= args.declination <= 180.0):
-        raise ValueError(
+        raise InputError(
             f"--declination must be a number of degrees from -180 to 180, got {args.declination}")
     for name in ("start", "end"):
         v = getattr(args, name)
         if v is not None and not math.isfinite(v):
-            raise ValueError(f"--{name} must be a finite time in s, got {v}")
+            raise InputError(f"--{name} must be a finite time in s, got {v}")
     if args.start is not None and args.end is not None and args.end <= args.start:
-        raise ValueError(f"--end ({args.end}) must be after --start ({args.start})")
+        raise InputError(f"--end ({args.end}) must be after --start ({args.start})")
     if args.mag_delay > 10.0:
-        raise ValueError(f"--mag-delay must be at most 10 s, got {args.mag_delay}")
+        raise InputError(f"--mag-delay must be at most 10 s, got {args.mag_delay}")
     if args.mag_delay < 0 or not math.isfinite(args.mag_delay):
-        raise ValueError(
+        raise InputError(
             f"--mag-delay must be a finite number of seconds >= 0, got {args.mag_delay}")
     if args.rate is not None and (args.rate < 0 or not math.isfinite(args.rate)):
-        raise ValueError(f"--rate must be >= 0 Hz (0 = every IMU sample), got {args.rate}")
+        raise InputError(f"--rate must be >= 0 Hz (0 = every IMU sample), got {args.rate}")
     if args.update_rate is not None and (args.update_rate < 0
                                          or not math.isfinite(args.update_rate)):
-        raise ValueError(f"--update-rate must be >= 0 Hz (0 = every step), got "
+        raise InputError(f"--update-rate must be >= 0 Hz (0 = every step), got "
                          f"{args.update_rate}")
     reject_linear_only(args.filter_specs, "replay", "nonlinear attitude models")
     cfg = ReplayConfig(

@@ -11,6 +11,7 @@ import sys
 import threading
 
 from ..apps.live import LiveConfig, run_live
+from ..errors import InputError
 from ..ingest.adsb_radar import RadarConfig
 from ..sinks.jsonout import write_json
 from ..sinks.table import table
@@ -23,9 +24,9 @@ def _radar(args) -> RadarConfig:
     for name in ("sigma_range", "sigma_az_deg", "sigma_el_deg", "clutter_rate"):
         v = getattr(args, name)
         if not (math.isfinite(v) and v >= 0):
-            raise ValueError(f"--{name.replace('_', '-')} must be a finite number >= 0, got {v}")
+            raise InputError(f"--{name.replace('_', '-')} must be a finite number >= 0, got {v}")
     if not 0.0 <= args.pd <= 1.0:
-        raise ValueError(f"--pd must be in [0, 1], got {args.pd}")
+        raise InputError(f"--pd must be in [0, 1], got {args.pd}")
     return RadarConfig(sigma_r=args.sigma_range, sigma_az=math.radians(args.sigma_az_deg),
                        sigma_el=math.radians(args.sigma_el_deg), pd=args.pd,
                        clutter_rate=args.clutter_rate, max_range=args.max_range)
@@ -93,10 +94,10 @@ def _cfg(args, connect: str) -> LiveConfig:
     from ..core.spec import split_filter_list
 
     if args.duration is not None and not args.duration > 0:
-        raise ValueError(f"--duration must be > 0 s, got {args.duration}")
+        raise InputError(f"--duration must be > 0 s, got {args.duration}")
     for name, v in (("rate", args.rate), ("update-rate", getattr(args, "update_rate", None))):
         if v is not None and not (v >= 0 and math.isfinite(v)):
-            raise ValueError(f"--{name} must be >= 0 Hz (0 = every step), got {v}")
+            raise InputError(f"--{name} must be >= 0 Hz (0 = every step), got {v}")
     return LiveConfig(
         connect=connect, filters=tuple(args.filter_specs or split_filter_list(args.filters)),
         trackers=tuple(split_filter_list(",".join(trackers))) if trackers else (),
@@ -199,7 +200,7 @@ def demo(args) -> dict:
     from ..sim import Simulator
 
     if not args.speed > 0:
-        raise ValueError(f"--speed must be > 0 for a live demo, got {args.speed}")
+        raise InputError(f"--speed must be > 0 for a live demo, got {args.speed}")
     port = _free_udp_port()
     sc = load_scenario(args.scenario, [])
     sim = Simulator(sc, seed=args.seed, imu_rate=args.imu_rate)
@@ -228,8 +229,10 @@ def demo(args) -> dict:
     finally:
         stop.set()
         th.join(timeout=10)
-    if errors:
-        raise ValueError(f"simulator failed: {errors[0]}")
+    if errors:  # bad input or a link failure: one line; anything else is a bug of ours
+        if isinstance(errors[0], InputError | OSError):
+            raise InputError(f"simulator failed: {errors[0]}") from errors[0]
+        raise errors[0]
     doc["simulator"] = {"scenario": args.scenario, "speed": args.speed, "port": port,
                         "seed": args.seed, "imu_rate_hz": args.imu_rate}
     return doc

@@ -10,6 +10,7 @@ import sys
 
 import numpy as np
 
+from ..errors import InputError
 from ..experiments.radar import data_rng, run_trackers, tracker_errors
 from ..scenarios import load_scenario
 from ..sinks.jsonout import write_json
@@ -121,7 +122,7 @@ def print_table(res: dict) -> None:
 def cmd_track(args: argparse.Namespace) -> int:
     sc = load_scenario(args.scenario, args.set or [])
     if sc.get("kind") != "radar":
-        raise ValueError(f"scenario {args.scenario!r} is not a radar scenario "
+        raise InputError(f"scenario {args.scenario!r} is not a radar scenario "
                          "(radar scenarios: see 'uavest list')")
     filters = args.filter_specs or list(sc.get("filters", []))
     from ..experiments.resources import check

@@ -15,6 +15,7 @@ import numpy as np
 from .gaussian import Gaussian
 from .linalg import chol
 from .model import Transition
+from .spec import SpecError
 
 Array = np.ndarray
 _dot = np.dot  # the same BLAS products as @ without the gufunc's per-call cost
@@ -33,7 +34,7 @@ def sigma_weights(
     elif points == "merwe":
         lam = alpha**2 * (n + kappa) - n
         if n + lam <= 0:
-            raise ValueError(f"UKF: n + lambda = {n + lam} must be > 0 (alpha, kappa)")
+            raise SpecError(f"UKF: n + lambda = {n + lam} must be > 0 (alpha, kappa)")
         c = np.sqrt(n + lam)
         Wm = np.full(2 * n + 1, 1.0 / (2 * (n + lam)))
         Wc = Wm.copy()

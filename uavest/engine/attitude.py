@@ -47,9 +47,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.gaussian import Gaussian
+from ..errors import InputError
 from ..geometry.rotation import AttitudeSpace, qexp_f, qlog_f, qmul_f, quat_exp, quat_rotate
 from ..ingest.api import choose_source
-from ..ingest.types import ImuSample, MagSample, PositionSample
+from ..ingest.types import ImuSample, MagSample, NoSamplesError, PositionSample
 from ..models.attitude import (
     AttitudeNoise,
     GravityDirection,
@@ -107,14 +108,14 @@ class AttitudeOptions:
 
     def __post_init__(self) -> None:
         if self.integration not in ("auto", "hold", "trapezoid"):
-            raise ValueError(
+            raise InputError(
                 f"integration must be auto, hold or trapezoid, not {self.integration!r}")
         if self.mag_mode not in ("field", "heading"):
-            raise ValueError(f"mag_mode must be field or heading, not {self.mag_mode!r}")
+            raise InputError(f"mag_mode must be field or heading, not {self.mag_mode!r}")
         if self.update_hz is not None and not self.update_hz >= 0:
-            raise ValueError(f"update rate must be >= 0 Hz, got {self.update_hz}")
+            raise InputError(f"update rate must be >= 0 Hz, got {self.update_hz}")
         if self.accel_comp not in ("auto", "none"):
-            raise ValueError(f"accel_comp must be auto or none, not {self.accel_comp!r}")
+            raise InputError(f"accel_comp must be auto or none, not {self.accel_comp!r}")
 
 
 @dataclass
@@ -300,7 +301,7 @@ class AttitudeStream:
         out: list = []
         if self._held is not None:
             if not self._held:
-                raise ValueError("no samples in the stream (or in the chosen window)")
+                raise NoSamplesError("no samples in the stream (or in the chosen window)")
             out += self._setup()
         out += self._emit(list(self._builder.flush()))
         if self._align is not None:  # the stream ended during the alignment
@@ -355,8 +356,9 @@ class AttitudeStream:
         imu = o.imu if o.imu is not None else choose_source(imu_counts, slack=1)
         if imu is None or imu not in imu_counts:
             have = ", ".join(sorted(imu_counts)) or "none"
-            what = f"IMU source {imu!r} not in the stream" if imu else "no IMU samples"
-            raise ValueError(f"{what} (IMU sources seen: {have})")
+            if not imu:
+                raise NoSamplesError(f"no IMU samples (IMU sources seen: {have})")
+            raise InputError(f"IMU source {imu!r} not in the stream (IMU sources seen: {have})")
         mag = None
         if o.use_mag and mag_counts:
             mag = imu if imu in mag_counts else choose_source(mag_counts, slack=1)

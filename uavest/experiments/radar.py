@@ -9,7 +9,7 @@ Two modes (scenario key ``mode``):
     J0 = P0^-1 by the Tichavsky recursion with Monte Carlo expectations over the runs'
     truths (:mod:`uavest.eval.pcrlb`). The bound assumes the truth follows the filters'
     model, so settings that break that (``truth_q != q``, target turns, ``model = "ct"``,
-    a target start off the prior mean) raise ValueError; a moving (UAV) radar is bounded
+    a target start off the prior mean) raise ScenarioError; a moving (UAV) radar is bounded
     with each scan's true sensor pose.
 ``tracker``
     The full tracker (:mod:`uavest.tracking.tracker`) per filter on the same detections;
@@ -47,6 +47,7 @@ from ..engine.build import build_filters
 from ..eval.pcrlb import conditional_bounds, pcrlb, position_bound, velocity_bound
 from ..eval.tracking import nees, nees_band, track_quality
 from ..presets import build
+from ..scenarios import ScenarioError
 from ..seeding import filter_stream, rng
 from ..sinks.base import Collector
 from ..tracking.scenario import build_models, clutter_box, generate_run, prior
@@ -120,7 +121,7 @@ def check_filter_mode(sc: dict) -> None:
         if not np.allclose(np.asarray(tgt["start"], float), m0[: len(tgt["start"])]):
             bad.append("a target start other than the prior mean")
     if bad:
-        raise ValueError(
+        raise ScenarioError(
             f"scenario {sc.get('name')!r}: mode = \"filter\" computes the PCRLB for a truth "
             "that follows the filters' model; unsupported here: " + "; ".join(bad)
             + ' (use mode = "tracker", or drop these settings)'
@@ -136,8 +137,8 @@ def _bound_measurement(radar, rundata):
     for rd in rundata[1:]:
         for a, b in zip(poses, rd.poses_true, strict=True):
             if not (np.array_equal(a.position, b.position) and np.array_equal(a.R_ws, b.R_ws)):
-                raise ValueError("filter mode: the true sensor poses differ between runs; "
-                                 "the PCRLB needs one pose per scan")
+                raise ScenarioError("filter mode: the true sensor poses differ between runs; "
+                                    "the PCRLB needs one pose per scan")
     models = [radar.with_pose(p) for p in poses]
     return lambda k: models[k - 1]
 

@@ -11,6 +11,8 @@ from __future__ import annotations
 import logging
 import os
 
+from ..errors import InputError
+
 log = logging.getLogger("uavest")
 
 #: Memory a command may plan to use (bytes); UAVEST_MAX_MEMORY_GB overrides.
@@ -61,7 +63,7 @@ def check(sc: dict, specs: list[str], runs: int, steps: int, what: str) -> None:
     mem, secs = estimate(sc, specs, runs, steps)
     cap = max_bytes()
     if mem > cap:
-        raise ValueError(
+        raise InputError(
             f"{what}: {runs:,} runs x {steps:,} steps with {len(specs)} filters would need "
             f"about {mem / 1e9:.3g} GB of memory (limit {cap / 1e9:.3g} GB; set "
             "UAVEST_MAX_MEMORY_GB to change it); use fewer --runs or --steps")

@@ -28,6 +28,7 @@ import signal
 from collections import deque
 from collections.abc import Callable
 
+from ..errors import InputError
 from .worker import BLAS_ENV, Task, init_worker, run_task, worker_env
 
 __all__ = ["DaskBackend", "PoolBackend", "SerialBackend", "make_backend", "reason_of"]
@@ -46,7 +47,7 @@ PRELOAD = ["uavest.fleet.worker", "uavest.apps.replay", "uavest.ingest",
 def reason_of(e: BaseException) -> str:
     """One line saying why a task failed (input errors as their message)."""
     msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
-    if isinstance(e, ValueError | OSError) and msg:
+    if isinstance(e, InputError | OSError) and msg:
         text = msg
     else:
         text = f"{type(e).__name__}: {msg}" if msg else type(e).__name__
@@ -107,7 +108,7 @@ class PoolBackend:
 
     def __init__(self, workers: int, context: str | None = None, max_attempts: int = 2):
         if workers < 1:
-            raise ValueError(f"--workers must be >= 1 for a process pool, got {workers}")
+            raise InputError(f"--workers must be >= 1 for a process pool, got {workers}")
         self.workers = workers
         methods = mp.get_all_start_methods()
         self.context = context or ("forkserver" if "forkserver" in methods else "spawn")
@@ -269,7 +270,7 @@ class DaskBackend:
             import dask
             from distributed import Client, LocalCluster
         except ImportError:
-            raise ValueError("--scheduler needs Dask: pip install 'uavest[dask]'") from None
+            raise InputError("--scheduler needs Dask: pip install 'uavest[dask]'") from None
         if address == "local":
             # retry a task whose worker died once (the default allows 3 more attempts),
             # and give a worker only as many tasks as it has threads, so that when it
@@ -283,7 +284,7 @@ class DaskBackend:
         try:
             client = Client(address, timeout="10s")
         except (OSError, TimeoutError) as e:
-            raise ValueError(f"cannot reach the Dask scheduler at {address}: {e}") from None
+            raise InputError(f"cannot reach the Dask scheduler at {address}: {e}") from None
         return cls(client, ship=ship)
 
     def dashboard(self) -> str | None:

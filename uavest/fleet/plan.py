@@ -21,6 +21,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from .. import __version__
+from ..errors import InputError
 from .worker import Task
 
 __all__ = ["LOG_SUFFIXES", "Input", "Plan", "discover_logs", "file_sha256", "plan_logs",
@@ -65,7 +66,7 @@ def discover_logs(inputs: list[str]) -> list[Path]:
         elif p.is_dir():
             found = sorted(q for q in p.rglob("*") if _is_log(q))
             if not found:
-                raise ValueError(f"{text}: no .tlog, .bin or .ulg files in this folder")
+                raise InputError(f"{text}: no .tlog, .bin or .ulg files in this folder")
         elif _GLOB_CHARS & set(text):
             found = []
             for m in sorted(glob.glob(text, recursive=True)):
@@ -75,9 +76,9 @@ def discover_logs(inputs: list[str]) -> list[Path]:
                 elif q.is_file():
                     found.append(q)
             if not found:
-                raise ValueError(f"{text}: the pattern matches no log files")
+                raise InputError(f"{text}: the pattern matches no log files")
         else:
-            raise ValueError(f"{text}: no such file, folder or scenario (Monte Carlo "
+            raise InputError(f"{text}: no such file, folder or scenario (Monte Carlo "
                              "inputs need --trials N)")
         for q in found:
             k = os.path.abspath(q)
@@ -177,16 +178,16 @@ def plan_trials(scenario: str, trials: int, seed: int = 0, shard_size: int = 25,
     from ..scenarios import load_scenario
 
     if trials < 1:
-        raise ValueError(f"--trials must be >= 1, got {trials}")
+        raise InputError(f"--trials must be >= 1, got {trials}")
     if shard_size < 1:
-        raise ValueError(f"--shard-size must be >= 1, got {shard_size}")
+        raise InputError(f"--shard-size must be >= 1, got {shard_size}")
     sc = load_scenario(scenario, list(sets))
     if sc.get("kind") == "radar":
-        raise ValueError(f"scenario {sc['name']!r} is a radar scenario; evaluate runs the "
+        raise InputError(f"scenario {sc['name']!r} is a radar scenario; evaluate runs the "
                          "Monte Carlo systems (ungm, nonlinear2d, linear_cv)")
     if steps is not None:
         if steps < 1:
-            raise ValueError(f"--steps must be >= 1, got {steps}")
+            raise InputError(f"--steps must be >= 1, got {steps}")
         sc["steps"] = steps
     sysm = build_system(sc)
     filters = list(filters or sc.get("filters") or ["ekf", "ukf", "hybrid"])

@@ -25,6 +25,8 @@ import tempfile  # noqa: E402
 import time  # noqa: E402
 from dataclasses import dataclass, field  # noqa: E402
 
+from ..errors import InputError  # noqa: E402
+
 __all__ = ["CRASH_ENV", "Task", "init_worker", "run_task"]
 
 #: Test-only hook: a worker whose task name matches this fnmatch pattern kills itself
@@ -95,7 +97,7 @@ def _replay_log(task: Task) -> dict:
     if task.data is None:
         return replay(task.path, cfg, command="uavest evaluate")
     if task.sha256 and hashlib.sha256(task.data).hexdigest() != task.sha256:
-        raise ValueError(f"{task.name}: shipped content does not match its hash")
+        raise InputError(f"{task.name}: shipped content does not match its hash")
     with tempfile.TemporaryDirectory(prefix="uavest-eval-") as d:
         p = os.path.join(d, "log" + task.suffix)
         with open(p, "wb") as f:

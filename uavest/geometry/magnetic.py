@@ -11,6 +11,8 @@ import math
 from datetime import UTC, date, datetime
 from functools import lru_cache
 
+from ..errors import InputError
+
 __all__ = ["declination", "decimal_year"]
 
 
@@ -53,13 +55,13 @@ def declination(
     """
     vals = (lat_deg, lon_deg, alt_m)
     if not all(math.isfinite(float(v)) for v in vals):
-        raise ValueError(f"declination: non-finite position {vals}")
+        raise InputError(f"declination: non-finite position {vals}")
     if abs(lat_deg) > 90 or abs(lon_deg) > 360:
-        raise ValueError(f"declination: latitude/longitude out of range ({lat_deg}, {lon_deg})")
+        raise InputError(f"declination: latitude/longitude out of range ({lat_deg}, {lon_deg})")
     year = decimal_year(when)
     try:
         r = _model().calculate(glat=float(lat_deg), glon=float(lon_deg), alt=alt_m / 1000.0,
                                time=year)
     except Exception as e:  # pygeomag raises its own exceptions outside the lifespan
-        raise ValueError(f"declination: WMM2025 cannot be used for year {year:.2f} ({e})") from e
+        raise InputError(f"declination: WMM2025 cannot be used for year {year:.2f} ({e})") from e
     return math.radians(float(r.d))

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import InputError
 from ..geometry.geodesy import geodetic_to_ned
 from ..geometry.rotation import quat_rotate_inv
 from .detections import frd_from_rae, rae_from_frd
@@ -70,14 +71,14 @@ class RadarConfig:
     def __post_init__(self) -> None:
         for name in ("sigma_r", "sigma_az", "sigma_el", "clutter_rate"):
             if not getattr(self, name) >= 0:
-                raise ValueError(f"RadarConfig.{name} must be >= 0, got {getattr(self, name)}")
+                raise InputError(f"RadarConfig.{name} must be >= 0, got {getattr(self, name)}")
         if not 0.0 <= self.pd <= 1.0:
-            raise ValueError(f"RadarConfig.pd must be in [0, 1], got {self.pd}")
+            raise InputError(f"RadarConfig.pd must be in [0, 1], got {self.pd}")
         if not self.max_range > 0 or not self.period > 0:
-            raise ValueError("RadarConfig.max_range and period must be > 0")
+            raise InputError("RadarConfig.max_range and period must be > 0")
         lo, hi = self.el_limits
         if not -math.pi / 2 <= lo < hi <= math.pi / 2:
-            raise ValueError(f"RadarConfig.el_limits must be within [-pi/2, pi/2], got {lo, hi}")
+            raise InputError(f"RadarConfig.el_limits must be within [-pi/2, pi/2], got {lo, hi}")
 
     @property
     def clutter_density(self) -> float:

@@ -17,7 +17,7 @@ from collections.abc import Iterable, Iterator
 import numpy as np
 
 from ..geometry.rotation import quat_rotate_inv
-from .types import AttitudeRef, DetectionSample, DetectionScan, PositionSample
+from .types import AttitudeRef, DetectionSample, DetectionScan, IngestError, PositionSample
 
 __all__ = ["rae_from_frd", "frd_from_rae", "to_sensor_frame", "attach_pose", "group_scans"]
 
@@ -53,14 +53,14 @@ def to_sensor_frame(
     if frame == "BODY_FRD":
         return xyz
     if q is None:
-        raise ValueError(f"a {frame} detection needs the vehicle attitude q")
+        raise IngestError(f"a {frame} detection needs the vehicle attitude q")
     if frame == "BODY_NED":
         return quat_rotate_inv(np.asarray(q, float), xyz)
     if frame == "LOCAL_NED":
         if vehicle_ned is None:
-            raise ValueError("a LOCAL_NED detection needs the vehicle local NED position")
+            raise IngestError("a LOCAL_NED detection needs the vehicle local NED position")
         return quat_rotate_inv(np.asarray(q, float), xyz - np.asarray(vehicle_ned, float))
-    raise ValueError(f"unknown detection frame {frame!r}")
+    raise IngestError(f"unknown detection frame {frame!r}")
 
 
 def attach_pose(

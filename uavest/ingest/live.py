@@ -34,6 +34,7 @@ os.environ.setdefault("MAVLINK20", "1")  # before any pymavlink.mavutil import (
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
+from ..errors import InputError
 from .mavlink import MavlinkSource  # noqa: E402
 from .types import IngestError, LinkEvent  # noqa: E402
 
@@ -99,7 +100,7 @@ def signing_key_bytes(key: str | bytes | Path) -> bytes:
     """
     if isinstance(key, bytes):
         if len(key) != 32:
-            raise ValueError(f"signing key must be 32 bytes, got {len(key)}")
+            raise InputError(f"signing key must be 32 bytes, got {len(key)}")
         return key
     p = Path(str(key))
     with contextlib.suppress(OSError):
@@ -109,7 +110,7 @@ def signing_key_bytes(key: str | bytes | Path) -> bytes:
                 return data
             key = data.decode("utf-8", "replace").strip()
     if not str(key):
-        raise ValueError("empty signing passphrase")
+        raise InputError("empty signing passphrase")
     return hashlib.sha256(str(key).encode("utf-8")).digest()
 
 
@@ -128,7 +129,7 @@ def _split(conn: str) -> tuple[str, str]:
 def _hostport(rest: str, default_host: str) -> tuple[str, int]:
     host, _, port = rest.rpartition(":")
     if not port.isdigit():
-        raise ValueError(f"bad connection address {rest!r}: expected host:port")
+        raise InputError(f"bad connection address {rest!r}: expected host:port")
     return (host or default_host), int(port)
 
 
@@ -766,7 +767,7 @@ class LiveLink(MavlinkSource):
             st = self.stream_status.setdefault(name, StreamStatus(name, float(hz)))
             msgid = getattr(mavlink, f"MAVLINK_MSG_ID_{name}", None)
             if msgid is None:
-                raise ValueError(f"unknown MAVLink message {name!r} in streams")
+                raise InputError(f"unknown MAVLink message {name!r} in streams")
             since = time.monotonic()
             self._mav.command_long_send(ts, tc, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
                                         float(msgid), float(1e6 / hz), 0, 0, 0, 0, 0)

@@ -24,6 +24,7 @@ from ..errors import InputError
 
 __all__ = [
     "IngestError",
+    "NoSamplesError",
     "ImuSample",
     "MagSample",
     "AttitudeRef",
@@ -51,6 +52,10 @@ __all__ = [
 
 class IngestError(InputError):
     """A file or connection could not be read as any supported log format."""
+
+
+class NoSamplesError(IngestError):
+    """The stream (or the chosen time window) held no usable IMU samples."""
 
 
 #: Kinds of attitude reference.

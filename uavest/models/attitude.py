@@ -32,6 +32,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..core.model import Measurement, Transition
+from ..errors import InputError
 from ..geometry.rotation import (
     G0,
     AttitudeSpace,
@@ -198,7 +199,7 @@ def wmm_declination(lat: float, lon: float, alt: float, utc_s: float) -> tuple[f
     from ..geometry.magnetic import decimal_year
 
     if not all(np.isfinite([lat, lon, alt, utc_s])) or abs(lat) > 90 or abs(lon) > 360:
-        raise ValueError(f"no usable GPS position for the magnetic model ({lat}, {lon})")
+        raise InputError(f"no usable GPS position for the magnetic model ({lat}, {lon})")
     when = datetime.fromtimestamp(float(utc_s), tz=UTC)
     year = decimal_year(when)
     note = ""

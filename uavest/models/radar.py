@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.model import Measurement
+from ..errors import InputError
 from ..geometry.kernels import load_kernels
 from ..geometry.spaces import VectorSpace
 
@@ -139,7 +140,7 @@ class RadarMeasurement(Measurement):
         pose: SensorPose | None = None,
     ) -> None:
         if ndim not in (2, 3):
-            raise ValueError("ndim must be 2 or 3")
+            raise InputError("ndim must be 2 or 3")
         self.ndim = ndim
         self.space = VectorSpace(state_dim or 2 * ndim)
         comps = ["range", "azimuth"] + (["elevation"] if ndim == 3 else [])

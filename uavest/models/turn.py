@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.model import Transition
+from ..errors import InputError
 from ..geometry.spaces import VectorSpace
 from .motion import ncv_matrices
 
@@ -68,7 +69,7 @@ class CoordinatedTurn(Transition):
 
     def __init__(self, ndim: int = 2, q: float = 0.5, q_omega: float = 1e-4) -> None:
         if ndim not in (2, 3):
-            raise ValueError("ndim must be 2 or 3")
+            raise InputError("ndim must be 2 or 3")
         self.ndim, self.q, self.q_omega = ndim, float(q), float(q_omega)
         self.space = VectorSpace(2 * ndim + 1)
 

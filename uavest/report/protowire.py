@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import struct
 
+from ..errors import InputError
+
 __all__ = ["ProtoDecoder"]
 
 _VARINT, _I64, _LEN, _I32 = 0, 1, 2, 5
@@ -43,7 +45,7 @@ def _fields(b: bytes):
         elif wt == _I32:
             v, i = b[i:i + 4], i + 4
         else:
-            raise ValueError(f"unsupported wire type {wt}")
+            raise InputError(f"unsupported wire type {wt}")
         yield num, wt, v
 
 

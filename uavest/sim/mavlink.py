@@ -33,6 +33,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mav2  # noqa: E402
 
+from ..errors import InputError
 from ..geometry.geodesy import LocalFrame  # noqa: E402
 from ..geometry.rotation import G0  # noqa: E402
 from .radar import Detection, Radar, Targets  # noqa: E402
@@ -220,7 +221,7 @@ class Simulator:
         imu_cfg = scenario.get("imu", {})
         self.imu_rate = float(imu_rate or imu_cfg.get("rate_hz", 400.0))
         if not 1.0 <= self.imu_rate <= 2000.0:
-            raise ValueError("imu rate must be within 1-2000 Hz")
+            raise InputError("imu rate must be within 1-2000 Hz")
         self.sysid = int(sysid)
         self.history_s = history_s
         o = scenario.get("origin", {})
@@ -317,7 +318,7 @@ class Simulator:
         elif name in PERIODIC or name in EVENT:
             self.set_interval({**PERIODIC, **EVENT}[name], -1 if hz <= 0 else 1e6 / hz)
         else:
-            raise ValueError(f"unknown message or stream {name!r}; known: "
+            raise InputError(f"unknown message or stream {name!r}; known: "
                              + ", ".join(list(STREAM_NAMES) + list(PERIODIC) + list(EVENT)))
 
     def set_stream(self, stream_id: int, hz: float) -> bool:
@@ -732,7 +733,7 @@ class Simulator:
         Call once per Simulator (the clock is not rewound).
         """
         if duration is None and (conn is None or str(conn).lower() == "none"):
-            raise ValueError("without a link a duration is required")
+            raise InputError("without a link a duration is required")
         if self.k > 0:
             raise RuntimeError("Simulator.run was already called; make a new Simulator")
         stop = stop_event or threading.Event()

@@ -24,6 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
+
 Array = np.ndarray
 
 CLUTTER_ID = 65535  # OBSTACLE_DISTANCE_3D obstacle_id of clutter (MAVLink: "unknown")
@@ -85,7 +87,7 @@ class Targets:
                 period=float(d["period_s"]) if d.get("period_s") else None,
             ))
             if self.targets[-1].ident == CLUTTER_ID:
-                raise ValueError(f"target id {CLUTTER_ID} is reserved for clutter")
+                raise InputError(f"target id {CLUTTER_ID} is reserved for clutter")
 
     def __len__(self) -> int:
         return len(self.targets)

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
+from ..errors import InputError
 from ..geometry.rotation import G0, euler_to_quat, quat_to_dcm
 
 Array = np.ndarray
@@ -98,7 +99,7 @@ class Segment:
             ph = 2 * np.pi * self.freq * (t - self.start)
             s, c = np.sin(ph), np.cos(ph)
             return self.value * s * w, self.value * (2 * np.pi * self.freq * c * w + s * dw)
-        raise ValueError(f"manoeuvre kind {self.kind!r}: expected hold, sine or ramp")
+        raise InputError(f"manoeuvre kind {self.kind!r}: expected hold, sine or ramp")
 
 
 class Manoeuvres:
@@ -127,7 +128,7 @@ class Manoeuvres:
         for d in segments:
             ch = d.get("channel")
             if ch not in CHANNELS:
-                raise ValueError(f"manoeuvre channel {ch!r}: expected one of {CHANNELS}")
+                raise InputError(f"manoeuvre channel {ch!r}: expected one of {CHANNELS}")
             k = 1.0 if ch == "climb" else np.pi / 180.0
             seg = Segment(
                 ch, d.get("kind", "hold"), float(d["start"]), float(d["duration"]),
@@ -135,9 +136,9 @@ class Manoeuvres:
                 float(d.get("freq_hz", 0.0)), float(d.get("ramp", 0.0)),
             )
             if seg.duration <= 0:
-                raise ValueError("manoeuvre duration must be > 0")
+                raise InputError("manoeuvre duration must be > 0")
             if self.period and seg.start + seg.duration > self.period + 1e-9:
-                raise ValueError(f"manoeuvre at {seg.start} s runs past period {self.period} s")
+                raise InputError(f"manoeuvre at {seg.start} s runs past period {self.period} s")
             self.segments.append(seg)
         rng = rng or np.random.default_rng(0)
         # 3 sinusoids per attitude axis, 0.2-1.5 Hz, equal amplitude (sum std ~ jitter)

@@ -39,6 +39,7 @@ os.environ.setdefault("MAVLINK20", "1")
 import numpy as np  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
+from ..errors import InputError
 from ..geometry.rotation import quat_to_euler  # noqa: E402
 from ..ingest.live import (  # noqa: E402
     _Transport,
@@ -61,7 +62,7 @@ _ADSB_FLAGS = (mavlink.ADSB_FLAGS_VALID_COORDS | mavlink.ADSB_FLAGS_VALID_ALTITU
 def icao_address(label_index: int, track_id: int) -> int:
     """The 24-bit ICAO address of a published track: ``0xF00000 | index << 16 | id``."""
     if not 0 <= label_index < 16:
-        raise ValueError(f"at most 16 track labels can be published, got index {label_index}")
+        raise InputError(f"at most 16 track labels can be published, got index {label_index}")
     return 0xF00000 | (label_index << 16) | (int(track_id) & 0xFFFF)
 
 
@@ -92,11 +93,11 @@ class Publisher:
         heartbeat_hz: float = 1.0,
     ) -> None:
         if not 1 <= sysid <= 255 or not 1 <= compid <= 255:
-            raise ValueError(f"sysid/compid must be 1..255, got {sysid}/{compid}")
+            raise InputError(f"sysid/compid must be 1..255, got {sysid}/{compid}")
         if not allow_vehicle_link:
             same = vehicle_conn is not None and endpoint_key(conn) == endpoint_key(vehicle_conn)
             if same or is_vehicle_endpoint(conn):
-                raise ValueError(
+                raise InputError(
                     f"{conn}: is the vehicle's link; publish on a separate ground-station "
                     f"link (or pass allow_vehicle_link=True)")
         self.conn = conn
@@ -108,7 +109,7 @@ class Publisher:
         try:
             self._writer.transport = _Transport(conn, 115200)
         except (OSError, ValueError) as e:
-            raise ValueError(f"{conn}: cannot open publisher link ({e})") from None
+            raise InputError(f"{conn}: cannot open publisher link ({e})") from None
         self._key = signing_key_bytes(signing_key) if signing_key is not None else None
         self._mavs: dict[int, mavlink.MAVLink] = {}
         self._labels: dict[str, int] = {}  # attitude label -> compid

@@ -59,6 +59,7 @@ from ..core.gaussian import Gaussian
 from ..core.guard import Guarded, nis_gate
 from ..core.linalg import bind_lapack, chol
 from ..core.unscented import sigma_weights
+from ..errors import InputError
 from ..models.radar import RadarMeasurement, radar_kernels
 
 Array = np.ndarray
@@ -82,7 +83,7 @@ class TrackerConfig:
 
     def __post_init__(self) -> None:
         if self.association not in ("gnn", "jpda"):
-            raise ValueError(f"tracker.association must be gnn or jpda, not {self.association!r}")
+            raise InputError(f"tracker.association must be gnn or jpda, not {self.association!r}")
 
     @staticmethod
     def from_scenario(sc: dict, clutter_volume: float | None = None) -> TrackerConfig:
