@@ -51,7 +51,14 @@ from ..eval.attitude import AttitudeScorer, select_reference
 from ..eval.metrics import nees
 from ..eval.tracking import track_quality
 from ..ingest.adsb_radar import AdsbRadar, RadarConfig, geodetic_to_ned
-from ..ingest.types import AdsbSample, AttitudeRef, DetectionSample, LinkEvent, PositionSample
+from ..ingest.types import (
+    AdsbSample,
+    AttitudeRef,
+    DetectionSample,
+    LinkEvent,
+    NoSamplesError,
+    PositionSample,
+)
 from ..models.motion import NearlyConstantVelocity
 from ..models.radar import RadarMeasurement, SensorPose
 from ..seeding import filter_stream, rng
@@ -344,7 +351,7 @@ class _GapAware:
     def flush(self) -> list:
         try:
             return self.stream.flush()
-        except ValueError:  # a stream stopped before any IMU sample
+        except NoSamplesError:  # a stream stopped before any IMU sample
             return []
 
 

@@ -149,11 +149,12 @@ def _preset_for(args) -> str:
     scenario runs the radar preset (``experiments.radar``), not the bench one."""
     preset = args.filters_preset
     if preset == "bench" and getattr(args, "scenario", None):
+        from ..errors import InputError
         from ..scenarios import load_scenario
 
         try:
             kind = load_scenario(args.scenario, getattr(args, "sets", None) or ()).get("kind")
-        except Exception:  # a bad scenario is reported by the command itself
+        except (InputError, OSError):  # a bad scenario is reported by the command itself
             return preset
         if kind == "radar":
             return "radar"

@@ -20,7 +20,11 @@ def _parse_rates(items: list[str]) -> dict[str, float]:
         if "=" not in it:
             raise argparse.ArgumentTypeError(f"--rate {it!r}: expected NAME=HZ")
         k, v = it.split("=", 1)
-        out[k.strip().upper()] = float(v)
+        try:
+            out[k.strip().upper()] = float(v)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"--rate {it!r}: {v.strip()!r} is not a number "
+                                             "of Hz") from None
     return out
 
 
@@ -75,6 +79,7 @@ def _fill(p: argparse.ArgumentParser) -> None:
 
 def cmd_sim(args) -> int:
     """Run the simulator from parsed arguments; returns the exit status."""
+    from ..errors import InputError
     from ..scenarios import ScenarioError, load_scenario
     from ..sim import Simulator
 
@@ -86,7 +91,9 @@ def cmd_sim(args) -> int:
         rates = _parse_rates(args.rate)
         sim = Simulator(sc, seed=args.seed, imu_rate=args.imu_rate, sysid=args.sysid,
                         rates=rates)
-    except (ScenarioError, ValueError, argparse.ArgumentTypeError, KeyError) as e:
+    # bad values are InputErrors; a KeyError is a required key missing from a scenario
+    # table (e.g. a target without position_ned)
+    except (InputError, argparse.ArgumentTypeError, KeyError) as e:
         print(f"uavest sim: {e}", file=sys.stderr)
         return 2
     if args.speed < 0 or (args.duration is not None and args.duration < 0):
