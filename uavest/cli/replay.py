@@ -115,8 +115,13 @@ def format_doc(doc: dict) -> str:
     lines.append(table(rows, cols))
     bad = doc["bad_data"]
     parts = [f"{k} {bad[k]}" for k in bad
-             if isinstance(bad[k], int) and bad[k] and k not in ("bad_total", "absent_sensor")]
+             if isinstance(bad[k], int) and bad[k] and k not in ("bad_total", "absent_sensor", "non_mavlink")]
     lines.append(f"bad data: {bad['bad_total']}" + (f" ({', '.join(parts)})" if parts else ""))
+    skipped = bad.get("skipped") or {}
+    if skipped:
+        lines.append("skipped between records: " + ", ".join(
+            f"{k.replace('_', ' ')} {n}" for k, n in skipped.items())
+            + " (text: not bad data)" * bool(skipped.get("text_bytes")))
     absent = bad.get("absent") or {}
     if absent:
         lines.append("absent sensors (all-zero records, not bad data, ignored): " + ", ".join(

@@ -377,6 +377,9 @@ class IngestStats:
     absent_sensor: int = 0  # all-zero records of a sensor instance that is not fitted
     #: the absent sensor instances (stat key, e.g. ``"imu:SCALED_IMU3"``) -> records ignored
     absent: Counter = field(default_factory=Counter)
+    #: what the tlog reader stepped over between good records, by kind
+    #: (``uavest.ingest.skip.SKIP_KINDS``: text_bytes, bad_crc, partial_frame, ...)
+    skipped: Counter = field(default_factory=Counter)
     messages: Counter = field(default_factory=Counter)
     accepted: Counter = field(default_factory=Counter)
     rejected: Counter = field(default_factory=Counter)
@@ -401,6 +404,7 @@ class IngestStats:
             d[k] = getattr(self, k)
         d["bad_total"] = self.bad_total
         d["absent"] = dict(sorted(self.absent.items()))
+        d["skipped"] = dict(sorted(self.skipped.items()))
         d["messages"] = dict(sorted(self.messages.items()))
         d["accepted"] = dict(sorted(self.accepted.items()))
         d["rejected"] = dict(sorted(self.rejected.items()))
