@@ -1,16 +1,18 @@
 """Skip, without decoding, the log records of types no converter uses (docs/ingest.md,
-"What is decoded").
+"What is decoded"), and find a tlog's good records whatever lies between them.
 
 pymavlink decodes every record of a tlog or DataFlash log into a message object; about two
-thirds of a typical telemetry log are types :mod:`uavest.ingest.convert` never looks at. The
-skippers here look at a record's header in a memory map of the file *before* pymavlink's
-parser would see it and, when the record is of an unused type **and** pymavlink's parser is
-certain to accept it as a good record (complete, right marker, known id, good CRC...), step
-over it and return a :class:`Skipped` stand-in (type name, system id, receive time). Anything
-else (a record of a used type, a bad CRC, garbage between records, a cut end, an unknown
-id, a parser holding buffered bytes) is left to pymavlink exactly as before, so the bad-data
-counts of a damaged log do not change: a corrupt record of an unused type still reaches the
-parser, which reports it as before.
+thirds of a typical telemetry log are types :mod:`uavest.ingest.convert` never looks at.
+
+* tlog: :class:`TlogFramer` is the one resync/validity routine of the reader: it finds each
+  good record (complete frame, valid marker and flags, good CRC) in a memory map of the
+  file, classifies what lies between (console text, bad-CRC frames, cut frames, junk) and
+  hands the reader the record; the reader decodes it with pymavlink's ``decode`` (used
+  types, or every type with ``_decode_all``) or yields a :class:`Skipped` stand-in. Both
+  paths see the same records and the same skipped bytes, so they count the same.
+* DataFlash: :class:`DataflashSkipper` looks at a record's header *before* pymavlink's
+  parser would see it and steps over it only when it is of an unused type and pymavlink
+  would certainly accept it; anything else is left to pymavlink exactly as before.
 """
 
 from __future__ import annotations
@@ -18,7 +20,6 @@ from __future__ import annotations
 import mmap
 import os
 import struct
-import sys
 
 from .convert import DATAFLASH_CONVERTERS, MAVLINK_CONVERTERS
 

@@ -104,7 +104,8 @@ class AttitudeNoise:
 
 #: Defaults by IMU source (``LogData.imu.source``). Streamed MAVLink IMU messages are
 #: instantaneous samples at a few Hz: a large ``rate_walk`` covers the coarse
-#: integration. DataFlash ``IMU`` and PX4 ``sensor_combined`` are full-rate, integrated.
+#: integration. DataFlash ``IMU`` (filtered snapshots) and PX4 ``sensor_combined`` (interval
+#: averages) are full-rate (uavest/ingest/semantics.py).
 SENSOR_DEFAULTS: dict[str, AttitudeNoise] = {
     "mavlink_stream": AttitudeNoise(
         gyro_noise=0.01, gyro_bias_walk=1e-4, rate_walk=0.25, accel_noise=0.6,
