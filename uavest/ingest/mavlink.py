@@ -172,13 +172,17 @@ def _gps_geo(msg, params: LogParams, unix_offset: float | None) -> None:
         if msg.get_type() == "GPS_RAW_INT":
             if msg.fix_type < 3:
                 return
+            params.set_fix(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3)
             tu = float(msg.time_usec)
             utc = tu * 1e-6 if tu > 1e15 else (
                 None if unix_offset is None else unix_offset + tu * 1e-6)
             if utc is not None:
                 params.set_geo(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3, utc)
             return
-        if getattr(msg, "Status", 0) < 3 or not getattr(msg, "GWk", 0):
+        if getattr(msg, "Status", 0) < 3:
+            return
+        params.set_fix(msg.Lat, msg.Lng, getattr(msg, "Alt", 0.0))
+        if not getattr(msg, "GWk", 0):
             return
         utc = _GPS_EPOCH + msg.GWk * 604800.0 + msg.GMS * 1e-3 - _LEAP_S
         params.set_geo(msg.Lat, msg.Lng, getattr(msg, "Alt", 0.0), utc)
@@ -486,6 +490,8 @@ class MavlinkSource:
                     t_ev = reorder.last_out if math.isfinite(reorder.last_out) else 0.0
                     yield dataclasses.replace(rx, t=t_ev)
                 continue
+            if rx is not None and self.params.date is None:  # the log's own date
+                self.params.set_date(rx, "tlog's receive times")
             if type(msg) is Skipped:  # a record no converter uses: only its system counts
                 if self.sysid is not None and not is_df and msg.sysid != self.sysid:
                     st.bad("wrong_sysid", msg.name)
@@ -559,9 +565,11 @@ class MavlinkSource:
         self.stats = IngestStats()
         systime: dict[int, float] = {}
         try:
-            for i, (msg, _rx) in enumerate(self._read()):
+            for i, (msg, rx) in enumerate(self._read()):
                 if msg is None or i >= max_messages or self.params.geo is not None:
                     break
+                if rx is not None and self.params.date is None:
+                    self.params.set_date(rx, "tlog's receive times")
                 name = msg.get_type()
                 if name == "SYSTEM_TIME" and msg.time_boot_ms and msg.time_unix_usec:
                     systime[msg.get_srcSystem()] = (msg.time_unix_usec * 1e-6
