@@ -17,6 +17,7 @@ import os
 import struct
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -134,6 +135,15 @@ def test_uavest_decodes_at_least_what_pymavlink_does(tmp_path, case):
         assert st.truncated == 1 and sk["truncated_bytes"] > 0
     if case == "as is":
         assert not sk and st.bad_total == _uavest(shared_log("vtol.tlog")).bad_total
+
+
+def test_repo_sim_log_decodes_at_least_what_pymavlink_does():
+    """The project's own simulator log (logs/sim_200hz.tlog), as is."""
+    p = Path(__file__).resolve().parents[2] / "logs" / "sim_200hz.tlog"
+    if not p.is_file():
+        pytest.skip(f"{p} not present")
+    ref, st = _pymavlink_counts(p), _uavest(p)
+    assert ref and not {k for k, v in ref.items() if st.messages[k] < v}
 
 
 def test_decode_all_and_skipping_reader_agree_on_the_damaged_copy(tmp_path):
