@@ -32,8 +32,9 @@ gyro samples into the step's rate, chosen by ``integration``:
   same way when a step holds several samples.
 
 ``"auto"`` picks by what the IMU message is (:mod:`uavest.ingest.semantics`, printed
-with the reason), and for an unknown message trapezoid below 20 Hz, else hold. ``rate_hz`` (default
-:data:`DEFAULT_MAX_RATE_HZ`) caps the filter rate; ``rate_hz = 0`` runs at the IMU rate.
+with the reason), and for an unknown message trapezoid below 20 Hz, else hold.
+``rate_hz`` (default :data:`DEFAULT_MAX_RATE_HZ`) caps the filter rate; ``rate_hz = 0``
+runs at the IMU rate.
 A step is closed when the first sample later than its end arrives (a magnetometer sample
 with the same time stamp as the step's last IMU sample still belongs to it).
 
