@@ -298,6 +298,7 @@ def replay(
         "imu_rate_hz": sm.get("imu_rate_hz"),
         "filter_rate_hz": sm.get("filter_rate_hz"),
         "integration": sm.get("integration"),
+        "integration_why": sm.get("integration_why"),
         "preintegrated_samples_per_step": sm.get("preintegrated_samples_per_step"),
         "duration_s": sm.get("duration_s"),
         "steps": sm.get("steps"),

@@ -93,7 +93,8 @@ def format_doc(doc: dict) -> str:
     lines = [
         f"{doc['log']}: {doc['format']}, IMU {doc['imu_source']} at {doc['imu_rate_hz']:.1f} Hz,"
         f" {doc['duration_s']:.1f} s, {doc['steps']} filter steps at "
-        f"{doc['filter_rate_hz']:.1f} Hz ({doc['integration']})"
+        f"{doc['filter_rate_hz']:.1f} Hz ({doc['integration']})",
+        f"integration: {doc['integration']} ({doc.get('integration_why') or 'option'})",
     ]
     ref, kind = doc["reference"], doc["reference_kind"]
     rejected = doc.get("references_rejected") or {}
@@ -117,8 +118,14 @@ def format_doc(doc: dict) -> str:
     lines.append(table(rows, cols))
     bad = doc["bad_data"]
     parts = [f"{k} {bad[k]}" for k in bad
-             if isinstance(bad[k], int) and bad[k] and k not in ("bad_total", "absent_sensor")]
+             if isinstance(bad[k], int) and bad[k]
+             and k not in ("bad_total", "absent_sensor", "non_mavlink")]
     lines.append(f"bad data: {bad['bad_total']}" + (f" ({', '.join(parts)})" if parts else ""))
+    skipped = bad.get("skipped") or {}
+    if skipped:
+        lines.append("skipped between records: " + ", ".join(
+            f"{k.replace('_', ' ')} {n}" for k, n in skipped.items())
+            + " (text: not bad data)" * bool(skipped.get("text_bytes")))
     absent = bad.get("absent") or {}
     if absent:
         lines.append("absent sensors (all-zero records, not bad data, ignored): " + ", ".join(
@@ -219,7 +226,9 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
                    f"since the last one (default {DEFAULT_MAX_RATE_HZ:g}); 0 = every step, "
                    "each weighted by its share of a reference step")
     p.add_argument("--integration", default="auto", choices=("auto", "hold", "trapezoid"),
-                   help="gyro sample interpretation (default auto: trapezoid below 20 Hz)")
+                   help="gyro sample interpretation (default auto: by what the IMU message "
+                   "is, docs/ingest.md 'IMU message semantics'; an unknown one: trapezoid "
+                   "below 20 Hz)")
     p.add_argument("--declination", type=float, default=None,
                    help="magnetic declination in degrees, east positive (default: from the "
                    "log's COMPASS_DEC / ATT_MAG_DECL, else 0)")

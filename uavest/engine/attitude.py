@@ -22,15 +22,19 @@ direction, compensated by the vehicle's acceleration when a velocity source exis
 the latest magnetometer sample of the step, stacked in one update. Two ways of turning
 gyro samples into the step's rate, chosen by ``integration``:
 
-* ``"hold"``: each sample is the mean rate over the interval ending at it (integrated /
-  filtered full-rate IMUs: PX4 ``sensor_combined``, DataFlash ``IMU``); consecutive
-  samples are pre-integrated exactly (product of their rotations) when the filter runs
-  slower than the IMU (``rate_hz``).
+* ``"hold"``: each sample is the mean rate over the interval ending at it (integrated
+  IMUs: PX4 ``sensor_combined``, DataFlash ``IMT``); consecutive samples are
+  pre-integrated exactly (product of their rotations) when the filter runs slower than
+  the IMU (``rate_hz``).
 * ``"trapezoid"``: samples are instantaneous rates (MAVLink ``RAW_IMU`` streamed at a
-  few Hz): the step uses the mean of the rates at both ends.
+  few Hz; DataFlash ``IMU``, snapshots of the filtered gyro at the logging rate): each
+  interval between samples uses the mean of the rates at its ends, pre-integrated the
+  same way when a step holds several samples.
 
-``"auto"`` picks trapezoid below 20 Hz, else hold. ``rate_hz`` (default
-:data:`DEFAULT_MAX_RATE_HZ`) caps the filter rate; ``rate_hz = 0`` runs at the IMU rate.
+``"auto"`` picks by what the IMU message is (:mod:`uavest.ingest.semantics`, printed
+with the reason), and for an unknown message trapezoid below 20 Hz, else hold.
+``rate_hz`` (default :data:`DEFAULT_MAX_RATE_HZ`) caps the filter rate; ``rate_hz = 0``
+runs at the IMU rate.
 A step is closed when the first sample later than its end arrives (a magnetometer sample
 with the same time stamp as the step's last IMU sample still belongs to it).
 
@@ -50,6 +54,7 @@ from ..core.gaussian import Gaussian
 from ..errors import InputError
 from ..geometry.rotation import AttitudeSpace, qexp_f, qlog_f, qmul_f, quat_exp, quat_rotate
 from ..ingest.api import choose_source
+from ..ingest.semantics import default_integration
 from ..ingest.types import ImuSample, MagSample, NoSamplesError, PositionSample
 from ..models.attitude import (
     AttitudeNoise,
@@ -213,40 +218,48 @@ class _StepBuilder:
         b, t0 = self.block, self.t_edge
         t1 = b[-1].t
         if self.integration == "trapezoid":
-            w = 0.5 * (self.g_edge + b[-1].gyro)
-            a = b[-1].accel
+            if len(b) == 1:
+                w = 0.5 * (self.g_edge + b[-1].gyro)
+            else:  # snapshots: the rate linear between samples, each interval's mean
+                w = np.array(_preintegrate(t0, b, self.g_edge)) / max(t1 - t0, 1e-12)
+        elif len(b) == 1:  # full rate: Log(Exp(g dt)) / dt = g (up to rounding)
+            w = b[0].gyro
         else:
-            if len(b) == 1:  # full rate: Log(Exp(g dt)) / dt = g (up to rounding)
-                w = b[0].gyro
-            else:
-                w = np.array(_preintegrate(t0, b)) / max(t1 - t0, 1e-12)
-            if self.every > 1:  # updates once per reference step: its mean specific force
-                self.acc_upd.extend(s.accel for s in b)
-                self.since += 1
-                a = None
-                if self.since >= self.every:
-                    a = np.sum(self.acc_upd, axis=0) / len(self.acc_upd)
-                    self.acc_upd, self.since = [], 0
-            elif self.acc_hist.maxlen > self.factor:  # faster than the reference rate
-                self.acc_hist.extend(s.accel for s in b)
-                a = np.sum(list(self.acc_hist), axis=0) / len(self.acc_hist)
-            else:
-                a = np.sum([s.accel for s in b], axis=0) / len(b)
+            w = np.array(_preintegrate(t0, b)) / max(t1 - t0, 1e-12)
+        if self.every > 1:  # updates once per reference step: its mean specific force
+            self.acc_upd.extend(s.accel for s in b)
+            self.since += 1
+            a = None
+            if self.since >= self.every:
+                a = np.sum(self.acc_upd, axis=0) / len(self.acc_upd)
+                self.acc_upd, self.since = [], 0
+        elif self.acc_hist.maxlen > self.factor:  # faster than the reference rate
+            self.acc_hist.extend(s.accel for s in b)
+            a = np.sum(list(self.acc_hist), axis=0) / len(self.acc_hist)
+        else:
+            a = np.sum([s.accel for s in b], axis=0) / len(b)
         self.t_edge, self.g_edge = t1, b[-1].gyro
         self.block = []
         return _Raw(t1, t0, w, a, len(b))
 
 
-def _preintegrate(t0: float, block: list) -> tuple[float, float, float]:
+def _preintegrate(t0: float, block: list, g0: Array | None = None
+                  ) -> tuple[float, float, float]:
     """Log of the product of Exp(g_i (t_i - t_{i-1})) over the block's samples (rad, body
     FRD): the exact rotation of the step, on Python floats (``qexp_f``, ``qmul_f``,
-    ``qlog_f``: the formulas of ``quat_exp``, ``quat_mul`` and ``quat_log``)."""
+    ``qlog_f``: the formulas of ``quat_exp``, ``quat_mul`` and ``quat_log``). With ``g0``
+    (the rate at ``t0``, rad/s) each interval uses the mean of the rates at its ends
+    (snapshots, trapezoid) instead of the rate at its end (hold)."""
     q = (1.0, 0.0, 0.0, 0.0)
     tp = t0
+    gp = None if g0 is None else g0.tolist()
     for smp in block:
         dt = smp.t - tp
         tp = smp.t
-        gx, gy, gz = smp.gyro.tolist()
+        gx, gy, gz = g = smp.gyro.tolist()
+        if gp is not None:
+            gx, gy, gz = 0.5 * (gx + gp[0]), 0.5 * (gy + gp[1]), 0.5 * (gz + gp[2])
+            gp = g
         q = qmul_f(q, qexp_f((gx * dt, gy * dt, gz * dt)))
     return qlog_f(q)
 
@@ -371,18 +384,17 @@ class AttitudeStream:
                     break
         ti = [s.t for s in held if isinstance(s, ImuSample) and s.source == imu]
         rate = (len(ti) - 1) / max(ti[-1] - ti[0], 1e-9) if len(ti) > 1 else 0.0
-        integ = o.integration
-        if integ == "auto":
-            integ = "trapezoid" if rate < 20.0 else "hold"
+        integ, why = o.integration, "option"
+        if integ == "auto":  # by what the message is (uavest/ingest/semantics.py)
+            integ, why = default_integration(imu, rate)
         cap = DEFAULT_MAX_RATE_HZ if o.rate_hz is None else float(o.rate_hz)
-        factor = 1 if cap <= 0 or integ == "trapezoid" else max(1, round(rate / cap))
-        ref = 1 if integ == "trapezoid" else max(1, round(rate / DEFAULT_MAX_RATE_HZ))
+        factor = 1 if cap <= 0 else max(1, round(rate / cap))
+        ref = max(1, round(rate / DEFAULT_MAX_RATE_HZ))
         # faster than the reference rate: updates at most at ``update_hz`` (default the
         # reference rate), on the mean specific force of the samples since the last one
         ucap = DEFAULT_MAX_RATE_HZ if o.update_hz is None else float(o.update_hz)
         frate = rate / factor if factor else rate
-        every = (1 if ucap <= 0 or integ == "trapezoid" or factor >= ref
-                 else max(1, round(frate / ucap)))
+        every = 1 if ucap <= 0 or factor >= ref else max(1, round(frate / ucap))
         self._accel_weight = min(1.0, factor * every / ref)  # 1.0 at the default rate
         # the magnetometer: its updates per second now against those at the default rate
         # (each step uses its latest sample): 1 when it is slower than both filter rates
@@ -396,8 +408,8 @@ class AttitudeStream:
         self._model = GyroTransition(self.noise)
         self.summary.update(
             imu_source=imu, imu_sources=imu_counts, mag_source=mag, accel_compensation=pos,
-            integration=integ, preintegrated_samples_per_step=factor, align_rate_hz=rate,
-            steps_per_update=every,
+            integration=integ, integration_why=why, preintegrated_samples_per_step=factor,
+            align_rate_hz=rate, steps_per_update=every,
         )
         self._imu, self._mag, self._pos = imu, mag, pos
         self._builder = _StepBuilder(integ, factor, pos is not None, ref, every)

@@ -10,13 +10,14 @@ import logging
 import math
 import os
 import re
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
 from .convert import Raw, check, convert_dataflash, convert_mavlink, stat_key
-from .skip import DataflashSkipper, Skipped, TlogSkipper
+from .skip import TLOG_DECODED, DataflashSkipper, Skipped, TlogFramer, _map
 from .timebase import RxFilter, StreamGate, VehicleClock
 from .types import (
     AdsbSample,
@@ -171,13 +172,17 @@ def _gps_geo(msg, params: LogParams, unix_offset: float | None) -> None:
         if msg.get_type() == "GPS_RAW_INT":
             if msg.fix_type < 3:
                 return
+            params.set_fix(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3)
             tu = float(msg.time_usec)
             utc = tu * 1e-6 if tu > 1e15 else (
                 None if unix_offset is None else unix_offset + tu * 1e-6)
             if utc is not None:
                 params.set_geo(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3, utc)
             return
-        if getattr(msg, "Status", 0) < 3 or not getattr(msg, "GWk", 0):
+        if getattr(msg, "Status", 0) < 3:
+            return
+        params.set_fix(msg.Lat, msg.Lng, getattr(msg, "Alt", 0.0))
+        if not getattr(msg, "GWk", 0):
             return
         utc = _GPS_EPOCH + msg.GWk * 604800.0 + msg.GMS * 1e-3 - _LEAP_S
         params.set_geo(msg.Lat, msg.Lng, getattr(msg, "Alt", 0.0), utc)
@@ -246,18 +251,92 @@ class MavlinkSource:
         return self._read()
 
     def _skipper(self, conn):
-        """The skipper of unused records for ``conn`` (None: decode every record)."""
+        """The skipper of unused DataFlash records for ``conn`` (None: decode every
+        record; tlogs: :meth:`_read_tlog`)."""
         if self._decode_all:
             return None
-        if self.format == "tlog":
-            return TlogSkipper(self.path)
         from pymavlink import DFReader
 
         if isinstance(conn, DFReader.DFReader_binary):
             return DataflashSkipper()
         return None  # DataFlash text: decoded as before
 
+    def _read_tlog(self) -> Iterator[tuple[object, float | None]]:
+        """The records of a tlog, found by :class:`uavest.ingest.skip.TlogFramer` (the one
+        resync/validity routine of both paths): good frames of used types decoded by
+        pymavlink's parser, of unused types stepped over as :class:`Skipped` (every one
+        decoded with ``_decode_all``); what lies between counted by kind
+        (``stats.skipped``; text as ``non_mavlink``, the rest ``corrupt``/``truncated``)."""
+        conn = self._open()
+        st = self.stats
+        mm = None
+        try:
+            mav = conn.mav
+            mod = sys.modules[type(mav).__module__]
+            mm, size = _map(self.path)
+            if mm is None:
+                return
+            fr = TlogFramer(mm, mod)
+            names = {mid: cls.msgname for mid, cls in mod.mavlink_map.items()}
+            decode = set(names) if self._decode_all else {
+                mid for mid, nm in names.items() if nm in TLOG_DECODED}
+            o, last_rx = 0, None
+            while o < size:
+                o, verdict, end, mid, skipped = fr.next(o, last_rx)
+                if skipped:
+                    self._count_skipped(skipped)
+                self.bytes_read = min(end, size) if verdict != "eof" else size
+                if verdict == "eof":
+                    break
+                rx = fr.rx(o)
+                frame = o
+                o = end
+                self._good_end = end
+                if verdict == "unknown":
+                    st.bad("unknown_message")
+                    continue
+                last_rx = rx
+                if mid not in decode:
+                    fm = mm[frame + 8]
+                    sysid = mm[frame + 13] if fm == 0xFD else mm[frame + 11]
+                    st.messages[names[mid]] += 1
+                    self.undecoded += 1
+                    yield Skipped(names[mid], sysid, rx), rx
+                    continue
+                try:
+                    msg = mav.decode(bytearray(mm[frame + 8:end]))
+                except Exception:  # noqa: BLE001 - the framer checked it; never crash
+                    st.bad("corrupt")
+                    self._count_skipped({"bad_frame": 1})
+                    continue
+                msg._timestamp = rx
+                st.messages[msg.get_type()] += 1
+                yield msg, rx
+        finally:
+            if mm is not None:
+                mm.close()
+            with contextlib.suppress(Exception):
+                conn.close()
+
+    def _count_skipped(self, skipped: dict[str, int]) -> None:
+        """Count what the framer stepped over: text as ``non_mavlink`` (one per run: not
+        bad data), junk ``corrupt`` in frames' worth, a cut last record ``truncated``, bad
+        frames ``corrupt`` one each; every kind also in ``stats.skipped``."""
+        st = self.stats
+        for k, v in skipped.items():
+            st.skipped[k] += v
+        if skipped.get("text_bytes"):
+            st.non_mavlink += 1
+        st.bad("corrupt", n=skipped.get("bad_crc", 0) + skipped.get("partial_frame", 0))
+        st.bad("unknown_message", n=skipped.get("unknown_id", 0))
+        st.bad("corrupt", "skipped_bytes", -(-skipped.get("junk_bytes", 0) // 271))
+        if skipped.get("truncated_bytes"):
+            st.bad("truncated")
+
     def _read(self) -> Iterator[tuple[object, float | None]]:
+        if self.format == "tlog":
+            yield from self._read_tlog()
+            return
         conn = self._open()
         st = self.stats
         is_df = self.format.startswith("dataflash")
@@ -335,9 +414,6 @@ class MavlinkSource:
                 self._good_end = pos
                 yield msg, rx
         finally:
-            if isinstance(skip, TlogSkipper):
-                skip.sync(conn)
-                skip.close()
             self._check_truncated(conn)
             with contextlib.suppress(Exception):
                 conn.close()
@@ -414,6 +490,8 @@ class MavlinkSource:
                     t_ev = reorder.last_out if math.isfinite(reorder.last_out) else 0.0
                     yield dataclasses.replace(rx, t=t_ev)
                 continue
+            if rx is not None and self.params.date is None:  # the log's own date
+                self.params.set_date(rx, "tlog's receive times")
             if type(msg) is Skipped:  # a record no converter uses: only its system counts
                 if self.sysid is not None and not is_df and msg.sysid != self.sysid:
                     st.bad("wrong_sysid", msg.name)
@@ -487,9 +565,11 @@ class MavlinkSource:
         self.stats = IngestStats()
         systime: dict[int, float] = {}
         try:
-            for i, (msg, _rx) in enumerate(self._read()):
+            for i, (msg, rx) in enumerate(self._read()):
                 if msg is None or i >= max_messages or self.params.geo is not None:
                     break
+                if rx is not None and self.params.date is None:
+                    self.params.set_date(rx, "tlog's receive times")
                 name = msg.get_type()
                 if name == "SYSTEM_TIME" and msg.time_boot_ms and msg.time_unix_usec:
                     systime[msg.get_srcSystem()] = (msg.time_unix_usec * 1e-6

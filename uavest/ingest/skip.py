@@ -1,16 +1,18 @@
 """Skip, without decoding, the log records of types no converter uses (docs/ingest.md,
-"What is decoded").
+"What is decoded"), and find a tlog's good records whatever lies between them.
 
 pymavlink decodes every record of a tlog or DataFlash log into a message object; about two
-thirds of a typical telemetry log are types :mod:`uavest.ingest.convert` never looks at. The
-skippers here look at a record's header in a memory map of the file *before* pymavlink's
-parser would see it and, when the record is of an unused type **and** pymavlink's parser is
-certain to accept it as a good record (complete, right marker, known id, good CRC...), step
-over it and return a :class:`Skipped` stand-in (type name, system id, receive time). Anything
-else (a record of a used type, a bad CRC, garbage between records, a cut end, an unknown
-id, a parser holding buffered bytes) is left to pymavlink exactly as before, so the bad-data
-counts of a damaged log do not change: a corrupt record of an unused type still reaches the
-parser, which reports it as before.
+thirds of a typical telemetry log are types :mod:`uavest.ingest.convert` never looks at.
+
+* tlog: :class:`TlogFramer` is the one resync/validity routine of the reader: it finds each
+  good record (complete frame, valid marker and flags, good CRC) in a memory map of the
+  file, classifies what lies between (console text, bad-CRC frames, cut frames, junk) and
+  hands the reader the record; the reader decodes it with pymavlink's ``decode`` (used
+  types, or every type with ``_decode_all``) or yields a :class:`Skipped` stand-in. Both
+  paths see the same records and the same skipped bytes, so they count the same.
+* DataFlash: :class:`DataflashSkipper` looks at a record's header *before* pymavlink's
+  parser would see it and steps over it only when it is of an unused type and pymavlink
+  would certainly accept it; anything else is left to pymavlink exactly as before.
 """
 
 from __future__ import annotations
@@ -18,7 +20,6 @@ from __future__ import annotations
 import mmap
 import os
 import struct
-import sys
 
 from .convert import DATAFLASH_CONVERTERS, MAVLINK_CONVERTERS
 
@@ -68,112 +69,169 @@ def _map(path: str | os.PathLike) -> tuple[mmap.mmap | None, int]:
         return mmap.mmap(f.fileno(), size, access=mmap.ACCESS_READ), size
 
 
-class TlogSkipper:
-    """Steps over the tlog records of unused types for a ``pymavlink.mavutil.mavlogfile``.
+_PRINTABLE = frozenset(range(0x20, 0x7F)) | {0x09, 0x0A, 0x0D}
+_TEXT_RUN = 4  # printable bytes in a row (without record times) that count as text
+_RX_SPAN = 3 * 24 * 3600.0  # s, record times this close to a good record's are plausible
+# (pymavlink's own bound when it scans for a record time)
+_JUNK_UNIT = 271  # bytes: junk is counted ``corrupt`` in frames' worth (the largest record)
 
-    Call :meth:`next` before each ``conn.recv_msg()``: it returns a :class:`Skipped` (the
-    file position moved past the record) or None (read the next record with pymavlink;
-    the file position is where pymavlink expects it). Only used while pymavlink's parser is
-    idle (no buffered bytes, the previous record good, past the first record), and for a
-    record exactly as long as its header says that ends inside the file, so what pymavlink
-    would have read and decided is known: the reader state it keeps (the expected header
-    length of the next frame, the last good receive time) is updated as pymavlink would.
+#: What :class:`TlogFramer` steps over, by kind (``IngestStats.skipped``): ``text_bytes``
+#: (printable bytes between frames, one per record in a SITL console banner),
+#: ``bad_crc`` (whole frames whose checksum is wrong), ``partial_frame`` (a frame header
+#: whose frame is cut by the next good record), ``unknown_id`` (a frame of an id the
+#: dialect lacks), ``junk_bytes`` (anything else), ``truncated_bytes`` (a cut last record).
+SKIP_KINDS = ("text_bytes", "bad_crc", "partial_frame", "unknown_id", "junk_bytes",
+              "truncated_bytes")
+
+
+class TlogFramer:
+    """The one resync/validity routine of the tlog reader (both the skipping and the
+    decode-everything paths use it, so they count the same).
+
+    A tlog is a sequence of records: an 8-byte big-endian receive time (us UNIX) and one
+    MAVLink 1 or 2 frame. :meth:`next` returns the next good record at or after a file
+    offset: a frame that is complete, has a valid marker and incompat flags, and (known
+    id) a good CRC with the dialect's CRC extra byte, or (an id the dialect lacks, whose
+    CRC cannot be checked) is followed by a good record or the end of the file. Whatever
+    lies between is classified (:data:`SKIP_KINDS`): records of console text, whole frames
+    with a bad CRC, frames cut by the next record, junk. This is what pymavlink's parser
+    accepts, found without ever losing step: a good frame is never missed because of the
+    bytes before it (pymavlink's own stream parser can stay out of step after text).
     """
 
-    def __init__(self, path: str | os.PathLike, decoded: frozenset[str] = TLOG_DECODED) -> None:
-        self.mm, self.size = _map(path)
-        self.decoded = decoded
-        self.pos: int | None = None  # file offset after the last skipped record
-        self._mavtype: type | None = None
-        self._mod = None
-        self._ignore_crc = False
-        self._crc = None
-        self._skip: dict[int, tuple[str, bytes]] = {}
-
-    def _table(self, mav) -> None:
-        """The unused types for parser ``mav``: msgid -> (name, crc_extra byte)."""
-        self._mavtype = type(mav)
-        mod = self._mod = sys.modules[type(mav).__module__]
-        self._ignore_crc = bool(mod.MAVLINK_IGNORE_CRC)
+    def __init__(self, data, mod) -> None:
+        self.mm = data
+        self.size = len(data)
+        self.ignore_crc = bool(getattr(mod, "MAVLINK_IGNORE_CRC", 0))
         fast = getattr(mod, "mcrf4xx", None)
-        self._crc = ((lambda b: fast(b, 0xFFFF)) if fast is not None
-                     else (lambda b: mod.x25crc(b).crc))
-        # the MAVLink 2 parser (the one uavest.ingest selects); another: decode all
-        self._skip = {} if getattr(mod, "WIRE_PROTOCOL_VERSION", "") != "2.0" else {
-            mid: (cls.msgname, bytes((cls.crc_extra,)))
-            for mid, cls in mod.mavlink_map.items() if cls.msgname not in self.decoded}
+        self.crc = ((lambda b: fast(b, 0xFFFF)) if fast is not None
+                    else (lambda b: mod.x25crc(b).crc))
+        self.extra = {mid: bytes((cls.crc_extra,)) for mid, cls in mod.mavlink_map.items()}
 
-    def sync(self, conn) -> None:
-        """Put the file position where the skipped records end (before pymavlink reads)."""
-        if self.pos is not None:
-            conn.f.seek(self.pos)
-            self.pos = None
-
-    def next(self, conn, at: int = -1) -> Skipped | None:
-        """The next record as :class:`Skipped` if it is a good record of an unused type;
-        ``at``: the file position if known (after a record pymavlink read), else -1."""
-        o = self.pos
-        if o is None:
-            o = at if at >= 0 else conn.f.tell()
-        mm = self.mm
-        # the shortest record (MAVLink 1, empty payload) is 16 bytes with its time
-        if mm is None or o + 18 > self.size:
-            return self.sync(conn)
+    # ------------------------------------------------------------------ one frame
+    def frame(self, o: int) -> tuple[str, int, int]:
+        """(verdict, end, msgid) of a record assumed at ``o`` (its frame at ``o + 8``):
+        verdict ``ok`` | ``bad_crc`` | ``unknown`` (id not in the dialect) | ``cut`` (ends
+        past the file) | ``none`` (no frame header there); ``end``: where it ends."""
+        mm, n = self.mm, self.size
+        if o + 9 > n:
+            return "none", o, -1
         mk = mm[o + 8]
         if mk == 0xFD:
-            mid = mm[o + 15] | mm[o + 16] << 8 | mm[o + 17] << 16
-        elif mk == 0xFE:
-            mid = mm[o + 13]
-        else:
-            return self.sync(conn)
-        mav = conn.mav
-        if type(mav) is not self._mavtype:
-            self._table(mav)
-        info = self._skip.get(mid)
-        if info is None:  # a used type, or one pymavlink does not know: pymavlink reads it
-            if self.pos is not None:
-                self.sync(conn)
-            return None
-        if conn.first_byte or len(mav.buf) != mav.buf_index:
-            return self.sync(conn)  # pymavlink's parser is not idle
-        last = conn._last_message
-        if last is None or last.get_type() == "BAD_DATA":
-            return self.sync(conn)  # pymavlink may rescan the next record's time
-        if mk == 0xFD:
+            if o + 18 > n:
+                return "cut", o + 18, -1
             inc = mm[o + 10]
             if inc & 0xFE:
-                return self.sync(conn)  # pymavlink: "invalid incompat_flags" (BAD_DATA)
+                return "none", o, -1
             sig = 13 if inc & 1 else 0
-            if sig and mav.signing.secret_key is not None:
-                return self.sync(conn)
-            flen = mm[o + 9] + 12 + sig
-            sysid = mm[o + 13]
-            expect = 12
-        else:
+            end = o + 8 + mm[o + 9] + 12 + sig
+            mid = mm[o + 15] | mm[o + 16] << 8 | mm[o + 17] << 16
+        elif mk == 0xFE:
+            if o + 14 > n:
+                return "cut", o + 16, -1
             sig = 0
-            flen = mm[o + 9] + 8
-            sysid = mm[o + 11]
-            expect = 8
-        end = o + 8 + flen
-        # a frame shorter than the header pymavlink reads first makes it read into the next
-        # record (its own quirk): left to pymavlink, as is a frame cut by the end of file
-        if flen < mav.expected_length or end > self.size:
-            return self.sync(conn)
-        if not self._ignore_crc:
+            end = o + 8 + mm[o + 9] + 8
+            mid = mm[o + 13]
+        else:
+            return "none", o, -1
+        if end > n:
+            return "cut", end, mid
+        extra = self.extra.get(mid)
+        if extra is None:
+            return "unknown", end, mid
+        if not self.ignore_crc:
             c = end - 2 - sig
-            if self._crc(mm[o + 9:c] + info[1]) != (mm[c] | mm[c + 1] << 8):
-                return self.sync(conn)  # pymavlink: "invalid MAVLink CRC" (BAD_DATA)
-        rx = _T.unpack_from(mm, o)[0] * 1.0e-6
-        conn._last_timestamp = rx  # pymavlink's post_message would set it
-        mav.expected_length = expect  # pymavlink's parser after a frame with this marker
-        self.pos = end
-        return Skipped(info[0], sysid, rx)
+            if self.crc(mm[o + 9:c] + extra) != (mm[c] | mm[c + 1] << 8):
+                return "bad_crc", end, mid
+        return "ok", end, mid
 
-    def close(self) -> None:
-        """Release the memory map."""
-        if self.mm is not None:
-            self.mm.close()
-            self.mm = None
+    def good(self, o: int) -> tuple[str, int, int] | None:
+        """The frame at ``o`` if it is a good record (see the class), else None."""
+        v = self.frame(o)
+        if v[0] == "ok":
+            return v
+        if v[0] == "unknown" and (v[1] == self.size or self.frame(v[1])[0] == "ok"):
+            return v
+        return None
+
+    def rx(self, o: int) -> float:
+        """Receive time (s UNIX) of the record at ``o``."""
+        return _T.unpack_from(self.mm, o)[0] * 1.0e-6
+
+    # ------------------------------------------------------------------ resync
+    def next(self, o: int, last_rx: float | None = None):
+        """``(start, verdict, end, msgid, skipped)`` of the first good record at or after
+        ``o`` (start = ``size`` and verdict ``eof`` if none); ``skipped``: {kind: count}
+        of what lies between (empty when the record is at ``o``). ``last_rx``: the
+        receive time of the previous good record (to judge record times in the gap)."""
+        v = self.good(o)
+        if v is not None:
+            return o, v[0], v[1], v[2], {}
+        p = self._search(o + 1)
+        if p < self.size:
+            v = self.good(p)
+            ref = self.rx(p)
+        else:
+            v = ("eof", self.size, -1)
+            ref = last_rx
+        return p, v[0], v[1], v[2], self._classify(o, p, ref)
+
+    def _search(self, q: int) -> int:
+        """First offset >= q holding a good record (``size`` if none)."""
+        mm, n = self.mm, self.size
+        while q + 8 < n:
+            a, b = mm.find(b"\xfd", q + 8), mm.find(b"\xfe", q + 8)
+            m = min(x for x in (a, b, n) if x >= 0)
+            if m >= n:
+                break
+            q = m - 8
+            if self.good(q) is not None:
+                return q
+            q += 1
+        return n
+
+    def _classify(self, o: int, p: int, ref: float | None) -> dict[str, int]:
+        """What the bytes [o, p) are, by kind (:data:`SKIP_KINDS`)."""
+        mm = self.mm
+        out: dict[str, int] = {}
+
+        def add(k: str, v: int = 1) -> None:
+            out[k] = out.get(k, 0) + v
+
+        q = o
+        while q < p:
+            plausible = (q + 9 <= p and ref is not None
+                         and abs(self.rx(q) - ref) <= _RX_SPAN)
+            if plausible:
+                verdict, end, _ = self.frame(q)
+                if verdict != "none":
+                    if p == self.size and verdict == "cut":
+                        add("truncated_bytes", p - q)
+                        break
+                    if end <= p:
+                        add({"bad_crc": "bad_crc", "unknown": "unknown_id"}.get(
+                            verdict, "partial_frame"))
+                        q = end
+                        continue
+                    add("partial_frame")  # cut by the next good record
+                    break
+                if mm[q + 8] in _PRINTABLE:  # a record of console text
+                    add("text_bytes")
+                    q += 9
+                    continue
+            r = q
+            while r < p and mm[r] in _PRINTABLE:
+                r += 1
+            if r - q >= _TEXT_RUN:  # text without record times
+                add("text_bytes", r - q)
+                q = r
+                continue
+            if p == self.size and p - q < 9 and not out.get("junk_bytes"):
+                add("truncated_bytes", p - q)  # a cut after (part of) a record time
+                break
+            add("junk_bytes")
+            q += 1
+        return out
 
 
 _NUMERIC = set("bBghHiIfcCeELdMqQ")

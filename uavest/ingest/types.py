@@ -323,16 +323,48 @@ Sample = (
 
 class LogParams(dict):
     """A log's parameters (name -> float), and ``geo``: the first GPS fix with its date,
-    ``{"lat": deg, "lon": deg, "alt": m AMSL, "utc": UNIX s}`` or None, which the sources
-    fill as they read (for the World Magnetic Model declination when the log's own is
+    ``{"lat": deg, "lon": deg, "alt": m AMSL, "utc": UNIX s}`` or None, ``fix`` (the first
+    fix, dated or not) and ``date`` (the log's own date), which the sources fill as they
+    read (for the World Magnetic Model declination when the log's own is
     unknown, :func:`uavest.models.attitude.declination_and_source`)."""
 
     geo: dict | None = None
+    #: the first 3-D fix even without a date ``{"lat", "lon", "alt"}`` (deg, deg, m AMSL)
+    fix: dict | None = None
+    #: the log's own date when its fixes carry none: ``{"utc": UNIX s, "what": where from}``
+    date: dict | None = None
+
+    def set_fix(self, lat, lon, alt) -> None:
+        """Keep the first plausible 3-D fix, dated or not (later calls are ignored)."""
+        import math
+
+        if self.fix is not None:
+            return
+        try:
+            v = [float(lat), float(lon), float(alt)]
+        except (TypeError, ValueError):
+            return
+        if not all(math.isfinite(x) for x in v) or abs(v[0]) > 90 or abs(v[1]) > 180:
+            return
+        if (v[0], v[1]) != (0.0, 0.0):
+            self.fix = {"lat": v[0], "lon": v[1], "alt": v[2]}
+
+    def set_date(self, utc, what: str) -> None:
+        """Keep the first plausible date of the log (UNIX s, 2001-2099) and its origin."""
+        import math
+
+        try:
+            u = float(utc)
+        except (TypeError, ValueError):
+            return
+        if self.date is None and math.isfinite(u) and 1.0e9 < u < 4.1e9:
+            self.date = {"utc": u, "what": what}
 
     def set_geo(self, lat, lon, alt, utc) -> None:
         """Keep the first plausible fix (later calls are ignored)."""
         import math
 
+        self.set_fix(lat, lon, alt)
         if self.geo is not None:
             return
         try:
@@ -382,6 +414,9 @@ class IngestStats:
     absent_sensor: int = 0  # all-zero records of a sensor instance that is not fitted
     #: the absent sensor instances (stat key, e.g. ``"imu:SCALED_IMU3"``) -> records ignored
     absent: Counter = field(default_factory=Counter)
+    #: what the tlog reader stepped over between good records, by kind
+    #: (``uavest.ingest.skip.SKIP_KINDS``: text_bytes, bad_crc, partial_frame, ...)
+    skipped: Counter = field(default_factory=Counter)
     messages: Counter = field(default_factory=Counter)
     accepted: Counter = field(default_factory=Counter)
     rejected: Counter = field(default_factory=Counter)
@@ -406,6 +441,7 @@ class IngestStats:
             d[k] = getattr(self, k)
         d["bad_total"] = self.bad_total
         d["absent"] = dict(sorted(self.absent.items()))
+        d["skipped"] = dict(sorted(self.skipped.items()))
         d["messages"] = dict(sorted(self.messages.items()))
         d["accepted"] = dict(sorted(self.accepted.items()))
         d["rejected"] = dict(sorted(self.rejected.items()))

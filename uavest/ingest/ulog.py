@@ -154,6 +154,9 @@ class ULogData:
             fix = _first_fix(data)
             if fix is not None:
                 self.params.set_geo(*fix)
+            fix = _first_fix(data, dated=False)  # a fix without GNSS time: still a place
+            if fix is not None:
+                self.params.set_fix(*fix[:3])
 
     @staticmethod
     def _vec(data: dict, fmt: str, n: int = 3) -> np.ndarray:
@@ -247,10 +250,11 @@ class ULogData:
             self.pos[src] = (t[k], nan3, nan3.copy(), lla[k])
 
 
-def _first_fix(data: dict):
-    """(lat deg, lon deg, alt m, UNIX s) of the first 3-D fix with a date, or None."""
+def _first_fix(data: dict, dated: bool = True):
+    """(lat deg, lon deg, alt m, UNIX s) of the first 3-D fix with a date (``dated``
+    False: with or without one; UNIX s then NaN if it has none), or None."""
     fix = np.asarray(data.get("fix_type", []))
-    utc = np.asarray(data.get("time_utc_usec", []), dtype=float)
+    utc = np.asarray(data.get("time_utc_usec", np.full(fix.size, np.nan)), dtype=float)
     if fix.size == 0 or utc.size != fix.size:
         return None
     if "latitude_deg" in data:
@@ -261,11 +265,12 @@ def _first_fix(data: dict):
         alt = np.asarray(data.get("alt", np.zeros(fix.size)), float) * 1e-3
     else:
         return None
-    ok = np.flatnonzero((fix >= 3) & (utc > 1e15) & np.isfinite(lat) & (np.abs(lat) <= 90))
+    dated_ok = (utc > 1e15) if dated else np.ones(fix.size, bool)
+    ok = np.flatnonzero((fix >= 3) & dated_ok & np.isfinite(lat) & (np.abs(lat) <= 90))
     if ok.size == 0:
         return None
     i = ok[0]
-    return lat[i], lon[i], alt[i], utc[i] * 1e-6
+    return lat[i], lon[i], alt[i], (utc[i] * 1e-6 if utc[i] > 1e15 else np.nan)
 
 
 class ULogSource:

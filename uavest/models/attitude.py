@@ -105,7 +105,8 @@ class AttitudeNoise:
 
 #: Defaults by IMU source (``LogData.imu.source``). Streamed MAVLink IMU messages are
 #: instantaneous samples at a few Hz: a large ``rate_walk`` covers the coarse
-#: integration. DataFlash ``IMU`` and PX4 ``sensor_combined`` are full-rate, integrated.
+#: integration. DataFlash ``IMU`` (filtered snapshots) and PX4 ``sensor_combined`` (interval
+#: averages) are full-rate (uavest/ingest/semantics.py).
 SENSOR_DEFAULTS: dict[str, AttitudeNoise] = {
     "mavlink_stream": AttitudeNoise(
         gyro_noise=0.01, gyro_bias_walk=1e-4, rate_walk=0.25, accel_noise=0.6,
@@ -154,7 +155,10 @@ def declination_and_source(params: dict) -> tuple[float | None, str]:
     PX4 ``EKF2_DECL_TYPE`` bit 0, ``ATT_MAG_DECL_A``) is the value *before* the GPS lock
     (DataFlash PARM records keep that boot value), so unknown: then the World Magnetic
     Model at the log's first GPS fix and its date (``params.geo``, set by the sources on
-    a :class:`~uavest.ingest.types.LogParams`), else None (the caller uses 0).
+    a :class:`~uavest.ingest.types.LogParams`: GNSS UTC time or GPS week/time of week);
+    a fix without a GNSS date (``params.fix``): at the log's own date (``params.date``,
+    e.g. a tlog's receive times), else at the model's epoch, said in the source; no fix
+    at all: None (the caller uses 0).
     """
     unknown = []
     for name, unit, auto, default in (
@@ -175,11 +179,24 @@ def declination_and_source(params: dict) -> tuple[float | None, str]:
             unknown.append(f"{name} = {v:g} {unit} out of range")
             continue
         return rad, f"log parameter {name} ({v:.4g} {unit})"
+    tail = f"; {', '.join(unknown)}" if unknown else ""
     geo = getattr(params, "geo", None)
     if geo:
         try:
             d, what = wmm_declination(geo["lat"], geo["lon"], geo.get("alt", 0.0), geo["utc"])
-            return d, what + (f"; {', '.join(unknown)}" if unknown else "")
+            return d, what + tail
+        except ValueError as e:
+            unknown.append(str(e))
+    fix = getattr(params, "fix", None)
+    if fix:  # a fix without a GNSS date: the log's own date, else the model's epoch
+        date = getattr(params, "date", None)
+        try:
+            if date:
+                d, what = wmm_declination(fix["lat"], fix["lon"], fix.get("alt", 0.0),
+                                          date["utc"])
+                return d, f"{what} (no GNSS date: the date of the {date['what']}){tail}"
+            d, what = wmm_declination(fix["lat"], fix["lon"], fix.get("alt", 0.0), None)
+            return d, f"{what} (no date in the log: the model's epoch){tail}"
         except ValueError as e:
             unknown.append(str(e))
     why = "; ".join(unknown) if unknown else "no declination parameter or GPS fix in the log"
@@ -189,17 +206,28 @@ def declination_and_source(params: dict) -> tuple[float | None, str]:
 _WMM_EPOCHS = (2010, 2015, 2020, 2025)
 
 
-def wmm_declination(lat: float, lon: float, alt: float, utc_s: float) -> tuple[float, str]:
+def wmm_declination(lat: float, lon: float, alt: float, utc_s: float | None
+                    ) -> tuple[float, str]:
     """World Magnetic Model declination (rad) at a position (deg, deg, m AMSL) and UNIX
     time ``utc_s``, with a description. The WMM epoch of the date is used (2010, 2015,
     2020, 2025, each valid 5 years); dates outside 2010-2030 use the nearest epoch's end
-    and say so. For 2025-2030 this is :func:`uavest.geometry.magnetic.declination`."""
+    and say so; ``utc_s`` None (no date known): the newest model at its epoch. For
+    2025-2030 this is :func:`uavest.geometry.magnetic.declination`."""
     from datetime import UTC, datetime
 
     from ..geometry.magnetic import decimal_year
 
-    if not all(np.isfinite([lat, lon, alt, utc_s])) or abs(lat) > 90 or abs(lon) > 360:
+    if not all(np.isfinite([lat, lon, alt])) or abs(lat) > 90 or abs(lon) > 360:
         raise InputError(f"no usable GPS position for the magnetic model ({lat}, {lon})")
+    if utc_s is None:
+        epoch = _WMM_EPOCHS[-1]
+        r = _geomag(epoch).calculate(glat=float(lat), glon=float(lon),
+                                     alt=float(alt) / 1000.0, time=float(epoch))
+        d = float(np.deg2rad(r.d))
+        return d, (f"World Magnetic Model WMM{epoch} at {lat:.4f}, {lon:.4f} at its epoch "
+                   f"{epoch}.0: {np.rad2deg(d):.2f} deg")
+    if not np.isfinite(utc_s):
+        raise InputError(f"no usable date for the magnetic model ({utc_s})")
     when = datetime.fromtimestamp(float(utc_s), tz=UTC)
     year = decimal_year(when)
     note = ""
