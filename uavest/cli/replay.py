@@ -105,6 +105,11 @@ def format_doc(doc: dict) -> str:
     if doc.get("declination_source"):
         lines.append(f"declination: {math.degrees(doc['declination_rad'] or 0.0):.2f} deg "
                      f"({doc['declination_source']})")
+    t0 = doc.get("t_first")
+    for d in doc.get("decisions") or []:
+        rel = f", {d['t'] - t0:+.1f} s into the IMU data" if t0 is not None else ""
+        lines.append(f"decision: {d['what']}: {d['value']} from t={d['t']:.1f} s{rel} "
+                     f"({d['why']})")
     rows = {}
     for name, row in doc["filters"].items():
         rows[name] = row

@@ -273,6 +273,17 @@ class AttitudeStream:
         self._builder: _StepBuilder | None = None
         self._k = 0
         self._imu_n = [0, 0.0, 0.0]  # samples, first and last time
+        #: what was decided and when it took effect: dicts of ``what``, ``value``, ``t``
+        #: (s, vehicle clock) and ``why``, in the order they were made (see
+        #: :meth:`_decide`); also ``summary["decisions"]``
+        self.decisions: list[dict] = []
+        self._decl_pending = False  # declination unknown so far: take it when it arrives
+        self._decl_seen: tuple | None = None  # (params size, geo) last looked at
+
+    def _decide(self, what: str, value, t: float, why: str) -> None:
+        """Record a decision ``what`` = ``value`` taking effect at ``t`` (s) because ``why``."""
+        self.decisions.append({"what": what, "value": value, "t": float(t), "why": why})
+        self.summary["decisions"] = self.decisions
 
     def __iter__(self) -> Iterator[Start | Step]:
         for s in self.samples:
@@ -318,7 +329,12 @@ class AttitudeStream:
 
     def _feed(self, s) -> list:
         if not self._mine(s):
-            return []
+            if (self._pos is None and self.opts.accel_comp == "auto"
+                    and isinstance(s, PositionSample) and s.vel_ned is not None
+                    and np.isfinite(s.vel_ned).all()):
+                self._accel_comp_on(s)  # the velocity arrived after the alignment
+            else:
+                return []
         if isinstance(s, ImuSample):
             self._imu_n[0] += 1
             self._imu_n[2] = s.t
@@ -337,7 +353,37 @@ class AttitudeStream:
                 break
         return out
 
+    def _accel_comp_on(self, s: PositionSample) -> None:
+        """Compensation switches on with the first valid velocity of ``s.source`` (a log
+        that starts before the GNSS fix has none in the alignment window)."""
+        self._pos = s.source
+        self._builder.use_pos = True
+        self.summary["accel_compensation"] = s.source
+        self.summary["accel_compensation_from_t"] = float(s.t)
+        self._decide("acceleration compensation", f"on ({s.source})", s.t,
+                     f"first valid velocity from {s.source}")
+
+    def _check_declination(self, t: float) -> None:
+        """A declination unknown at the alignment (no parameter yet, automatic declination
+        before the GNSS fix) is taken when the source's parameters give one."""
+        key = (len(self.params), bool(getattr(self.params, "geo", None)))
+        if key == self._decl_seen:
+            return
+        self._decl_seen = key
+        decl, src = declination_and_source(self.params)
+        if decl is None:
+            return
+        self._decl_pending = False
+        self.declination = decl
+        if self._mref is not None:
+            self._mref = mag_reference(decl, float(np.arcsin(self._mref[2])))
+        self.summary.update(declination_rad=decl, declination_source=src,
+                            declination_from_t=float(t))
+        self._decide("declination", f"{np.degrees(decl):.2f} deg", t, src)
+
     def _step(self, r: _Raw) -> Step:
+        if self._decl_pending:
+            self._check_declination(r.t)
         self._k += 1
         return Step(self._k, r.t, r.t - r.t0, self._model, self._updates(r, self._mref), r.w)
 
@@ -398,6 +444,22 @@ class AttitudeStream:
             steps_per_update=every,
         )
         self._imu, self._mag, self._pos = imu, mag, pos
+        t_first = next(s.t for s in held if isinstance(s, ImuSample) and s.source == imu)
+        self._decide("IMU", imu, t_first,
+                     "option --imu" if o.imu is not None else
+                     f"most samples in the first {2 * o.align_s:g} s ("
+                     + ", ".join(f"{k} {v}" for k, v in sorted(imu_counts.items())) + ")")
+        self._decide("integration", integ, t_first,
+                     "option" if o.integration != "auto" else
+                     f"IMU at {rate:.1f} Hz ({'<' if integ == 'trapezoid' else '>='} 20 Hz)")
+        if o.accel_comp == "none":
+            self._decide("acceleration compensation", "off", t_first, "option --accel-comp none")
+        elif pos is not None:
+            self._decide("acceleration compensation", f"on ({pos})", t_first,
+                         f"velocity from {pos} at the start")
+        else:
+            self._decide("acceleration compensation", "off", t_first,
+                         "no valid velocity yet (switches on when one arrives)")
         self._builder = _StepBuilder(integ, factor, pos is not None, ref, every)
         # the first IMU sample, the magnetometer at/before it (else the first one held)
         self._first = first = next(s for s in held if isinstance(s, ImuSample)
@@ -426,6 +488,9 @@ class AttitudeStream:
             decl = decl or 0.0
         self.declination = decl
         self.summary.update(declination_rad=decl, declination_source=src)
+        self._decl_pending = o.declination is None and src.startswith("none")
+        self._decide("declination", f"{np.degrees(decl):.2f} deg", first.t,
+                     src + (" (taken later if the log gives one)" if self._decl_pending else ""))
         self._mref = None
         if self._mag is not None and o.mag_mode == "field":
             win = [r for r in align if r.t <= first.t + o.align_s and r.mag is not None]
@@ -441,6 +506,12 @@ class AttitudeStream:
         P0 = np.diag([noise.init_tilt**2, noise.init_tilt**2, noise.init_yaw**2]
                      + [noise.init_bias**2] * 3)
         start = Start(first.t, Gaussian(np.concatenate([q0, np.zeros(3)]), P0), self.space)
+        t_al = align[-1].t if align else first.t
+        self._decide("alignment", "done", t_al,
+                     f"roll/pitch from the accelerometer at t={first.t:.1f} s"
+                     + (", yaw from the magnetometer" if mag0 is not None and self._mag
+                        else ", yaw 0 (no magnetometer)")
+                     + f"; {len(align)} steps of the {o.align_s:g} s window held")
         return [start] + [self._step(r) for r in align]
 
     def _finish_summary(self) -> None:
