@@ -120,12 +120,15 @@ def format_doc(doc: dict) -> str:
     lines.append(table(rows, cols))
     bad = doc["bad_data"]
     parts = [f"{k} {bad[k]}" for k in bad
-             if isinstance(bad[k], int) and bad[k] and k not in ("bad_total", "absent_sensor")]
+             if isinstance(bad[k], int) and bad[k] and k not in ("bad_total", "absent_sensor", "no_fix")]
     lines.append(f"bad data: {bad['bad_total']}" + (f" ({', '.join(parts)})" if parts else ""))
     absent = bad.get("absent") or {}
     if absent:
         lines.append("absent sensors (all-zero records, not bad data, ignored): " + ", ".join(
             f"{k.split(':', 1)[-1]} x{n}" for k, n in absent.items()))
+    if bad.get("no_fix"):
+        lines.append(f"no GNSS fix: {bad['no_fix']} position records with lat/lon 0 skipped "
+                     "(not bad data)")
     rep = doc.get("repaired") or {}
     if rep.get("time_outlier"):
         lines.append(f"repaired: {rep['time_outlier']} time stamps that were outliers against "
