@@ -120,7 +120,8 @@ def format_doc(doc: dict) -> str:
     lines.append(table(rows, cols))
     bad = doc["bad_data"]
     parts = [f"{k} {bad[k]}" for k in bad
-             if isinstance(bad[k], int) and bad[k] and k not in ("bad_total", "absent_sensor", "no_fix")]
+             if isinstance(bad[k], int) and bad[k]
+             and k not in ("bad_total", "absent_sensor", "no_fix")]
     lines.append(f"bad data: {bad['bad_total']}" + (f" ({', '.join(parts)})" if parts else ""))
     absent = bad.get("absent") or {}
     if absent:
