@@ -110,6 +110,12 @@ def format_doc(doc: dict) -> str:
         rel = f", {d['t'] - t0:+.1f} s into the IMU data" if t0 is not None else ""
         lines.append(f"decision: {d['what']}: {d['value']} from t={d['t']:.1f} s{rel} "
                      f"({d['why']})")
+    if doc.get("imu_gaps"):
+        (g0, _), = [max(doc["imu_gap_list"], key=lambda g: g[1] - g[0])]
+        lines.append(f"IMU gaps: {doc['imu_gaps']} longer than "
+                     f"{doc['imu_gap_threshold_s']:.2f} s (max(0.5 s, 20 median intervals)), "
+                     f"longest {doc['imu_gap_longest_s']:.1f} s from t={g0:.1f} s; not "
+                     "integrated across, the filters re-aligned after each")
     rows = {}
     for name, row in doc["filters"].items():
         rows[name] = row

@@ -57,8 +57,22 @@ class FilterRunner:
 
     def start(self, st: Start) -> None:
         self.space = st.space
-        self.state = self.filter.init(st.prior, st.space, self.rng)
-        self._last = st.prior  # the previous step's estimate (smoothing pairs with it)
+        prior, resets = st.prior, None
+        if self.state is not None:  # a restart: the guard's reset count carries on
+            resets = getattr(self.state, "resets", None)
+            n = st.keep_tail
+            if n:
+                old = self.filter.estimate(self.state)
+                x, P = np.array(prior.x, float), np.array(prior.P, float)
+                x[-n:], P[-n:, -n:] = old.x[-n:], old.P[-n:, -n:]
+                P[-n:, :-n] = P[:-n, -n:] = 0.0
+                prior = type(prior)(x, P)
+        self.state = self.filter.init(prior, st.space, self.rng)
+        if resets:
+            from dataclasses import replace
+
+            self.state = replace(self.state, resets=resets)
+        self._last = prior  # the previous step's estimate (smoothing pairs with it)
 
     def step(self, st: Step) -> StepRecord:
         f, rng = self.filter, self.rng
