@@ -429,7 +429,7 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
         "reference_kind": None if ref is None else refs[ref].kind,
         "attitude": {r.label: {**(scorer.scores(r.label, ref, truth) if ref else {}),
                                "resets": r.resets,
-                               "us_per_step": 1e6 * r.seconds / max(1, steps)}
+                               "us_per_step": r.us_per_step}
                      for r in runners},
         "tracks": tscore.result(cfg.gospa_c),
         "scans": len(lane.truth),

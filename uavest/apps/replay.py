@@ -322,7 +322,7 @@ def replay(
     steps = max(int(sm.get("steps") or 0), 1)
     for r in runners:
         row: dict = scorer.scores(r.label, ref_name, truth) if ref_name else {}
-        row["us_per_step"] = 1e6 * r.seconds / steps
+        row["us_per_step"] = r.us_per_step  # without the one-time warm-up
         row["resets"] = r.resets
         if cfg.smooth and coll is not None:
             srow = (_score_smoothed(coll, out["refs"], r.label, ref_name, truth, stream.space)
