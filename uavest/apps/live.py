@@ -241,7 +241,7 @@ class _TrackScore(Sink):
                 "gospa": q.gospa, "pos_rmse": float(np.sqrt(np.mean(e2))) if e2 else None,
                 "nees_mean": float(np.mean(ne)) if ne else None,
                 "track_breaks": q.track_breaks, "id_swaps": q.id_swaps,
-                "false_tracks": q.false_tracks, "confirmed_tracks": q.confirmed_tracks,
+                "false_tracks": q.false_tracks, "tracks_confirmed_total": q.confirmed_tracks,
                 "scans": len(ks),
                 "us_per_scan": 1e6 * self.wall.get(label, 0.0) / max(len(ks), 1),
             }

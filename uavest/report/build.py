@@ -445,7 +445,7 @@ def radar_metrics(data: dict, c: float = 100.0) -> tuple[dict, dict]:
             q = track_quality(tr_steps, tk_steps, c, dt=dt)
             row.update({"gospa_mean": q.gospa, "track_breaks": q.track_breaks,
                         "id_swaps": q.id_swaps, "false_tracks": q.false_tracks,
-                        "confirmed_tracks": q.confirmed_tracks,
+                        "tracks_confirmed_total": q.confirmed_tracks,
                         "time_to_confirm_s": q.time_to_confirm})
         rows[lab] = row
         series[lab] = {"t": t, "k": ks, "gospa": np.array(g, float),
@@ -828,7 +828,7 @@ def write_report(mcap_path: str | Path, out_dir: str | Path | None = None) -> di
             kf = _radar_figures(data, rows, m, events)
             if len(kinds) > 1:  # ids unique on the page: the radar's timing, resets...
                 kf = [(f"radar-{fid}", t, png, cap) for fid, t, png, cap in kf]
-            cols = ["gospa_mean", "confirmed_tracks", "false_tracks", "track_breaks",
+            cols = ["gospa_mean", "tracks_confirmed_total", "false_tracks", "track_breaks",
                     "id_swaps", "time_to_confirm_s", "confirmed_mean", "resets",
                     "us_per_scan", "scans"]
             extra["gospa_c"] = c
