@@ -16,7 +16,8 @@ def add_report_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "report",
         help="HTML/Markdown report with plots of an MCAP recording",
-        description="Read a recording made with --record (MCAP) back, recompute RMSE, NEES, "
+        description="Read an MCAP recording (--mcap PATH or --report DIR of replay, "
+                    "run, demo, track) back, recompute RMSE, NEES, "
                     "NIS (attitude) or GOSPA and track counts (radar) from it, and write "
                     "a self-contained HTML page and a Markdown summary.")
     _add_args(p)
