@@ -44,3 +44,18 @@ def test_us_per_step_leaves_out_the_warm_up():
     assert r.steps == n and r.timed_steps == n - WARMUP_STEPS
     assert r.seconds > 0.2  # the total still holds the first step
     assert r.us_per_step < 0.2e6 / n / 10  # the first step's 0.2 s is not in the mean
+
+
+def test_demo_never_overwrites_a_default_recording_silently(tmp_path):
+    from uavest.cli.record import recording_path
+
+    d = tmp_path / "uavest-demo.mcap"
+    assert recording_path(str(d), chosen=False) == (str(d), None)
+    d.write_bytes(b"old")
+    p, note = recording_path(str(d), chosen=False)
+    assert p == str(tmp_path / "uavest-demo-1.mcap") and str(d) in note
+    (tmp_path / "uavest-demo-1.mcap").write_bytes(b"old")
+    assert recording_path(str(d), chosen=False)[0] == str(tmp_path / "uavest-demo-2.mcap")
+    # a path the user chose: overwritten, with a warning naming it
+    p, note = recording_path(str(d), chosen=True)
+    assert p == str(d) and "overwriting" in note and str(d) in note
