@@ -59,3 +59,21 @@ def test_demo_never_overwrites_a_default_recording_silently(tmp_path):
     # a path the user chose: overwritten, with a warning naming it
     p, note = recording_path(str(d), chosen=True)
     assert p == str(d) and "overwriting" in note and str(d) in note
+
+
+def test_live_status_line_fits_100_columns_with_the_widest_values():
+    from uavest.apps.live import status_line
+
+    names = ["GLOBAL_POSITION_INT", "LOCAL_POSITION_NED", "HIGHRES_IMU", "SCALED_IMU2",
+             "SCALED_IMU3", "ATTITUDE_QUATERNION", "OBSTACLE_DISTANCE_3D", "ADSB_VEHICLE",
+             "SIMSTATE", "SYSTEM_TIME", "RAW_IMU", "GPS_RAW_INT"]
+    wide = {n: 99999.0 for n in names}
+    filters = {f"hybrid(n_cloud={k})": 123456 for k in range(6)}
+    nis = {k: 1.2e6 for k in filters}
+    for rates, res in ((wide, filters), ({"RAW_IMU": 200.0}, {"ekf": 0}), ({}, {})):
+        line = status_line(rates, 10**9, nis, res, 99999.9)
+        assert len(line) == 99, (len(line), line)  # padded: the rewrite clears the old one
+    small = status_line({"RAW_IMU": 200.0}, 0, {"ekf": 1.5}, {"ekf": 0}, 3.2)
+    assert "RAW_IMU 200" in small and "ekf:1.5/0" in small and "p99 3.2 ms" in small
+    mid = status_line(wide, 3, {"ekf": 1.5, "ukf": 2.0}, {"ekf": 0, "ukf": 1}, 3.2)
+    assert "ekf:1.5/0" in mid and "ukf:2.0/1" in mid  # the filters kept, rates shortened

@@ -251,6 +251,42 @@ class _TrackScore(Sink):
 # ----------------------------------------------------------------------- status, gaps
 
 
+#: Columns the live status line may use (it is rewritten in place with \\r: a longer line
+#: wraps and the next rewrite scrolls the terminal).
+STATUS_WIDTH = 100
+
+
+def status_line(rates: dict, bad: int, nis: dict, resets: dict, p99_ms: float,
+                width: int = STATUS_WIDTH) -> str:
+    """The one-line status, padded to and never longer than ``width - 1`` columns:
+    message rates (per s), bad data, each filter's NIS/resets, p99 latency (ms). What does
+    not fit is shortened in order: message names, then the rates as one total, then the
+    filters' NIS (resets kept), then the line is cut with "~"."""
+    w = width - 1
+    pairs = [(k, v) for k, v in sorted(rates.items()) if v >= 1]
+
+    def filt(with_nis: bool) -> str:
+        if with_nis:
+            return " ".join(f"{k}:{nis.get(k, float('nan')):.1f}/{resets.get(k, 0)}"
+                            for k in resets)
+        return " ".join(f"{k}:{resets.get(k, 0)}" for k in resets)
+
+    def short(name: str) -> str:
+        return "".join(p[:1] for p in name.split("_")) if len(name) > 6 else name
+
+    tail = f" | p99 {p99_ms:.1f} ms"
+    rate_forms = [" ".join(f"{k} {v:.0f}" for k, v in pairs),
+                  " ".join(f"{short(k)} {v:.0f}" for k, v in pairs),
+                  f"{sum(v for _, v in pairs):.0f} msg/s in {len(pairs)} types"]
+    line = ""
+    for with_nis, head in ((True, "NIS/resets"), (False, "resets")):
+        for r in rate_forms:
+            line = f"[{r}] bad {bad} | {head} {filt(with_nis)}{tail}"
+            if len(line) <= w:
+                return line.ljust(w)
+    return (line[:w - 1] + "~") if len(line) > w else line.ljust(w)
+
+
 class _Status(Sink):
     """The one-line live status on stderr (once a second, only on a terminal unless
     ``force``): link rates per message, drops, filter resets and NIS, latency."""
@@ -279,12 +315,10 @@ class _Status(Sink):
         if self.on and now >= self.next:
             self.next = now + 1.0
             rates = self.link.rates() if hasattr(self.link, "rates") else {}
-            r = " ".join(f"{k} {v:.0f}" for k, v in sorted(rates.items()) if v >= 1)
-            h = " ".join(f"{k}:{self.nis.get(k, float('nan')):.1f}/{self.resets.get(k, 0)}"
-                         for k in self.resets)
             lat = 1e3 * float(np.percentile(self.lat[-500:], 99)) if self.lat else 0.0
             bad = getattr(getattr(self.link, "stats", None), "bad_total", 0)
-            sys.stderr.write(f"\r[{r}] bad {bad} | NIS/resets {h} | p99 {lat:.1f} ms   ")
+            line = status_line(rates, bad, self.nis, self.resets, lat)
+            sys.stderr.write(f"\r{line}")
             sys.stderr.flush()
 
     def close(self) -> None:
