@@ -77,3 +77,40 @@ def test_live_status_line_fits_100_columns_with_the_widest_values():
     assert "RAW_IMU 200" in small and "ekf:1.5/0" in small and "p99 3.2 ms" in small
     mid = status_line(wide, 3, {"ekf": 1.5, "ukf": 2.0}, {"ekf": 0, "ukf": 1}, 3.2)
     assert "ekf:1.5/0" in mid and "ukf:2.0/1" in mid  # the filters kept, rates shortened
+
+
+def test_line_progress_off_a_terminal(capsys):
+    from uavest.cli.report import LineProgress
+
+    quick = LineProgress(3, "evaluate", after=60.0)
+    quick.update(1)
+    quick.set_description("stage")
+    quick.close()
+    assert capsys.readouterr().err == ""  # a quick run prints nothing
+    p = LineProgress(3, "evaluate", after=0.0, every=60.0)
+    p.set_postfix_str("done 1")
+    p.update(1)
+    p.update(1)  # within ``every``: no line
+    p.set_description("report: writing")  # a stage: always a line
+    p.close()
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 3, lines
+    assert lines[0].startswith("evaluate: 1/3, done 1 (")
+    assert lines[1].startswith("report: writing: 2/3") and lines[2] == lines[1]
+
+
+def test_report_prints_one_line_per_stage_when_not_a_terminal(tmp_path, capsys, monkeypatch):
+    from conftest import shared_log
+
+    import uavest.cli.report as rep
+    from uavest.cli import main
+
+    monkeypatch.setattr(rep, "PROGRESS_AFTER_S", 0.0)
+    m = tmp_path / "run.mcap"
+    assert main(["replay", str(shared_log("vtol.tlog")), "--filters", "ekf", "--no-progress",
+                 "--end", "660", "--mcap", str(m)]) == 0
+    capsys.readouterr()
+    assert main(["report", str(m), "--out", str(tmp_path / "rep")]) == 0
+    err = capsys.readouterr().err
+    assert "reading run.mcap" in err and "attitude: metrics and figures" in err
+    assert "writing HTML and Markdown" in err

@@ -119,6 +119,12 @@ def finish_recording(args) -> None:
         print(f"recording: {m} (open it in Foxglove; layout {layout})")
     if getattr(args, "report", None):
         from ..report import write_report
+        from .report import progress
 
-        out = write_report(args.mcap, args.report)
+        bar = progress(None, "report", False if getattr(args, "no_progress", False) else None,
+                       lines=True)
+        try:
+            out = write_report(args.mcap, args.report, on_stage=bar.set_description)
+        finally:
+            bar.close()
         print(f"report: {out['html']}")

@@ -27,6 +27,9 @@ def add_report_parser(subparsers) -> argparse.ArgumentParser:
 def _add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("recording", help="the .mcap file (a torn file of a killed run works too)")
     p.add_argument("--out", help="output directory (default: beside the recording)")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress (default: a bar on a terminal, else one line per "
+                   "stage once the report has taken 2 s)")
     p.set_defaults(func=cmd_report)
 
 
@@ -37,7 +40,13 @@ def cmd_report(args) -> int:
     if not path.is_file():
         print(f"uavest report: no such file: {path}", file=sys.stderr)
         return 2
-    paths = write_report(path, args.out)
+    from .report import progress
+
+    bar = progress(None, "report", False if args.no_progress else None, lines=True)
+    try:
+        paths = write_report(path, args.out, on_stage=bar.set_description)
+    finally:
+        bar.close()
     print(f"html: {paths['html']}")
     print(f"markdown: {paths['markdown']}")
     print(f"metrics: {paths['metrics']}")
