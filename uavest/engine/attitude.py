@@ -569,31 +569,17 @@ class AttitudeStream:
             fld = [r.mag for r in win]
             if mag0 is not None:
                 acc, fld = [first.accel] + acc, [mag0] + fld
-            incl = inclination_from_samples(np.array(acc).reshape(-1, 3),
-                                            np.array(fld).reshape(-1, 3))
-            self._mref = mag_reference(decl, incl)
+            self._mref = mag_reference(
+                decl, inclination_from_samples(np.array(acc).reshape(-1, 3),
+                                               np.array(fld).reshape(-1, 3)))
             self.summary["inclination_rad"] = float(np.arcsin(self._mref[2]))
         q0 = initial_attitude(first.accel, mag0 if self._mag is not None else None, decl)
-        t0, how = first.t, "the accelerometer"
-        if self._pos is not None and self._mag is not None:
-            # the vehicle's acceleration known early in the window: align with it (TRIAD),
-            # a log that starts in a turn otherwise levels the wrong way (the
-            # accelerometer alone reads the turn's lift as "down")
-            for i, r in enumerate(align[:max(1, len(align) // 2)]):
-                m = r.mag if r.mag is not None else mag0
-                if (r.a is not None and m is not None and r.accel_ned is not None
-                        and np.isfinite(r.accel_ned).all() and np.any(r.a)):
-                    m_ned = self._mref if self._mref is not None else mag_reference(decl, 0.0)
-                    q0 = triad_attitude(r.a, r.accel_ned - np.array([0.0, 0.0, G0]), m, m_ned)
-                    t0, how = r.t, "the accelerometer and the vehicle's acceleration"
-                    align = align[i + 1:]
-                    break
         P0 = np.diag([noise.init_tilt**2, noise.init_tilt**2, noise.init_yaw**2]
                      + [noise.init_bias**2] * 3)
-        start = Start(t0, Gaussian(np.concatenate([q0, np.zeros(3)]), P0), self.space)
-        t_al = align[-1].t if align else t0
+        start = Start(first.t, Gaussian(np.concatenate([q0, np.zeros(3)]), P0), self.space)
+        t_al = align[-1].t if align else first.t
         self._decide("alignment", "done", t_al,
-                     f"roll/pitch from {how} at t={t0:.1f} s"
+                     f"roll/pitch from the accelerometer at t={first.t:.1f} s"
                      + (", yaw from the magnetometer" if mag0 is not None and self._mag
                         else ", yaw 0 (no magnetometer)")
                      + f"; {len(align)} steps of the {o.align_s:g} s window held")
