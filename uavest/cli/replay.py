@@ -108,7 +108,8 @@ def format_doc(doc: dict) -> str:
     t0 = doc.get("t_first")
     for d in doc.get("decisions") or []:
         rel = f", {d['t'] - t0:+.1f} s into the IMU data" if t0 is not None else ""
-        lines.append(f"decision: {d['what']}: {d['value']} from t={d['t']:.1f} s{rel} "
+        when = "at" if d["what"].endswith("alignment") else "from"
+        lines.append(f"decision: {d['what']}: {d['value']} {when} t={d['t']:.1f} s{rel} "
                      f"({d['why']})")
     if doc.get("imu_gaps"):
         (g0, _), = [max(doc["imu_gap_list"], key=lambda g: g[1] - g[0])]
