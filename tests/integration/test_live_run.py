@@ -116,7 +116,7 @@ def test_sim_to_live_estimator_matches_truth_and_its_tlog_replays_the_same(tmp_p
     assert doc["targets_seen"] >= 2
     for label in ("ekf", "ukf"):
         t = doc["tracks"][label]
-        assert t["confirmed_tracks"] >= 2, t
+        assert t["tracks_confirmed_total"] >= 2, t
         assert t["pos_rmse"] is not None and t["pos_rmse"] < 150.0, t  # sigma_r 10 m, 1 deg
     assert doc["link"]["declination_source"].startswith("param")
     # the recorded tlog, replayed through the same job, gives the same attitude estimates

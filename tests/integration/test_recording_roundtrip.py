@@ -201,7 +201,7 @@ def test_radar_recording_round_trip(tmp_path):
     paths = write_report(path, tmp_path / "rep")
     m = json.loads(paths["metrics"].read_text())
     assert m["kind"] == "radar" and m["gospa_c"] == 200.0
-    assert m["filters"]["ekf"]["confirmed_tracks"] >= 1
+    assert m["filters"]["ekf"]["tracks_confirmed_total"] >= 1
     assert m["filters"]["ekf"]["gospa_mean"] > 0
     _check_page(paths["html"].read_text(), RADAR_FIGURES)
 

@@ -255,7 +255,7 @@ class _TrackScore(Sink):
                 "gospa": q.gospa, "pos_rmse": float(np.sqrt(np.mean(e2))) if e2 else None,
                 "nees_mean": float(np.mean(ne)) if ne else None,
                 "track_breaks": q.track_breaks, "id_swaps": q.id_swaps,
-                "false_tracks": q.false_tracks, "confirmed_tracks": q.confirmed_tracks,
+                "false_tracks": q.false_tracks, "tracks_confirmed_total": q.confirmed_tracks,
                 "scans": len(ks),
                 "us_per_scan": 1e6 * self.wall.get(label, 0.0) / max(len(ks), 1),
             }
@@ -263,6 +263,42 @@ class _TrackScore(Sink):
 
 
 # ----------------------------------------------------------------------- status, gaps
+
+
+#: Columns the live status line may use (it is rewritten in place with \\r: a longer line
+#: wraps and the next rewrite scrolls the terminal).
+STATUS_WIDTH = 100
+
+
+def status_line(rates: dict, bad: int, nis: dict, resets: dict, p99_ms: float,
+                width: int = STATUS_WIDTH) -> str:
+    """The one-line status, padded to and never longer than ``width - 1`` columns:
+    message rates (per s), bad data, each filter's NIS/resets, p99 latency (ms). What does
+    not fit is shortened in order: message names, then the rates as one total, then the
+    filters' NIS (resets kept), then the line is cut with "~"."""
+    w = width - 1
+    pairs = [(k, v) for k, v in sorted(rates.items()) if v >= 1]
+
+    def filt(with_nis: bool) -> str:
+        if with_nis:
+            return " ".join(f"{k}:{nis.get(k, float('nan')):.1f}/{resets.get(k, 0)}"
+                            for k in resets)
+        return " ".join(f"{k}:{resets.get(k, 0)}" for k in resets)
+
+    def short(name: str) -> str:
+        return "".join(p[:1] for p in name.split("_")) if len(name) > 6 else name
+
+    tail = f" | p99 {p99_ms:.1f} ms"
+    rate_forms = [" ".join(f"{k} {v:.0f}" for k, v in pairs),
+                  " ".join(f"{short(k)} {v:.0f}" for k, v in pairs),
+                  f"{sum(v for _, v in pairs):.0f} msg/s in {len(pairs)} types"]
+    line = ""
+    for with_nis, head in ((True, "NIS/resets"), (False, "resets")):
+        for r in rate_forms:
+            line = f"[{r}] bad {bad} | {head} {filt(with_nis)}{tail}"
+            if len(line) <= w:
+                return line.ljust(w)
+    return (line[:w - 1] + "~") if len(line) > w else line.ljust(w)
 
 
 class _Status(Sink):
@@ -293,12 +329,10 @@ class _Status(Sink):
         if self.on and now >= self.next:
             self.next = now + 1.0
             rates = self.link.rates() if hasattr(self.link, "rates") else {}
-            r = " ".join(f"{k} {v:.0f}" for k, v in sorted(rates.items()) if v >= 1)
-            h = " ".join(f"{k}:{self.nis.get(k, float('nan')):.1f}/{self.resets.get(k, 0)}"
-                         for k in self.resets)
             lat = 1e3 * float(np.percentile(self.lat[-500:], 99)) if self.lat else 0.0
             bad = getattr(getattr(self.link, "stats", None), "bad_total", 0)
-            sys.stderr.write(f"\r[{r}] bad {bad} | NIS/resets {h} | p99 {lat:.1f} ms   ")
+            line = status_line(rates, bad, self.nis, self.resets, lat)
+            sys.stderr.write(f"\r{line}")
             sys.stderr.flush()
 
     def close(self) -> None:
@@ -443,7 +477,7 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
         "reference_kind": None if ref is None else refs[ref].kind,
         "attitude": {r.label: {**(scorer.scores(r.label, ref, truth) if ref else {}),
                                "resets": r.resets,
-                               "us_per_step": 1e6 * r.seconds / max(1, steps)}
+                               "us_per_step": r.us_per_step}
                      for r in runners},
         "tracks": tscore.result(cfg.gospa_c),
         "scans": len(lane.truth),

@@ -302,9 +302,16 @@ def replay(
         "preintegrated_samples_per_step": sm.get("preintegrated_samples_per_step"),
         "duration_s": sm.get("duration_s"),
         "steps": sm.get("steps"),
+        "t_first": sm.get("t_first"),
+        "imu_gaps": sm.get("imu_gaps", 0),
+        "imu_gap_longest_s": sm.get("imu_gap_longest_s", 0.0),
+        "imu_gap_threshold_s": sm.get("imu_gap_threshold_s"),
+        "imu_gap_list": sm.get("imu_gap_list", []),
         "declination_rad": sm.get("declination_rad"),
         "declination_source": sm.get("declination_source"),
         "accel_compensation": sm.get("accel_compensation"),
+        "accel_compensation_from_t": sm.get("accel_compensation_from_t"),
+        "decisions": list(sm.get("decisions") or []),
         "mag_mode": cfg.mag_mode if sm.get("mag_source") else None,
         "mag_delay_s": cfg.mag_delay,
         "seed": cfg.seed,
@@ -314,7 +321,7 @@ def replay(
     steps = max(int(sm.get("steps") or 0), 1)
     for r in runners:
         row: dict = scorer.scores(r.label, ref_name, truth) if ref_name else {}
-        row["us_per_step"] = 1e6 * r.seconds / steps
+        row["us_per_step"] = r.us_per_step  # without the one-time warm-up
         row["resets"] = r.resets
         if cfg.smooth and coll is not None:
             srow = (_score_smoothed(coll, out["refs"], r.label, ref_name, truth, stream.space)

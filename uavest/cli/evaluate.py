@@ -48,7 +48,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if getattr(backend, "name", "") == "dask":
         link = backend.dashboard()
         print(f"dask dashboard: {link or 'not available'}", file=log)
-    bar = progress(ntasks, "evaluate", False if args.no_progress else None)
+    bar = progress(ntasks, "evaluate", False if args.no_progress else None, lines=True)
     try:
         docs, stats = execute(plan, args.out, backend, recompute=args.recompute,
                               retry_failed=args.retry_failed, bar=bar)

@@ -5,13 +5,14 @@ Foxglove opens as it is), ``--foxglove [HOST:PORT]`` (the live view), ``--report
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
 from ..errors import InputError
 from ..sinks.base import Sink
 
-__all__ = ["add_recording_options", "finish_recording", "recording_sinks"]
+__all__ = ["add_recording_options", "finish_recording", "recording_path", "recording_sinks"]
 
 
 def add_recording_options(p: argparse.ArgumentParser, live_view: bool = True,
@@ -62,14 +63,35 @@ class Pace(Sink):
             time.sleep(wait)
 
 
+def recording_path(path: str, chosen: bool) -> tuple[str, str | None]:
+    """Where to record and what to say about it. An existing file at a path the user
+    chose (``--mcap``, ``--report DIR``) is overwritten with a warning naming it; at a
+    default path (``uavest demo``'s ``uavest-demo.mcap``) the recording goes to the first
+    free numbered name beside it (``uavest-demo-1.mcap``, ...), said on one line."""
+    p = Path(path)
+    if not p.exists():
+        return path, None
+    if chosen:
+        return path, f"warning: overwriting the existing recording {p}"
+    k = 1
+    while (q := p.with_name(f"{p.stem}-{k}{p.suffix}")).exists():
+        k += 1
+    return str(q), f"{p} exists: recording to {q} instead (--mcap PATH to choose)"
+
+
 def recording_sinks(args) -> list:
     """The sinks the options ask for (an MCAP recorder, the live view)."""
     sinks: list = []
     mcap = getattr(args, "mcap", None)
+    chosen = mcap is not None
     if mcap is None and getattr(args, "report", None):
-        mcap = str(Path(args.report) / "run.mcap")
+        mcap, chosen = str(Path(args.report) / "run.mcap"), True
     elif mcap is None:
         mcap = getattr(args, "mcap_default", None)
+    if mcap:
+        mcap, note = recording_path(mcap, chosen)
+        if note:
+            print(f"uavest: {note}", file=sys.stderr)
     args.mcap = mcap
     if mcap:
         from ..sinks.mcap import McapSink
@@ -98,6 +120,12 @@ def finish_recording(args) -> None:
         print(f"recording: {m} (open it in Foxglove; layout {layout})")
     if getattr(args, "report", None):
         from ..report import write_report
+        from .progress import progress
 
-        out = write_report(args.mcap, args.report)
+        bar = progress(None, "report", False if getattr(args, "no_progress", False) else None,
+                       lines=True)
+        try:
+            out = write_report(args.mcap, args.report, on_stage=bar.set_description)
+        finally:
+            bar.close()
         print(f"report: {out['html']}")

@@ -108,6 +108,18 @@ def format_doc(doc: dict) -> str:
     if doc.get("declination_source"):
         lines.append(f"declination: {math.degrees(doc['declination_rad'] or 0.0):.2f} deg "
                      f"({doc['declination_source']})")
+    t0 = doc.get("t_first")
+    for d in doc.get("decisions") or []:
+        rel = f", {d['t'] - t0:+.1f} s into the IMU data" if t0 is not None else ""
+        when = "at" if d["what"].endswith("alignment") else "from"
+        lines.append(f"decision: {d['what']}: {d['value']} {when} t={d['t']:.1f} s{rel} "
+                     f"({d['why']})")
+    if doc.get("imu_gaps"):
+        (g0, _), = [max(doc["imu_gap_list"], key=lambda g: g[1] - g[0])]
+        lines.append(f"IMU gaps: {doc['imu_gaps']} longer than "
+                     f"{doc['imu_gap_threshold_s']:.2f} s (max(0.5 s, 20 median intervals)), "
+                     f"longest {doc['imu_gap_longest_s']:.1f} s from t={g0:.1f} s; not "
+                     "integrated across, the filters re-aligned after each")
     rows = {}
     for name, row in doc["filters"].items():
         rows[name] = row
@@ -119,7 +131,7 @@ def format_doc(doc: dict) -> str:
     bad = doc["bad_data"]
     parts = [f"{k} {bad[k]}" for k in bad
              if isinstance(bad[k], int) and bad[k]
-             and k not in ("bad_total", "absent_sensor", "non_mavlink")]
+             and k not in ("bad_total", "absent_sensor", "non_mavlink", "no_fix")]
     lines.append(f"bad data: {bad['bad_total']}" + (f" ({', '.join(parts)})" if parts else ""))
     skipped = bad.get("skipped") or {}
     if skipped:
@@ -130,6 +142,9 @@ def format_doc(doc: dict) -> str:
     if absent:
         lines.append("absent sensors (all-zero records, not bad data, ignored): " + ", ".join(
             f"{k.split(':', 1)[-1]} x{n}" for k, n in absent.items()))
+    if bad.get("no_fix"):
+        lines.append(f"no GNSS fix: {bad['no_fix']} position records with lat/lon 0 skipped "
+                     "(not bad data)")
     rep = doc.get("repaired") or {}
     if rep.get("time_outlier"):
         lines.append(f"repaired: {rep['time_outlier']} time stamps that were outliers against "

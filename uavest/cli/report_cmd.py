@@ -16,7 +16,8 @@ def add_report_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "report",
         help="HTML/Markdown report with plots of an MCAP recording",
-        description="Read a recording made with --record (MCAP) back, recompute RMSE, NEES, "
+        description="Read an MCAP recording (--mcap PATH or --report DIR of replay, "
+                    "run, demo, track) back, recompute RMSE, NEES, "
                     "NIS (attitude) or GOSPA and track counts (radar) from it, and write "
                     "a self-contained HTML page and a Markdown summary.")
     _add_args(p)
@@ -26,6 +27,9 @@ def add_report_parser(subparsers) -> argparse.ArgumentParser:
 def _add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("recording", help="the .mcap file (a torn file of a killed run works too)")
     p.add_argument("--out", help="output directory (default: beside the recording)")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress (default: a bar on a terminal, else one line per "
+                   "stage once the report has taken 2 s)")
     p.set_defaults(func=cmd_report)
 
 
@@ -36,7 +40,13 @@ def cmd_report(args) -> int:
     if not path.is_file():
         print(f"uavest report: no such file: {path}", file=sys.stderr)
         return 2
-    paths = write_report(path, args.out)
+    from .progress import progress
+
+    bar = progress(None, "report", False if args.no_progress else None, lines=True)
+    try:
+        paths = write_report(path, args.out, on_stage=bar.set_description)
+    finally:
+        bar.close()
     print(f"html: {paths['html']}")
     print(f"markdown: {paths['markdown']}")
     print(f"metrics: {paths['metrics']}")

@@ -75,7 +75,7 @@ def track_table(sc: dict, filters: list[str], seed: int, sinks=(), command: str 
             )
         summary[lab] = {
             "gospa": q.gospa,
-            "confirmed_tracks": q.confirmed_tracks,
+            "tracks_confirmed_total": q.confirmed_tracks,
             "false_tracks": q.false_tracks,
             "id_swaps": q.id_swaps,
             "track_breaks": q.track_breaks,
@@ -106,14 +106,14 @@ def print_table(res: dict) -> None:
         )
     print()
     hdr = (
-        f"{'filter':<10}{'gospa':>9}{'tracks':>8}{'false':>7}{'swaps':>7}{'breaks':>8}"
+        f"{'filter':<10}{'gospa':>9}{'conf_total':>11}{'false':>7}{'swaps':>7}{'breaks':>8}"
         f"{'t_conf s':>10}{'us/scan':>10}"
     )
     print(hdr)
     print("-" * len(hdr))
     for lab, s in res["summary"].items():
         print(
-            f"{lab:<10}{s['gospa']:>9.1f}{s['confirmed_tracks']:>8}{s['false_tracks']:>7}"
+            f"{lab:<10}{s['gospa']:>9.1f}{s['tracks_confirmed_total']:>11}{s['false_tracks']:>7}"
             f"{s['id_swaps']:>7}{s['track_breaks']:>8}{_fmt(s['time_to_confirm'], '.1f'):>10}"
             f"{s['us_per_scan']:>10.0f}"
         )

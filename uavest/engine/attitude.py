@@ -52,7 +52,7 @@ import numpy as np
 
 from ..core.gaussian import Gaussian
 from ..errors import InputError
-from ..geometry.rotation import AttitudeSpace, qexp_f, qlog_f, qmul_f, quat_exp, quat_rotate
+from ..geometry.rotation import G0, AttitudeSpace, qexp_f, qlog_f, qmul_f, quat_exp, quat_rotate
 from ..ingest.api import choose_source
 from ..ingest.semantics import default_integration
 from ..ingest.types import ImuSample, MagSample, NoSamplesError, PositionSample
@@ -68,6 +68,7 @@ from ..models.attitude import (
     initial_attitude,
     mag_reference,
     noise_for_source,
+    triad_attitude,
 )
 from .records import Start, Step
 
@@ -76,6 +77,10 @@ Array = np.ndarray
 __all__ = ["DEFAULT_MAX_RATE_HZ", "AttitudeOptions", "AttitudeStream"]
 
 DEFAULT_MAX_RATE_HZ = 25.0
+#: An IMU interval longer than max(GAP_MIN_S, GAP_MEDIANS x the median interval of the
+#: alignment window) is a gap: reported, not integrated across, the filters re-aligned.
+GAP_MIN_S = 0.5
+GAP_MEDIANS = 20.0
 @dataclass(frozen=True)
 class AttitudeOptions:
     """How samples become steps (see the module docstring and ``uavest replay --help``).
@@ -138,6 +143,15 @@ class _Raw:
     accel_ned: Array | None = None
 
 
+@dataclass
+class _Gap:
+    """No IMU sample in (``t0``, ``t1``) s, longer than the gap threshold: the builder
+    does not integrate across it; the stream re-aligns at the first step after it."""
+
+    t0: float
+    t1: float
+
+
 class _StepBuilder:
     """Streaming pre-integration and grouping (see the module docstring)."""
 
@@ -161,6 +175,8 @@ class _StepBuilder:
         self.mag_last: tuple[float, Array] | None = None
         self.vel: list[tuple[float, Array]] = []  # the last two finite velocities
         self.dropped = 0  # IMU samples not after the previous one
+        self.gap_s = np.inf  # an IMU interval longer than this (s) is a gap
+        self.gaps: list[tuple[float, float]] = []  # (start, end) s of each gap
 
     def _finish(self, r: _Raw) -> _Raw:
         if r.a is None:  # a prediction-only step (updates every ``every`` steps)
@@ -193,6 +209,18 @@ class _StepBuilder:
                 return out
             if self.t_edge is None:  # the first sample: t_0 of the first step
                 self.t_edge, self.g_edge, self.t_last = s.t, s.gyro, s.t
+                return out
+            if s.t - self.t_last > self.gap_s:  # a gap: close what came before, restart
+                if self.block:
+                    if self.pending is not None:
+                        out.append(self._finish(self.pending))
+                    out.append(self._finish(self._close()))
+                    self.pending = None
+                self.gaps.append((self.t_last, s.t))
+                out.append(_Gap(self.t_last, s.t))
+                self.t_edge, self.g_edge, self.t_last = s.t, s.gyro, s.t
+                self.acc_hist.clear()
+                self.acc_upd, self.since, self.t_upd = [], 0, None
                 return out
             self.block.append(s)
             self.t_last = s.t
@@ -287,6 +315,18 @@ class AttitudeStream:
         self._builder: _StepBuilder | None = None
         self._k = 0
         self._imu_n = [0, 0.0, 0.0]  # samples, first and last time
+        #: what was decided and when it took effect: dicts of ``what``, ``value``, ``t``
+        #: (s, vehicle clock) and ``why``, in the order they were made (see
+        #: :meth:`_decide`); also ``summary["decisions"]``
+        self.decisions: list[dict] = []
+        self._decl_pending = False  # declination unknown so far: take it when it arrives
+        self._gap: _Gap | None = None  # an IMU gap waiting for its first step after it
+        self._decl_seen: tuple | None = None  # (params size, geo) last looked at
+
+    def _decide(self, what: str, value, t: float, why: str) -> None:
+        """Record a decision ``what`` = ``value`` taking effect at ``t`` (s) because ``why``."""
+        self.decisions.append({"what": what, "value": value, "t": float(t), "why": why})
+        self.summary["decisions"] = self.decisions
 
     def __iter__(self) -> Iterator[Start | Step]:
         for s in self.samples:
@@ -332,17 +372,31 @@ class AttitudeStream:
 
     def _feed(self, s) -> list:
         if not self._mine(s):
-            return []
+            if (self._pos is None and self.opts.accel_comp == "auto"
+                    and isinstance(s, PositionSample) and s.vel_ned is not None
+                    and np.isfinite(s.vel_ned).all()):
+                self._accel_comp_on(s)  # the velocity arrived after the alignment
+            else:
+                return []
         if isinstance(s, ImuSample):
             self._imu_n[0] += 1
             self._imu_n[2] = s.t
         raws = self._builder.push(s)
         return self._emit(raws) if raws else raws
 
-    def _emit(self, raws: list[_Raw]) -> list:
+    def _emit(self, raws: list) -> list:
         if self._align is None:
-            return [self._step(r) for r in raws]
-        out: list = []
+            out: list = []
+            for r in raws:
+                if isinstance(r, _Gap):
+                    self._gap = r
+                elif self._gap is not None and r.a is not None:
+                    out += self._realign(r)
+                else:
+                    out.append(self._step(r))
+            return out
+        raws = [r for r in raws if not isinstance(r, _Gap)]  # in the alignment: no filter yet
+        out = []
         for i, r in enumerate(raws):
             self._align.append(r)
             if r.t > self._first.t + self.opts.align_s:
@@ -351,7 +405,67 @@ class AttitudeStream:
                 break
         return out
 
+    def _realign(self, r: _Raw) -> list:
+        """The first step after an IMU gap: a new Start at its beginning, attitude from its
+        accelerometer (and magnetometer) with the alignment's uncertainty, the filters'
+        gyro biases kept (``keep_tail``), then the step itself. Nothing is propagated
+        across the gap (one step of 17 s through a UKF's sigma points diverged)."""
+        gap, self._gap = self._gap, None
+        noise = self.noise
+        mag = r.mag
+        if mag is None and self._builder.mag_last is not None \
+                and self._builder.mag_last[0] >= gap.t1 - 1.0:
+            mag = self._builder.mag_last[1]
+        use_mag = self._mag is not None and mag is not None and np.any(mag)
+        acc = r.accel_ned
+        comp = acc is not None and np.isfinite(acc).all()
+        if use_mag and np.any(r.a):  # TRIAD: exact in a turn with the vehicle's acceleration
+            f_ned = (acc if comp else np.zeros(3)) - np.array([0.0, 0.0, G0])
+            m_ned = (self._mref if self._mref is not None
+                     else mag_reference(self.declination, 0.0))
+            q0 = triad_attitude(r.a, f_ned, mag, m_ned)
+        else:
+            q0 = initial_attitude(r.a, mag if use_mag else None, self.declination)
+        P0 = np.diag([noise.init_tilt**2, noise.init_tilt**2, noise.init_yaw**2]
+                     + [noise.init_bias**2] * 3)
+        prior = Gaussian(np.concatenate([q0, np.zeros(3)]), P0)
+        self._decide("re-alignment", f"after an IMU gap of {gap.t1 - gap.t0:.1f} s", r.t0,
+                     "no IMU data from t=" f"{gap.t0:.1f} s; attitude from the accelerometer"
+                     + (" and magnetometer" if use_mag else "")
+                     + (" with the vehicle's acceleration" if comp else "") + ", gyro biases kept")
+        return [Start(r.t0, prior, self.space, reason="gap", keep_tail=3), self._step(r)]
+
+    def _accel_comp_on(self, s: PositionSample) -> None:
+        """Compensation switches on with the first valid velocity of ``s.source`` (a log
+        that starts before the GNSS fix has none in the alignment window)."""
+        self._pos = s.source
+        self._builder.use_pos = True
+        self.summary["accel_compensation"] = s.source
+        self.summary["accel_compensation_from_t"] = float(s.t)
+        self._decide("acceleration compensation", f"on ({s.source})", s.t,
+                     f"first valid velocity from {s.source}")
+
+    def _check_declination(self, t: float) -> None:
+        """A declination unknown at the alignment (no parameter yet, automatic declination
+        before the GNSS fix) is taken when the source's parameters give one."""
+        key = (len(self.params), bool(getattr(self.params, "geo", None)))
+        if key == self._decl_seen:
+            return
+        self._decl_seen = key
+        decl, src = declination_and_source(self.params)
+        if decl is None:
+            return
+        self._decl_pending = False
+        self.declination = decl
+        if self._mref is not None:
+            self._mref = mag_reference(decl, float(np.arcsin(self._mref[2])))
+        self.summary.update(declination_rad=decl, declination_source=src,
+                            declination_from_t=float(t))
+        self._decide("declination", f"{np.degrees(decl):.2f} deg", t, src)
+
     def _step(self, r: _Raw) -> Step:
+        if self._decl_pending:
+            self._check_declination(r.t)
         self._k += 1
         return Step(self._k, r.t, r.t - r.t0, self._model, self._updates(r, self._mref), r.w)
 
@@ -412,7 +526,25 @@ class AttitudeStream:
             align_rate_hz=rate, steps_per_update=every,
         )
         self._imu, self._mag, self._pos = imu, mag, pos
+        t_first = next(s.t for s in held if isinstance(s, ImuSample) and s.source == imu)
+        self._decide("IMU", imu, t_first,
+                     "option --imu" if o.imu is not None else
+                     f"most samples in the first {2 * o.align_s:g} s ("
+                     + ", ".join(f"{k} {v}" for k, v in sorted(imu_counts.items())) + ")")
+        self._decide("integration", integ, t_first,
+                     "option" if o.integration != "auto" else why)
+        if o.accel_comp == "none":
+            self._decide("acceleration compensation", "off", t_first, "option --accel-comp none")
+        elif pos is not None:
+            self._decide("acceleration compensation", f"on ({pos})", t_first,
+                         f"velocity from {pos} at the start")
+        else:
+            self._decide("acceleration compensation", "off", t_first,
+                         "no valid velocity yet (switches on when one arrives)")
         self._builder = _StepBuilder(integ, factor, pos is not None, ref, every)
+        med = float(np.median(np.diff(ti))) if len(ti) > 1 else 0.0
+        self._builder.gap_s = max(GAP_MIN_S, GAP_MEDIANS * med)
+        self.summary["imu_gap_threshold_s"] = self._builder.gap_s
         # the first IMU sample, the magnetometer at/before it (else the first one held)
         self._first = first = next(s for s in held if isinstance(s, ImuSample)
                                    and s.source == imu)
@@ -440,6 +572,9 @@ class AttitudeStream:
             decl = decl or 0.0
         self.declination = decl
         self.summary.update(declination_rad=decl, declination_source=src)
+        self._decl_pending = o.declination is None and src.startswith("none")
+        self._decide("declination", f"{np.degrees(decl):.2f} deg", first.t,
+                     src + (" (taken later if the log gives one)" if self._decl_pending else ""))
         self._mref = None
         if self._mag is not None and o.mag_mode == "field":
             win = [r for r in align if r.t <= first.t + o.align_s and r.mag is not None]
@@ -455,14 +590,23 @@ class AttitudeStream:
         P0 = np.diag([noise.init_tilt**2, noise.init_tilt**2, noise.init_yaw**2]
                      + [noise.init_bias**2] * 3)
         start = Start(first.t, Gaussian(np.concatenate([q0, np.zeros(3)]), P0), self.space)
+        t_al = align[-1].t if align else first.t
+        self._decide("alignment", "done", t_al,
+                     f"roll/pitch from the accelerometer at t={first.t:.1f} s"
+                     + (", yaw from the magnetometer" if mag0 is not None and self._mag
+                        else ", yaw 0 (no magnetometer)")
+                     + f"; {len(align)} steps of the {o.align_s:g} s window held")
         return [start] + [self._step(r) for r in align]
 
     def _finish_summary(self) -> None:
         n, t0, t1 = self._imu_n
         span = t1 - t0
+        gaps = self._builder.gaps if self._builder else []
         self.summary.update(
             steps=self._k, imu_samples=n, t_first=t0, t_last=t1,
             imu_dropped=self._builder.dropped if self._builder else 0,
+            imu_gaps=len(gaps), imu_gap_longest_s=max((b - a for a, b in gaps), default=0.0),
+            imu_gap_list=[[a, b] for a, b in gaps],
             duration_s=span,
             imu_rate_hz=(n - 1) / span if span > 0 else 0.0,
             filter_rate_hz=self._k / span if span > 0 else 0.0,

@@ -36,12 +36,16 @@ __all__ = [
 class Start:
     """(Re)start every estimator at time ``t0`` (s) from ``prior`` (a Gaussian on
     ``space``). A stream begins with one; a live link sends another after a gap it cannot
-    bridge. ``reason`` says why (``"start"``, ``"link gap 3.2 s"``...)."""
+    bridge. ``reason`` says why (``"start"``, ``"link gap 3.2 s"``...). ``keep_tail``:
+    on a restart, the last ``keep_tail`` components of the running estimate (mean and
+    their covariance block; the gyro biases of an attitude state) replace the prior's,
+    so a re-alignment after an IMU gap keeps what the filter learnt."""
 
     t0: float
     prior: Any
     space: Any
     reason: str = "start"
+    keep_tail: int = 0
 
 
 @dataclass(frozen=True, slots=True)

@@ -69,6 +69,8 @@ class QualityReport:
     track_breaks: int = 0
     id_swaps: int = 0
     false_tracks: int = 0
+    #: distinct tracks confirmed at some time in the run (cumulative: a target whose track
+    #: broke and was confirmed again counts twice; reported as ``tracks_confirmed_total``)
     confirmed_tracks: int = 0
     time_to_confirm: float | None = None
     assigned: dict = field(default_factory=dict)  # truth id -> list of (step, track id)

@@ -356,7 +356,7 @@ def bench_tracker_mode(sc: dict, filters: list[str], runs: int, seed: int, steps
             "id_swaps": float(np.mean([q.id_swaps for q in qs])),
             "false_tracks": float(np.mean([q.false_tracks for q in qs])),
             "track_breaks": float(np.mean([q.track_breaks for q in qs])),
-            "confirmed_tracks": float(np.mean([q.confirmed_tracks for q in qs])),
+            "tracks_confirmed_total": float(np.mean([q.confirmed_tracks for q in qs])),
             "time_to_confirm": float(np.mean(ttc)) if ttc else None,
             "scans": K,
         }

@@ -533,6 +533,8 @@ class MavlinkSource:
                     # that is not fitted, not bad data (one info line at the end)
                     st.absent_sensor += 1
                     st.absent[stat_key(r)] += 1
+                elif bad == "empty" and r.cat == "pos":
+                    st.no_fix += 1  # no GNSS fix yet (lat/lon 0): not bad data
                 else:
                     st.bad(bad, stat_key(r))
             if not good:

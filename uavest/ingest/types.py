@@ -70,7 +70,7 @@ BAD_KINDS = (
     "time_backwards",  # vehicle time <= last accepted time of the same stream
     "duplicate",  # same stream, same time, same content
     "unknown_message",  # MAVLink id / DataFlash type not in the dialect
-    "empty",  # all-zero sensor payload (sensor not present) or no GPS fix
+    "empty",  # all-zero sensor payload of a sensor that sent real data
     "no_time",  # no vehicle time could be assigned (no timed message seen yet)
     "late",  # arrived later than the streaming reorder window allows
     "unknown_frame",  # OBSTACLE_DISTANCE_3D in a MAV_FRAME this layer cannot interpret
@@ -92,6 +92,7 @@ EVENT_KINDS = (
     "pre_heartbeat",  # live link: messages discarded before the vehicle heartbeat
     "absent_sensor",  # all-zero IMU/magnetometer records of an instance that never sent a
     # non-zero one (ArduPilot sends SCALED_IMU3 zeros when there is no third IMU): ignored
+    "no_fix",  # GNSS position records without a fix (lat/lon 0, before the lock): skipped
 )
 
 
@@ -412,6 +413,7 @@ class IngestStats:
     reconnect: int = 0  # live TCP reconnections
     pre_heartbeat: int = 0  # live messages discarded before the vehicle heartbeat
     absent_sensor: int = 0  # all-zero records of a sensor instance that is not fitted
+    no_fix: int = 0  # GNSS position records without a fix (lat/lon 0): skipped, not bad
     #: the absent sensor instances (stat key, e.g. ``"imu:SCALED_IMU3"``) -> records ignored
     absent: Counter = field(default_factory=Counter)
     #: what the tlog reader stepped over between good records, by kind

@@ -37,6 +37,7 @@ from ..geometry.rotation import (
     G0,
     AttitudeSpace,
     compiled_kernels,
+    dcm_to_quat,
     euler_to_quat,
     gyro_propagate,
     qexp_f,
@@ -571,6 +572,23 @@ def inclination_from_samples(accel: Array, field: Array) -> float:
     if a.shape[0] == 0:
         return 0.0
     return float(np.arcsin(np.clip(np.median(np.sum(a * f, axis=1)), -1.0, 1.0)))
+
+
+def triad_attitude(f_body: Array, f_ned: Array, m_body: Array, m_ned: Array) -> Array:
+    """Quaternion (body FRD -> NED) from two vector pairs by TRIAD (Black, "A passive
+    system for determining the attitude of a satellite"): the specific force in body
+    (m/s^2, accelerometer) and in NED (vehicle acceleration minus gravity: exact in a
+    turn, where the accelerometer alone levels the wrong way), then the magnetic field in
+    body and its NED direction (only its plane with the first pair is used)."""
+    def unit(v):
+        v = np.asarray(v, float)
+        return v / np.linalg.norm(v)
+
+    fb, fn = unit(f_body), unit(f_ned)
+    t2b, t2n = unit(np.cross(fb, m_body)), unit(np.cross(fn, m_ned))
+    Mb = np.column_stack([fb, t2b, np.cross(fb, t2b)])
+    Mn = np.column_stack([fn, t2n, np.cross(fn, t2n)])
+    return dcm_to_quat(Mn @ Mb.T)
 
 
 def initial_attitude(accel: Array, field: Array | None, declination: float = 0.0) -> Array:

@@ -445,7 +445,7 @@ def radar_metrics(data: dict, c: float = 100.0) -> tuple[dict, dict]:
             q = track_quality(tr_steps, tk_steps, c, dt=dt)
             row.update({"gospa_mean": q.gospa, "track_breaks": q.track_breaks,
                         "id_swaps": q.id_swaps, "false_tracks": q.false_tracks,
-                        "confirmed_tracks": q.confirmed_tracks,
+                        "tracks_confirmed_total": q.confirmed_tracks,
                         "time_to_confirm_s": q.time_to_confirm})
         rows[lab] = row
         series[lab] = {"t": t, "k": ks, "gospa": np.array(g, float),
@@ -777,15 +777,19 @@ text-align:right}th{background:#f3f3f3}figure{margin:1.5em 0}img{max-width:100%}
 figcaption{color:#444;font-size:90%}.meta td{text-align:left}"""
 
 
-def write_report(mcap_path: str | Path, out_dir: str | Path | None = None) -> dict[str, Path]:
+def write_report(mcap_path: str | Path, out_dir: str | Path | None = None,
+                 on_stage=None) -> dict[str, Path]:
     """Read the recording ``mcap_path``, recompute the metrics from it and write
     ``<out_dir>/<stem>.html`` (self-contained: figures as base64 PNG) and
     ``<out_dir>/<stem>.md`` (figures as ``<stem>_figures/<id>.png``). ``out_dir``
     defaults to the recording's directory. Returns ``{"html", "markdown", "metrics",
-    "figures": [png paths]}``; ``metrics`` is ``<stem>.metrics.json``."""
+    "figures": [png paths]}``; ``metrics`` is ``<stem>.metrics.json``. ``on_stage(name)``
+    is called as each stage starts (progress)."""
+    stage = on_stage or (lambda name: None)
     mcap_path = Path(mcap_path)
     out = Path(out_dir) if out_dir is not None else mcap_path.parent
     out.mkdir(parents=True, exist_ok=True)
+    stage(f"reading {mcap_path.name}")
     rec = read_recording(mcap_path)
     events = _events(rec)
     kinds = [k for k, topic in (("attitude", "/attitude/"), ("radar", "/tracks/"),
@@ -796,6 +800,7 @@ def write_report(mcap_path: str | Path, out_dir: str | Path | None = None) -> di
     extra: dict = {}
     all_rows: dict = {}
     for kd in kinds:
+        stage(f"{kd}: metrics and figures")
         if kd == "attitude":
             data = attitude_data(rec)
             rows, m = attitude_metrics(data)
@@ -828,7 +833,7 @@ def write_report(mcap_path: str | Path, out_dir: str | Path | None = None) -> di
             kf = _radar_figures(data, rows, m, events)
             if len(kinds) > 1:  # ids unique on the page: the radar's timing, resets...
                 kf = [(f"radar-{fid}", t, png, cap) for fid, t, png, cap in kf]
-            cols = ["gospa_mean", "confirmed_tracks", "false_tracks", "track_breaks",
+            cols = ["gospa_mean", "tracks_confirmed_total", "false_tracks", "track_breaks",
                     "id_swaps", "time_to_confirm_s", "confirmed_mean", "resets",
                     "us_per_scan", "scans"]
             extra["gospa_c"] = c
@@ -836,6 +841,7 @@ def write_report(mcap_path: str | Path, out_dir: str | Path | None = None) -> di
         figs += kf
         all_rows.update(rows)
     rows = all_rows
+    stage("writing HTML and Markdown")
     stem = mcap_path.stem
     figdir = out / f"{stem}_figures"
     figdir.mkdir(exist_ok=True)

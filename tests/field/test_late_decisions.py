@@ -1,0 +1,52 @@
+"""Issue: decisions made from "the start of the log". The declination is taken when the
+log gives it (a parameter that arrives after the alignment), the decision is recorded with
+the time it took effect, and the mean of the magnetometer reference follows."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from uavest.engine.attitude import AttitudeOptions, AttitudeStream
+from uavest.engine.records import Step
+from uavest.ingest.types import ImuSample, MagSample
+
+
+def _samples(T: float = 10.0, rate: float = 50.0):
+    g = np.array([0.0, 0.0, -9.80665])  # level, at rest: specific force up (FRD: -z)
+    field = np.array([0.2, 0.0, 0.4])
+    for k in range(int(T * rate)):
+        t = k / rate
+        yield ImuSample(t, np.zeros(3), g.copy(), "RAW_IMU")
+        yield MagSample(t, field.copy(), "RAW_IMU")
+
+
+def test_declination_arriving_after_the_alignment_is_taken_then():
+    params: dict = {}
+    st = AttitudeStream(opts=AttitudeOptions(), params=params)
+    steps = []
+    for s in _samples():
+        if s.t >= 5.0 and "COMPASS_DEC" not in params:
+            params.update(COMPASS_DEC=0.2, COMPASS_AUTODEC=0)  # the GCS fetched them now
+        steps += [x for x in st.push(s) if isinstance(x, Step)]
+    st.flush()
+    dec = [d for d in st.decisions if d["what"] == "declination"]
+    assert len(dec) == 2, st.decisions
+    assert dec[0]["t"] == 0.0 and dec[0]["why"].startswith("none")
+    assert 5.0 <= dec[1]["t"] < 5.2 and "COMPASS_DEC" in dec[1]["why"]
+    assert st.declination == 0.2 and st.summary["declination_rad"] == 0.2
+    assert abs(st.summary["declination_from_t"] - dec[1]["t"]) < 1e-9
+    whats = [d["what"] for d in st.decisions]
+    for w in ("IMU", "integration", "acceleration compensation", "alignment"):
+        assert w in whats
+
+
+def test_declination_known_at_the_start_is_not_changed():
+    params = {"COMPASS_DEC": 0.1, "COMPASS_AUTODEC": 0}
+    st = AttitudeStream(opts=AttitudeOptions(), params=params)
+    for s in _samples(6.0):
+        st.push(s)
+        if s.t >= 4.0:  # after the alignment: the value the stream took stays
+            params["COMPASS_DEC"] = 0.3
+    st.flush()
+    assert [d["t"] for d in st.decisions if d["what"] == "declination"] == [0.0]
+    assert st.declination == 0.1

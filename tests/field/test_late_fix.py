@@ -1,0 +1,95 @@
+"""Issue: decisions made from "the start of the log". A log that starts before the GNSS fix
+(GLOBAL_POSITION_INT lat/lon 0, GPS_RAW_INT without a fix, no LOCAL_POSITION_NED: as
+ArduPilot sends them before the lock) left acceleration compensation off for the whole
+flight. Compensation now switches on when the first valid velocity arrives, the decision
+is printed with its time, and the pre-fix records are counted as "no fix", not bad data.
+Reproduced from the shared vtol.tlog by rewriting its first 130 position messages."""
+
+from __future__ import annotations
+
+import json
+import re
+
+from conftest import shared_log
+
+from tests.hostile.corpus import tlog_records
+from uavest.cli import main
+
+GPI, GPS_RAW, LPN = 33, 24, 32
+
+
+def delay_fix(src, dst, n: int = 130) -> float:
+    """Write ``src`` to ``dst`` with the first ``n`` GLOBAL_POSITION_INT and GPS_RAW_INT
+    without a fix (re-encoded, same receive times) and the first ``n`` LOCAL_POSITION_NED
+    dropped. Returns the vehicle time (s) of the first GLOBAL_POSITION_INT left valid."""
+    from pymavlink.dialects.v20 import ardupilotmega as mav
+
+    data = src.read_bytes()
+    out, last = bytearray(), 0
+    seen = {GPI: 0, GPS_RAW: 0, LPN: 0}
+    t_fix = None
+    for off, ln, mid in tlog_records(data):
+        out += data[last:off]
+        rec, last = data[off:off + ln], off + ln
+        if mid in seen:
+            seen[mid] += 1
+            if seen[mid] <= n:
+                if mid == LPN:
+                    continue
+                x = mav.MAVLink(None).parse_buffer(rec[8:])[0]
+                x.lat = x.lon = 0
+                if mid == GPI:
+                    x.vx = x.vy = x.vz = 0
+                else:
+                    x.fix_type = 1
+                enc = mav.MAVLink(None, srcSystem=x.get_srcSystem(),
+                                  srcComponent=x.get_srcComponent())
+                enc.seq = x.get_seq()
+                rec = rec[:8] + x.pack(enc, force_mavlink1=rec[8] == 0xFE)
+            elif mid == GPI and t_fix is None:
+                t_fix = mav.MAVLink(None).parse_buffer(rec[8:])[0].time_boot_ms * 1e-3
+        out += rec
+    out += data[last:]
+    dst.write_bytes(bytes(out))
+    assert all(v > n for v in seen.values())
+    return t_fix
+
+
+def _run(path, js, capsys) -> tuple[dict, str]:
+    assert main(["replay", str(path), "--filters", "ekf", "--no-progress",
+                 "--json", str(js)]) == 0
+    out = capsys.readouterr().out
+    return json.loads(js.read_text()), out
+
+
+def test_acceleration_compensation_switches_on_at_the_fix(tmp_path, capsys):
+    base = shared_log("vtol.tlog")
+    f = tmp_path / "late_fix.tlog"
+    t_fix = delay_fix(base, f)
+    ref, _ = _run(base, tmp_path / "a.json", capsys)
+    late, text = _run(f, tmp_path / "b.json", capsys)
+    assert ref["accel_compensation"] is not None
+    assert late["accel_compensation"] == "GLOBAL_POSITION_INT"
+    assert abs(late["accel_compensation_from_t"] - t_fix) < 0.5
+    for ax in ("roll", "pitch", "yaw"):
+        r, lt = ref["filters"]["ekf"][f"{ax}_rmse_deg"], late["filters"]["ekf"][f"{ax}_rmse_deg"]
+        assert lt < 1.5 * r, (ax, lt, r)
+    # the decision, with the time it took effect, on the output
+    m = re.search(r"decision: acceleration compensation: on \(GLOBAL_POSITION_INT\) "
+                  r"from t=([0-9.]+) s", text)
+    assert m and abs(float(m.group(1)) - t_fix) < 0.5, text
+    assert "decision: acceleration compensation: off from t=" in text
+    # the records before the fix are not bad data
+    assert late["bad_data"]["no_fix"] == 260
+    assert late["bad_data"]["bad_total"] <= ref["bad_data"]["bad_total"]
+    assert "UNRELIABLE" not in text
+
+
+def test_compensation_off_by_option_stays_off(tmp_path, capsys):
+    f = tmp_path / "late_fix.tlog"
+    delay_fix(shared_log("vtol.tlog"), f)
+    assert main(["replay", str(f), "--filters", "ekf", "--no-progress",
+                 "--accel-comp", "none", "--json", str(tmp_path / "c.json")]) == 0
+    doc = json.loads((tmp_path / "c.json").read_text())
+    assert doc["accel_compensation"] is None
+    assert "acceleration compensation: off from t=" in capsys.readouterr().out
