@@ -11,7 +11,7 @@ import sys
 import numpy as np
 
 from ..experiments.radar import data_rng, run_trackers, tracker_errors
-from ..scenarios import load_scenario
+from ..scenarios import load_scenario, resolved
 from ..sinks.jsonout import write_json
 from ..tracking.scenario import generate_run
 from ..tracking.tracker import Tracker
@@ -34,7 +34,7 @@ def track_table(sc: dict, filters: list[str], seed: int, sinks=(), command: str 
     info = RunInfo(command, f"scenario:{sc.get('name')}", seed,
                    filters={lab: {"spec": lab, "preset": "radar"} for lab in filters},
                    config={"scenario": sc.get("name"), "dt": dt, "gospa_c": c},
-                   versions=package_versions())
+                   versions=package_versions(), scenario=resolved(sc))
     trackers: dict[str, Tracker] = run_trackers(sc, filters, run, seed, 0, sinks, info)
     rows, summary = [], {}
     for lab, tr in trackers.items():
