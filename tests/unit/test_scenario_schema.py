@@ -126,3 +126,20 @@ def test_set_round_trips(name, key, value, get):
     # the resolved scenario loads back to the same typed scenario
     again = load_typed(name, [f"{key}={value}"])
     assert again == typed
+
+
+def test_results_record_the_resolved_scenario(tmp_path, capsys):
+    import json
+
+    from uavest.cli import main
+
+    out = tmp_path / "t.json"
+    assert main(["track", "radar_crossing", "--filters", "ekf", "--seed", "0",
+                 "--set", "radar.sigma_az_deg=4.0", "--json", str(out)]) == 0
+    sc = json.loads(out.read_text())["run"]["scenario"]
+    assert sc["radar"]["sigma_az_deg"] == 4.0 and sc["tracker"]["gate_prob"] == 0.999
+    out = tmp_path / "b.json"
+    assert main(["bench", "linear_cv", "--runs", "2", "--filters", "kf", "--seed", "0",
+                 "--no-progress", "--json", str(out)]) == 0
+    sc = json.loads(out.read_text())["run"]["scenario"]
+    assert sc["model"] == {"dt": 1.0, "q": 0.1, "R": 4.0} and sc["kind"] == "linear_cv"

@@ -20,7 +20,8 @@ from typing import Any
 from .schema import ScenarioError, declared, known_keys, parse, schema_for
 
 __all__ = ["ScenarioError", "load_scenario", "load_typed", "list_scenarios",
-           "find_scenario", "apply_sets", "parse_value", "validate_scenario"]
+           "find_scenario", "apply_sets", "parse_value", "validate_scenario", "typed",
+           "resolved"]
 
 
 def scenario_dirs() -> list[Path]:
@@ -83,6 +84,11 @@ def load_typed(name_or_path: str, sets: list[str] | tuple[str, ...] = ()) -> Any
     """The typed scenario (a frozen dataclass of :mod:`uavest.scenarios.schema`, every
     default filled in) of :func:`load_scenario`."""
     return parse(load_scenario(name_or_path, sets))
+
+
+def typed(sc: dict | Any) -> Any:
+    """The typed scenario of a scenario dict (a typed scenario is returned as it is)."""
+    return parse(sc) if isinstance(sc, dict) else sc
 
 
 def resolved(sc: dict | Any) -> dict:

@@ -116,7 +116,7 @@ class _Common:
 
 @dataclass(frozen=True)
 class _MonteCarlo(_Common):
-    runs: int = F(200, "int", "Monte Carlo runs", "", lo=1, hi=1_000_000)
+    runs: int = F(100, "int", "Monte Carlo runs", "", lo=1, hi=1_000_000)
     steps: int = F(100, "int", "time steps per run", "", lo=1, hi=1_000_000)
     divergence_rmse: float = F(math.inf, "float", "a run with a larger RMSE counts as diverged",
                                "state units", lo=0.0, lo_open=True)
