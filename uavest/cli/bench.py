@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 
 from ..errors import InputError
-from ..scenarios import load_scenario
+from ..scenarios import load_scenario, resolved
 from ..sinks.jsonout import write_json
 from ..sinks.table import table
 from .progress import progress
@@ -41,7 +41,8 @@ def cmd_bench(args) -> int:
     if recording and not 0 <= trial < runs:
         raise InputError(f"--trial must be in 0..{runs - 1} (--runs {runs}), got {trial}")
     sinks = recording_sinks(args) if recording else []
-    doc = {"run": {"command": " ".join(sys.argv), "seed": args.seed},
+    doc = {"run": {"command": " ".join(sys.argv), "seed": args.seed,
+                   "scenario": resolved(sc)},
            "scenario": sc["name"], "source": sc.get("source"), "runs": runs,
            "seed": args.seed, "steps": sc.get("steps"), "overrides": args.sets}
     bar = progress(runs * (9 if args.ablation else 1), f"bench {sc['name']}",
@@ -71,6 +72,7 @@ def cmd_bench(args) -> int:
         if sinks:
             rec = (trial, sinks, trial_info(sysm, specs, args.seed, trial, sc["name"],
                                             " ".join(sys.argv)))
+            rec[2].scenario = doc["run"]["scenario"]
         doc["filters"] = evaluate(sysm, specs, runs, args.seed, bar.update, rec)
         cols = list(METRICS) + ["resets"]
         if args.ablation:

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..experiments.radar import data_rng, run_trackers, tracker_errors
-from ..scenarios import load_scenario
+from ..scenarios import load_scenario, resolved, typed
 from ..sinks.jsonout import write_json
 from ..tracking.scenario import generate_run
 from ..tracking.tracker import Tracker
@@ -26,16 +26,15 @@ def track_table(sc: dict, filters: list[str], seed: int, sinks=(), command: str 
     Row fields: filter, track id, born / confirmed / deleted scan times (s; None if never),
     length (scans alive), hits, truth (index of the truth it was assigned to most often,
     None for a false track), pos_rmse (m) against that truth over the assigned scans."""
-    dt = float(sc.get("dt", 1.0))
-    ndim = int(sc.get("ndim", 2))
-    c = float(sc.get("metrics", {}).get("gospa_c", 200.0))
+    scn = typed(sc)
+    dt, ndim, c = float(scn.dt), int(scn.ndim), float(scn.metrics.gospa_c)
     run = generate_run(sc, data_rng(seed, 0))  # filter-mode scenarios: tracker too
     from ..engine.records import RunInfo, package_versions
 
-    info = RunInfo(command, f"scenario:{sc.get('name')}", seed,
+    info = RunInfo(command, f"scenario:{scn.name}", seed,
                    filters={lab: {"spec": lab, "preset": "radar"} for lab in filters},
-                   config={"scenario": sc.get("name"), "dt": dt, "gospa_c": c},
-                   versions=package_versions())
+                   config={"scenario": scn.name, "dt": dt, "gospa_c": c},
+                   versions=package_versions(), scenario=resolved(scn))
     trackers: dict[str, Tracker] = run_trackers(sc, filters, run, seed, 0, sinks, info)
     rows, summary = [], {}
     for lab, tr in trackers.items():
@@ -83,7 +82,8 @@ def track_table(sc: dict, filters: list[str], seed: int, sinks=(), command: str 
             "tentative_tracks": len(tr.all_tracks),
             "us_per_scan": 1e6 * tr.seconds / max(tr.n_scans, 1),
         }
-    return {"scenario": sc.get("name"), "seed": seed, "tracks": rows, "summary": summary}
+    return {"scenario": scn.name, "seed": seed, "tracks": rows, "summary": summary,
+            "run": info.as_dict()}
 
 
 def _fmt(v, spec: str) -> str:
@@ -121,15 +121,16 @@ def print_table(res: dict) -> None:
 
 def cmd_track(args: argparse.Namespace) -> int:
     sc = load_scenario(args.scenario, args.set or [])
-    if sc.get("kind") != "radar":
+    scn = typed(sc)
+    if scn.kind != "radar":
         raise InputError(f"scenario {args.scenario!r} is not a radar scenario "
                          "(radar scenarios: see 'uavest list')")
-    filters = args.filter_specs or list(sc.get("filters", []))
+    filters = args.filter_specs or list(scn.filters)
     from ..experiments.resources import check
     from .replay import reject_linear_only
 
     reject_linear_only(filters, "track", "the nonlinear radar measurement model")
-    check(sc, filters or ["ekf", "ukf", "hybrid"], 1, int(sc.get("steps", 100)), "track")
+    check(sc, filters or ["ekf", "ukf", "hybrid"], 1, scn.steps, "track")
     res = track_table(sc, filters or ["ekf", "ukf", "hybrid"], args.seed,
                       recording_sinks(args), " ".join(sys.argv))
     print_table(res)

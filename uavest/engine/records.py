@@ -174,8 +174,10 @@ class ScanRecord:
 @dataclass
 class RunInfo:
     """What a run is: the command line, the source, the resolved configuration of every
-    estimator (``filters``: label -> resolved spec dict), the seed, package versions.
-    Written at the head of every result (JSON, recordings)."""
+    estimator (``filters``: label -> resolved spec dict), the seed, package versions and,
+    for scenario runs, the resolved scenario (``scenario``: every declared field with its
+    defaults filled in, :func:`uavest.scenarios.resolved`). Written at the head of every
+    result (JSON, recordings)."""
 
     command: str
     source: str
@@ -183,11 +185,13 @@ class RunInfo:
     filters: dict[str, dict] = field(default_factory=dict)
     config: dict = field(default_factory=dict)
     versions: dict[str, str] = field(default_factory=dict)
+    scenario: dict = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         return {
             "command": self.command, "source": self.source, "seed": self.seed,
             "filters": self.filters, "config": self.config, "versions": self.versions,
+            "scenario": self.scenario,
         }
 
 

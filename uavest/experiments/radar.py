@@ -367,6 +367,7 @@ def trial_info(sc: dict, filters: list[str], seed: int, r: int, command: str = "
     """The run description of radar trial ``r`` for a recording (scenario, seed, trial,
     resolved filters, dt, GOSPA c)."""
     from ..engine.records import RunInfo, package_versions
+    from ..scenarios import resolved
 
     motion, _ = build_models(sc)
     built = build_filters(filters, "radar", dim=motion.space.dim)
@@ -375,7 +376,7 @@ def trial_info(sc: dict, filters: list[str], seed: int, r: int, command: str = "
                    config={"scenario": sc.get("name"), "trial": r,
                            "mode": sc.get("mode", "tracker"), "dt": float(sc.get("dt", 1.0)),
                            "gospa_c": float(sc.get("metrics", {}).get("gospa_c", 200.0))},
-                   versions=package_versions())
+                   versions=package_versions(), scenario=resolved(sc))
 
 
 def run_bench(

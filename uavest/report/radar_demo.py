@@ -21,7 +21,7 @@ def run_radar_demo(sinks: list, scenario: str = "radar_uav", steps: int = 40,
     scans) and hand everything to ``sinks`` (opened and closed here). Returns
     ``{"run": RunData, "records": {label: [ScanRecord]}, "info": RunInfo}``."""
     from ..experiments.radar import data_rng, filter_rng, make_radar_filter
-    from ..scenarios import load_scenario
+    from ..scenarios import load_scenario, resolved
     from ..tracking.scenario import build_models, clutter_box, generate_run
     from ..tracking.tracker import Tracker, TrackerConfig
 
@@ -38,7 +38,7 @@ def run_radar_demo(sinks: list, scenario: str = "radar_uav", steps: int = 40,
                    filters={lab: {"spec": lab, "tracker": cfg.__dict__} for lab in filters},
                    config={"scenario": scenario, "steps": steps, "dt": dt,
                            "gospa_c": float(sc.get("metrics", {}).get("gospa_c", 100.0))},
-                   versions=package_versions())
+                   versions=package_versions(), scenario=resolved(sc))
     records: dict[str, list] = {lab: [] for lab in filters}
     for s in sinks:
         s.open(info)

@@ -1,67 +1,27 @@
 """Scenario files: TOML documents in ``scenarios/`` with a ``kind`` key.
 
 ``load_scenario("ungm")`` finds ``scenarios/ungm.toml`` (next to the package in a source
-checkout, or in ./scenarios); a path to a .toml file works too. ``--set KEY=VALUE``
-overrides (dotted keys for tables, values parsed as TOML literals, bare words as
-strings) are applied with :func:`apply_sets`; a key the scenario lacks (and not in
-:data:`OPTIONAL_KEYS`) is a ScenarioError naming the close matches. Built-in defaults for ``ungm``,
-``nonlinear2d`` and ``linear_cv`` exist so that the benchmark runs even without the files.
+checkout, or in ./scenarios); a path to a .toml file works too. The TOML files are the only
+source of the built-in scenarios. ``--set KEY=VALUE`` overrides (dotted keys for tables,
+values parsed as TOML literals, bare words as strings) are applied with :func:`apply_sets`;
+a key the schema of the scenario's kind (:mod:`uavest.scenarios.schema`) does not declare
+is a ScenarioError naming the close matches. Every value is checked once, here, against the
+schema's declared types, ranges and units (:func:`load_typed` returns the typed scenario).
 """
 
 from __future__ import annotations
 
 import copy
-import difflib
 import tomllib
+from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
-from ..errors import InputError
+from .schema import ScenarioError, declared, known_keys, parse, schema_for
 
-BUILTIN: dict[str, dict] = {
-    "ungm": {
-        "name": "ungm",
-        "kind": "ungm",
-        "description": "Univariate nonstationary growth model (Gordon, Salmond and Smith "
-        "1993), bimodal posterior",
-        "runs": 200,
-        "steps": 100,
-        "divergence_rmse": 20.0,
-        "model": {"a": 0.5, "b": 25.0, "c": 20.0, "alpha": 8.0, "beta": 1.2, "Q": 10.0,
-                  "R": 1.0},
-        "prior": {"truth_mean": [0.0], "truth_var": [1.0], "filter_mean": [0.0],
-                  "filter_var": [1.0]},
-        "filters": ["ekf", "ukf", "srukf", "enkf", "etkf", "hybrid", "hybrid_literal", "pf"],
-    },
-    "nonlinear2d": {
-        "name": "nonlinear2d",
-        "kind": "nonlinear2d",
-        "description": "2-D strongly nonlinear system (ours, documented in docs/filters.md)",
-        "runs": 200,
-        "steps": 100,
-        "divergence_rmse": 10.0,
-        "model": {"nl": 1.0, "rho": 0.9, "th": 0.3, "g": 10.0, "alpha": 4.0, "beta": 1.2,
-                  "c": 10.0, "Q": [1.0, 1.0], "R": [1.0, 1.0]},
-        "prior": {"truth_mean": [0.0, 0.0], "truth_var": [1.0, 1.0],
-                  "filter_mean": [0.0, 0.0], "filter_var": [1.0, 1.0]},
-        "filters": ["ekf", "ukf", "srukf", "enkf", "etkf", "hybrid", "hybrid_literal", "pf"],
-    },
-    "linear_cv": {
-        "name": "linear_cv",
-        "kind": "linear_cv",
-        "description": "1-D constant velocity, position measured (linear-Gaussian: KF optimal)",
-        "runs": 200,
-        "steps": 100,
-        "divergence_rmse": 50.0,
-        "model": {"dt": 1.0, "q": 0.1, "R": 4.0},
-        "prior": {"truth_mean": [0.0, 1.0], "truth_var": [10.0, 1.0],
-                  "filter_mean": [0.0, 1.0], "filter_var": [10.0, 1.0]},
-        "filters": ["kf", "ekf", "ukf", "srukf", "enkf", "etkf", "hybrid", "pf"],
-    },
-}
-
-
-class ScenarioError(InputError):
-    """A scenario name, file or override could not be used."""
+__all__ = ["ScenarioError", "load_scenario", "load_typed", "list_scenarios",
+           "find_scenario", "apply_sets", "parse_value", "validate_scenario", "typed",
+           "resolved"]
 
 
 def scenario_dirs() -> list[Path]:
@@ -83,7 +43,7 @@ def find_scenario(name_or_path: str) -> Path | None:
 
 
 def list_scenarios() -> list[str]:
-    names = set(BUILTIN)
+    names: set[str] = set()
     for d in scenario_dirs():
         if d.is_dir():
             names.update(f.stem for f in d.glob("*.toml"))
@@ -102,23 +62,53 @@ def load_scenario(name_or_path: str, sets: list[str] | tuple[str, ...] = ()) -> 
             raise ScenarioError(f"{f}: invalid TOML: {e}") from None
         sc.setdefault("name", f.stem)
         sc["source"] = str(f)
-    elif name_or_path in BUILTIN:
-        sc = copy.deepcopy(BUILTIN[name_or_path])
-        sc["source"] = "built-in"
     else:
         raise ScenarioError(
             f"unknown scenario {name_or_path!r}; known: {', '.join(list_scenarios())}"
         )
     if "kind" not in sc:
         raise ScenarioError(f"scenario {sc.get('name')!r} has no 'kind' key")
+    schema_for(sc["kind"])  # unknown kind: a ScenarioError before any --set
     sc = apply_sets(sc, sets)
     try:
         validate_scenario(sc)
+        parse(sc)
     except ScenarioError as e:
         if sets:
             raise ScenarioError(f"{e} (after --set {' '.join(sets)})") from None
         raise
     return sc
+
+
+def load_typed(name_or_path: str, sets: list[str] | tuple[str, ...] = ()) -> Any:
+    """The typed scenario (a frozen dataclass of :mod:`uavest.scenarios.schema`, every
+    default filled in) of :func:`load_scenario`."""
+    return parse(load_scenario(name_or_path, sets))
+
+
+def typed(sc: dict | Any) -> Any:
+    """The typed scenario of a scenario dict (a typed scenario is returned as it is)."""
+    return parse(sc) if isinstance(sc, dict) else sc
+
+
+def resolved(sc: dict | Any) -> dict:
+    """The resolved scenario (every declared field, defaults filled in) as a plain dict,
+    for a result's :class:`~uavest.engine.records.RunInfo` ``scenario``."""
+    if isinstance(sc, dict) and "kind" not in sc:  # a hand-made scenario (tests)
+        return copy.deepcopy(sc)
+    typed = parse(sc) if isinstance(sc, dict) else sc
+    return _finite(asdict(typed))
+
+
+def _finite(v: Any) -> Any:
+    """JSON-safe: tuples as lists, non-finite numbers (no limit, 'until the end') as None."""
+    if isinstance(v, dict):
+        return {k: _finite(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_finite(x) for x in v]
+    if isinstance(v, float) and not v == v or v in (float("inf"), -float("inf")):
+        return None
+    return v
 
 
 #: Keys whose numbers must be >= 0 (noise levels, variances, standard deviations).
@@ -209,33 +199,6 @@ def apply_sets(sc: dict, sets) -> dict:
     return sc
 
 
-#: Keys the code reads with a default, so a scenario file may leave them out and ``--set``
-#: may still add them (dotted, from the top of the scenario). Everything else ``--set``
-#: names must already be in the scenario (TOML merged with its built-in defaults):
-#: a typo must not be silently ignored.
-OPTIONAL_KEYS: frozenset[str] = frozenset({
-    "ndim", "dt", "runs", "steps", "divergence_rmse", "filters", "mode", "metrics",
-    "motion.truth_q", "motion.q", "motion.q_omega", "motion.model",
-    # uavest.tracking.tracker.TrackerConfig fields (a [tracker] table overrides them)
-    "tracker.gate_prob", "tracker.confirm_m", "tracker.confirm_n", "tracker.delete_misses",
-    "tracker.init_vel_std", "tracker.init_omega_std", "tracker.max_pos_std",
-    "tracker.association", "tracker.pd", "tracker.clutter_density", "tracker.jpda_max_cluster",
-    "radar.pd", "radar.clutter_rate", "radar.enabled", "radar.rate_hz",
-    "adsb.enabled", "mag.declination_deg",
-    "targets", "source", "prior", "kind", "name", "uav", "model", "missed",
-    "prior.mean", "prior.std", "prior.truth_mean", "prior.truth_var", "prior.filter_mean",
-    "prior.filter_var", "prior.omega_std",
-})
-
-#: Sections the code reads with defaults (the simulator's and the radar's): when a scenario
-#: has no such table, any key under it may be set (its reader checks the values); when it
-#: has one, its keys are checked like the rest.
-OPTIONAL_SECTIONS: frozenset[str] = frozenset({
-    "tracker", "vehicle", "time", "origin", "mavlink", "mag", "imu", "gps", "baro", "ahrs",
-    "adsb", "radar", "motion", "prior", "uav",
-})
-
-
 def _known_keys(sc: dict, prefix: str = "") -> set[str]:
     out: set[str] = set()
     for k, v in sc.items():
@@ -247,22 +210,34 @@ def _known_keys(sc: dict, prefix: str = "") -> set[str]:
 
 
 def _check_known(sc: dict, parts: list[str]) -> None:
-    """Raise :class:`ScenarioError` if the dotted key is neither in ``sc`` nor optional,
-    naming the close matches (or the top-level sections)."""
+    """Raise :class:`ScenarioError` if the dotted key is not declared by the schema of the
+    scenario's kind, naming the close matches (or the top-level sections)."""
     key = ".".join(parts)
-    known = _known_keys(sc) | OPTIONAL_KEYS
+    cls = schema_for(sc.get("kind", ""))
+    known = known_keys(cls)
     if key in known:
         return
-    if len(parts) > 1 and parts[0] in OPTIONAL_SECTIONS and not isinstance(sc.get(parts[0]),
-                                                                           dict):
-        return
+    # below a free-form value (e.g. mavlink.rates.NAME): its reader checks it
+    for i in range(1, len(parts)):
+        node: Any = cls
+        for p in parts[:i - 1]:
+            node = declared(node)[p]["table"]
+        m = declared(node).get(parts[i - 1]) if isinstance(node, type) else None
+        if m is None:
+            break
+        if m["kind"] == "any":
+            return
+        if m["kind"] != "table":
+            break
     cands = sorted(known)
+    import difflib
+
     close = difflib.get_close_matches(key, cands, n=3, cutoff=0.6)
     # a bare leaf name ("clutter_rate") matches its dotted form ("radar.clutter_rate")
     close += [c for c in cands if c.rsplit(".", 1)[-1] == parts[-1] and c not in close]
     if close:
         hint = f"did you mean {', '.join(close[:3])}?"
     else:
-        secs = sorted(k for k, v in sc.items() if isinstance(v, dict))
+        secs = sorted(k for k, m in declared(cls).items() if m["kind"] == "table")
         hint = f"known sections: {', '.join(secs) or '(none)'}"
     raise ScenarioError(f"unknown scenario key {key!r} ({hint})")
