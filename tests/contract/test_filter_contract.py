@@ -30,6 +30,7 @@ from uavest.core import (
 )
 from uavest.core.model import Measurement, Transition, fd_jacobians
 from uavest.core.registry import REGISTRY
+from uavest.geometry.navigation import NavSpace
 from uavest.geometry.rotation import AttitudeSpace, euler_to_quat, quat_exp, quat_mul
 from uavest.geometry.spaces import VectorSpace
 from uavest.models.attitude import (
@@ -151,13 +152,18 @@ def skip_kf_nonlinear(spec: str, prob: Problem) -> None:
 
 # --------------------------------------------------------------------------------- spaces
 
-SPACES = {"vector3": VectorSpace(3), "attitude": AttitudeSpace()}
+SPACES = {"vector3": VectorSpace(3), "attitude": AttitudeSpace(), "nav": NavSpace()}
 
 
 def random_point(space, rng):
     if isinstance(space, AttitudeSpace):
         q = rng.normal(size=4)
         return np.concatenate([q / np.linalg.norm(q), rng.normal(size=3) * 0.01])
+    if isinstance(space, NavSpace):
+        q = rng.normal(size=4)
+        return np.concatenate([q / np.linalg.norm(q), rng.normal(size=3) * 5.0,
+                               rng.normal(size=3) * 100.0, rng.normal(size=3) * 0.01,
+                               rng.normal(size=3) * 0.1])
     return rng.normal(size=space.size)
 
 

@@ -1,0 +1,121 @@
+"""Navigation model: analytic Jacobians against finite differences, gating, and the
+registry's filters on a seeded synthetic straight-and-turn flight."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from uavest.core import Gaussian, fd_jacobian, make_filter
+from uavest.geometry.navigation import NavSpace
+from uavest.geometry.rotation import euler_to_quat, quat_rotate_inv
+from uavest.models.navigation import (
+    GnssPosition,
+    GnssVelocity,
+    ImuTransition,
+    NavNoise,
+    innovation_gate,
+)
+
+SP = NavSpace()
+
+
+def _point(rng):
+    q = rng.normal(size=4)
+    return np.concatenate([q / np.linalg.norm(q), rng.normal(size=3) * 5,
+                           rng.normal(size=3) * 50, rng.normal(size=3) * 0.01,
+                           rng.normal(size=3) * 0.1])
+
+
+@pytest.mark.parametrize("earth_rate", [False, True])
+def test_imu_F_matches_finite_differences(earth_rate):
+    rng = np.random.default_rng(0)
+    tr = ImuTransition(NavNoise(), lat=np.deg2rad(47.0), h=400.0, earth_rate=earth_rate)
+    for _ in range(5):
+        x = _point(rng)
+        u = np.concatenate([rng.normal(size=3) * 0.5, rng.normal(size=3) * 3 + [0, 0, -9.8]])
+        dt = 0.02
+        ref = fd_jacobian(lambda X, u=u, dt=dt: tr.f(X, 0.0, dt, u), SP, SP, x)
+        tol = 1e-6 if not earth_rate else 1e-5  # Earth rate's q-dependence not in F
+        np.testing.assert_allclose(tr.F(x, 0.0, dt, u), ref, atol=tol)
+
+
+def test_gnss_H_matches_finite_differences():
+    rng = np.random.default_rng(1)
+    x = _point(rng)
+    for m in (GnssPosition(np.eye(3)), GnssVelocity(np.eye(3)),
+              GnssPosition(np.eye(2), rows=(0, 1))):
+        ref = fd_jacobian(m.h, SP, None, x)
+        np.testing.assert_allclose(m.H(x), ref, atol=1e-7)
+
+
+def test_fix_type_gating_and_100m_jump_rejected():
+    n = NavNoise()
+    assert GnssPosition.from_fix([1, 2, 3], 1, 1.0, 1.0, n) is None
+    z, m = GnssPosition.from_fix([1, 2, 3], 2, 1.0, 1.0, n)
+    assert m.dim == 2 and z.shape == (2,)
+    z, m = GnssPosition.from_fix([1, 2, 3], 3, 0.1, None, n)
+    assert m.dim == 3 and m.R[0, 0] == n.gnss_pos_floor**2
+    S = m.R + np.eye(3)
+    assert innovation_gate(np.array([1.0, -1.0, 0.5]), S, 16.27)
+    assert not innovation_gate(np.array([100.0, 0.0, 0.0]), S, 16.27)
+
+
+def _flight(seed, steps=1500, dt=0.02):
+    """Truth and noisy IMU/GNSS for 10 s straight then a 20 s coordinated-ish turn."""
+    rng = np.random.default_rng(seed)
+    tr = ImuTransition(NavNoise())
+    bg, ba = np.array([0.01, -0.005, 0.003]), np.array([0.1, -0.05, 0.08])
+    x = np.concatenate([euler_to_quat(0.0, 0.0, 0.3), [5.0, 1.5, 0.0], np.zeros(3), bg, ba])
+    out = []
+    for k in range(steps):
+        wz = 0.0 if k * dt < 10 else 0.15
+        w = np.array([0.02 * np.sin(0.5 * k * dt), 0.01, wz])
+        # specific force so the velocity turns with the body (centripetal) and no climb
+        v_b = quat_rotate_inv(x[:4], x[4:7])
+        a_b = np.cross(w, v_b)
+        f = a_b - quat_rotate_inv(x[:4], np.array([0, 0, tr.g]))
+        u_true = np.concatenate([w + bg, f + ba])
+        xn = tr.f(x[None], 0.0, dt, u_true)[0]
+        u = u_true + np.concatenate([rng.normal(size=3) * 0.003 / np.sqrt(dt),
+                                     rng.normal(size=3) * 0.05 / np.sqrt(dt)])
+        x = xn
+        zp = zv = None
+        if k % 10 == 9:  # 5 Hz GNSS
+            zp = x[7:10] + rng.normal(size=3) * [0.5, 0.5, 1.0]
+            zv = x[4:7] + rng.normal(size=3) * 0.1
+        out.append((x.copy(), u, zp, zv))
+    return out
+
+
+@pytest.mark.parametrize("spec", ["ekf", "ukf", "hybrid"])
+def test_filters_converge_and_are_consistent_on_a_synthetic_flight(spec):
+    n = NavNoise()
+    tr = ImuTransition(n)
+    data = _flight(3)
+    x0 = data[0][0].copy()
+    rng = np.random.default_rng(7)
+    x0 = SP.retract(x0, np.concatenate([rng.normal(size=3) * 0.03, rng.normal(size=3) * 0.5,
+                                        rng.normal(size=3) * 2, np.zeros(6)]))
+    P0 = np.diag([0.05**2] * 3 + [1.0] * 3 + [9.0] * 3 + [0.01**2] * 3 + [0.2**2] * 3)
+    f = make_filter(spec)
+    s = f.init(Gaussian(x0, P0), SP, np.random.default_rng(11))
+    Rp, Rv = np.diag([0.25, 0.25, 1.0]), np.eye(3) * 0.01
+    nees, errs = [], []
+    for k, (xt, u, zp, zv) in enumerate(data):
+        s = f.predict(s, tr, k * 0.02, 0.02, u, rng)
+        if zp is not None:
+            s, _ = f.update(s, zp, GnssPosition(Rp), rng)
+            s, _ = f.update(s, zv, GnssVelocity(Rv), rng)
+        g = f.estimate(s)
+        assert np.all(np.isfinite(g.x))
+        if k > 500:
+            e = SP.local(g.x, xt[None])[0]
+            errs.append(e)
+            nees.append(float(e[:9] @ np.linalg.solve(g.P[:9, :9], e[:9])))
+    errs = np.array(errs)
+    assert np.sqrt(np.mean(errs[:, 3:6] ** 2)) < 0.3  # velocity, m/s
+    assert np.sqrt(np.mean(errs[:, 6:8] ** 2)) < 1.0  # horizontal position, m
+    assert np.degrees(np.sqrt(np.mean(errs[:, :2] ** 2))) < 1.0  # tilt, deg
+    # 9-dof NEES within its 99 % band most of the time
+    assert np.mean(np.array(nees) < 21.67) > 0.8

@@ -1,0 +1,130 @@
+"""The navigation state space: attitude x velocity x position x gyro bias x accel bias.
+
+State ``x`` (size 16)::
+
+    x = [q (4), v (3), p (3), bg (3), ba (3)]
+
+- ``q``  attitude quaternion, body FRD -> NED, scalar-first (as :class:`AttitudeSpace`);
+- ``v``  velocity in NED, m/s;
+- ``p``  position in NED, m, relative to a :class:`~uavest.geometry.geodesy.LocalFrame`
+  origin;
+- ``bg`` gyro bias, rad/s, body FRD;
+- ``ba`` accelerometer bias, m/s^2, body FRD.
+
+Tangent ``dx`` (dim 15) = ``[dtheta (rad, body FRD), dv, dp, dbg, dba]``. The retraction
+is the right (body-frame) perturbation used by the attitude space, ``q <- q * Exp(dtheta)``,
+and plain addition on the Euclidean blocks; ``local`` is its inverse with the short-way
+quaternion log, so ``q`` and ``-q`` are the same point. ``mean`` is the sign-aligned
+chordal mean of the quaternions plus the weighted sum of the vector blocks, refined by one
+Gauss-Newton (Karcher) step, as :class:`AttitudeSpace` does.
+
+Everything is vectorised over rows: ``x`` (16,) or (M, 16) against ``dx`` (M, 15).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from uavest.geometry.rotation import (
+    _CONJ,
+    _LI,
+    _LS,
+    _exp_rows,
+    _log_rows_into,
+    _normalise_into,
+    _qmul_rows,
+    quat_conj,
+    quat_exp,
+    quat_log,
+    quat_mul,
+)
+
+Array = np.ndarray
+
+#: slices of the ambient state (size 16)
+Q, V, P, BG, BA = slice(0, 4), slice(4, 7), slice(7, 10), slice(10, 13), slice(13, 16)
+#: slices of the tangent vector (dim 15)
+DTH, DV, DP, DBG, DBA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15)
+
+SIZE = 16
+DIM = 15
+
+
+def nav_retract_rows(x: Array, dx: Array) -> Array:
+    """:meth:`NavSpace.retract` for ``x`` (16,) or (M, 16) and ``dx`` (M, 15)."""
+    M = dx.shape[0]
+    E = _exp_rows(np.ascontiguousarray(dx[:, :3]))
+    if x.ndim == 1:
+        qe = E @ (x[:4][_LI] * _LS).T
+    else:
+        qe = _qmul_rows(x[:, :4], E)
+    out = np.empty((M, SIZE))
+    _normalise_into(qe, out[:, :4])
+    np.add(x[..., 4:], dx[:, 3:], out=out[:, 4:])
+    return out
+
+
+def nav_local_rows(x: Array, y: Array) -> Array:
+    """:meth:`NavSpace.local` for ``x`` (16,) or (M, 16) and ``y`` (M, 16)."""
+    if x.ndim == 1:
+        qq = y[:, :4] @ ((x[:4] * _CONJ)[_LI] * _LS).T
+    else:
+        qq = _qmul_rows(x[:, :4] * _CONJ, y[:, :4])
+    out = np.empty((y.shape[0], DIM))
+    _log_rows_into(qq, out[:, :3])
+    np.subtract(y[:, 4:], x[..., 4:], out=out[:, 3:])
+    return out
+
+
+class NavSpace:
+    """SO(3) x R^3 (v NED) x R^3 (p NED) x R^3 (gyro bias) x R^3 (accel bias).
+
+    ``size`` 16, tangent ``dim`` 15; see the module docstring for the layout and units.
+    """
+
+    dim = DIM
+    size = SIZE
+
+    def retract(self, x: Array, dx: Array) -> Array:
+        if dx.ndim == 2 and x.ndim <= 2 and (x.ndim == 1 or x.shape[0] == dx.shape[0]):
+            return nav_retract_rows(x, dx)
+        if dx.ndim == 1 and x.ndim == 1:
+            return nav_retract_rows(x, dx[None, :])[0]
+        return self._retract_broadcast(x, dx)
+
+    def local(self, x: Array, y: Array) -> Array:
+        if y.ndim == 2 and x.ndim <= 2 and (x.ndim == 1 or x.shape[0] == y.shape[0]):
+            return nav_local_rows(x, y)
+        if y.ndim == 1 and x.ndim == 1:
+            return nav_local_rows(x, y[None, :])[0]
+        return self._local_broadcast(x, y)
+
+    def _retract_broadcast(self, x: Array, dx: Array) -> Array:
+        q = quat_mul(x[..., :4], quat_exp(dx[..., :3]))
+        q /= np.sqrt(np.einsum("...i,...i->...", q, q))[..., None]
+        r = x[..., 4:] + dx[..., 3:]
+        lead = np.broadcast_shapes(q.shape[:-1], r.shape[:-1])
+        return np.concatenate(
+            [np.broadcast_to(q, lead + (4,)), np.broadcast_to(r, lead + (12,))], axis=-1
+        )
+
+    def _local_broadcast(self, x: Array, y: Array) -> Array:
+        d = quat_log(quat_mul(quat_conj(x[..., :4]), y[..., :4]))
+        r = y[..., 4:] - x[..., 4:]
+        d, r = np.broadcast_arrays(d, r)
+        return np.concatenate([d, r], axis=-1)
+
+    def mean(self, X: Array, w: Array, x0: Array | None = None) -> Array:
+        ref = X[0] if x0 is None else x0
+        q = X[:, :4]
+        sgn = np.where(q @ ref[:4] < 0.0, -1.0, 1.0)
+        qm = (w * sgn) @ q
+        nq = float(np.sqrt(qm @ qm))
+        start = np.empty(SIZE)
+        start[:4] = qm / nq if nq > 1e-9 else ref[:4]
+        start[4:] = w @ X[:, 4:]
+        # one Gauss-Newton (Karcher) step after the chordal start, as AttitudeSpace.mean
+        return nav_retract_rows(start, (w @ nav_local_rows(start, X))[None, :])[0]
+
+    def __repr__(self) -> str:
+        return "NavSpace(q*Exp(dtheta), v+dv, p+dp, bg+dbg, ba+dba)"

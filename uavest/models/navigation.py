@@ -1,0 +1,277 @@
+"""GNSS-aided inertial navigation models on :class:`~uavest.geometry.navigation.NavSpace`.
+
+State ``x = [q, v, p, bg, ba]`` (see the space's docstring: q body FRD -> NED, v NED m/s,
+p NED m from a LocalFrame origin, bg rad/s, ba m/s^2, both body FRD).
+
+Mechanisation (:class:`ImuTransition`), input ``u = [gyro (3, rad/s), specific force
+(3, m/s^2)]`` in body FRD, step ``dt`` (s), first order::
+
+    w   = u_g - bg [- R^T w_ie]           (Earth rate only when ``earth_rate=True``)
+    a_n = R(q) (u_a - ba) + (0, 0, g(lat, h))
+    q  <- q * Exp(w dt)
+    v  <- v + a_n dt
+    p  <- p + v dt + a_n dt^2 / 2
+    bg, ba <- bg, ba                       (random walks, in Q)
+
+g from :func:`~uavest.geometry.geodesy.gravity` (Somigliana) at the reference latitude and
+height given to the transition. Transport rate and Coriolis are omitted (local, short
+flights); the antenna lever arm is omitted.
+
+Aiding: :class:`GnssPosition` (NED m), :class:`GnssVelocity` (NED m/s),
+:class:`BaroHeight` (height up, m, with an offset estimated at start-up and held fixed,
+not a state), and :class:`OnNav` which moves an attitude measurement (MagHeading,
+MagField, GravityDirection) onto the navigation state.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from uavest.core.model import Measurement, Transition
+from uavest.geometry.geodesy import EARTH_RATE, gravity
+from uavest.geometry.navigation import NavSpace
+from uavest.geometry.rotation import quat_rotate, quat_rotate_inv, quat_to_dcm, skew
+from uavest.models.attitude import GyroTransition
+
+Array = np.ndarray
+
+SPACE = NavSpace()
+
+
+@dataclass(frozen=True)
+class NavNoise:
+    """Every noise parameter of the navigation model, per sensor, in one place.
+
+    gyro_noise: gyro angle random walk, rad/s/sqrt(Hz).
+    accel_noise: accelerometer velocity random walk, m/s^2/sqrt(Hz).
+    gyro_bias_walk: gyro bias random walk, rad/s^2/sqrt(Hz) (rad/s per sqrt(s)).
+    accel_bias_walk: accelerometer bias random walk, m/s^3/sqrt(Hz).
+    gnss_pos_floor: lower bound on the GNSS horizontal position std, m (also used
+        when the receiver reports no accuracy); gnss_vpos_floor: vertical, m.
+    gnss_vel_floor: lower bound on the GNSS velocity std per axis, m/s.
+    gnss_delay: GNSS measurement delay, s (the fix is applied to the state that far
+        back; 0: none).
+    baro_noise: barometric height std, m.
+    mag_noise: heading / field-direction std, rad.
+    gate_chi2: innovation gate, chi-square value per measurement dimension group
+        (applied as the 99.9 % quantile for the dimension when None).
+    init_tilt, init_yaw: prior std of roll/pitch and yaw, rad (init_yaw is large when
+        no magnetometer is available: yaw comes from the GNSS course once moving).
+    init_vel: m/s; init_pos: m; init_gyro_bias: rad/s; init_accel_bias: m/s^2.
+    """
+
+    gyro_noise: float = 0.003
+    accel_noise: float = 0.05
+    gyro_bias_walk: float = 5e-5
+    accel_bias_walk: float = 1e-3
+    gnss_pos_floor: float = 0.5
+    gnss_vpos_floor: float = 1.0
+    gnss_vel_floor: float = 0.1
+    gnss_delay: float = 0.0
+    baro_noise: float = 0.5
+    mag_noise: float = 0.08
+    init_tilt: float = np.deg2rad(5.0)
+    init_yaw: float = np.deg2rad(15.0)
+    init_vel: float = 1.0
+    init_pos: float = 5.0
+    init_gyro_bias: float = np.deg2rad(0.5)
+    init_accel_bias: float = 0.2
+
+    def with_(self, **kw: float) -> NavNoise:
+        """Copy with fields replaced (unknown names raise TypeError)."""
+        return replace(self, **kw)
+
+
+#: Defaults by IMU source (as :data:`uavest.models.attitude.SENSOR_DEFAULTS`); not tuned
+#: on logs yet.
+SENSOR_DEFAULTS: dict[str, NavNoise] = {
+    "mavlink_stream": NavNoise(gyro_noise=0.01, accel_noise=0.2, mag_noise=0.12),
+    "dataflash": NavNoise(),
+    "px4": NavNoise(gyro_noise=0.004),
+}
+
+
+def nav_noise_for_source(source: str) -> NavNoise:
+    """Default :class:`NavNoise` for an IMU source name."""
+    s = source.upper()
+    if s.startswith(("RAW_IMU", "SCALED_IMU", "HIGHRES_IMU")):
+        return SENSOR_DEFAULTS["mavlink_stream"]
+    if s.startswith("IMU"):
+        return SENSOR_DEFAULTS["dataflash"]
+    if "SENSOR" in s:
+        return SENSOR_DEFAULTS["px4"]
+    return NavNoise()
+
+
+class ImuTransition(Transition):
+    """IMU mechanisation (module docstring), vectorised over (M, 16) rows; ``F`` the
+    analytic tangent Jacobian for the right attitude error (Earth rate's dependence on
+    q neglected in F, ~7e-5 rad/s)."""
+
+    space = SPACE
+
+    def __init__(self, noise: NavNoise | None = None, lat: float = 0.0, h: float = 0.0,
+                 earth_rate: bool = False) -> None:
+        self.noise = noise or NavNoise()
+        self.lat = float(lat)  # rad
+        self.g = float(gravity(lat, h))
+        self.earth_rate = bool(earth_rate)
+        self.w_ie = EARTH_RATE * np.array([np.cos(lat), 0.0, -np.sin(lat)])  # NED
+        self._gyro = GyroTransition()
+
+    def _rates(self, X: Array, u: Array) -> tuple[Array, Array]:
+        w = u[:3] - X[..., 10:13]
+        if self.earth_rate:
+            w = w - quat_rotate_inv(X[..., :4], self.w_ie)
+        return w, u[3:6] - X[..., 13:16]
+
+    def f(self, X: Array, t: float, dt: float, u: Array | None = None) -> Array:
+        u = np.zeros(6) if u is None else np.asarray(u, float)
+        one = X.ndim == 1
+        X = np.atleast_2d(X)
+        w, fb = self._rates(X, u)
+        a = quat_rotate(X[:, :4], fb)
+        a[:, 2] += self.g
+        out = np.empty_like(X)
+        out[:] = X
+        out[:, :4] = _qstep(X[:, :4], w, dt)
+        out[:, 4:7] = X[:, 4:7] + a * dt
+        out[:, 7:10] = X[:, 7:10] + X[:, 4:7] * dt + 0.5 * dt * dt * a
+        return out[0] if one else out
+
+    def Q(self, t: float, dt: float, u: Array | None = None) -> Array:
+        n, dt = self.noise, abs(dt)
+        qa = n.gyro_noise**2 * dt + 1e-14
+        qv = n.accel_noise**2 * dt + 1e-14
+        qp = n.accel_noise**2 * dt**3 / 3.0 + 1e-14
+        qbg = n.gyro_bias_walk**2 * dt + 1e-16
+        qba = n.accel_bias_walk**2 * dt + 1e-16
+        Q = np.diag([qa] * 3 + [qv] * 3 + [qp] * 3 + [qbg] * 3 + [qba] * 3)
+        Q[3:6, 6:9] = Q[6:9, 3:6] = np.eye(3) * n.accel_noise**2 * dt**2 / 2.0
+        return Q
+
+    def F(self, x: Array, t: float, dt: float, u: Array | None = None) -> Array:
+        u = np.zeros(6) if u is None else np.asarray(u, float)
+        w, fb = self._rates(x[None], u)
+        Fa = self._gyro.F(np.concatenate([x[:4], np.zeros(3)]), t, dt, w[0])
+        R = quat_to_dcm(x[:4])
+        da_dth = -R @ skew(fb[0])
+        F = np.eye(15)
+        F[0:3, 0:3] = Fa[:3, :3]
+        F[0:3, 9:12] = Fa[:3, 3:]
+        F[3:6, 0:3] = da_dth * dt
+        F[3:6, 12:15] = -R * dt
+        F[6:9, 3:6] = np.eye(3) * dt
+        F[6:9, 0:3] = 0.5 * dt * dt * da_dth
+        F[6:9, 12:15] = -0.5 * dt * dt * R
+        return F
+
+
+def _qstep(q: Array, w: Array, dt: float) -> Array:
+    from uavest.geometry.rotation import _exp_rows, _normalise_into, _qmul_rows
+    out = np.empty_like(q)
+    _normalise_into(_qmul_rows(q, _exp_rows(np.ascontiguousarray(w * dt))), out)
+    return out
+
+
+class _Block(Measurement):
+    """A measurement that reads one Euclidean block of the nav state linearly."""
+
+    space = SPACE
+    linear = False
+    _sl: slice
+    _sign = 1.0
+    _offset = 0.0
+
+    def __init__(self, R: Array, rows: tuple[int, ...] = (0, 1, 2)) -> None:
+        self.rows = tuple(rows)
+        self.R = np.asarray(R, float)
+        idx = np.arange(self._sl.start, self._sl.stop)[list(self.rows)]
+        self._idx = idx
+        self._H = np.zeros((len(idx), 15))
+        self._H[np.arange(len(idx)), idx - 1] = self._sign
+
+    def h(self, X: Array) -> Array:
+        return self._sign * X[..., self._idx] + self._offset
+
+    def H(self, x: Array) -> Array:
+        return self._H
+
+    def H_rows(self, X: Array) -> Array:
+        return np.broadcast_to(self._H, (X.shape[0],) + self._H.shape)
+
+
+class GnssPosition(_Block):
+    """GNSS position in NED, m (from lat/lon/alt through the LocalFrame). ``rows``
+    (0, 1) for a 2-D fix (horizontal only). R from the receiver's eph/epv (or h_acc /
+    v_acc) with the floors of :class:`NavNoise` (:meth:`from_fix`)."""
+
+    _sl = slice(7, 10)
+
+    @staticmethod
+    def from_fix(ned: Array, fix_type: int, h_acc: float | None, v_acc: float | None,
+                 noise: NavNoise) -> tuple[Array, GnssPosition] | None:
+        """(z, model) for one fix, or None when the fix type is < 2 or a value is not
+        finite (no position update below a 2-D fix; 2-D: horizontal only)."""
+        ned = np.asarray(ned, float)
+        if fix_type < 2 or not np.all(np.isfinite(ned[:2])):
+            return None
+        sh = max(noise.gnss_pos_floor, h_acc if h_acc and np.isfinite(h_acc) else 0.0)
+        sv = max(noise.gnss_vpos_floor, v_acc if v_acc and np.isfinite(v_acc) else 0.0)
+        if fix_type == 2 or not np.isfinite(ned[2]):
+            return ned[:2], GnssPosition(np.diag([sh**2, sh**2]), rows=(0, 1))
+        return ned, GnssPosition(np.diag([sh**2, sh**2, sv**2]))
+
+
+class GnssVelocity(_Block):
+    """GNSS velocity in NED, m/s (or ``rows=(0, 1)`` from ground speed and course)."""
+
+    _sl = slice(4, 7)
+
+
+class BaroHeight(_Block):
+    """Barometric height up, m: h = -p_D + offset. The offset (baro height minus the
+    GNSS/initial height) is estimated once at start-up and held fixed; it is not a
+    state, so baro drift shows up as a height error the GNSS corrects."""
+
+    _sl = slice(7, 10)
+    _sign = -1.0
+
+    def __init__(self, R: Array, offset: float = 0.0) -> None:
+        self._offset = float(offset)
+        super().__init__(R, rows=(2,))
+
+
+class OnNav(Measurement):
+    """An attitude measurement (MagHeading, MagField, GravityDirection: reading only
+    q) on the navigation state: same h, residual and mean; H padded to 15 columns."""
+
+    space = SPACE
+
+    def __init__(self, inner: Measurement) -> None:
+        self.inner = inner
+        self.R = inner.R
+
+    def h(self, X: Array) -> Array:
+        return self.inner.h(X[..., :4])
+
+    def H(self, x: Array) -> Array:
+        Ha = self.inner.H(np.concatenate([x[:4], np.zeros(3)]))
+        H = np.zeros((Ha.shape[0], 15))
+        H[:, :3] = Ha[:, :3]
+        return H
+
+    def residual(self, a: Array, b: Array) -> Array:
+        return self.inner.residual(a, b)
+
+    def mean(self, Y: Array, w: Array) -> Array:
+        return self.inner.mean(Y, w)
+
+
+def innovation_gate(nu: Array, S: Array, chi2: float) -> bool:
+    """True when the innovation ``nu`` with covariance ``S`` passes the chi-square gate
+    ``nu^T S^-1 nu <= chi2`` (a 100 m GNSS jump fails it; callers count rejections)."""
+    d2 = float(nu @ np.linalg.solve(S, nu))
+    return bool(np.isfinite(d2) and d2 <= chi2)
