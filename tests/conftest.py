@@ -41,6 +41,12 @@ def shared_logs_dir() -> _Path:
     return _Path(env) if env else REPO_ROOT.parent / "shared" / "logs"
 
 
+def shared_sitl_dir() -> _Path:
+    """Where the shared ArduCopter SITL is: ``$UAVEST_SITL`` or ``repo_root/../shared/sitl``."""
+    env = os.environ.get("UAVEST_SITL")
+    return _Path(env) if env else REPO_ROOT.parent / "shared" / "sitl"
+
+
 def shared_log(name: str) -> _Path:
     """The path of one shared log, or skip the calling test with the reason."""
     import pytest

@@ -548,7 +548,12 @@ class LiveLink(MavlinkSource):
         out = []
         for name, st in self.stream_status.items():
             st.measured_hz = r.get(name, 0.0)
-            if st.measured_hz < min_fraction * st.requested_hz:
+            if st.measured_hz <= 0.0:  # never arrived: said as missing, by name
+                msg = (f"missing: {name} (requested {st.requested_hz:g} Hz, none received; "
+                       f"{st.method})")
+                log.warning(msg)
+                out.append(msg)
+            elif st.measured_hz < min_fraction * st.requested_hz:
                 msg = (f"{name}: {st.measured_hz:.1f} Hz arriving, {st.requested_hz:g} Hz "
                        f"requested ({st.method})")
                 log.warning(msg)
