@@ -100,7 +100,7 @@ def test_line_progress_off_a_terminal(capsys):
 
 
 def test_report_prints_one_line_per_stage_when_not_a_terminal(tmp_path, capsys, monkeypatch):
-    import uavest.cli.report as rep
+    import uavest.cli.progress as rep
     from conftest import shared_log
 
     from uavest.cli import main
