@@ -7,6 +7,9 @@ Layers (data flows one way; each imports only those above it in this list; check
 - ``uavest.errors`` (the error types), ``uavest.seeding`` (the per-stream random
   generators), ``uavest.layouts`` (the Foxglove layouts' data): leaves usable anywhere.
 - ``uavest.geometry``: rotations, quaternions, state spaces (``retract``/``local``), geodesy.
+- ``uavest.link``: the MAVLink link beside it (transport: UDP, TCP, serial; MAVLink 2
+  signing; framing: the encoder buffer, tlog records), shared by the live source, the
+  MAVLink publisher and the simulator; knows nothing of samples, filters or records.
 - ``uavest.core``: the filter core (knows nothing of MAVLink or files).
 - ``uavest.models``: transition and measurement models (know nothing of files).
 - ``uavest.ingest``, ``uavest.sim``: sources: bytes (tlog, DataFlash, ULog, live links) to

@@ -25,7 +25,7 @@ from uavest.ingest import (
 )
 from uavest.ingest.adsb_radar import AdsbRadar, RadarConfig, geodetic_to_ned, virtual_radar
 from uavest.ingest.detections import frd_from_rae
-from uavest.ingest.live import endpoint_key, signing_key_bytes
+from uavest.link import endpoint_key, signing_key_bytes
 
 
 def test_rae_matches_the_radar_model_conventions():

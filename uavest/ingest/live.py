@@ -14,14 +14,9 @@ See ``docs/live.md``.
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import logging
 import math
-import os
 import queue
-import select
-import socket
-import struct
 import threading
 import time
 from collections import deque
@@ -30,16 +25,27 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-os.environ.setdefault("MAVLINK20", "1")  # before any pymavlink.mavutil import (signing)
-
-from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from ..errors import InputError
-from .mavlink import MavlinkSource  # noqa: E402
-from .types import IngestError, LinkEvent  # noqa: E402
+from ..link import (  # (sets MAVLINK20 before any pymavlink.mavutil import: signing)
+    Disconnected,
+    Transport,
+    Writer,
+    enable_signing,
+    endpoint_key,
+    register_vehicle_endpoint,
+    reset_parser,
+    signing_key_bytes,
+    split_conn,
+    tlog_record,
+    unregister_vehicle_endpoint,
+)
+from ..link.framing import PRINTABLE
+from .mavlink import MavlinkSource
+from .types import IngestError, LinkEvent
 
-__all__ = ["LiveLink", "open_live", "DEFAULT_STREAMS", "signing_key_bytes", "endpoint_key",
-           "LinkTimeout"]
+__all__ = ["LiveLink", "open_live", "DEFAULT_STREAMS", "LinkTimeout"]
 
 log = logging.getLogger("uavest.live")
 
@@ -80,8 +86,6 @@ _NOT_VEHICLE_TYPES = {
     mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_GIMBAL, mavlink.MAV_TYPE_ADSB,
     mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_TYPE_CAMERA,
 }
-_SIGNING_EPOCH = datetime(2015, 1, 1, tzinfo=UTC).timestamp()  # MAVLink signing time base
-_PRINTABLE = set(range(0x20, 0x7F)) | {0x09, 0x0A, 0x0D}
 
 
 class LinkTimeout(IngestError):
@@ -89,184 +93,6 @@ class LinkTimeout(IngestError):
 
 
 # ------------------------------------------------------------------ helpers
-
-
-def signing_key_bytes(key: str | bytes | Path) -> bytes:
-    """The 32-byte MAVLink 2 signing key.
-
-    ``bytes`` of length 32 are the key.  A path to an existing file: its content, if it is
-    32 bytes, else its text stripped is a passphrase.  Any other string is a passphrase;
-    key = sha256(passphrase), the MAVProxy ``signing setup`` convention.
-    """
-    if isinstance(key, bytes):
-        if len(key) != 32:
-            raise InputError(f"signing key must be 32 bytes, got {len(key)}")
-        return key
-    p = Path(str(key))
-    with contextlib.suppress(OSError):
-        if p.is_file():
-            data = p.read_bytes()
-            if len(data) == 32:
-                return data
-            key = data.decode("utf-8", "replace").strip()
-    if not str(key):
-        raise InputError("empty signing passphrase")
-    return hashlib.sha256(str(key).encode("utf-8")).digest()
-
-
-def _split(conn: str) -> tuple[str, str]:
-    if ":" not in conn:
-        return "serial", conn
-    scheme, rest = conn.split(":", 1)
-    scheme = scheme.lower()
-    aliases = {"udp": "udpin", "tcpout": "tcp"}
-    scheme = aliases.get(scheme, scheme)
-    if scheme not in ("udpin", "udpout", "tcp", "tcpin"):
-        return "serial", conn
-    return scheme, rest
-
-
-def _hostport(rest: str, default_host: str) -> tuple[str, int]:
-    host, _, port = rest.rpartition(":")
-    if not port.isdigit():
-        raise InputError(f"bad connection address {rest!r}: expected host:port")
-    return (host or default_host), int(port)
-
-
-def endpoint_key(conn: str) -> tuple:
-    """A normalised (kind, address) key of a connection string, to compare two of them.
-
-    UDP in/out and TCP client/server on the same host and port compare equal (a publisher
-    there would talk to the vehicle's link); ``localhost`` and ``0.0.0.0`` count as
-    127.0.0.1; a serial device compares by path.
-    """
-    scheme, rest = _split(str(conn))
-    if scheme == "serial":
-        return ("serial", rest.split(",")[0])
-    host, port = _hostport(rest, "127.0.0.1")
-    if host in ("localhost", "0.0.0.0", ""):
-        host = "127.0.0.1"
-    return ("udp" if scheme.startswith("udp") else "tcp", host, port)
-
-
-_ACTIVE: dict[tuple, int] = {}  # endpoint_key -> number of open LiveLinks on it
-_ACTIVE_LOCK = threading.Lock()
-
-
-def is_vehicle_endpoint(conn: str) -> bool:
-    """True if a LiveLink in this process is open on the same endpoint as ``conn``."""
-    try:
-        k = endpoint_key(conn)
-    except ValueError:
-        return False
-    with _ACTIVE_LOCK:
-        return _ACTIVE.get(k, 0) > 0
-
-
-class _Disconnected(Exception):
-    pass
-
-
-class _Transport:
-    """Raw bytes over UDP, TCP or (through pymavlink's mavutil) a serial port."""
-
-    def __init__(self, conn: str, baud: int) -> None:
-        self.conn = conn
-        self.kind, rest = _split(conn)
-        self.sock: socket.socket | None = None
-        self.peer = None  # where writes go (UDP in: the last sender)
-        self.serial = None
-        self.listener: socket.socket | None = None
-        if self.kind == "udpin":
-            host, port = _hostport(rest, "127.0.0.1")  # loopback unless the user writes one
-            self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
-            self.sock.bind((host, port))
-        elif self.kind == "udpout":
-            self.peer = _hostport(rest, "127.0.0.1")
-            self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            self.sock.bind(("127.0.0.1" if self.peer[0].startswith("127.") else "0.0.0.0", 0))
-        elif self.kind == "tcp":
-            self.peer = _hostport(rest, "127.0.0.1")
-            self.sock = socket.create_connection(self.peer, timeout=2.0)
-            self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        elif self.kind == "tcpin":
-            self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-            self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            self.listener.bind(_hostport(rest, "127.0.0.1"))
-            self.listener.listen(1)
-        else:
-            from pymavlink import mavutil
-
-            dev, _, b = rest.partition(",")
-            self.serial = mavutil.mavlink_connection(dev, baud=int(b or baud))
-
-    def recv(self, timeout: float) -> bytes:
-        """Bytes available within ``timeout`` s (b"" if none); raises _Disconnected."""
-        if self.serial is not None:
-            if not self.serial.select(timeout):
-                return b""
-            return bytes(self.serial.recv(4096) or b"")
-        if self.listener is not None and self.sock is None:
-            r, _, _ = select.select([self.listener], [], [], timeout)
-            if not r:
-                return b""
-            self.sock, _ = self.listener.accept()
-            return b""
-        r, _, _ = select.select([self.sock], [], [], timeout)
-        if not r:
-            return b""
-        try:
-            if self.kind.startswith("udp"):
-                data, addr = self.sock.recvfrom(65536)
-                if self.kind == "udpin":
-                    self.peer = addr
-                return data
-            data = self.sock.recv(65536)
-        except (ConnectionError, OSError) as e:
-            raise _Disconnected(str(e)) from e
-        if not data:
-            if self.kind == "tcpin":
-                self.sock.close()
-                self.sock = None
-                return b""
-            raise _Disconnected("connection closed by peer")
-        return data
-
-    def write(self, buf: bytes) -> None:
-        try:
-            if self.serial is not None:
-                self.serial.write(buf)
-            elif self.kind.startswith("udp"):
-                if self.peer is not None:
-                    self.sock.sendto(buf, self.peer)
-            elif self.sock is not None:
-                self.sock.sendall(buf)
-        except OSError:
-            pass  # a lost link shows as a gap; sends are best effort
-
-    def close(self) -> None:
-        for s in (self.sock, self.listener):
-            if s is not None:
-                with contextlib.suppress(OSError):
-                    s.close()
-        if self.serial is not None:
-            with contextlib.suppress(Exception):
-                self.serial.close()
-
-
-class _Writer:
-    """Thread-safe write target for the MAVLink object (the current transport)."""
-
-    def __init__(self) -> None:
-        self.transport: _Transport | None = None
-        self.lock = threading.Lock()
-
-    def write(self, buf: bytes) -> None:
-        with self.lock:
-            if self.transport is not None:
-                self.transport.write(bytes(buf))
 
 
 class _RateMeter:
@@ -383,22 +209,25 @@ class LiveLink(MavlinkSource):
         self.flush_s = flush_s
         self.tlog_path = Path(tlog) if tlog is not None else None
         self._key = signing_key_bytes(signing_key) if signing_key is not None else None
-        if _split(conn)[0] != "serial":
+        if split_conn(conn)[0] != "serial":
             endpoint_key(conn)  # a bad host:port raises ValueError here, not in the thread
-        self._writer = _Writer()
+        self._init_parser(source_system, source_component)
+        self._init_reader(queue_size)
+        self._init_vehicle()
+
+    def _init_parser(self, source_system: int, source_component: int) -> None:
+        """Our MAVLink 2 parser and sender (writing to the current transport), signed and
+        strictly checked when a key is given."""
+        self._writer = Writer()
         self._mav = mavlink.MAVLink(self._writer, srcSystem=source_system,
                                     srcComponent=source_component)
         self._mav.robust_parsing = True
         if self._key is not None:
-            s = self._mav.signing
-            s.secret_key = self._key
-            s.sign_outgoing = True
-            s.link_id = 0
-            s.timestamp = int((time.time() - _SIGNING_EPOCH) * 1e5)
-            s.allow_unsigned_callback = lambda _mav, _msgid: False
-            # pymavlink's check_signature stores a packet's timestamp *before* checking its
-            # signature, so one forged packet with a future timestamp blocks the real stream
-            self._mav.check_signature = self._check_signature
+            enable_signing(self._mav, self._key, verify=True)
+
+    def _init_reader(self, queue_size: int) -> None:
+        """The reader thread's state: the queue to the consumer, the replies it hands to
+        the setup steps, the tlog buffer, the connection and the link times."""
         self._q: queue.Queue = queue.Queue(maxsize=queue_size)
         self._stop = threading.Event()
         self._hb = threading.Event()
@@ -416,6 +245,13 @@ class LiveLink(MavlinkSource):
         self._started = False
         self._closed = False
         self._registered = False
+        self._gen: Iterator | None = None
+        self._connected_once = False
+        self._connected_at = time.monotonic()
+        self._connect_error: str | None = None  # why the last connection attempt failed
+
+    def _init_vehicle(self) -> None:
+        """What we learn of the vehicle: identity, streams, events, declination."""
         self.vehicle_compid: int | None = None
         self.vehicle_type: int | None = None
         self.autopilot: int | None = None
@@ -429,10 +265,6 @@ class LiveLink(MavlinkSource):
         self._rates_checked = False
         self._requested_at: float | None = None
         self._need_request = False
-        self._gen: Iterator | None = None
-        self._connected_once = False
-        self._connected_at = time.monotonic()
-        self._connect_error: str | None = None  # why the last connection attempt failed
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> LiveLink:
@@ -444,10 +276,10 @@ class LiveLink(MavlinkSource):
             self.tlog_path.parent.mkdir(parents=True, exist_ok=True)
             self._tlog_f = open(self.tlog_path, "wb", buffering=0)  # noqa: SIM115
         try:
-            self._writer.transport = _Transport(self.conn, self.baud)
+            self._writer.transport = Transport(self.conn, self.baud)
             self._connected_once = True
         except OSError as e:
-            if _split(self.conn)[0] != "tcp":
+            if split_conn(self.conn)[0] != "tcp":
                 self._close_tlog()
                 raise IngestError(f"{self.conn}: cannot open ({e})") from None
             # a SITL not up yet: the reader keeps trying until the heartbeat timeout
@@ -455,9 +287,7 @@ class LiveLink(MavlinkSource):
         except ValueError as e:
             self._close_tlog()
             raise IngestError(f"{self.conn}: cannot open ({e})") from None
-        with _ACTIVE_LOCK:
-            k = endpoint_key(self.conn)
-            _ACTIVE[k] = _ACTIVE.get(k, 0) + 1
+        register_vehicle_endpoint(self.conn)
         self._registered = True
         self._thread = threading.Thread(target=self._reader, name="uavest-live-reader",
                                         daemon=True)
@@ -488,9 +318,7 @@ class LiveLink(MavlinkSource):
         self._reset_parser(count=True)
         self._close_tlog()
         if self._registered:
-            with _ACTIVE_LOCK:
-                k = endpoint_key(self.conn)
-                _ACTIVE[k] -= 1
+            unregister_vehicle_endpoint(self.conn)
             self._registered = False
 
     def __enter__(self) -> LiveLink:
@@ -567,7 +395,7 @@ class LiveLink(MavlinkSource):
             tr = self._writer.transport
             if tr is None:
                 try:
-                    tr = _Transport(self.conn, self.baud)
+                    tr = Transport(self.conn, self.baud)
                 except OSError as e:  # e.g. a refused TCP connection: said while waiting
                     self._connect_error = e.strerror or str(e) or type(e).__name__
                     self._stop.wait(backoff)
@@ -587,7 +415,7 @@ class LiveLink(MavlinkSource):
                 self._connected_once = True
             try:
                 data = tr.recv(0.05)
-            except _Disconnected:
+            except Disconnected:
                 self._drop_transport(tr)
                 continue
             except OSError:
@@ -615,20 +443,11 @@ class LiveLink(MavlinkSource):
 
     def _reset_parser(self, count: bool = False) -> None:
         """Forget buffered bytes; with ``count``, count them (truncated frame / junk)."""
-        mav = self._mav
-        left = bytes(mav.buf[mav.buf_index:])
-        if count and left:
-            if left[0] in (0xFD, 0xFE):
-                self.stats.truncated += 1
-            elif all(b in _PRINTABLE for b in left):
-                self.stats.non_mavlink += 1
-            else:
-                self.stats.corrupt += 1
-        mav.buf = bytearray()
-        mav.buf_index = 0
-        mav.expected_length = mavlink.HEADER_LEN_V1 + 2
+        kind = reset_parser(self._mav)
+        if count and kind is not None:
+            setattr(self.stats, kind, getattr(self.stats, kind) + 1)
 
-    def _drop_transport(self, tr: _Transport) -> None:
+    def _drop_transport(self, tr: Transport) -> None:
         """After a read error: TCP and serial are closed and reopened with backoff; a UDP
         socket stays (an ICMP 'port unreachable' for udpout is not a broken socket)."""
         if tr.kind.startswith("udp"):
@@ -650,7 +469,7 @@ class LiveLink(MavlinkSource):
                     st.bad_signature += 1
                 else:
                     st.unsigned += 1
-            elif data and all(b in _PRINTABLE for b in data):
+            elif data and all(b in PRINTABLE for b in data):
                 st.non_mavlink += 1  # e.g. the SITL boot banner on its TCP port
             else:
                 st.corrupt += 1
@@ -688,31 +507,11 @@ class LiveLink(MavlinkSource):
                 self._param_replies[str(pid).rstrip("\x00")] = float(m.param_value)
                 self._cond.notify_all()
         if self._tlog_f is not None:
-            self._tlog_buf += struct.pack(">Q", rx_us) + bytes(m.get_msgbuf())
+            self._tlog_buf += tlog_record(rx_us, bytes(m.get_msgbuf()))
         try:
             self._q.put_nowait((m, rx))
         except queue.Full:
             st.queue_overflow += 1
-
-    def _check_signature(self, msgbuf, src_system: int, src_component: int) -> bool:
-        """MAVLink 2 signature check: HMAC first, then the per-stream timestamp (replay)."""
-        sig = self._mav.signing
-        h = hashlib.sha256()
-        h.update(sig.secret_key)
-        h.update(msgbuf[:-6])
-        if h.digest()[:6] != bytes(msgbuf[-6:]):
-            return False
-        tlow, thigh = struct.unpack("<IH", bytes(msgbuf[-12:-6]))
-        ts = tlow + (thigh << 32)
-        key = (msgbuf[-13], src_system, src_component)
-        last = sig.stream_timestamps.get(key)
-        if last is not None and ts <= last:
-            return False  # replayed or duplicated signed packet
-        if last is None and ts + 6000 * 1000 < sig.timestamp:
-            return False  # a new stream more than a minute in the past
-        sig.stream_timestamps[key] = ts
-        sig.timestamp = max(sig.timestamp, ts)
-        return True
 
     @staticmethod
     def _is_vehicle(m) -> bool:

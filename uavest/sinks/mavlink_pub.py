@@ -5,8 +5,8 @@ vehicle, nor 255, the usual GCS), component ``MAV_COMP_ID_ONBOARD_COMPUTER`` (19
 HEARTBEAT of type ``MAV_TYPE_ONBOARD_CONTROLLER`` with ``MAV_AUTOPILOT_INVALID`` at 1 Hz,
 so no ground station mistakes it for a vehicle.  Never the vehicle's link: the constructor
 refuses (``ValueError``) a connection on the same endpoint as an open
-:class:`uavest.ingest.LiveLink` or the ``vehicle_conn`` given, unless
-``allow_vehicle_link=True``.
+:class:`uavest.ingest.LiveLink` (:func:`uavest.link.is_vehicle_endpoint`) or the
+``vehicle_conn`` given, unless ``allow_vehicle_link=True``.
 
 Messages:
 
@@ -41,12 +41,13 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
 from ..errors import InputError
 from ..geometry.rotation import quat_to_euler  # noqa: E402
-from ..ingest.live import (  # noqa: E402
-    _Transport,
-    _Writer,
+from ..link import (  # noqa: E402
+    Transport,
+    Writer,
+    enable_signing,
     endpoint_key,
     is_vehicle_endpoint,
-    signing_key_bytes,  # noqa: E402
+    signing_key_bytes,
 )
 
 __all__ = ["Publisher", "DEFAULT_SYSID", "icao_address"]
@@ -105,9 +106,9 @@ class Publisher:
         self.min_interval = 1.0 / rate_hz if rate_hz > 0 else 0.0
         self.dropped = 0
         self.sent = 0
-        self._writer = _Writer()
+        self._writer = Writer()
         try:
-            self._writer.transport = _Transport(conn, 115200)
+            self._writer.transport = Transport(conn, 115200)
         except (OSError, ValueError) as e:
             raise InputError(f"{conn}: cannot open publisher link ({e})") from None
         self._key = signing_key_bytes(signing_key) if signing_key is not None else None
@@ -130,9 +131,7 @@ class Publisher:
         if m is None:
             m = mavlink.MAVLink(self._writer, srcSystem=self.sysid, srcComponent=compid)
             if self._key is not None:
-                m.signing.secret_key = self._key
-                m.signing.sign_outgoing = True
-                m.signing.timestamp = int((time.time() - 1420070400) * 1e5)
+                enable_signing(m, self._key, verify=False)
             self._mavs[compid] = m
         return m
 
