@@ -10,7 +10,8 @@ from uavest.geometry.rotation import G0, quat_exp, quat_log, quat_mul, quat_to_d
 from uavest.scenarios import load_scenario
 from uavest.sim import Simulator
 from uavest.sim.radar import Radar, Targets
-from uavest.sim.vehicle import ImuModel, Manoeuvres, VehicleModel, stream_rng
+from uavest.sim.sensors import ImuModel
+from uavest.sim.vehicle import Manoeuvres, VehicleModel, stream_rng
 
 
 def _vehicle(man, jitter=0.0, period=None):

@@ -1,4 +1,4 @@
-"""Truth motion of the simulated multirotor and its onboard sensors.
+"""Truth motion of the simulated multirotor.
 
 Frames and units: world = local NED at the scenario origin (m, m/s), body = FRD,
 attitude quaternion ``q`` scalar-first rotating body FRD into NED
@@ -21,14 +21,7 @@ horizontal velocity is integrated with the trapezoidal rule (an IIR recursion ru
 Specific force (what an ideal accelerometer reads) ``f_b = R^T (a - [0, 0, g])``:
 level and still gives ``(0, 0, -g)``.
 
-Sensors (:class:`ImuModel`): gyro = body rate + bias + white noise + vibration; accel =
-specific force + bias + white noise + vibration; biases do a random walk. Noise is given
-as continuous densities and discretised at the IMU rate the usual way
-(``sigma_d = N sqrt(rate)`` for white noise, ``sigma_d = K / sqrt(rate)`` per step for
-the bias random walk); see O. J. Woodman, "An introduction to inertial navigation"
-(Cambridge UCAM-CL-TR-696, 2007) and IEEE Std 952-1997 (Allan variance terms N, K).
-Vibration: motor-frequency sinusoids (fundamental + 2nd harmonic) that alias at the
-IMU sample rate as on a real airframe.
+Sensors: :mod:`.sensors`.
 """
 
 from __future__ import annotations
@@ -265,122 +258,3 @@ class VehicleModel:
         e = euler.copy()
         e[:, 2] = (e[:, 2] + np.pi) % (2 * np.pi) - np.pi
         return TruthChunk(t, q, e, omega, pos, vel, acc, f_body, R)
-
-
-# ---------------------------------------------------------------------------- sensors
-
-
-@dataclass
-class ImuChunk:
-    """Sensor outputs at the IMU steps of a :class:`TruthChunk` (body FRD, SI)."""
-
-    gyro: Array  # (N, 3) rad/s
-    accel: Array  # (N, 3) m/s^2 specific force
-    gyro_bias: Array  # (N, 3) rad/s, the true bias in ``gyro``
-    accel_bias: Array  # (N, 3) m/s^2
-    mag: Array  # (N, 3) gauss, held between magnetometer updates
-    mag_new: Array  # (N,) bool, a new magnetometer sample at this step
-
-
-def _vec3(v, default) -> Array:
-    a = np.asarray(default if v is None else v, float)
-    return np.broadcast_to(a, (3,)).astype(float)
-
-
-def earth_field_ned(decl: float, incl: float, intensity: float) -> Array:
-    """Earth magnetic field in NED (gauss) from declination, inclination (rad, positive
-    east / down) and total intensity (gauss)."""
-    return intensity * np.array(
-        [np.cos(incl) * np.cos(decl), np.cos(incl) * np.sin(decl), np.sin(incl)]
-    )
-
-
-class ImuModel:
-    """Gyro, accelerometer and magnetometer (see module docstring).
-
-    Args:
-      cfg: the scenario's ``[imu]`` table (noise densities etc.).
-      mag_cfg: the ``[mag]`` table (declination_deg, inclination_deg, intensity_gauss,
-        noise_gauss, rate_hz, offsets_gauss).
-      rate: IMU sample rate (Hz).
-      seed: master seed (streams ``imu.gyro``, ``imu.accel``, ``imu.bias``, ``imu.vib``,
-        ``mag``).
-    """
-
-    def __init__(self, cfg: dict, mag_cfg: dict, rate: float, seed: int) -> None:
-        self.rate = float(rate)
-        self.dt = 1.0 / self.rate
-        r_bias = stream_rng(seed, "imu.bias")
-        self.rg, self.ra = stream_rng(seed, "imu.gyro"), stream_rng(seed, "imu.accel")
-        self.rbw = stream_rng(seed, "imu.bias_walk")
-        self.rmag = stream_rng(seed, "mag")
-        self.gyro_nd = float(cfg.get("gyro_noise_density", 1.5e-4))
-        self.accel_nd = float(cfg.get("accel_noise_density", 2.0e-3))
-        self.gyro_rw = float(cfg.get("gyro_bias_walk", 2.0e-5))
-        self.accel_rw = float(cfg.get("accel_bias_walk", 1.0e-4))
-        bg, ba = cfg.get("gyro_bias"), cfg.get("accel_bias")
-        self.bg = (_vec3(bg, 0.0) if bg is not None else
-                   r_bias.normal(0, float(cfg.get("gyro_bias_std", 0.01)), 3))
-        self.ba = (_vec3(ba, 0.0) if ba is not None else
-                   r_bias.normal(0, float(cfg.get("accel_bias_std", 0.05)), 3))
-        rv = stream_rng(seed, "imu.vib")
-        self.vib_f = float(cfg.get("vibration_hz", 137.0))
-        self.vib_a = _vec3(cfg.get("vibration_accel"), [0.6, 0.6, 1.5])
-        self.vib_g = _vec3(cfg.get("vibration_gyro"), [0.01, 0.01, 0.005])
-        self.vib_ph = rv.uniform(0, 2 * np.pi, (4, 3))
-        decl = np.deg2rad(float(mag_cfg.get("declination_deg", 0.0)))
-        incl = np.deg2rad(float(mag_cfg.get("inclination_deg", 60.0)))
-        self.declination = decl
-        self.b_ned = earth_field_ned(decl, incl, float(mag_cfg.get("intensity_gauss", 0.5)))
-        self.mag_off = _vec3(mag_cfg.get("offsets_gauss"), 0.0)
-        self.mag_noise = float(mag_cfg.get("noise_gauss", 0.003))
-        self.mag_rate = float(mag_cfg.get("rate_hz", 50.0))
-        self._mag_last = None
-        self._mag_k = -1
-
-    def chunk(self, tr: TruthChunk) -> ImuChunk:
-        n = tr.t.size
-        sq = np.sqrt(self.dt)
-        wg = self.rg.standard_normal((n, 3)) * (self.gyro_nd / sq)
-        wa = self.ra.standard_normal((n, 3)) * (self.accel_nd / sq)
-        walk = self.rbw.standard_normal((n, 6)) * sq
-        bg = self.bg + np.cumsum(walk[:, :3] * self.gyro_rw, axis=0)
-        ba = self.ba + np.cumsum(walk[:, 3:] * self.accel_rw, axis=0)
-        self.bg, self.ba = bg[-1].copy(), ba[-1].copy()
-        ph = 2 * np.pi * self.vib_f * tr.t[:, None]
-        vib1 = np.sin(ph + self.vib_ph[0]) + 0.4 * np.sin(2 * ph + self.vib_ph[1])
-        vib2 = np.sin(ph + self.vib_ph[2]) + 0.4 * np.sin(2 * ph + self.vib_ph[3])
-        gyro = tr.omega + bg + wg + self.vib_g * vib1
-        accel = tr.f_body + ba + wa + self.vib_a * vib2
-        # magnetometer: new sample when floor(t * rate) advances, held in between
-        b_body = np.einsum("nji,j->ni", tr.R, self.b_ned) + self.mag_off
-        noise = self.rmag.standard_normal((n, 3)) * self.mag_noise
-        k = np.floor(tr.t * self.mag_rate + 1e-9).astype(np.int64)
-        new = np.r_[k[0] != self._mag_k, k[1:] != k[:-1]]
-        fresh = b_body + noise
-        idx = np.maximum.accumulate(np.where(new, np.arange(n), -1))
-        mag = np.where((idx >= 0)[:, None], fresh[np.maximum(idx, 0)],
-                       self._mag_last if self._mag_last is not None else fresh[0])
-        self._mag_last, self._mag_k = mag[-1].copy(), k[-1]
-        return ImuChunk(gyro, accel, bg, ba, mag, new)
-
-
-class GaussMarkov:
-    """First-order Gauss-Markov process per component: stationary std ``sigma``, time
-    constant ``tau`` (s), sampled every ``dt`` s (exact discretisation)."""
-
-    def __init__(self, sigma, tau: float, dt: float, rng: np.random.Generator) -> None:
-        self.sigma = np.atleast_1d(np.asarray(sigma, float))
-        self.phi = float(np.exp(-dt / tau))
-        self.rng = rng
-        self.x = self.sigma * rng.standard_normal(self.sigma.size)
-
-    def run(self, n: int) -> Array:
-        """The next ``n`` samples (n, k)."""
-        w = self.rng.standard_normal((n, self.sigma.size)) * self.sigma * np.sqrt(1 - self.phi**2)
-        y, _ = lfilter([1.0], [1.0, -self.phi], w, axis=0, zi=(self.phi * self.x)[None, :])
-        self.x = y[-1].copy()
-        return y
-
-    def step(self) -> Array:
-        return self.run(1)[0]
