@@ -17,7 +17,7 @@ from uavest.report import read_recording, write_report
 from uavest.report.build import ATTITUDE_FIGURES, RADAR_FIGURES
 from uavest.report.radar_demo import run_radar_demo
 from uavest.sinks.base import Collector, Sink
-from uavest.sinks.foxglove_channels import ned_frd_to_enu_flu, triu_to_full
+from uavest.sinks.foxglove import ned_frd_to_enu_flu, triu_to_full
 from uavest.sinks.mcap import McapSink
 
 VTOL = shared_logs_dir() / "vtol.tlog"

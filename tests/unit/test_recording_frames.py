@@ -9,15 +9,9 @@ import pytest
 from uavest.geometry.rotation import euler_to_quat, quat_exp, quat_mul, quat_to_dcm, quat_to_euler
 from uavest.layouts import build_layout, colour, layout_text, shipped
 from uavest.report.protowire import ProtoDecoder
-from uavest.sinks.foxglove_channels import (
-    _enu_flu_rows,
-    _nees_rows,
-    _rpy_rows,
-    _sigma3_rows,
-    euler_sigma_deg,
-    ned_frd_to_enu_flu,
-    quat_to_rpy_deg,
-)
+from uavest.sinks.foxglove import euler_sigma_deg, ned_frd_to_enu_flu, quat_to_rpy_deg
+from uavest.sinks.foxglove.attitude import _nees_rows, _rpy_rows, _sigma3_rows
+from uavest.sinks.foxglove.frames import _enu_flu_rows
 
 A_NED2ENU = np.array([[0.0, 1, 0], [1, 0, 0], [0, 0, -1]])
 B_FLU2FRD = np.diag([1.0, -1, -1])
@@ -114,7 +108,7 @@ def test_colours_are_fixed_per_label():
 
 def test_track_ellipsoid_is_three_sigma_along_the_principal_axes():
     from uavest.geometry.rotation import quat_to_dcm
-    from uavest.sinks.foxglove_channels import _ellipsoid
+    from uavest.sinks.foxglove.radar import _ellipsoid
 
     c, s = np.cos(0.5), np.sin(0.5)
     R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
@@ -133,7 +127,7 @@ def test_publisher_survives_a_diverged_filter(tmp_path):
 
     from uavest.engine.records import StepRecord
     from uavest.report import read_recording
-    from uavest.sinks.foxglove_channels import Publisher
+    from uavest.sinks.foxglove import Publisher
 
     ctx = foxglove.Context()
     w = foxglove.open_mcap(str(tmp_path / "nan.mcap"), context=ctx)
@@ -185,8 +179,8 @@ def test_own_frame_encoding_equals_the_sdks():
     which the SDK leaves out)."""
     import foxglove.messages as fm
 
-    from uavest.sinks import foxglove_channels as fc
     from uavest.sinks import protobuf as pb
+    from uavest.sinks.foxglove import frames as fc
 
     dt = ProtoDecoder(fm.FrameTransform.get_schema().data)
     dp = ProtoDecoder(fm.PoseInFrame.get_schema().data)
@@ -258,7 +252,7 @@ def test_3d_channels_are_rate_limited_by_default(tmp_path):
     rate of data time (DEFAULT_FRAME_RATE_HZ); frame_rate_hz=None gives every step."""
     from uavest.engine.records import RunInfo, StepRecord
     from uavest.report import read_recording
-    from uavest.sinks.foxglove_channels import DEFAULT_FRAME_RATE_HZ as R
+    from uavest.sinks.foxglove import DEFAULT_FRAME_RATE_HZ as R
     from uavest.sinks.mcap import McapSink
 
     recs = [StepRecord("ekf", k, k / 250.0, np.array([1.0, 0, 0, 0, 0, 0, 0]),

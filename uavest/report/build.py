@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ..layouts import REFERENCE_COLOUR, colour
-from ..sinks.foxglove_channels import b64_floats, triu_to_full
+from ..sinks.foxglove import b64_floats, triu_to_full
 from .read import Recording, read_recording
 
 Array = np.ndarray
@@ -156,7 +156,7 @@ def attitude_metrics(data: dict) -> tuple[dict, dict]:
     """(rows per filter, per-step series per filter) recomputed from the recording."""
     from ..eval.attitude import euler_errors_deg, nees_attitude, rmse_deg, select_reference
     from ..geometry.rotation import quat_slerp_interp, quat_to_euler
-    from ..sinks.foxglove_channels import euler_sigma_deg
+    from ..sinks.foxglove import euler_sigma_deg
 
     refs = data["refs"]
     ref, _ = select_reference({k: _Ref(v[0], v[1]) for k, v in refs.items()})

@@ -1,5 +1,5 @@
 """Live view: a Foxglove WebSocket server (foxglove-sdk, protocol ``foxglove.sdk.v1``) on
-loopback publishing the channels of :mod:`uavest.sinks.foxglove_channels` (the same
+loopback publishing the channels of :mod:`uavest.sinks.foxglove` (the same
 channels and messages as the MCAP recording) while a run goes on. Open Foxglove ->
 *Open connection* -> *Foxglove WebSocket* ``ws://127.0.0.1:8765`` and import the layout
 ``uavest/layouts/attitude.json`` (or ``radar.json``).
@@ -13,7 +13,7 @@ import time
 
 from ..engine.records import RunInfo, ScanRecord, StepRecord
 from .base import Sink
-from .foxglove_channels import DEFAULT_FRAME_RATE_HZ, Publisher
+from .foxglove import DEFAULT_FRAME_RATE_HZ, Publisher
 
 __all__ = ["FoxgloveLiveSink"]
 

@@ -1,4 +1,4 @@
-"""MCAP recording sink: every channel of :mod:`uavest.sinks.foxglove_channels`, written with
+"""MCAP recording sink: every channel of :mod:`uavest.sinks.foxglove`, written with
 foxglove-sdk's MCAP writer (Foxglove's well-known protobuf schemas, so the app's 3-D, plot,
 map and log panels work with no set-up; uavest's per-step quantities and raw samples as
 protobuf messages of its own schema, :mod:`uavest.sinks.protobuf`, encoded in batches; the
@@ -26,7 +26,8 @@ from pathlib import Path
 
 from ..engine.records import RunInfo
 from .base import Sink
-from .foxglove_channels import DEFAULT_FRAME_RATE_HZ, Publisher, _jsonable
+from .foxglove import DEFAULT_FRAME_RATE_HZ, Publisher
+from .foxglove.encode import _jsonable
 
 __all__ = ["CHANNEL_SET_VERSION", "McapSink"]
 
@@ -39,7 +40,7 @@ class McapSink(Sink):
 
     ``frame_rate_hz``: limit of the 3-D channels (``/tf/*``, ``/attitude/*/pose``) per
     estimator and per reference in Hz of data time (default
-    :data:`~uavest.sinks.foxglove_channels.DEFAULT_FRAME_RATE_HZ` = 15 Hz: the bodies in
+    :data:`~uavest.sinks.foxglove.DEFAULT_FRAME_RATE_HZ` = 15 Hz: the bodies in
     the 3-D view move at that rate; None or 0: every step). The per-step channels always
     carry every step.
     ``chunk_size``: target uncompressed chunk size in bytes; ``flush_s``: close the open
