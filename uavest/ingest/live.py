@@ -30,18 +30,18 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from ..errors import InputError
 from ..link import (  # (sets MAVLINK20 before any pymavlink.mavutil import: signing)
     Disconnected,
+    TlogWriter,
     Transport,
     Writer,
+    bad_data_kind,
     enable_signing,
     endpoint_key,
     register_vehicle_endpoint,
     reset_parser,
     signing_key_bytes,
     split_conn,
-    tlog_record,
     unregister_vehicle_endpoint,
 )
-from ..link.framing import PRINTABLE
 from .mavlink import MavlinkSource
 from .types import IngestError, LinkEvent
 
@@ -127,6 +127,56 @@ class _RateMeter:
                     span = min(self.window, now - self.first[name])
                     out[name] = len(ts) / span if span > 0.2 else 0.0
         return out
+
+
+class _Replies:
+    """COMMAND_ACKs and PARAM_VALUEs put by the reader thread, awaited by the setup steps."""
+
+    def __init__(self) -> None:
+        self.cond = threading.Condition()
+        self.acks: deque = deque(maxlen=64)  # (command, result, monotonic time)
+        self.params: dict[str, float] = {}
+
+    def ack(self, command: int, result: int) -> None:
+        with self.cond:
+            self.acks.append((command, result, time.monotonic()))
+            self.cond.notify_all()
+
+    def param(self, name: str, value: float) -> None:
+        with self.cond:
+            self.params[name] = value
+            self.cond.notify_all()
+
+    def forget(self, name: str) -> None:
+        """Drop an earlier answer for ``name`` (before asking again)."""
+        with self.cond:
+            self.params.pop(name, None)
+
+    def wait_ack(self, command: int, since: float, timeout: float) -> int | None:
+        """The result of the first ACK of ``command`` received since ``since`` (monotonic
+        s), None after ``timeout`` s."""
+        end = time.monotonic() + timeout
+        with self.cond:
+            while True:
+                for c, r, t in self.acks:
+                    if c == command and t >= since:
+                        self.acks.remove((c, r, t))
+                        return r
+                left = end - time.monotonic()
+                if left <= 0:
+                    return None
+                self.cond.wait(left)
+
+    def wait_param(self, name: str, timeout: float) -> float | None:
+        """The value of parameter ``name``, None after ``timeout`` s."""
+        end = time.monotonic() + timeout
+        with self.cond:
+            while name not in self.params:
+                left = end - time.monotonic()
+                if left <= 0:
+                    return None
+                self.cond.wait(left)
+            return self.params[name]
 
 
 @dataclass
@@ -231,15 +281,11 @@ class LiveLink(MavlinkSource):
         self._q: queue.Queue = queue.Queue(maxsize=queue_size)
         self._stop = threading.Event()
         self._hb = threading.Event()
-        self._cond = threading.Condition()
-        self._acks: deque = deque(maxlen=64)  # (command, result, monotonic time)
-        self._param_replies: dict[str, float] = {}
+        self._replies = _Replies()
         self._rates = _RateMeter()
         self._events: deque = deque(maxlen=256)  # LinkEvents from the reader thread
         self._thread: threading.Thread | None = None
-        self._tlog_f = None
-        self._tlog_buf = bytearray()
-        self._last_flush = 0.0
+        self._tlog: TlogWriter | None = None
         self._last_rx_mono = time.monotonic()
         self._last_rx_unix: float | None = None
         self._started = False
@@ -274,7 +320,7 @@ class LiveLink(MavlinkSource):
         self._started = True
         if self.tlog_path is not None:
             self.tlog_path.parent.mkdir(parents=True, exist_ok=True)
-            self._tlog_f = open(self.tlog_path, "wb", buffering=0)  # noqa: SIM115
+            self._tlog = TlogWriter(self.tlog_path, self.flush_s)
         try:
             self._writer.transport = Transport(self.conn, self.baud)
             self._connected_once = True
@@ -332,20 +378,13 @@ class LiveLink(MavlinkSource):
             self.close()
 
     def _close_tlog(self) -> None:
-        if self._tlog_f is not None:
-            self._flush_tlog(force=True)
-            self._tlog_f.close()
-            self._tlog_f = None
+        if self._tlog is not None:
+            self._tlog.close()
+            self._tlog = None
 
-    def _flush_tlog(self, force: bool = False) -> None:
-        now = time.monotonic()
-        if self._tlog_f is None or not self._tlog_buf:
-            return
-        if force or now - self._last_flush >= self.flush_s or len(self._tlog_buf) > 1 << 16:
-            # one unbuffered write of whole records: the file always ends on a record
-            self._tlog_f.write(bytes(self._tlog_buf))
-            self._tlog_buf.clear()
-            self._last_flush = now
+    def _flush_tlog(self) -> None:
+        if self._tlog is not None:
+            self._tlog.flush()
 
     # ------------------------------------------------------------ status
     @property
@@ -461,18 +500,8 @@ class LiveLink(MavlinkSource):
         st = self.stats
         name = m.get_type()
         if name == "BAD_DATA":
-            reason = str(getattr(m, "reason", ""))
-            data = bytes(getattr(m, "data", b"") or b"")
-            if "signature" in reason.lower():
-                signed = len(data) > 2 and data[0] == 0xFD and data[2] & 0x01
-                if signed:
-                    st.bad_signature += 1
-                else:
-                    st.unsigned += 1
-            elif data and all(b in PRINTABLE for b in data):
-                st.non_mavlink += 1  # e.g. the SITL boot banner on its TCP port
-            else:
-                st.corrupt += 1
+            kind = bad_data_kind(m)
+            setattr(st, kind, getattr(st, kind) + 1)
             return
         if name.startswith("UNKNOWN"):
             st.unknown_message += 1
@@ -496,18 +525,14 @@ class LiveLink(MavlinkSource):
         self._last_rx_mono = time.monotonic()
         self._rates.add(name, rx)
         if name == "COMMAND_ACK":
-            with self._cond:
-                self._acks.append((int(m.command), int(m.result), time.monotonic()))
-                self._cond.notify_all()
+            self._replies.ack(int(m.command), int(m.result))
         elif name == "PARAM_VALUE":
             pid = m.param_id
             if isinstance(pid, bytes):
                 pid = pid.decode("ascii", "replace")
-            with self._cond:
-                self._param_replies[str(pid).rstrip("\x00")] = float(m.param_value)
-                self._cond.notify_all()
-        if self._tlog_f is not None:
-            self._tlog_buf += tlog_record(rx_us, bytes(m.get_msgbuf()))
+            self._replies.param(str(pid).rstrip("\x00"), float(m.param_value))
+        if self._tlog is not None:
+            self._tlog.add(rx_us, bytes(m.get_msgbuf()))
         try:
             self._q.put_nowait((m, rx))
         except queue.Full:
@@ -548,19 +573,6 @@ class LiveLink(MavlinkSource):
     def _target(self) -> tuple[int, int]:
         return int(self.sysid or 1), int(self.vehicle_compid or 1)
 
-    def _wait_ack(self, command: int, since: float, timeout: float) -> int | None:
-        end = time.monotonic() + timeout
-        with self._cond:
-            while True:
-                for c, r, t in self._acks:
-                    if c == command and t >= since:
-                        self._acks.remove((c, r, t))
-                        return r
-                left = end - time.monotonic()
-                if left <= 0:
-                    return None
-                self._cond.wait(left)
-
     def request_streams(self, wait: bool = True) -> dict[str, StreamStatus]:
         """Ask for :attr:`streams`: SET_MESSAGE_INTERVAL each (ACK awaited if ``wait``),
         REQUEST_DATA_STREAM for those refused or unanswered.  Returns :attr:`stream_status`."""
@@ -577,8 +589,8 @@ class LiveLink(MavlinkSource):
                                         float(msgid), float(1e6 / hz), 0, 0, 0, 0, 0)
             res = None
             if wait and (answered or i == 0):  # no ACK to the first: the vehicle gives none
-                res = self._wait_ack(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, since,
-                                     self.ack_timeout)
+                res = self._replies.wait_ack(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, since,
+                                             self.ack_timeout)
                 answered = answered or res is not None
             st.ack = res
             if res == mavlink.MAV_RESULT_ACCEPTED:
@@ -600,18 +612,10 @@ class LiveLink(MavlinkSource):
         return self.stream_status
 
     def _read_param(self, name: str, timeout: float) -> float | None:
-        with self._cond:
-            self._param_replies.pop(name, None)
+        self._replies.forget(name)
         ts, tc = self._target()
         self._mav.param_request_read_send(ts, tc, name.encode("ascii"), -1)
-        end = time.monotonic() + timeout
-        with self._cond:
-            while name not in self._param_replies:
-                left = end - time.monotonic()
-                if left <= 0:
-                    return None
-                self._cond.wait(left)
-            return self._param_replies[name]
+        return self._replies.wait_param(name, timeout)
 
     def _read_declination(self) -> None:
         dec = self._read_param("COMPASS_DEC", self.param_timeout)
@@ -632,8 +636,7 @@ class LiveLink(MavlinkSource):
         self._gps_fix = (lat, lon, alt)
         if self._autodec:  # the autopilot computes it after lock: ask again (answer async)
             ts, tc = self._target()
-            with self._cond:
-                self._param_replies.pop("COMPASS_DEC", None)
+            self._replies.forget("COMPASS_DEC")
             self._mav.param_request_read_send(ts, tc, b"COMPASS_DEC", -1)
         try:  # the host's date: a day's error changes the declination by < 0.001 deg
             from ..geometry.magnetic import declination

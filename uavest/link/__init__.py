@@ -9,8 +9,8 @@ nothing of samples, filters or records (only :mod:`uavest.errors` and pymavlink)
   and the registry of the endpoints open as a vehicle link;
 * :mod:`.signing`: MAVLink 2 signing (the key, signing what we send, the strict check of
   what we receive);
-* :mod:`.framing`: MAVLink 2 frames as bytes (the encoder buffer, the tlog record, the
-  parser's left-over bytes classified).
+* :mod:`.framing`: MAVLink 2 frames as bytes (the encoder buffer, tlog records and the
+  tlog writer, the parser's left-over bytes and bad packets classified).
 
 See ``docs/live.md``.
 """
@@ -19,7 +19,13 @@ import os
 
 os.environ.setdefault("MAVLINK20", "1")  # before any pymavlink.mavutil import (signing)
 
-from .framing import FrameEncoder, reset_parser, tlog_record  # noqa: E402
+from .framing import (  # noqa: E402
+    FrameEncoder,
+    TlogWriter,
+    bad_data_kind,
+    reset_parser,
+    tlog_record,
+)
 from .signing import SIGNING_EPOCH, enable_signing, signing_key_bytes  # noqa: E402
 from .transport import (  # noqa: E402
     Disconnected,
@@ -32,7 +38,8 @@ from .transport import (  # noqa: E402
     unregister_vehicle_endpoint,
 )
 
-__all__ = ["Disconnected", "FrameEncoder", "SIGNING_EPOCH", "Transport", "Writer",
+__all__ = ["Disconnected", "FrameEncoder", "SIGNING_EPOCH", "TlogWriter", "Transport", "Writer",
+           "bad_data_kind",
            "enable_signing", "endpoint_key", "is_vehicle_endpoint",
            "register_vehicle_endpoint", "reset_parser", "signing_key_bytes", "split_conn",
            "tlog_record", "unregister_vehicle_endpoint"]

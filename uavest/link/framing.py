@@ -7,10 +7,12 @@ in microseconds, then one frame as sent or received.
 from __future__ import annotations
 
 import struct
+import time
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-__all__ = ["FrameEncoder", "PRINTABLE", "reset_parser", "tlog_record"]
+__all__ = ["FrameEncoder", "PRINTABLE", "TlogWriter", "bad_data_kind", "reset_parser",
+           "tlog_record"]
 
 #: Bytes of text (a boot banner, a shell prompt): what is not MAVLink on a serial/TCP port.
 PRINTABLE = frozenset(range(0x20, 0x7F)) | {0x09, 0x0A, 0x0D}
@@ -65,3 +67,49 @@ def reset_parser(mav) -> str | None:
     mav.buf_index = 0
     mav.expected_length = mavlink.HEADER_LEN_V1 + 2
     return kind
+
+
+class TlogWriter:
+    """A tlog written as it is received: :meth:`add` buffers records, :meth:`flush`
+    writes them in one unbuffered write of whole records at most every ``flush_s`` s
+    (or past 64 KiB), so the file always ends on a record boundary."""
+
+    def __init__(self, path, flush_s: float) -> None:
+        self.f = open(path, "wb", buffering=0)  # noqa: SIM115
+        self.flush_s = flush_s
+        self.buf = bytearray()
+        self.last_flush = 0.0
+
+    def add(self, t_us: int, frame: bytes) -> None:
+        """Buffer one record (``t_us``: UNIX us)."""
+        self.buf += tlog_record(t_us, frame)
+
+    def flush(self, force: bool = False) -> None:
+        """Write the buffered records if ``flush_s`` has passed (or ``force``)."""
+        now = time.monotonic()
+        if not self.buf:
+            return
+        if force or now - self.last_flush >= self.flush_s or len(self.buf) > 1 << 16:
+            # one unbuffered write of whole records: the file always ends on a record
+            self.f.write(bytes(self.buf))
+            self.buf.clear()
+            self.last_flush = now
+
+    def close(self) -> None:
+        """Write what is buffered and close the file."""
+        self.flush(force=True)
+        self.f.close()
+
+
+def bad_data_kind(m) -> str:
+    """What a pymavlink ``BAD_DATA`` message was, as an :class:`uavest.ingest.IngestStats`
+    counter: ``bad_signature`` (signed, wrong signature), ``unsigned`` (refused for want
+    of a signature), ``non_mavlink`` (text, e.g. a SITL boot banner) or ``corrupt``."""
+    reason = str(getattr(m, "reason", ""))
+    data = bytes(getattr(m, "data", b"") or b"")
+    if "signature" in reason.lower():
+        signed = len(data) > 2 and data[0] == 0xFD and data[2] & 0x01
+        return "bad_signature" if signed else "unsigned"
+    if data and all(b in PRINTABLE for b in data):
+        return "non_mavlink"
+    return "corrupt"
