@@ -6,9 +6,10 @@ depend on the machine's load.
     OPENBLAS_NUM_THREADS=1 python benchmarks/recorder_per_record.py [LOG] [--seconds 10]
         [--rate-hz 0] [--repeats 5] [--old REV] [--frame-rate-hz 30] [--profile]
 
-``--old REV`` (e.g. ``main``) loads ``uavest/sinks/foxglove_channels.py`` and
-``uavest/sinks/mcap.py`` of that git revision into temporary modules and times them on
-the same calls (the old sink with its own defaults, i.e. every step on the 3-D channels).
+``--old REV`` (e.g. ``main``) loads the Foxglove channels (``uavest/sinks/foxglove/``, or
+``foxglove_channels.py`` before the package) and ``uavest/sinks/mcap.py`` of that git
+revision into temporary modules and times them on the same calls (the old sink with its
+own defaults).
 Prints the CPU time of all calls per filter record (the recorder's whole cost divided by
 the filter records; samples and the error messages they release included), of the
 records alone (no samples, so no reference and no error channel), and the ratios.
@@ -58,25 +59,46 @@ class Capture(Sink):
         self.calls.append(("record", (r,)))
 
 
+def _git_show(rev: str, path: str) -> str:
+    return subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:{path}"],
+                          check=True, capture_output=True, text=True).stdout
+
+
+def _load(name: str, path: Path, package: bool = False):
+    spec = importlib.util.spec_from_file_location(
+        f"uavest.sinks.{name}", path,
+        submodule_search_locations=[str(path.parent)] if package else None)
+    m = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = m
+    spec.loader.exec_module(m)
+    return m
+
+
 def old_sink_class(rev: str, tmp: Path):
-    """McapSink of git revision ``rev`` (its own foxglove_channels), as temporary modules
-    of the ``uavest.sinks`` package (so their relative imports resolve)."""
-    fc = subprocess.run(["git", "-C", str(ROOT), "show",
-                         f"{rev}:uavest/sinks/foxglove_channels.py"],
-                        check=True, capture_output=True, text=True).stdout
-    mc = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:uavest/sinks/mcap.py"],
-                        check=True, capture_output=True, text=True).stdout
-    mc = mc.replace("from .foxglove_channels import", "from ._old_foxglove_channels import")
-    mods = {}
-    for name, text in (("_old_foxglove_channels", fc), ("_old_mcap", mc)):
-        p = tmp / f"{name}.py"
-        p.write_text(text)
-        spec = importlib.util.spec_from_file_location(f"uavest.sinks.{name}", p)
-        m = importlib.util.module_from_spec(spec)
-        sys.modules[spec.name] = m
-        spec.loader.exec_module(m)
-        mods[name] = m
-    return mods["_old_mcap"].McapSink
+    """McapSink of git revision ``rev`` (its own Foxglove channels: the package
+    ``uavest/sinks/foxglove/`` or, before it, the one file ``foxglove_channels.py``), as
+    temporary modules of the ``uavest.sinks`` package (so their relative imports
+    resolve)."""
+    mc = _git_show(rev, "uavest/sinks/mcap.py")
+    files = subprocess.run(["git", "-C", str(ROOT), "ls-tree", "--name-only", rev,
+                            "uavest/sinks/foxglove/"],
+                           check=True, capture_output=True, text=True).stdout.split()
+    if files:  # the package: every module under uavest.sinks._old_foxglove
+        d = tmp / "_old_foxglove"
+        d.mkdir()
+        for f in files:
+            (d / Path(f).name).write_text(_git_show(rev, f))
+        mc = mc.replace("from .foxglove import", "from ._old_foxglove import")
+        mc = mc.replace("from .foxglove.", "from ._old_foxglove.")
+        _load("_old_foxglove", d / "__init__.py", package=True)
+    else:
+        p = tmp / "_old_foxglove_channels.py"
+        p.write_text(_git_show(rev, "uavest/sinks/foxglove_channels.py"))
+        mc = mc.replace("from .foxglove_channels import", "from ._old_foxglove_channels import")
+        _load("_old_foxglove_channels", p)
+    p = tmp / "_old_mcap.py"
+    p.write_text(mc)
+    return _load("_old_mcap", p).McapSink
 
 
 def feed(sink, calls) -> float:
