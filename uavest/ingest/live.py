@@ -179,6 +179,56 @@ class _Replies:
             return self.params[name]
 
 
+class _Declination:
+    """The declination the link reports: COMPASS_DEC when the autopilot has one (0 with
+    auto-declination on means unknown until GPS lock, and is asked again then), else the
+    WMM at the first 3-D GPS fix (the host's date)."""
+
+    def __init__(self, conn: str) -> None:
+        self.conn = conn
+        self.value: float | None = None  # rad
+        self.source = "unknown"
+        self.pending = False  # waiting for a GPS fix
+        self.autodec: float | None = None  # COMPASS_AUTODEC as read
+        self.gps_fix: tuple[float, float, float] | None = None
+
+    def from_params(self, dec: float | None, auto: float | None) -> None:
+        """COMPASS_DEC / COMPASS_AUTODEC as read at start (None: no answer)."""
+        self.autodec = auto
+        if dec is not None and (dec != 0.0 or not auto):
+            self.value, self.source = float(dec), "param:COMPASS_DEC"
+        else:
+            # auto-declination with 0 = unknown until GPS lock; no param: WMM once we have GPS
+            self.pending = True
+            self.source = "unknown (waiting for GPS)"
+
+    def on_gps(self, lat: float, lon: float, alt: float) -> bool:
+        """A GPS fix (deg, deg, m): the WMM's declination if we were waiting for one. True
+        if COMPASS_DEC should be asked again (auto-declination: computed after lock)."""
+        if not self.pending:
+            return False
+        self.pending = False
+        self.gps_fix = (lat, lon, alt)
+        try:  # the host's date: a day's error changes the declination by < 0.001 deg
+            from ..geometry.magnetic import declination
+
+            self.value = declination(lat, lon, alt, datetime.now(UTC))
+            self.source = "wmm2025"
+        except ImportError:
+            self.source = "unknown (pygeomag not installed for the WMM)"
+            log.warning("%s: no declination: COMPASS_DEC unknown and pygeomag missing",
+                        self.conn)
+        except ValueError as e:
+            log.warning("%s: %s", self.conn, e)
+        return bool(self.autodec)
+
+    def on_param(self, pid: str, v: float) -> None:
+        """A PARAM_VALUE flowing by: a usable COMPASS_DEC replaces what we have."""
+        if pid == "COMPASS_DEC" and math.isfinite(v) and (v != 0.0 or not self.autodec):
+            self.value, self.source = v, "param:COMPASS_DEC"
+            self.pending = False
+
+
 @dataclass
 class StreamStatus:
     """One requested stream: requested Hz, how (``SET_MESSAGE_INTERVAL`` | ``REQUEST_DATA_STREAM``
@@ -303,11 +353,7 @@ class LiveLink(MavlinkSource):
         self.autopilot: int | None = None
         self.stream_status: dict[str, StreamStatus] = {}
         self.events: list[LinkEvent] = []
-        self.declination: float | None = None
-        self.declination_source = "unknown"
-        self._dec_pending = False
-        self._autodec: float | None = None
-        self._gps_fix: tuple[float, float, float] | None = None
+        self._dec = _Declination(self.conn)
         self._rates_checked = False
         self._requested_at: float | None = None
         self._need_request = False
@@ -621,34 +667,24 @@ class LiveLink(MavlinkSource):
         dec = self._read_param("COMPASS_DEC", self.param_timeout)
         auto = self._read_param("COMPASS_AUTODEC", self.param_timeout) if dec is not None \
             else None
-        self._autodec = auto
-        if dec is not None and (dec != 0.0 or not auto):
-            self.declination, self.declination_source = float(dec), "param:COMPASS_DEC"
-        else:
-            # auto-declination with 0 = unknown until GPS lock; no param: WMM once we have GPS
-            self._dec_pending = True
-            self.declination_source = "unknown (waiting for GPS)"
+        self._dec.from_params(dec, auto)
 
     def _on_gps(self, lat: float, lon: float, alt: float) -> None:
-        if not self._dec_pending:
-            return
-        self._dec_pending = False
-        self._gps_fix = (lat, lon, alt)
-        if self._autodec:  # the autopilot computes it after lock: ask again (answer async)
+        if self._dec.on_gps(lat, lon, alt):  # the autopilot computes it after lock: ask again
             ts, tc = self._target()
             self._replies.forget("COMPASS_DEC")
             self._mav.param_request_read_send(ts, tc, b"COMPASS_DEC", -1)
-        try:  # the host's date: a day's error changes the declination by < 0.001 deg
-            from ..geometry.magnetic import declination
 
-            self.declination = declination(lat, lon, alt, datetime.now(UTC))
-            self.declination_source = "wmm2025"
-        except ImportError:
-            self.declination_source = "unknown (pygeomag not installed for the WMM)"
-            log.warning("%s: no declination: COMPASS_DEC unknown and pygeomag missing",
-                        self.conn)
-        except ValueError as e:
-            log.warning("%s: %s", self.conn, e)
+    @property
+    def declination(self) -> float | None:
+        """The magnetic declination (rad, east positive), None while unknown."""
+        return self._dec.value
+
+    @property
+    def declination_source(self) -> str:
+        """Where :attr:`declination` comes from (``param:COMPASS_DEC``, ``wmm2025``, or why
+        it is unknown)."""
+        return self._dec.source
 
     # ------------------------------------------------------------ consumer side
     def __iter__(self) -> Iterator:
@@ -723,10 +759,7 @@ class LiveLink(MavlinkSource):
         elif name == "PARAM_VALUE":
             pid = m.param_id.decode() if isinstance(m.param_id, bytes) else str(m.param_id)
             pid = pid.rstrip("\x00")
-            v = float(m.param_value)
-            if pid == "COMPASS_DEC" and math.isfinite(v) and (v != 0.0 or not self._autodec):
-                self.declination, self.declination_source = v, "param:COMPASS_DEC"
-                self._dec_pending = False
+            self._dec.on_param(pid, float(m.param_value))
 
 
 def open_live(conn: str, **kwargs) -> LiveLink:
