@@ -95,7 +95,7 @@ class ChannelSet:
             self.counts[topic] = self.counts.get(topic, 0) + 1
 
     def log(self, ch, topic: str, data: bytes, ns: int) -> None:
-        """Log JSON bytes on a channel made by :meth:`_channel` (the wrapper's checks
+        """Log JSON bytes on a channel made by :meth:`channel` (the wrapper's checks
         skipped: ``foxglove.Channel.base.log``)."""
         ch.base.log(data, ns)
         c = self.counts
