@@ -1,8 +1,9 @@
 """The live MAVLink link: a vehicle (autopilot or SITL) as a streaming sample source.
 
 :class:`LiveLink` (made by :func:`open_live`, or by :func:`uavest.ingest.open_source` for a
-connection string) owns a reader thread that reads raw bytes from UDP, TCP or a serial port,
-parses them with its own MAVLink 2 parser (signing checked there), filters one vehicle,
+connection string) owns a reader thread that reads raw bytes from UDP, TCP or a serial port
+(the shared :mod:`uavest.link` transport), parses them with its own MAVLink 2 parser
+(signing checked there, :mod:`uavest.link.signing`), filters one vehicle,
 records the accepted frames to a tlog and puts them in a bounded queue.  Iterating the link
 runs the *same* conversion / timing / ordering code as a file (:class:`MavlinkSource`), with
 each message timed by its vehicle time field or, for untimed messages, by the receive time
