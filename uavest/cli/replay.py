@@ -90,8 +90,10 @@ class _Progress(Sink):
 
 def format_doc(doc: dict) -> str:
     """The human-readable result of a replay: what was read, the table, bad data."""
+    then = "".join(f" then {w['to']} from t={w['t']:.1f} s" for w in doc.get("imu_switches") or [])
     lines = [
-        f"{doc['log']}: {doc['format']}, IMU {doc['imu_source']} at {doc['imu_rate_hz']:.1f} Hz,"
+        f"{doc['log']}: {doc['format']}, IMU {doc['imu_source']}{then} at "
+        f"{doc['imu_rate_hz']:.1f} Hz,"
         f" {doc['duration_s']:.1f} s, {doc['steps']} filter steps at "
         f"{doc['filter_rate_hz']:.1f} Hz ({doc['integration']})",
         f"integration: {doc['integration']} ({doc.get('integration_why') or 'option'})",
