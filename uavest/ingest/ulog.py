@@ -106,6 +106,8 @@ class ULogData:
         self.mag: dict[str, tuple] = {}
         self.refs: dict[str, tuple] = {}
         self.pos: dict[str, tuple] = {}
+        self.gnss: dict[str, dict] = {}  # source -> GnssSeries fields (api.gnss_arrays)
+        self.baro: dict[str, dict] = {}  # source -> BaroSeries fields
         for d in ul.data_list:
             stats.messages[d.name] += len(d.data["timestamp"])
             try:
