@@ -7,6 +7,7 @@ the sources attach the time, check plausibility and build the dataclasses.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from dataclasses import dataclass
@@ -514,6 +515,42 @@ def _df_gps(m, name: str) -> list[Raw]:
     return [Raw("pos", name, 0, (None, vel, lla))]
 
 
+def _df_gnss(m, name: str) -> list[Raw]:
+    """DataFlash GPS (Status = GPS_FIX_TYPE, Lat/Lng deg, Alt m AMSL, Spd m/s, GCrs deg,
+    VZ m/s down, HDop, NSats) with the accuracies of its GPA record when the reader found
+    it (``m._gpa``: VDop, HAcc m, VAcc m, SAcc m/s, VV = vertical velocity valid)."""
+    inst = _df_instance(m, name, "GPS")
+    lla = np.array([m.Lat, m.Lng, m.Alt], dtype=float)
+    spd, crs = float(m.Spd), float(m.GCrs) * DEG
+    vel = np.array([spd * math.cos(crs), spd * math.sin(crs), float(m.VZ)])
+    gpa = getattr(m, "_gpa", None)
+    h_acc = v_acc = s_acc = vdop = math.nan
+    if gpa is not None:
+        h_acc, v_acc = float(gpa.HAcc), float(gpa.VAcc)
+        s_acc, vdop = float(gpa.SAcc), float(gpa.VDop)
+        if not int(getattr(gpa, "VV", 1)):
+            vel[2] = math.nan
+    acc = gnss_acc(h_acc, v_acc, s_acc, float(m.HDop), vdop, int(m.NSats))
+    meta = {"fix_type": int(m.Status)}
+    return [Raw("gnss", f"GPS[{inst}]", inst, (lla, vel, acc), meta=meta)]
+
+
+def _df_gps_all(m, name: str) -> list[Raw]:
+    """A DataFlash GPS record: its GNSS measurement (primary) and, as before, the
+    position of the first receiver (``"GPS"``)."""
+    out = _df_gnss(m, name)
+    if out[0].instance == 0:
+        out += [dataclasses.replace(r, primary=False) for r in _df_gps(m, name)]
+    return out
+
+
+def _df_baro(m, name: str) -> list[Raw]:
+    """DataFlash BARO/BAR2/BAR3: Press Pa, Temp deg C, Alt m (relative to its ground zero)."""
+    inst = _df_instance(m, name, "BAR")
+    v = np.array([float(m.Press), float(m.Temp), float(m.Alt)])
+    return [Raw("baro", f"BARO[{inst}]", inst, (v,))]
+
+
 DATAFLASH_CONVERTERS = {
     "IMU": _df_imu,
     "IMU2": _df_imu,
@@ -525,7 +562,13 @@ DATAFLASH_CONVERTERS = {
     "AHR2": _df_ahr2,
     "SIM": _df_sim,
     "POS": _df_pos,
-    "GPS": _df_gps,
+    "GPS": _df_gps_all,
+    "GPS2": _df_gps_all,
+    "GPA": lambda m, name: [],  # merged into its GPS record by the reader (GPS._gpa)
+    "GPA2": lambda m, name: [],
+    "BARO": _df_baro,
+    "BAR2": _df_baro,
+    "BAR3": _df_baro,
 }
 
 

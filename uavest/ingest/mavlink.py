@@ -204,6 +204,47 @@ def _gps_geo(msg, params: LogParams, unix_offset: float | None) -> None:
         params.set_geo(msg.Lat, msg.Lng, getattr(msg, "Alt", 0.0), utc)
 
 
+GPA_LOOKAHEAD = 8  # DataFlash records after a GPS searched for its GPA (written next)
+
+
+def _gps_instance(msg) -> int:
+    i = getattr(msg, "I", None)
+    return int(i) if i is not None else (1 if msg.get_type().endswith("2") else 0)
+
+
+def merge_gpa(pairs):
+    """DataFlash ``(record, None)`` pairs with each GPS record given its GPA record (same
+    TimeUS and instance, ArduPilot writes it right after) as ``gps._gpa``: the receiver's
+    accuracies belong to the fix. A GPS is held until its GPA or :data:`GPA_LOOKAHEAD`
+    records later (then it goes on without); the records in between keep their order."""
+    held = None  # [gps message, records seen after it]
+    for msg, rx in pairs:
+        name = msg.get_type() if msg is not None else ""
+        if held is not None:
+            gps, after = held
+            if (name in ("GPA", "GPA2") and getattr(msg, "TimeUS", None) == gps.TimeUS
+                    and _gps_instance(msg) == _gps_instance(gps)):
+                gps._gpa = msg
+                held = None
+                yield gps, None
+                yield from after
+                yield msg, rx
+                continue
+            if name not in ("GPS", "GPS2") and len(after) < GPA_LOOKAHEAD:
+                after.append((msg, rx))
+                continue
+            held = None
+            yield gps, None
+            yield from after
+        if name in ("GPS", "GPS2") and hasattr(msg, "TimeUS"):
+            held = [msg, []]
+            continue
+        yield msg, rx
+    if held is not None:
+        yield held[0], None
+        yield from held[1]
+
+
 class MavlinkSource:
     """Iterable of measurements from a tlog or a DataFlash log (live links: ``LiveLink``).
 
@@ -264,7 +305,7 @@ class MavlinkSource:
         tlog receive times checked against their neighbours (:class:`RxFilter`)."""
         if self.format == "tlog":
             return RxFilter(self.stats).filter(self._read())
-        return self._read()
+        return merge_gpa(self._read())
 
     def _skipper(self, conn):
         """The skipper of unused DataFlash records for ``conn`` (None: decode every
