@@ -55,7 +55,8 @@ def write_log(path, gps_time="boot", n=100, bad=None, system_time=True, gps_cloc
         if i % 10 == 0:
             fix_us = (t_ms - 60) * 1000  # the fix 60 ms before it is sent
             t_us = fix_us if gps_time == "boot" else int((BOOT_UNIX + gps_clock_s) * 1e6) + fix_us
-            w.write(gps_raw(t_us, **bad.get(i // 10, {})), rx + 0.002)
+            over = dict(bad.get(i // 10, {}))
+            w.write(gps_raw(over.pop("t_us", t_us), **over), rx + 0.002)
     w.close()
 
 
@@ -203,3 +204,94 @@ def test_dataflash_gps_without_its_gpa_goes_on_without_accuracies():
     assert sorted(map(id, out)) == sorted(map(id, recs))  # nothing lost or repeated
     assert gps1._gpa is gpa1 and not hasattr(gps2, "_gpa")
     assert out.index(gps1) < out.index(gpa1) and out[-1].name == "GPS"
+
+
+def test_a_fix_without_gnss_time_is_timed_by_its_arrival(tmp_path):
+    # time_usec 0 with a fix (no GNSS week yet): neither boot time 0 nor a reboot
+    p = tmp_path / "zero.tlog"
+    write_log(p, bad={k: {"t_us": 0} for k in range(3)})
+    log = read_log(p)
+    g = log.gnss["GPS_RAW_INT"]
+    assert len(g) == 10 and log.stats.retimed == 3 and log.stats.bad_total == 0
+    assert np.allclose(g.t[:3], 10.0 + 0.2 * np.arange(3), atol=3e-3)
+
+
+class _Rec:
+    """A DataFlash record stand-in for the converters."""
+
+    def __init__(self, name, **kw):
+        self.name = name
+        self.__dict__.update(kw)
+
+    def get_type(self):
+        return self.name
+
+
+def _df_gps(**kw):
+    f = dict(TimeUS=1_000_000, Status=3, GMS=0, GWk=0, NSats=9, HDop=0.9, Lat=47.1, Lng=8.5,
+             Alt=400.0, Spd=2.0, GCrs=180.0, VZ=-0.5, U=1)
+    f.update(kw)
+    return _Rec("GPS", **f)
+
+
+def test_dataflash_gps_and_baro_conversions_and_their_bad_records():
+    from uavest.ingest.convert import check, convert_dataflash
+
+    g = _df_gps(I=1)
+    g._gpa = _Rec("GPA", TimeUS=1_000_000, I=1, VDop=1.3, HAcc=1.1, VAcc=1.9, SAcc=0.3, VV=0)
+    (r,) = convert_dataflash(g)  # instance 1: no former "GPS" position item
+    assert r.cat == "gnss" and r.source == "GPS[1]" and check(r) is None
+    lla, vel, acc = r.values
+    assert np.allclose(vel[:2], [-2.0, 0.0], atol=1e-12) and np.isnan(vel[2])  # VV = 0
+    assert np.allclose(acc, [1.1, 1.9, 0.3, 0.9, 1.3, 9])
+    gnss, pos = convert_dataflash(_df_gps())
+    assert gnss.source == "GPS[0]" and pos.cat == "pos" and not pos.primary
+    assert np.all(np.isnan(gnss.values[2][[0, 1, 2, 4]]))  # no GPA: accuracies unknown
+    assert check(convert_dataflash(_df_gps(Status=1))[0]) == "empty"
+    assert check(convert_dataflash(_df_gps(Lat=0.0, Lng=0.0))[0]) == "empty"
+    assert check(convert_dataflash(_df_gps(Lat=float("nan")))[0]) == "nan"
+    assert check(convert_dataflash(_df_gps(Spd=5000.0))[0]) == "out_of_range"
+    b = _Rec("BAR2", TimeUS=1, Press=95000.0, Temp=30.0, Alt=1.5)
+    (rb,) = convert_dataflash(b)
+    assert rb.source == "BARO[1]" and check(rb) is None
+    assert np.allclose(rb.values[0], [95000.0, 30.0, 1.5])
+    for press, kind in ((0.0, "empty"), (float("nan"), "nan"), (2.0e5, "out_of_range")):
+        bad = _Rec("BARO", TimeUS=1, Press=press, Temp=30.0, Alt=0.0)
+        assert check(convert_dataflash(bad)[0]) == kind
+
+
+def test_ulog_gnss_and_baro_rows_bad_ones_counted():
+    from uavest.ingest.types import IngestStats
+    from uavest.ingest.ulog import ULogData
+
+    d = ULogData.__new__(ULogData)
+    d.stats, d.gnss, d.baro = IngestStats(), {}, {}
+    n = 8
+    lat = np.full(n, 47.0)
+    lat[2] = np.nan  # NaN latitude
+    lat[3] = 0.0  # 0/0: no fix
+    lon = np.where(np.arange(n) == 3, 0.0, 8.0)
+    data = {
+        "timestamp": (1_000_000 + 200_000 * np.arange(n)).astype(np.uint64),
+        "latitude_deg": lat, "longitude_deg": lon, "altitude_msl_m": np.full(n, 500.0),
+        "vel_n_m_s": np.full(n, 1.0), "vel_e_m_s": np.full(n, 2.0), "vel_d_m_s": np.full(n, 0.1),
+        "vel_ned_valid": np.array([1, 1, 1, 1, 0, 1, 1, 1]),
+        "fix_type": np.array([0, 3, 3, 3, 3, 2, 3, 3]), "eph": np.full(n, 0.8),
+        "epv": np.full(n, 1.4), "s_variance_m_s": np.full(n, 0.2), "hdop": np.zeros(n),
+        "vdop": np.full(n, 1.1), "satellites_used": np.full(n, 12),
+    }
+    d._gnss("sensor_gps", data, 0)
+    g = d.gnss["sensor_gps"]
+    assert d.stats.no_fix == 2 and d.stats.nan == 1 and d.stats.bad_total == 1
+    assert np.allclose(g["t"], [1.2, 1.8, 2.0, 2.2, 2.4])
+    assert np.all(np.isnan(g["vel_ned"][1])) and np.allclose(g["vel_ned"][0], [1.0, 2.0, 0.1])
+    assert list(g["fix_type"]) == [3, 3, 2, 3, 3]
+    assert np.all(np.isnan(g["hdop"])) and np.allclose(g["h_acc"], 0.8)
+    p = np.array([95000.0, 0.0, 95001.0, 3.0e5])
+    d._baro("sensor_baro", {"timestamp": np.array([1, 2, 3, 4], dtype=np.uint64) * 100_000,
+                            "pressure": p, "temperature": np.full(4, 20.0)}, 0)
+    assert np.allclose(d.baro["sensor_baro"]["pressure"], [95000.0, 95001.0])
+    assert d.stats.empty == 1 and d.stats.out_of_range == 1
+    d._baro("sensor_baro[1]", {"timestamp": np.array([1, 2], dtype=np.uint64),
+                               "pressure": np.zeros(2)}, 1)
+    assert "sensor_baro[1]" not in d.baro and d.stats.absent["sensor_baro[1]"] == 2

@@ -39,6 +39,7 @@ _SENSOR_CATS = ("imu", "mag", "baro", "gnss")
 
 # Messages without a time field: timed from receive time (see docs/ingest.md).
 _UNTIMED = {"SIMSTATE", "AHRS2", "ADSB_VEHICLE"}
+_GNSS_MESSAGES = {"GPS_RAW_INT", "GPS2_RAW", "GPS_INPUT"}  # time_usec 0: no GNSS time yet
 _MAX_STALL = 1000  # reads without file progress before giving up (hang guard)
 _SKIPPED_RE = re.compile(r"Skipped (\d+) bad bytes")
 _BADHDR_RE = re.compile(r"bad header 0x[0-9a-f]+ 0x[0-9a-f]+ at (\d+)")
@@ -603,10 +604,13 @@ class MavlinkSource:
             if clock is None:
                 clock = clocks[sysid] = VehicleClock(st)
             tu = getattr(msg, "time_usec", None)
-            if tu is not None and tu >= UNIX_US_MIN and name not in _UNTIMED:
-                # a receiver's UNIX time (ArduPilot's GPS_RAW_INT): onto the vehicle clock
-                # without moving it (timebase.retime_unix), never "late"
-                t = retime_unix(tu * 1e-6, rx, clock, systime.get(sysid), reorder.last_out)
+            gnss_no_time = tu == 0 and name in _GNSS_MESSAGES
+            if tu is not None and (tu >= UNIX_US_MIN or gnss_no_time) and name not in _UNTIMED:
+                # a receiver's UNIX time (ArduPilot's GPS_RAW_INT; 0: a fix without GNSS
+                # time yet): onto the vehicle clock without moving it
+                # (timebase.retime_unix), never "late"
+                t = retime_unix(tu * 1e-6, rx, clock, None if gnss_no_time else
+                                systime.get(sysid), reorder.last_out)
                 if t is None:
                     st.bad("no_time", stat_key(good[0]))
                     continue
@@ -614,7 +618,7 @@ class MavlinkSource:
                 finish([(t, (sysid, good))])
                 yield from reorder.pop_ready()
                 continue
-            raw_t = self._vehicle_time(msg, clock, systime.get(sysid))
+            raw_t = self._vehicle_time(msg, clock)
             if raw_t is None:
                 t = clock.map_rx(rx)
                 if t is None:
@@ -670,7 +674,7 @@ class MavlinkSource:
             self.params[name] = v
 
     @staticmethod
-    def _vehicle_time(msg, clock: VehicleClock, unix_offset: float | None) -> float | None:
+    def _vehicle_time(msg, clock: VehicleClock) -> float | None:
         """Raw vehicle time (s since boot) of a message, or None if it has none."""
         if msg.get_type() in _UNTIMED:
             return None
@@ -678,9 +682,7 @@ class MavlinkSource:
         if v is not None:
             return v * 1e-6
         v = getattr(msg, "time_usec", None)
-        if v is not None:
-            if v > 1e15:  # UNIX epoch time: map to boot time via SYSTEM_TIME if known
-                return v * 1e-6 - unix_offset if unix_offset is not None else None
+        if v is not None:  # boot time (UNIX time was retimed before: timebase.retime_unix)
             return v * 1e-6
         v = getattr(msg, "time_boot_ms", None)
         if v is None:
