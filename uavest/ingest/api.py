@@ -121,9 +121,11 @@ def open_source(
 
     The returned source is iterable; it yields :class:`ImuSample` (rad/s, m/s^2,
     body FRD), :class:`MagSample` (gauss, body FRD), :class:`AttitudeRef`
-    (quaternion [w,x,y,z] body FRD -> NED) and :class:`PositionSample` in
-    vehicle-time order (s).  ``imu`` restricts IMU samples to that source
-    (e.g. ``"RAW_IMU"``, ``"IMU[1]"``); None yields every IMU source.
+    (quaternion [w,x,y,z] body FRD -> NED), :class:`PositionSample`, the raw
+    :class:`GnssSample` / :class:`BaroSample` aiding measurements (docs/ingest.md "Raw
+    GNSS and barometer"), detections and ADS-B reports in vehicle-time order (s).
+    ``imu`` restricts IMU samples to that source (e.g. ``"RAW_IMU"``, ``"IMU[1]"``); None
+    yields every IMU source.
     ``.stats``, ``.params`` (name -> float) and ``.format`` are attributes.
     ``reorder_window`` (s of vehicle time; default 1.0 for files, 0.2 live) and ``sysid``
     (MAVLink: only that system) apply to MAVLink sources.  A live link is a

@@ -249,8 +249,9 @@ def merge_gpa(pairs):
 class MavlinkSource:
     """Iterable of measurements from a tlog or a DataFlash log (live links: ``LiveLink``).
 
-    Yields :class:`ImuSample`, :class:`MagSample`, :class:`AttitudeRef` and
-    :class:`PositionSample` in vehicle-time order (a ``reorder_window`` second
+    Yields :class:`ImuSample`, :class:`MagSample`, :class:`AttitudeRef`,
+    :class:`PositionSample`, :class:`GnssSample` and :class:`BaroSample` (and detections,
+    ADS-B) in vehicle-time order (a ``reorder_window`` second
     buffer absorbs the small disorder between message types).  ``stats`` and
     ``params`` fill while iterating; ``params`` is complete after the iteration.
     Records of types no converter uses are stepped over undecoded when they are certainly
