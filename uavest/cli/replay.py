@@ -140,7 +140,7 @@ def format_doc(doc: dict) -> str:
     bad = doc["bad_data"]
     parts = [f"{k} {bad[k]}" for k in bad
              if isinstance(bad[k], int) and bad[k]
-             and k not in ("bad_total", "absent_sensor", "non_mavlink", "no_fix")]
+             and k not in ("bad_total", "absent_sensor", "non_mavlink", "no_fix", "retimed")]
     lines.append(f"bad data: {bad['bad_total']}" + (f" ({', '.join(parts)})" if parts else ""))
     skipped = bad.get("skipped") or {}
     if skipped:
@@ -154,6 +154,9 @@ def format_doc(doc: dict) -> str:
     if bad.get("no_fix"):
         lines.append(f"no GNSS fix: {bad['no_fix']} position records with lat/lon 0 skipped "
                      "(not bad data)")
+    if bad.get("retimed"):
+        lines.append(f"retimed: {bad['retimed']} GNSS records stamped with UNIX time mapped "
+                     "onto the vehicle clock (not bad data)")
     rep = doc.get("repaired") or {}
     if rep.get("time_outlier"):
         lines.append(f"repaired: {rep['time_outlier']} time stamps that were outliers against "

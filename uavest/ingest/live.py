@@ -58,7 +58,8 @@ DEFAULT_STREAMS: dict[str, float] = {
     "ATTITUDE_QUATERNION": 50.0,
     "ATTITUDE": 10.0,
     "GLOBAL_POSITION_INT": 10.0,
-    "GPS_RAW_INT": 5.0,
+    "GPS_RAW_INT": 5.0,  # raw GNSS fixes (time_usec UNIX on ArduPilot: ingest retimes it)
+    "SCALED_PRESSURE": 10.0,  # barometer (navigation height aiding)
     "SYSTEM_TIME": 1.0,
 }
 
@@ -72,6 +73,7 @@ _DATA_STREAM = {
     "SCALED_IMU2": mavlink.MAV_DATA_STREAM_RAW_SENSORS,
     "SCALED_IMU3": mavlink.MAV_DATA_STREAM_RAW_SENSORS,
     "GPS_RAW_INT": mavlink.MAV_DATA_STREAM_EXTENDED_STATUS,
+    "SCALED_PRESSURE": mavlink.MAV_DATA_STREAM_RAW_SENSORS,
     "GLOBAL_POSITION_INT": mavlink.MAV_DATA_STREAM_POSITION,
     "LOCAL_POSITION_NED": mavlink.MAV_DATA_STREAM_POSITION,
     "ATTITUDE": mavlink.MAV_DATA_STREAM_EXTRA1,

@@ -306,12 +306,14 @@ class Protocol:
                                             3500, 0)
         if name == "GPS_RAW_INT":
             f = gps_fix
-            if f is None:
-                return e.gps_raw_int_encode(t_us, 1, 0, 0, 0, 65535, 65535, 65535, 65535, 0)
+            if f is None:  # no fix yet: no GNSS time either (ArduPilot sends 0)
+                return e.gps_raw_int_encode(0, 1, 0, 0, 0, 65535, 65535, 65535, 65535, 0)
             vn, ve, vd = f["vel"]
             cog = int(round(math.degrees(math.atan2(ve, vn)) * 100)) % 36000
+            # time_usec: the fix's UNIX (GNSS) time, as ArduPilot sends it, not boot time
             return e.gps_raw_int_encode(
-                f["t_us"], 3, _deg_e7(f["lat"]), _deg_e7(f["lon"]), int(round(f["alt"] * 1e3)),
+                int(self.epoch * 1e6) + f["t_us"], 3, _deg_e7(f["lat"]), _deg_e7(f["lon"]),
+                int(round(f["alt"] * 1e3)),
                 70, 110, int(round(math.hypot(vn, ve) * 100)), cog, 14,
                 int(round(f["alt"] * 1e3)), 800, 1500, 150, 0, 0)
         if name in ("GLOBAL_POSITION_INT", "LOCAL_POSITION_NED"):
