@@ -33,6 +33,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / "uavest"
+LAYERS: list[list[str]] = []
+TABLES: set[str] = set()
+MODS: dict = {}
 
 #: (entry function, its parameter bound to the scenario; None: created inside)
 ENTRIES = [
@@ -43,6 +46,9 @@ ENTRIES = [
 #: Calls whose result is the scenario (given the scenario, or creating it).
 MAKERS = {"load_scenario", "load_typed", "typed", "parse", "apply_sets", "replace",
           "deepcopy"}
+#: Calls that hand the scenario back as it is (``typed`` of a typed scenario, a copy):
+#: a touch in the caller, not followed.
+ALIASES = {"typed", "replace", "deepcopy"}
 READERS = {"get", "setdefault", "items", "keys", "values"}
 
 
@@ -53,7 +59,6 @@ def layers() -> list[list[str]]:
     return [[s.strip() for s in row.split("|")] for row in lay]
 
 
-LAYERS = layers()
 
 
 def layer_of(module: str) -> int:
@@ -77,7 +82,6 @@ def table_names() -> set[str]:
     return out
 
 
-TABLES = table_names()
 
 
 @dataclass
@@ -123,7 +127,6 @@ def load_modules() -> dict[str, Module]:
     return mods
 
 
-MODS = load_modules()
 
 
 def resolve(mod: Module, func: ast.expr, local: dict | None = None
@@ -270,6 +273,9 @@ class Walk:
             kws = [(kw.arg, kw.value) for kw in n.keywords if kw.arg]
             passed = [(p, self.kind(a, names)) for p, a in args + kws]
             passed = [(p, k) for p, k in passed if k]
+            if passed and call_name(n.func) in ALIASES:
+                self.touch(mod, qual, "scenario")
+                return
             if not passed:
                 if call_name(n.func) in ("load_scenario", "load_typed"):
                     target = resolve(mod, n.func, self.local[-1])
@@ -307,10 +313,23 @@ def summary(touches: list[Touch], kinds: tuple[str, ...]) -> tuple[list[str], in
     return files, len(climbs), seq
 
 
+def setup(root: Path) -> None:
+    """Point the walk at the checkout ``root`` (its package, layers and schema)."""
+    global ROOT, PKG, LAYERS, TABLES, MODS
+    ROOT, PKG = root.resolve(), root.resolve() / "uavest"
+    LAYERS = layers()
+    TABLES = table_names()
+    MODS = load_modules()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--verbose", action="store_true", help="print the touch sequences")
+    ap.add_argument("--root", type=Path, default=ROOT,
+                    help="the checkout to measure (default: this one), e.g. an export of "
+                         "an earlier commit")
     a = ap.parse_args()
+    setup(a.root)
     for entry, param in ENTRIES:
         mname, qual = entry.rsplit(".", 1)
         if mname not in MODS or qual not in MODS[mname].funcs:
