@@ -189,6 +189,7 @@ class Walk:
         self.below: set[str] = set()
         self.stack: list[str] = []
         self.local: list[dict[str, str]] = []  # per frame: the function's imports so far
+        self.maker_calls: set[int] = set()  # calls whose result a maker returns
 
     def function(self, mod: Module, qual: str, bound: dict[str, str]) -> None:
         key = f"{mod.name}.{qual}"
@@ -199,14 +200,27 @@ class Walk:
         if "scenario" in bound.values() and layer_of(mod.name) > layer_of("uavest.scenarios"):
             self.below.add(key)
         names = dict(bound)
-        if not names:  # a maker: the name it returns is the scenario
+        if not names:  # a maker: what it returns is the scenario
             for node in ast.walk(fn):
-                if isinstance(node, ast.Return) and isinstance(node.value, ast.Name):
-                    names[node.value.id] = "scenario"
+                if isinstance(node, ast.Return) and node.value is not None:
+                    self.returned(node.value, names)
         self.local.append({})
         self.body(mod, qual, fn.body, names)
         self.local.pop()
         self.stack.pop()
+
+    def returned(self, e: ast.expr, names: dict[str, str]) -> None:
+        """Mark what a maker returns: names (also in a tuple or subscripted), or the call
+        to another maker (``_load(...)[1]``), followed as a maker in turn."""
+        if isinstance(e, ast.Name):
+            names[e.id] = "scenario"
+        elif isinstance(e, ast.Tuple):
+            for x in e.elts:
+                self.returned(x, names)
+        elif isinstance(e, ast.Subscript):
+            self.returned(e.value, names)
+        elif isinstance(e, ast.Call):
+            self.maker_calls.add(id(e))
 
     def kind(self, e: ast.expr | None, names: dict[str, str]) -> str | None:
         """'scenario', 'part' or None for an expression."""
@@ -277,7 +291,8 @@ class Walk:
                 self.touch(mod, qual, "scenario")
                 return
             if not passed:
-                if call_name(n.func) in ("load_scenario", "load_typed"):
+                if call_name(n.func) in ("load_scenario", "load_typed") or (
+                        id(n) in self.maker_calls):
                     target = resolve(mod, n.func, self.local[-1])
                     if target is not None:  # where the scenario is made
                         self.touch(mod, qual, "scenario")

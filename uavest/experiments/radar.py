@@ -80,8 +80,8 @@ def filter_rng(seed: int, run: int, label: str) -> np.random.Generator:
 
 def filter_models(sc: Any):
     """(motion model, radar model) of the filters, from the typed scenario's tables."""
-    return (motion_model(sc.motion, sc.ndim),
-            radar_model(sc.radar, sc.ndim, state_dim(sc.ndim, sc.motion)))
+    motion = motion_model(sc.motion, sc.ndim)
+    return motion, radar_model(sc.radar, sc.ndim, motion.space.dim)
 
 
 def _prior(sc: Any) -> tuple[Array, Array]:
@@ -169,7 +169,7 @@ def bench_filter_mode(sc: Any, filters: list[str], runs: int, seed: int, steps: 
     motion, radar = filter_models(sc)
     ndim = radar.ndim
     dt = float(sc.dt)
-    m0, P0 = _prior(sc)
+    m0, P0 = initial_prior(sc.prior, motion.space.dim)
     div = float(sc.divergence_rmse)
     rundata = []
     for r in range(runs):

@@ -85,8 +85,8 @@ def motion_model(motion: Any, ndim: int):
 
 def build_models(sc: Any):
     """(motion model, radar model) for the filters of a typed radar scenario."""
-    n = state_dim(sc.ndim, sc.motion)
-    return motion_model(sc.motion, sc.ndim), radar_model(sc.radar, sc.ndim, n)
+    motion = motion_model(sc.motion, sc.ndim)
+    return motion, radar_model(sc.radar, sc.ndim, motion.space.dim)
 
 
 def detection_range(radar: Any) -> float:
