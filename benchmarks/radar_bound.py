@@ -23,7 +23,7 @@ import numpy as np
 from uavest.core.registry import split_filter_list
 from uavest.eval.pcrlb import conditional_bounds, pcrlb, position_bound
 from uavest.experiments.radar import _bound_measurement, data_rng, run_bench
-from uavest.scenarios import load_scenario
+from uavest.scenarios import load_typed
 from uavest.tracking.scenario import build_models, generate_run, prior
 
 
@@ -84,7 +84,7 @@ def main() -> None:
     print("-" * len(hdr))
     for case in a.cases.split(","):
         name, deg = case.split(":")
-        sc = load_scenario(name, [f"radar.sigma_az_deg={deg}"])
+        sc = load_typed(name, [f"radar.sigma_az_deg={deg}"])
         res = run_bench(sc, filters, a.runs, a.seed, None)
         out[f"{name}@{deg}deg"] = res
         for lab, v in res.items():

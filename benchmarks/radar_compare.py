@@ -26,7 +26,7 @@ from uavest.eval.pcrlb import pcrlb, position_bound
 from uavest.eval.tracking import nees, nees_band
 from uavest.experiments.radar import data_rng
 from uavest.models.radar import wrap_angle
-from uavest.scenarios import load_scenario
+from uavest.scenarios import load_typed
 from uavest.tracking.scenario import build_models, generate_run, prior
 
 # state permutation: ours [x, y, vx, vy] <-> Stone Soup [x, vx, y, vy]
@@ -158,10 +158,10 @@ def main() -> None:
     out = {}
     for case in a.cases.split(","):
         name, deg = case.split(":")
-        sc = load_scenario(name, [f"radar.sigma_az_deg={deg}", *a.set])
+        sc = load_typed(name, [f"radar.sigma_az_deg={deg}", *a.set])
         motion, radar = build_models(sc)
-        dt = float(sc.get("dt", 1.0))
-        q = float(sc["motion"]["q"])
+        dt = float(sc.dt)
+        q = float(sc.motion.q)
         m0, P0 = prior(sc)
         runs = [generate_run(sc, data_rng(a.seed, r)) for r in range(a.runs)]
         truths = np.stack([rd.truths[0] for rd in runs])

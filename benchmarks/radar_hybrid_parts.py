@@ -64,12 +64,12 @@ def main() -> None:
     from uavest.geometry.kernels import bitgen_pointers
     from uavest.models import radar as radar_mod
     from uavest.presets import build
-    from uavest.scenarios import load_scenario
+    from uavest.scenarios import load_typed
     from uavest.tracking.scenario import build_models, generate_run, prior
 
     if not hybrid.local_kernels() or not radar_mod.radar_kernels():
         raise SystemExit("radar_hybrid_parts: needs numba (and UAVEST_NUMBA not 0)")
-    sc = load_scenario("radar_far", ["radar.sigma_az_deg=5"])
+    sc = load_typed("radar_far", ["radar.sigma_az_deg=5"])
     motion, radar = build_models(sc)
     f = build("hybrid", "radar", 4)
     M = f.members(4)

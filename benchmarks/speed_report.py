@@ -135,13 +135,13 @@ def _radar(runs: int, repeats: int) -> dict:
     from uavest.core.gaussian import Gaussian
     from uavest.experiments.radar import data_rng
     from uavest.presets import build
-    from uavest.scenarios import load_scenario
+    from uavest.scenarios import load_typed
     from uavest.tracking.scenario import build_models, generate_run, prior
 
-    sc = load_scenario("radar_far", ["radar.sigma_az_deg=5"])
+    sc = load_typed("radar_far", ["radar.sigma_az_deg=5"])
     motion, radar = build_models(sc)
-    dt = float(sc.get("dt", 1.0))
-    q = float(sc["motion"]["q"])
+    dt = float(sc.dt)
+    q = float(sc.motion.q)
     _, P0 = prior(sc)
     data = [generate_run(sc, data_rng(0, r)) for r in range(runs)]
     hyb = build("hybrid", "radar", 4)

@@ -5,7 +5,7 @@ import pytest
 
 from uavest.eval.tracking import nees_band
 from uavest.experiments.radar import run_bench
-from uavest.scenarios import load_scenario
+from uavest.scenarios import load_scenario, load_typed
 
 KEYS = {
     "rmse_mean", "rmse_median", "approx_error", "est_error", "nees_mean", "diverged_fraction",
@@ -96,9 +96,9 @@ def test_filter_mode_uav_bound_uses_the_true_poses():
     from uavest.tracking.scenario import build_models, generate_run, prior
 
     mean = [3000.0, 2000.0, 800.0, -20.0, 10.0, 0.0]
-    sc = load_scenario("radar_uav", ["mode=filter", "motion.truth_q=1.0",
-                                     f"prior.mean={mean}", "prior.std=[100, 100, 100, 5, 5, 5]"])
-    sc["targets"] = [{"start": mean}]
+    sc = load_typed("radar_uav", ["mode=filter", "motion.truth_q=1.0",
+                                  f"prior.mean={mean}", "prior.std=[100, 100, 100, 5, 5, 5]",
+                                  f"targets=[{{start={mean}}}]"])
     r = run_bench(sc, ["ukf"], 4, 0, 30)
     motion, radar = build_models(sc)
     m0, P0 = prior(sc)

@@ -17,7 +17,7 @@ from uavest.experiments.radar import data_rng, run_trackers
 from uavest.experiments.systems import build_system
 from uavest.report import read_recording, write_report
 from uavest.report.build import RADAR_FIGURES, STATE_FIGURES
-from uavest.scenarios import load_scenario
+from uavest.scenarios import load_scenario, load_typed
 from uavest.sinks.base import Collector
 from uavest.sinks.mcap import McapSink
 from uavest.tracking.scenario import generate_run
@@ -146,8 +146,7 @@ def test_radar_bench_trial_recording(tmp_path):
     for topic in ("/radar/scan", "/radar/detections", "/radar/truth/state", "/radar/truth"):
         assert rec.counts[topic] == 12, topic
     # the recording is trial 1's tracker run: the same tracks as running it again
-    sc = load_scenario("radar_uav")
-    sc["steps"] = 12
+    sc = load_typed("radar_uav", ["steps=12"])
     coll = Collector()
     run_trackers(sc, specs, generate_run(sc, data_rng(3, 1), 12), 3, 1, [coll])
     for lab in specs:

@@ -17,13 +17,13 @@ from uavest.engine.records import (
     package_versions,
 )
 from uavest.experiments.radar import data_rng
-from uavest.scenarios import load_scenario
+from uavest.scenarios import load_typed
 from uavest.sinks.mcap import McapSink
 from uavest.tracking.scenario import build_models, generate_run
 
 
 def test_empty_scans_and_empty_track_updates_are_recorded(tmp_path):
-    sc = load_scenario("radar_uav")
+    sc = load_typed("radar_uav")
     run = generate_run(sc, data_rng(0, 0), 3)
     _, radar = build_models(sc)
     Z1 = np.asarray(run.scans[0], float)

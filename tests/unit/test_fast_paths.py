@@ -16,7 +16,7 @@ from uavest.core.model import Measurement
 from uavest.core.unscented import UKF
 from uavest.experiments.systems import build_system, simulate
 from uavest.models.benchmarks import UNGMMeasurement, UNGMTransition
-from uavest.scenarios import load_scenario
+from uavest.scenarios import load_scenario, load_typed
 
 
 def _ungm():
@@ -316,7 +316,7 @@ def _ut_kernels():
 def _radar_models():
     from uavest.tracking.scenario import build_models
 
-    motion, radar = build_models(load_scenario("radar_far", ["radar.sigma_az_deg=5"]))
+    motion, radar = build_models(load_typed("radar_far", ["radar.sigma_az_deg=5"]))
     return motion, radar
 
 
@@ -358,7 +358,7 @@ def test_ukf_compiled_runs_follow_the_array_path():
     from uavest.experiments.radar import data_rng
     from uavest.tracking.scenario import generate_run, prior
 
-    sc = load_scenario("radar_far", ["radar.sigma_az_deg=5"])
+    sc = load_typed("radar_far", ["radar.sigma_az_deg=5"])
     motion, radar = _radar_models()
     _, P0 = prior(sc)
     f = UKF()

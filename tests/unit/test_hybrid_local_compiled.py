@@ -29,10 +29,10 @@ def _assert_cov_close(a, b, tol: float = 1e-12) -> None:
 
 def _radar_run(steps: int):
     from uavest.experiments.radar import data_rng
-    from uavest.scenarios import load_scenario
+    from uavest.scenarios import load_typed
     from uavest.tracking.scenario import build_models, generate_run, prior
 
-    sc = load_scenario("radar_far", ["radar.sigma_az_deg=5"])
+    sc = load_typed("radar_far", ["radar.sigma_az_deg=5"])
     motion, radar = build_models(sc)
     _, P0 = prior(sc)
     rd = generate_run(sc, data_rng(0, 0))

@@ -143,3 +143,28 @@ def test_results_record_the_resolved_scenario(tmp_path, capsys):
                  "--no-progress", "--json", str(out)]) == 0
     sc = json.loads(out.read_text())["run"]["scenario"]
     assert sc["model"] == {"dt": 1.0, "q": 0.1, "R": 4.0} and sc["kind"] == "linear_cv"
+
+
+def test_radar_defaults_live_in_the_schema():
+    """The detection range and the clutter box come from the schema's defaults (the code
+    that reads them has none), and the resolved record states the values used."""
+    from uavest.tracking.scenario import build_models, clutter_box
+
+    sc = load_typed("radar_crossing")  # sets neither r_max nor rr_max
+    assert (sc.radar.r_max, sc.radar.rr_max) == (20000.0, 100.0)
+    _, radar = build_models(sc)
+    lo, hi = clutter_box(sc.radar, radar)
+    assert hi[0] == 20000.0 and lo[0] == 0.0
+    assert resolved(sc)["radar"]["r_max"] == 20000.0
+    narrow = load_typed("radar_crossing", ["radar.r_max=5000"])
+    assert clutter_box(narrow.radar, radar)[1][0] == 5000.0
+
+
+def test_filter_mode_without_a_prior_is_a_one_line_error(capsys):
+    """Was an internal error (KeyError: 'mean'): radar_uav has no [prior] table."""
+    from uavest.cli import main
+
+    rc = main(["bench", "radar_uav", "--runs", "1", "--steps", "3", "--filters", "ukf",
+               "--set", "mode=filter", "--no-progress"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "prior.mean" in err[0], err

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 
 from ..errors import InputError
-from ..scenarios import load_scenario, resolved
+from ..scenarios import load_typed, resolved
 from ..sinks.jsonout import write_json
 from ..sinks.table import table
 from .progress import progress
@@ -22,18 +23,18 @@ def _positive(name: str, v: int | None) -> None:
 def cmd_bench(args) -> int:
     _positive("runs", args.runs)
     _positive("steps", args.steps)
-    sc = load_scenario(args.scenario, args.sets)
+    sc = load_typed(args.scenario, args.sets)
     if args.steps is not None:
-        sc["steps"] = args.steps
-    runs = args.runs if args.runs is not None else int(sc.get("runs", 100))
-    specs = args.filter_specs or list(sc.get("filters", []))
+        sc = replace(sc, steps=args.steps)
+    runs = args.runs if args.runs is not None else sc.runs
+    specs = args.filter_specs or list(sc.filters)
     from ..experiments.resources import check
 
-    if sc["kind"] != "linear_cv":
+    if sc.kind != "linear_cv":
         from .replay import reject_linear_only
 
-        reject_linear_only(specs, f"bench {sc['name']}", "a nonlinear model")
-    check(sc, specs, runs, int(sc.get("steps", 100)), "bench")
+        reject_linear_only(specs, f"bench {sc.name}", "a nonlinear model")
+    check(sc, specs, runs, sc.steps, "bench")
     recording = bool(getattr(args, "mcap", None) or getattr(args, "report", None))
     trial = int(getattr(args, "trial", 0) or 0)
     if recording and args.speed:
@@ -43,16 +44,16 @@ def cmd_bench(args) -> int:
     sinks = recording_sinks(args) if recording else []
     doc = {"run": {"command": " ".join(sys.argv), "seed": args.seed,
                    "scenario": resolved(sc)},
-           "scenario": sc["name"], "source": sc.get("source"), "runs": runs,
-           "seed": args.seed, "steps": sc.get("steps"), "overrides": args.sets}
-    bar = progress(runs * (9 if args.ablation else 1), f"bench {sc['name']}",
+           "scenario": sc.name, "source": sc.source, "runs": runs,
+           "seed": args.seed, "steps": sc.steps, "overrides": args.sets}
+    bar = progress(runs * (9 if args.ablation else 1), f"bench {sc.name}",
                    False if args.no_progress else None)
-    if sc["kind"] == "radar":
+    if sc.kind == "radar":
         from ..experiments.radar import run_bench, trial_info
 
         rec = None
         if sinks:
-            rspecs = specs or list(sc.get("filters", ["ekf", "ukf", "hybrid"]))
+            rspecs = specs or list(sc.filters)
             rec = (trial, sinks, trial_info(sc, rspecs, args.seed, trial, " ".join(sys.argv)))
         doc["filters"] = run_bench(sc, specs, runs, args.seed, args.steps, rec)
         cols = ["pos_rmse", "vel_rmse", "pcrlb_pos", "pcrlb_ratio", "pcrlb_ratio_rms",
@@ -70,7 +71,7 @@ def cmd_bench(args) -> int:
 
         rec = None
         if sinks:
-            rec = (trial, sinks, trial_info(sysm, specs, args.seed, trial, sc["name"],
+            rec = (trial, sinks, trial_info(sysm, specs, args.seed, trial, sc.name,
                                             " ".join(sys.argv)))
             rec[2].scenario = doc["run"]["scenario"]
         doc["filters"] = evaluate(sysm, specs, runs, args.seed, bar.update, rec)
@@ -78,7 +79,7 @@ def cmd_bench(args) -> int:
         if args.ablation:
             doc["ablation"] = ablation(sysm, runs, args.seed, bar.update)
     bar.close()
-    print(f"scenario {sc['name']} ({sc.get('source')}), {runs} runs x {sc.get('steps')} steps, "
+    print(f"scenario {sc.name} ({sc.source}), {runs} runs x {sc.steps} steps, "
           f"seed {args.seed}")
     print(table(doc["filters"], cols))
     if "ablation" in doc:
@@ -101,7 +102,7 @@ def _speed(args, sysm, sc, runs, doc) -> int:
     res = speed(sysm, runs=min(runs, 20), seed=args.seed)
     doc["speed"] = res
     us = res["us_per_step"]
-    print(f"speed on {sc['name']} ({res['runs']} runs x {res['steps']} steps, "
+    print(f"speed on {sc.name} ({res['runs']} runs x {res['steps']} steps, "
           f"best of {res['repeats']}), microseconds per predict+update+estimate:")
     for k, v in us.items():
         print(f"  {k:18s} {v:8.1f}" if v is not None else f"  {k:18s}        -")

@@ -80,13 +80,14 @@ def _fill(p: argparse.ArgumentParser) -> None:
 def cmd_sim(args) -> int:
     """Run the simulator from parsed arguments; returns the exit status."""
     from ..errors import InputError
-    from ..scenarios import ScenarioError, load_scenario
+    from ..scenarios import ScenarioError, load_scenario, typed
     from ..sim import Simulator
 
     try:
-        sc = load_scenario(args.scenario, args.sets)
-        if sc.get("kind") != "sim":
-            raise ScenarioError(f"scenario {sc.get('name')!r} is kind {sc.get('kind')!r}, "
+        sc = load_scenario(args.scenario, args.sets)  # the simulator reads the dict
+        scn = typed(sc)
+        if scn.kind != "sim":
+            raise ScenarioError(f"scenario {scn.name!r} is kind {scn.kind!r}, "
                                 "expected 'sim'")
         rates = _parse_rates(args.rate)
         sim = Simulator(sc, seed=args.seed, imu_rate=args.imu_rate, sysid=args.sysid,
@@ -111,7 +112,7 @@ def cmd_sim(args) -> int:
     old = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         if not args.quiet:
-            print(f"uavest sim: {sc['name']} -> {out or 'no link'}"
+            print(f"uavest sim: {scn.name} -> {out or 'no link'}"
                   f"{' + ' + args.tlog if args.tlog else ''}, IMU {sim.imu_rate:g} Hz, "
                   f"speed {args.speed:g}, seed {args.seed}", file=sys.stderr, flush=True)
         summary = sim.run(out, duration=args.duration, speed=args.speed, stop_event=stop,

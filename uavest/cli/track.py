@@ -12,30 +12,31 @@ import numpy as np
 
 from ..errors import InputError
 from ..experiments.radar import data_rng, run_trackers, tracker_errors
-from ..scenarios import load_scenario, resolved, typed
+from ..scenarios import load_typed, resolved, typed
 from ..sinks.jsonout import write_json
 from ..tracking.scenario import generate_run
 from ..tracking.tracker import Tracker
 from .record import add_recording_options, finish_recording, recording_sinks
 
 
-def track_table(sc: dict, filters: list[str], seed: int, sinks=(), command: str = "") -> dict:
-    """Run ``sc`` once (run 0 of ``seed``) with every filter's tracker on the same
-    detections. Returns {"scenario", "seed", "tracks": [rows], "summary": {filter: {...}}}.
+def track_table(sc, filters: list[str], seed: int, sinks=(), command: str = "") -> dict:
+    """Run the scenario ``sc`` (typed, or its dict) once (run 0 of ``seed``) with every
+    filter's tracker on the same detections. Returns {"scenario", "seed", "tracks": [rows],
+    "summary": {filter: {...}}}.
 
     Row fields: filter, track id, born / confirmed / deleted scan times (s; None if never),
     length (scans alive), hits, truth (index of the truth it was assigned to most often,
     None for a false track), pos_rmse (m) against that truth over the assigned scans."""
     scn = typed(sc)
     dt, ndim, c = float(scn.dt), int(scn.ndim), float(scn.metrics.gospa_c)
-    run = generate_run(sc, data_rng(seed, 0))  # filter-mode scenarios: tracker too
+    run = generate_run(scn, data_rng(seed, 0))  # filter-mode scenarios: tracker too
     from ..engine.records import RunInfo, package_versions
 
     info = RunInfo(command, f"scenario:{scn.name}", seed,
                    filters={lab: {"spec": lab, "preset": "radar"} for lab in filters},
                    config={"scenario": scn.name, "dt": dt, "gospa_c": c},
                    versions=package_versions(), scenario=resolved(scn))
-    trackers: dict[str, Tracker] = run_trackers(sc, filters, run, seed, 0, sinks, info)
+    trackers: dict[str, Tracker] = run_trackers(scn, filters, run, seed, 0, sinks, info)
     rows, summary = [], {}
     for lab, tr in trackers.items():
         q, _ = tracker_errors(tr, run, ndim, c, dt)
@@ -120,8 +121,7 @@ def print_table(res: dict) -> None:
 
 
 def cmd_track(args: argparse.Namespace) -> int:
-    sc = load_scenario(args.scenario, args.set or [])
-    scn = typed(sc)
+    scn = load_typed(args.scenario, args.set or [])
     if scn.kind != "radar":
         raise InputError(f"scenario {args.scenario!r} is not a radar scenario "
                          "(radar scenarios: see 'uavest list')")
@@ -130,8 +130,8 @@ def cmd_track(args: argparse.Namespace) -> int:
     from .replay import reject_linear_only
 
     reject_linear_only(filters, "track", "the nonlinear radar measurement model")
-    check(sc, filters or ["ekf", "ukf", "hybrid"], 1, scn.steps, "track")
-    res = track_table(sc, filters or ["ekf", "ukf", "hybrid"], args.seed,
+    check(scn, filters or ["ekf", "ukf", "hybrid"], 1, scn.steps, "track")
+    res = track_table(scn, filters or ["ekf", "ukf", "hybrid"], args.seed,
                       recording_sinks(args), " ".join(sys.argv))
     print_table(res)
     if args.json:

@@ -36,6 +36,7 @@ or of one whole tracker scan (tracker mode), in microseconds.
 from __future__ import annotations
 
 from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 
@@ -47,10 +48,17 @@ from ..engine.build import build_filters
 from ..eval.pcrlb import conditional_bounds, pcrlb, position_bound, velocity_bound
 from ..eval.tracking import nees, nees_band, track_quality
 from ..presets import build
-from ..scenarios import ScenarioError
+from ..scenarios import ScenarioError, typed
 from ..seeding import filter_stream, rng
 from ..sinks.base import Collector
-from ..tracking.scenario import build_models, clutter_box, generate_run, prior
+from ..tracking.scenario import (
+    clutter_box,
+    generate_run,
+    initial_prior,
+    motion_model,
+    radar_model,
+    state_dim,
+)
 from ..tracking.tracker import Tracker, TrackerConfig
 
 Array = np.ndarray
@@ -68,6 +76,17 @@ def data_rng(seed: int, run: int) -> np.random.Generator:
 
 def filter_rng(seed: int, run: int, label: str) -> np.random.Generator:
     return rng(seed, run, filter_stream(label))
+
+
+def filter_models(sc: Any):
+    """(motion model, radar model) of the filters, from the typed scenario's tables."""
+    motion = motion_model(sc.motion, sc.ndim)
+    return motion, radar_model(sc.radar, sc.ndim, motion.space.dim)
+
+
+def _prior(sc: Any) -> tuple[Array, Array]:
+    """Filter-mode (m0, P0) from the typed scenario's ``[prior]`` table."""
+    return initial_prior(sc.prior, state_dim(sc.ndim, sc.motion))
 
 
 def _scan_models(radar, run):
@@ -100,29 +119,30 @@ def run_filter(filt, motion, radar, run, P0: Array, dt: float, rng) -> dict:
             "resets": fr.resets}
 
 
-def check_filter_mode(sc: dict) -> None:
-    """Raise ValueError for filter-mode settings under which the PCRLB would silently be
-    the bound of another problem: the bound assumes the truth follows the filters' own
-    model (NCV with the filters' ``q``) from x0 ~ N(m0, P0)."""
-    m = sc.get("motion", {})
-    q = float(m.get("q", 0.5))
-    tgt = (sc.get("targets") or [{}])[0]
-    truth_q = float(tgt.get("q", m.get("truth_q", q)))
+def check_filter_mode(sc: Any) -> None:
+    """Raise ScenarioError for filter-mode settings (of the typed scenario ``sc``) under
+    which the PCRLB would silently be the bound of another problem: the bound assumes the
+    truth follows the filters' own model (NCV with the filters' ``q``) from
+    x0 ~ N(m0, P0)."""
+    m = sc.motion
+    q = float(m.q)
+    tgt = sc.targets[0] if sc.targets else None
+    truth_q = float(tgt.q if tgt is not None and tgt.q is not None else m.truth_noise)
     bad = []
-    if m.get("model", "ncv") != "ncv":
-        bad.append(f"motion.model = {m.get('model')!r} (the truth is NCV with omega = 0, "
+    if m.model != "ncv":
+        bad.append(f"motion.model = {m.model!r} (the truth is NCV with omega = 0, "
                    "not a coordinated turn with a random turn rate)")
     if truth_q != q:
         bad.append(f"truth process noise {truth_q} != the filters' motion.q {q}")
-    if tgt.get("turns"):
+    if tgt is not None and tgt.turns:
         bad.append("a scripted turn in the target (the filters' NCV model has none)")
-    if "start" in tgt:
-        m0, _ = prior(sc)
-        if not np.allclose(np.asarray(tgt["start"], float), m0[: len(tgt["start"])]):
+    if tgt is not None and tgt.start:
+        m0, _ = _prior(sc)
+        if not np.allclose(np.asarray(tgt.start, float), m0[: len(tgt.start)]):
             bad.append("a target start other than the prior mean")
     if bad:
         raise ScenarioError(
-            f"scenario {sc.get('name')!r}: mode = \"filter\" computes the PCRLB for a truth "
+            f"scenario {sc.name!r}: mode = \"filter\" computes the PCRLB for a truth "
             "that follows the filters' model; unsupported here: " + "; ".join(bad)
             + ' (use mode = "tracker", or drop these settings)'
         )
@@ -143,13 +163,14 @@ def _bound_measurement(radar, rundata):
     return lambda k: models[k - 1]
 
 
-def bench_filter_mode(sc: dict, filters: list[str], runs: int, seed: int, steps: int | None):
+def bench_filter_mode(sc: Any, filters: list[str], runs: int, seed: int, steps: int | None):
+    """Filter-mode table of the typed scenario ``sc`` over runs 0..runs-1 (module doc)."""
     check_filter_mode(sc)
-    motion, radar = build_models(sc)
+    motion, radar = filter_models(sc)
     ndim = radar.ndim
-    dt = float(sc.get("dt", 1.0))
-    m0, P0 = prior(sc)
-    div = float(sc.get("divergence_rmse", np.inf))
+    dt = float(sc.dt)
+    m0, P0 = initial_prior(sc.prior, motion.space.dim)
+    div = float(sc.divergence_rmse)
     rundata = []
     for r in range(runs):
         rundata.append(generate_run(sc, data_rng(seed, r), steps))
@@ -230,14 +251,16 @@ def scan_steps(run, radar, motion, dt: float) -> Iterator[Start | Step]:
         yield Step(k, k * dt, dt, motion, ((Z, model),), info={"samples": (smp,)})
 
 
-def run_trackers(sc: dict, filters: list[str], run, seed: int, r: int, sinks=(),
+def run_trackers(sc: Any, filters: list[str], run, seed: int, r: int, sinks=(),
                  info=None) -> dict[str, Tracker]:
-    """All filters' trackers on the same run (same detections), one tracker per filter,
-    side by side through the engine (records and scans to ``sinks``)."""
-    motion, radar = build_models(sc)
-    dt = float(sc.get("dt", 1.0))
-    lo, hi = clutter_box(sc, radar)
-    cfg = TrackerConfig.from_scenario(sc, clutter_volume=float(np.prod(hi - lo)))
+    """All filters' trackers on the same run (same detections) of the scenario ``sc``
+    (typed, or its dict), one tracker per filter, side by side through the engine
+    (records and scans to ``sinks``)."""
+    sc = typed(sc)
+    motion, radar = filter_models(sc)
+    dt = float(sc.dt)
+    lo, hi = clutter_box(sc.radar, radar)
+    cfg = TrackerConfig.from_tables(sc.tracker, sc.radar, clutter_volume=float(np.prod(hi - lo)))
     runners = [
         TrackerRunner(label, lambda f=f, label=label: Tracker(f, motion, cfg,
                                                               filter_rng(seed, r, label)))
@@ -277,14 +300,14 @@ def tracker_errors(tracker: Tracker, run, ndim: int, c: float, dt: float):
     return q, errs
 
 
-def bench_tracker_mode(sc: dict, filters: list[str], runs: int, seed: int, steps: int | None,
+def bench_tracker_mode(sc: Any, filters: list[str], runs: int, seed: int, steps: int | None,
                        record: tuple | None = None):
-    """Tracker-mode table over runs 0..runs-1; ``record = (r, sinks, info)`` hands run r's
-    engine run (scans, truths, every tracker's records) to ``sinks``."""
-    motion, radar = build_models(sc)
-    ndim = radar.ndim
-    dt = float(sc.get("dt", 1.0))
-    c = float(sc.get("metrics", {}).get("gospa_c", 200.0))
+    """Tracker-mode table of the typed scenario ``sc`` over runs 0..runs-1;
+    ``record = (r, sinks, info)`` hands run r's engine run (scans, truths, every tracker's
+    records) to ``sinks``."""
+    ndim = sc.ndim
+    dt = float(sc.dt)
+    c = float(sc.metrics.gospa_c)
     acc = {lab: {"q": [], "e": [], "sec": 0.0, "scans": 0, "runrmse": []} for lab in filters}
     K = None
     for r in range(runs):
@@ -363,24 +386,23 @@ def bench_tracker_mode(sc: dict, filters: list[str], runs: int, seed: int, steps
     return out
 
 
-def trial_info(sc: dict, filters: list[str], seed: int, r: int, command: str = ""):
-    """The run description of radar trial ``r`` for a recording (scenario, seed, trial,
-    resolved filters, dt, GOSPA c)."""
+def trial_info(sc: Any, filters: list[str], seed: int, r: int, command: str = ""):
+    """The run description of radar trial ``r`` of the scenario ``sc`` (typed, or its
+    dict) for a recording (scenario, seed, trial, resolved filters, dt, GOSPA c)."""
     from ..engine.records import RunInfo, package_versions
     from ..scenarios import resolved
 
-    motion, _ = build_models(sc)
-    built = build_filters(filters, "radar", dim=motion.space.dim)
-    return RunInfo(command, f"scenario:{sc.get('name')}", seed,
+    sc = typed(sc)
+    built = build_filters(filters, "radar", dim=state_dim(sc.ndim, sc.motion))
+    return RunInfo(command, f"scenario:{sc.name}", seed,
                    filters={sp.label: sp.as_dict() for sp, _ in built},
-                   config={"scenario": sc.get("name"), "trial": r,
-                           "mode": sc.get("mode", "tracker"), "dt": float(sc.get("dt", 1.0)),
-                           "gospa_c": float(sc.get("metrics", {}).get("gospa_c", 200.0))},
+                   config={"scenario": sc.name, "trial": r, "mode": sc.mode,
+                           "dt": float(sc.dt), "gospa_c": float(sc.metrics.gospa_c)},
                    versions=package_versions(), scenario=resolved(sc))
 
 
 def run_bench(
-    scenario: dict, filters: list[str], runs: int, seed: int, steps: int | None,
+    scenario: Any, filters: list[str], runs: int, seed: int, steps: int | None,
     record: tuple | None = None,
 ) -> dict[str, dict[str, float]]:
     """Entry point for ``uavest bench`` on ``kind = "radar"`` scenarios (see module doc).
@@ -389,13 +411,14 @@ def run_bench(
     scenario's ``runs``. ``record = (r, sinks, info)``: trial r's tracker run goes to
     ``sinks`` (tracker mode: the very run the table uses; filter mode, which runs no
     tracker: the trackers on trial r's data, as ``uavest track`` does)."""
-    filters = list(filters or scenario.get("filters", ["ekf", "ukf", "hybrid"]))
-    runs = int(runs or scenario.get("runs", 100))
-    if scenario.get("mode", "tracker") == "filter":
-        out = bench_filter_mode(scenario, filters, runs, seed, steps)
+    sc = typed(scenario)
+    filters = list(filters or sc.filters)
+    runs = int(runs or sc.runs)
+    if sc.mode == "filter":
+        out = bench_filter_mode(sc, filters, runs, seed, steps)
         if record is not None:
             r, sinks, info = record
-            run_trackers(scenario, filters, generate_run(scenario, data_rng(seed, r), steps),
+            run_trackers(sc, filters, generate_run(sc, data_rng(seed, r), steps),
                          seed, r, sinks, info)
         return out
-    return bench_tracker_mode(scenario, filters, runs, seed, steps, record)
+    return bench_tracker_mode(sc, filters, runs, seed, steps, record)

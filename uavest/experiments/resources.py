@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import logging
 import os
+from typing import Any
 
 from ..errors import InputError
+from ..scenarios import typed
 
 log = logging.getLogger("uavest")
 
@@ -38,29 +40,30 @@ def max_bytes() -> float:
     return cap
 
 
-def estimate(sc: dict, specs: list[str], runs: int, steps: int) -> tuple[float, float]:
-    """(bytes, seconds) a bench of ``runs`` x ``steps`` with ``specs`` may need."""
+def estimate(sc: Any, specs: list[str], runs: int, steps: int) -> tuple[float, float]:
+    """(bytes, seconds) a bench of the typed scenario ``sc`` with ``runs`` x ``steps`` and
+    ``specs`` may need."""
     nf = max(1, len(specs))
     dim = 6
     lam = 0.0
-    if sc.get("kind") == "radar":
-        ndim = int(sc.get("ndim", 2)) if sc.get("ndim", 2) in (2, 3) else 3
-        dim = 2 * ndim + 1
-        lam = float(sc.get("radar", {}).get("clutter_rate", 0.0) or 0.0)
-        ntg = max(1, len(sc.get("targets", [])))
+    if sc.kind == "radar":
+        dim = 2 * sc.ndim + 1
+        lam = float(sc.radar.clutter_rate)
+        ntg = max(1, len(sc.targets))
     else:
         ntg = 1
     per_step = 8.0 * (3 * dim + 4) * nf + 8.0 * (lam + ntg) * 4
-    held = runs if sc.get("kind") == "radar" else min(runs, 64)  # radar keeps every run
+    held = runs if sc.kind == "radar" else min(runs, 64)  # radar keeps every run
     mem = float(held) * steps * per_step + float(runs) * nf * 64 * 8  # + per-trial rows
     us = sum(_US_PER_STEP.get(s.split("(")[0].strip(), 500) for s in specs) or 500
     secs = float(runs) * steps * (us + 5.0 * (lam + ntg) * nf) * 1e-6
     return mem, secs
 
 
-def check(sc: dict, specs: list[str], runs: int, steps: int, what: str) -> None:
-    """Refuse (ValueError, one line) what would not fit in memory; warn on hours."""
-    mem, secs = estimate(sc, specs, runs, steps)
+def check(sc: Any, specs: list[str], runs: int, steps: int, what: str) -> None:
+    """Refuse (InputError, one line) what would not fit in memory; warn on hours (``sc``:
+    the scenario, typed or its dict)."""
+    mem, secs = estimate(typed(sc), specs, runs, steps)
     cap = max_bytes()
     if mem > cap:
         raise InputError(

@@ -1,8 +1,9 @@
-"""Benchmark systems built from scenario dicts, and their vectorised simulation."""
+"""Benchmark systems built from typed scenarios, and their vectorised simulation."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -15,7 +16,7 @@ from ..models.benchmarks import (
     UNGMTransition,
 )
 from ..models.motion import NearlyConstantVelocity
-from ..scenarios import ScenarioError
+from ..scenarios import ScenarioError, typed
 
 Array = np.ndarray
 
@@ -33,40 +34,41 @@ class System:
     divergence_rmse: float
 
 
-def _prior(p: dict, key: str, n: int) -> Gaussian:
-    m = np.broadcast_to(np.asarray(p[f"{key}_mean"], float), (n,)).copy()
-    v = np.broadcast_to(np.asarray(p[f"{key}_var"], float), (n,))
+def _prior(p: Any, key: str, n: int, name: str) -> Gaussian:
+    """The ``key`` ("truth" or "filter") Gaussian of the ``[prior]`` table: per-dimension
+    mean and variance (one value is broadcast)."""
+    mean, var = getattr(p, f"{key}_mean"), getattr(p, f"{key}_var")
+    if not mean or not var:
+        raise ScenarioError(f"scenario {name!r}: prior.{key}_mean and prior.{key}_var "
+                            "are required")
+    m = np.broadcast_to(np.asarray(mean, float), (n,)).copy()
+    v = np.broadcast_to(np.asarray(var, float), (n,))
     return Gaussian(m, np.diag(v))
 
 
-def build_system(sc: dict) -> System:
-    """Models and priors for scenario kinds ``ungm``, ``nonlinear2d``, ``linear_cv``."""
-    kind = sc["kind"]
-    m = dict(sc.get("model", {}))
-    try:
-        if kind == "ungm":
-            tr = UNGMTransition(m["a"], m["b"], m["alpha"], m["beta"], m["Q"])
-            me = UNGMMeasurement(m["c"], m["R"])
-            dt = 1.0
-        elif kind == "nonlinear2d":
-            tr = Nonlinear2DTransition(
-                m["nl"], m["rho"], m["th"], m["g"], m["alpha"], m["beta"], m["Q"]
-            )
-            me = Nonlinear2DMeasurement(m["nl"], m["c"], m["R"])
-            dt = 1.0
-        elif kind == "linear_cv":
-            dt = float(m["dt"])
-            tr = NearlyConstantVelocity(1, m["q"])
-            me = LinearMeasurement([[1.0, 0.0]], [[m["R"]]])
-        else:
-            raise ScenarioError(f"scenario kind {kind!r} is not a benchmark system")
-    except KeyError as e:
-        raise ScenarioError(f"scenario {sc.get('name')!r}: missing model parameter {e}") from None
+def build_system(sc: Any) -> System:
+    """Models and priors for scenario kinds ``ungm``, ``nonlinear2d``, ``linear_cv`` (the
+    scenario typed, or its dict)."""
+    sc = typed(sc)
+    m = sc.model if hasattr(sc, "model") else None
+    if sc.kind == "ungm":
+        tr = UNGMTransition(m.a, m.b, m.alpha, m.beta, m.Q)
+        me = UNGMMeasurement(m.c, m.R)
+        dt = 1.0
+    elif sc.kind == "nonlinear2d":
+        tr = Nonlinear2DTransition(m.nl, m.rho, m.th, m.g, m.alpha, m.beta, m.Q)
+        me = Nonlinear2DMeasurement(m.nl, m.c, m.R)
+        dt = 1.0
+    elif sc.kind == "linear_cv":
+        dt = float(m.dt)
+        tr = NearlyConstantVelocity(1, m.q)
+        me = LinearMeasurement([[1.0, 0.0]], [[m.R]])
+    else:
+        raise ScenarioError(f"scenario kind {sc.kind!r} is not a benchmark system")
     n = tr.space.dim
-    p = sc["prior"]
     return System(
-        tr, me, _prior(p, "truth", n), _prior(p, "filter", n), int(sc["steps"]), dt,
-        float(sc.get("divergence_rmse", np.inf)),
+        tr, me, _prior(sc.prior, "truth", n, sc.name), _prior(sc.prior, "filter", n, sc.name),
+        int(sc.steps), dt, float(sc.divergence_rmse),
     )
 
 

@@ -175,27 +175,29 @@ def plan_trials(scenario: str, trials: int, seed: int = 0, shard_size: int = 25,
     rows of one ``uavest bench`` run."""
     from ..experiments.systems import build_system
     from ..presets import resolve_list
-    from ..scenarios import load_scenario
+    from ..scenarios import load_scenario, typed
 
     if trials < 1:
         raise InputError(f"--trials must be >= 1, got {trials}")
     if shard_size < 1:
         raise InputError(f"--shard-size must be >= 1, got {shard_size}")
-    sc = load_scenario(scenario, list(sets))
-    if sc.get("kind") == "radar":
-        raise InputError(f"scenario {sc['name']!r} is a radar scenario; evaluate runs the "
+    raw = load_scenario(scenario, list(sets))  # the dict: hashed and shipped to workers
+    sc = typed(raw)
+    if sc.kind == "radar":
+        raise InputError(f"scenario {sc.name!r} is a radar scenario; evaluate runs the "
                          "Monte Carlo systems (ungm, nonlinear2d, linear_cv)")
     if steps is not None:
         if steps < 1:
             raise InputError(f"--steps must be >= 1, got {steps}")
-        sc["steps"] = steps
+        raw["steps"] = steps
+        sc = typed(raw)
     sysm = build_system(sc)
-    filters = list(filters or sc.get("filters") or ["ekf", "ukf", "hybrid"])
+    filters = list(filters or sc.filters or ["ekf", "ukf", "hybrid"])
     specs = resolve_list(filters, "bench", dim=sysm.transition.space.dim)
-    group = f"mc:{sc['name']}"
+    group = f"mc:{sc.name}"
     config = {"kind": "shard", "filters": [s.as_dict() for s in specs], "version": __version__}
     ch = sha256_text(canonical(config))
-    content = scenario_content(sc)
+    content = scenario_content(raw)
     plan = Plan(configs={group: {**config, "scenario": content, "trials": trials,
                                  "seed": seed, "shard_size": shard_size}},
                 config_hashes={group: ch})
@@ -203,7 +205,7 @@ def plan_trials(scenario: str, trials: int, seed: int = 0, shard_size: int = 25,
         hi = min(lo + shard_size, trials)
         h = sha256_text(canonical({"scenario": content, "trials": [lo, hi], "seed": seed}))
         key = _key(h, ch)
-        name = f"{sc['name']}[{lo}:{hi}]"
+        name = f"{sc.name}[{lo}:{hi}]"
         plan.inputs.append(Input(name, "shard", group, key, h, Task(
-            key, "shard", name, scenario=sc, specs=tuple(filters), seed=seed, lo=lo, hi=hi)))
+            key, "shard", name, scenario=raw, specs=tuple(filters), seed=seed, lo=lo, hi=hi)))
     return plan

@@ -111,10 +111,12 @@ def _replay_log(task: Task) -> dict:
 def _run_shard(task: Task) -> dict:
     from ..experiments.montecarlo import trial_rows
     from ..experiments.systems import build_system
+    from ..scenarios import typed
 
-    sysm = build_system(task.scenario)
+    sc = typed(task.scenario)
+    sysm = build_system(sc)
     rows = trial_rows(sysm, list(task.specs), task.seed, range(task.lo, task.hi))
-    return {"scenario": task.scenario.get("name"), "seed": task.seed,
+    return {"scenario": sc.name, "seed": task.seed,
             "trials": [task.lo, task.hi], "dim": sysm.transition.space.dim, "rows": rows}
 
 

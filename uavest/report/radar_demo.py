@@ -20,24 +20,25 @@ def run_radar_demo(sinks: list, scenario: str = "radar_uav", steps: int = 40,
     """Run ``filters``' trackers side by side on one seeded run of ``scenario`` (``steps``
     scans) and hand everything to ``sinks`` (opened and closed here). Returns
     ``{"run": RunData, "records": {label: [ScanRecord]}, "info": RunInfo}``."""
-    from ..experiments.radar import data_rng, filter_rng, make_radar_filter
-    from ..scenarios import load_scenario, resolved
-    from ..tracking.scenario import build_models, clutter_box, generate_run
+    from dataclasses import replace
+
+    from ..experiments.radar import data_rng, filter_models, filter_rng, make_radar_filter
+    from ..scenarios import load_typed, resolved
+    from ..tracking.scenario import clutter_box, generate_run
     from ..tracking.tracker import Tracker, TrackerConfig
 
-    sc = load_scenario(scenario)
-    sc["steps"] = steps
+    sc = replace(load_typed(scenario), steps=steps)
     run = generate_run(sc, data_rng(seed, 0), steps)
-    motion, radar = build_models(sc)
-    dt = float(sc.get("dt", 1.0))
-    lo, hi = clutter_box(sc, radar)
-    cfg = TrackerConfig.from_scenario(sc, clutter_volume=float(np.prod(hi - lo)))
+    motion, radar = filter_models(sc)
+    dt = float(sc.dt)
+    lo, hi = clutter_box(sc.radar, radar)
+    cfg = TrackerConfig.from_tables(sc.tracker, sc.radar, clutter_volume=float(np.prod(hi - lo)))
     trackers = {lab: Tracker(make_radar_filter(lab), motion, cfg, filter_rng(seed, 0, lab))
                 for lab in filters}
     info = RunInfo(f"radar demo {scenario}", f"scenario:{scenario}", seed,
                    filters={lab: {"spec": lab, "tracker": cfg.__dict__} for lab in filters},
                    config={"scenario": scenario, "steps": steps, "dt": dt,
-                           "gospa_c": float(sc.get("metrics", {}).get("gospa_c", 100.0))},
+                           "gospa_c": float(sc.metrics.gospa_c)},
                    versions=package_versions(), scenario=resolved(sc))
     records: dict[str, list] = {lab: [] for lab in filters}
     for s in sinks:

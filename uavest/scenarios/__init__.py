@@ -52,7 +52,13 @@ def list_scenarios() -> list[str]:
 
 def load_scenario(name_or_path: str, sets: list[str] | tuple[str, ...] = ()) -> dict:
     """Scenario dict (with ``name`` and ``kind``) from a name or a .toml path, with
-    ``KEY=VALUE`` overrides applied."""
+    ``KEY=VALUE`` overrides applied, every value checked (:func:`load_typed` for the typed
+    scenario)."""
+    return _load(name_or_path, sets)[0]
+
+
+def _load(name_or_path: str, sets: list[str] | tuple[str, ...]) -> tuple[dict, Any]:
+    """(scenario dict, typed scenario), parsed and checked once."""
     f = find_scenario(name_or_path)
     if f is not None:
         try:
@@ -72,18 +78,19 @@ def load_scenario(name_or_path: str, sets: list[str] | tuple[str, ...] = ()) -> 
     sc = apply_sets(sc, sets)
     try:
         validate_scenario(sc)
-        parse(sc)
+        scn = parse(sc)
+        _check_kind(scn, sc)
     except ScenarioError as e:
         if sets:
             raise ScenarioError(f"{e} (after --set {' '.join(sets)})") from None
         raise
-    return sc
+    return sc, scn
 
 
 def load_typed(name_or_path: str, sets: list[str] | tuple[str, ...] = ()) -> Any:
     """The typed scenario (a frozen dataclass of :mod:`uavest.scenarios.schema`, every
     default filled in) of :func:`load_scenario`."""
-    return parse(load_scenario(name_or_path, sets))
+    return _load(name_or_path, sets)[1]
 
 
 def typed(sc: dict | Any) -> Any:
@@ -123,8 +130,8 @@ def validate_scenario(sc: dict) -> None:
     """Types and ranges of a scenario's values, with a one-line :class:`ScenarioError`
     naming the file, the key, the value and what is allowed: every number finite,
     ``runs``/``steps`` integers >= 1, ``filters`` a list of spec strings, noise levels and
-    standard deviations >= 0, and for radar scenarios the checks of
-    :func:`uavest.tracking.scenario.check_radar`."""
+    standard deviations >= 0 (the schema's :func:`~uavest.scenarios.schema.parse` then
+    checks each declared field, and :func:`_check_kind` the typed scenario)."""
     where = f"{sc.get('source', sc.get('name'))}: " if sc.get("source") else ""
 
     def fail(msg: str):
@@ -164,10 +171,30 @@ def validate_scenario(sc: dict) -> None:
         d = sc["divergence_rmse"]
         if not isinstance(d, int | float) or isinstance(d, bool) or d <= 0:
             fail(f"{where}divergence_rmse = {d!r}: must be a number > 0")
-    if sc.get("kind") == "radar":
-        from ..tracking.scenario import check_radar
 
-        check_radar(sc, where, fail)
+
+def _check_kind(scn: Any, sc: dict) -> None:
+    """The checks of a typed scenario across its fields (the schema checks each field
+    alone): a radar scenario's clutter within what a run can hold
+    (:data:`uavest.tracking.scenario.MAX_CLUTTER_PER_SCAN`) and prior lengths matching
+    its dimension."""
+    if scn.kind != "radar":
+        return
+    from ..tracking.scenario import MAX_CLUTTER_PER_SCAN
+
+    where = f"{sc['source']}: " if sc.get("source") else ""
+    lam = scn.radar.clutter_rate
+    if lam > MAX_CLUTTER_PER_SCAN:
+        gb = lam * 8 * 8 / 1e9
+        raise ScenarioError(
+            f"{where}radar.clutter_rate = {lam:g}: about {gb:.2g} GB of detections per scan "
+            f"before association; at most {MAX_CLUTTER_PER_SCAN:g} per scan is supported")
+    n = 2 * scn.ndim
+    for key in ("mean", "std"):
+        v = getattr(scn.prior, key)
+        if v and len(v) not in (n, n + 1):
+            raise ScenarioError(f"{where}prior.{key} = {list(v)!r}: must be a list of {n} "
+                                f"numbers (the state [position, velocity] in {scn.ndim}-D)")
 
 
 def parse_value(v: str):

@@ -154,6 +154,11 @@ class Motion:
     q_omega: float = F(1e-4, "float", "turn-rate noise intensity (CT)", "rad^2/s^3",
                        **NONNEG)
 
+    @property
+    def truth_noise(self) -> float:
+        """The truth's process noise intensity (m^2/s^3): ``truth_q``, else ``q``."""
+        return self.q if self.truth_q is None else self.truth_q
+
 
 @dataclass(frozen=True)
 class TrackRadar:
@@ -169,10 +174,9 @@ class TrackRadar:
     pd: float = F(1.0, "float", "probability of detection per target per scan", "", **PROB)
     clutter_rate: float = F(0.0, "float", "mean false alarms per scan", "1/scan", lo=0.0,
                             hi=1e6)
-    r_max: float | None = F(None, "float", "maximum range (clutter drawn within)", "m",
-                            **NONNEG)
-    rr_max: float | None = F(None, "float", "maximum |range rate| of clutter", "m/s",
-                             **NONNEG)
+    r_max: float = F(20000.0, "float", "maximum range: targets beyond are not detected, "
+                     "clutter is drawn within", "m", **NONNEG)
+    rr_max: float = F(100.0, "float", "maximum |range rate| of clutter", "m/s", **NONNEG)
 
 
 @dataclass(frozen=True)
@@ -198,9 +202,12 @@ class Tracker:
     max_pos_std: float = F(5000.0, "float", "track deleted above this position std", "m",
                            **NONNEG)
     association: str = F("gnn", "str", "data association", choices=("gnn", "jpda"))
-    pd: float = F(0.9, "float", "detection probability assumed by JPDA", "", **PROB)
-    clutter_density: float = F(1e-6, "float", "false alarms per scan per unit measurement "
-                               "volume (JPDA)", "1/volume", **NONNEG)
+    pd: float | None = F(None, "float", "detection probability assumed by JPDA (default "
+                         "radar.pd)", "", **PROB)
+    clutter_density: float | None = F(None, "float", "false alarms per scan per unit "
+                                      "measurement volume assumed by JPDA (default "
+                                      "radar.clutter_rate / the clutter box's volume)",
+                                      "1/volume", **NONNEG)
     jpda_max_cluster: int = F(8, "int", "larger clusters: per-track PDA", "", lo=1)
 
 

@@ -1,7 +1,9 @@
-"""Radar scenario generator: truths, sensor poses and detections from a scenario dict.
+"""Radar scenario generator: truths, sensor poses and detections from a typed scenario.
 
-A scenario (``scenarios/radar_*.toml``, ``kind = "radar"``) is read by
-:func:`build_models` and :func:`generate_run`; see ``docs/tracking.md`` for the format.
+A scenario (``scenarios/radar_*.toml``, ``kind = "radar"``, typed by
+:func:`uavest.scenarios.load_typed`) is read by :func:`generate_run`; the filters' models
+come from its tables (:func:`motion_model`, :func:`radar_model`, :func:`clutter_box`); see
+``docs/tracking.md`` for the format.
 World frame ENU (m, m/s); scans at ``t_k = k dt``, k = 1..steps; truth index 0 is the
 initial state at t = 0.
 """
@@ -9,9 +11,11 @@ initial state at t = 0.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
+from ..errors import InputError
 from ..models.motion import NearlyConstantVelocity, ncv_matrices
 from ..models.radar import RadarMeasurement, SensorPose, euler_zyx, wrap_angle
 from ..models.turn import CoordinatedTurn, ct_step
@@ -42,71 +46,76 @@ class RunData:
     x0: Array | None
 
 
-def _get(sc: dict, table: str, key: str, default):
-    return sc.get(table, {}).get(key, default)
+# The scenario's tables arrive typed (the frozen dataclasses of uavest.scenarios.schema:
+# RadarScenario and its Motion, TrackRadar, RadarPrior, Uav, RadarTarget tables, every
+# default filled in there); this layer reads their attributes and imports none of them
+# (the scenarios layer sits above it), hence the ``Any`` hints.
 
 
-def radar_model(sc: dict) -> RadarMeasurement:
-    """The scenario's radar (noise from ``[radar]``; angles given in degrees)."""
-    ndim = int(sc.get("ndim", 2))
-    r = sc.get("radar", {})
-    rr = r.get("sigma_rr")
+def state_dim(ndim: int, motion: Any) -> int:
+    """Tangent dimension of the filters' state: 2 ndim, + 1 (turn rate) for ``ct``."""
+    return 2 * ndim + (1 if motion.model == "ct" else 0)
+
+
+def radar_model(radar: Any, ndim: int, n: int) -> RadarMeasurement:
+    """The radar of the ``[radar]`` table (noise std in m, deg, m/s; boresight yaw deg)
+    for an ``n``-dimensional filter state in ``ndim``-D."""
+    rr = radar.sigma_rr
     return RadarMeasurement(
         ndim=ndim,
-        state_dim=state_dim(sc),
-        sigma_range=float(r.get("sigma_range", 10.0)),
-        sigma_az=np.deg2rad(float(r.get("sigma_az_deg", 1.0))),
-        sigma_el=np.deg2rad(float(r.get("sigma_el_deg", 1.0))),
+        state_dim=n,
+        sigma_range=float(radar.sigma_range),
+        sigma_az=np.deg2rad(float(radar.sigma_az_deg)),
+        sigma_el=np.deg2rad(float(radar.sigma_el_deg)),
         sigma_rr=None if rr is None else float(rr),
         pose=SensorPose.fixed(
-            ndim, r.get("position"), np.deg2rad(float(r.get("yaw_deg", 0.0)))
+            ndim, None if radar.position is None else list(radar.position),
+            np.deg2rad(float(radar.yaw_deg))
         ),
     )
 
 
-def state_dim(sc: dict) -> int:
-    ndim = int(sc.get("ndim", 2))
-    return 2 * ndim + (1 if _get(sc, "motion", "model", "ncv") == "ct" else 0)
+def motion_model(motion: Any, ndim: int):
+    """The filters' motion model of the ``[motion]`` table: ``ncv`` or ``ct`` (``q``
+    m^2/s^3, ``q_omega`` rad^2/s^3)."""
+    if motion.model == "ct":
+        return CoordinatedTurn(ndim, float(motion.q), float(motion.q_omega))
+    return NearlyConstantVelocity(ndim, float(motion.q))
 
 
-def motion_model(sc: dict):
-    """The filters' motion model: ``ncv`` or ``ct`` (``[motion] model``, ``q``,
-    ``q_omega``)."""
-    ndim = int(sc.get("ndim", 2))
-    m = sc.get("motion", {})
-    q = float(m.get("q", 0.5))
-    if m.get("model", "ncv") == "ct":
-        return CoordinatedTurn(ndim, q, float(m.get("q_omega", 1e-4)))
-    return NearlyConstantVelocity(ndim, q)
+def build_models(sc: Any):
+    """(motion model, radar model) for the filters of a typed radar scenario."""
+    motion = motion_model(sc.motion, sc.ndim)
+    return motion, radar_model(sc.radar, sc.ndim, motion.space.dim)
 
 
-def build_models(sc: dict):
-    """(motion model, radar model) for the filters."""
-    return motion_model(sc), radar_model(sc)
-
-
-def detection_range(sc: dict) -> float:
+def detection_range(radar: Any) -> float:
     """``radar.r_max`` (m): targets beyond it are not detected, clutter is drawn within."""
-    return float(sc.get("radar", {}).get("r_max", 20000.0))
+    return float(radar.r_max)
 
 
-def clutter_box(sc: dict, radar: RadarMeasurement) -> tuple[Array, Array]:
+def clutter_box(radar: Any, meas: RadarMeasurement) -> tuple[Array, Array]:
     """(lo, hi) of the measurement-space box clutter is drawn uniformly in (range up to
-    ``r_max``, full azimuth, elevation; range rate within +-``rr_max`` m/s)."""
-    rr_max = float(sc.get("radar", {}).get("rr_max", 100.0))
-    return radar.measurement_box(detection_range(sc), rr_max)
+    ``radar.r_max``, full azimuth, elevation; range rate within +-``radar.rr_max`` m/s)."""
+    return meas.measurement_box(detection_range(radar), float(radar.rr_max))
 
 
-def prior(sc: dict) -> tuple[Array, Array]:
-    """Filter-mode prior (m0, P0) in the filter's state space (``[prior] mean, std``)."""
-    p = sc.get("prior", {})
-    m0 = np.asarray(p["mean"], float)
-    s0 = np.asarray(p["std"], float)
-    n = state_dim(sc)
+def initial_prior(p: Any, n: int) -> tuple[Array, Array]:
+    """Filter-mode prior (m0, P0) of the ``[prior]`` table (``mean``, ``std``; a CT state's
+    turn rate appended with mean 0 and std ``omega_std``) in an ``n``-dimensional state."""
+    if not p.mean or not p.std:
+        raise InputError("a filter-mode radar scenario needs prior.mean and prior.std")
+    m0 = np.asarray(p.mean, float)
+    s0 = np.asarray(p.std, float)
     if m0.size < n:  # CT: append a zero turn rate
         m0 = np.concatenate([m0, np.zeros(n - m0.size)])
-        s0 = np.concatenate([s0, np.full(n - s0.size, float(p.get("omega_std", 0.05)))])
+        s0 = np.concatenate([s0, np.full(n - s0.size, float(p.omega_std))])
     return m0, np.diag(s0**2)
+
+
+def prior(sc: Any) -> tuple[Array, Array]:
+    """Filter-mode prior (m0, P0) of a typed radar scenario (:func:`initial_prior`)."""
+    return initial_prior(sc.prior, state_dim(sc.ndim, sc.motion))
 
 
 # ------------------------------------------------------------------------------ truths
@@ -143,20 +152,19 @@ def _truth_track(
     return x, alive
 
 
-def _uav_poses(sc: dict, steps: int, dt: float, rng) -> tuple[list, list]:
-    """True and estimated poses of a UAV-carried radar (``[uav]`` table).
+def _uav_poses(u: Any, steps: int, dt: float, rng) -> tuple[list, list]:
+    """True and estimated poses of a UAV-carried radar (the ``[uav]`` table ``u``).
 
     The UAV flies at constant speed and altitude with turn segments ``turns`` (deg/s);
     attitude is yaw = course, pitch 0, roll = coordinated-turn bank atan(v omega / g).
     The radar is body-fixed (FLU). The tracker gets the true position and an *estimated*
     attitude: truth plus white errors of ``attitude_error_deg`` (std, per Euler angle),
     standing in for the attitude filter's estimate."""
-    u = sc.get("uav", {})
-    p = np.asarray(u.get("start", [0.0, 0.0, 500.0]), float)
-    speed = float(u.get("speed", 30.0))
-    yaw = np.deg2rad(float(u.get("yaw_deg", 0.0)))
-    err = np.deg2rad(float(u.get("attitude_error_deg", 0.2)))
-    turns = u.get("turns", [])
+    p = np.asarray(u.start, float)
+    speed = float(u.speed)
+    yaw = np.deg2rad(float(u.yaw_deg))
+    err = np.deg2rad(float(u.attitude_error_deg))
+    turns = u.turns
     true, est = [], []
     for k in range(1, steps + 1):
         w = _turn_rate(turns, k - 1)
@@ -178,46 +186,48 @@ def _uav_poses(sc: dict, steps: int, dt: float, rng) -> tuple[list, list]:
     return true, est
 
 
-def generate_run(sc: dict, rng: np.random.Generator, steps: int | None = None) -> RunData:
-    """Truths, poses and detections for one run (all randomness from ``rng``)."""
-    ndim = int(sc.get("ndim", 2))
-    steps = int(steps or sc.get("steps", 100))
-    dt = float(sc.get("dt", 1.0))
-    mode = sc.get("mode", "tracker")
-    m = sc.get("motion", {})
-    truth_q = float(m.get("truth_q", m.get("q", 0.5)))
-    targets = sc.get("targets", [])
+def generate_run(sc: Any, rng: np.random.Generator, steps: int | None = None) -> RunData:
+    """Truths, poses and detections for one run of a typed radar scenario (all randomness
+    from ``rng``; ``steps`` overrides the scenario's)."""
+    ndim = sc.ndim
+    steps = int(steps or sc.steps)
+    dt = float(sc.dt)
+    truth_q = sc.motion.truth_noise
+    targets = [(t.start, t.turns, t.q, t.born, t.died) for t in sc.targets]
     x0 = None
-    if mode == "filter":
+    if sc.mode == "filter":
         m0, P0 = prior(sc)
         n = 2 * ndim
-        tgt = targets[0] if targets else {}
-        start = np.asarray(tgt.get("start", m0[:n]), float)
+        tgt = targets[0] if targets else ((), (), None, 0, None)
+        start = np.asarray(tgt[0] or m0[:n], float)
         x0 = m0 + np.linalg.cholesky(P0) @ rng.standard_normal(m0.size)
-        targets = [{**tgt, "start": start}]
+        targets = [(start, *tgt[1:])]
     T, A = [], []
-    for tg in targets:
+    for i, (start, turns, q, born, died) in enumerate(targets):
+        if len(start) != 2 * ndim:
+            raise InputError(f"targets[{i}].start = {list(start)!r}: must be {2 * ndim} "
+                             f"numbers (the state [position, velocity] in {ndim}-D)")
         x, a = _truth_track(
-            np.asarray(tg["start"], float), ndim, steps, dt, tg.get("turns"),
-            float(tg.get("q", truth_q)), rng, int(tg.get("born", 0)),
-            int(tg.get("died", steps)),
+            np.asarray(start, float), ndim, steps, dt, turns,
+            float(truth_q if q is None else q), rng, int(born),
+            int(steps if died is None else died),
         )
         T.append(x)
         A.append(a)
     truths = np.stack(T) if T else np.zeros((0, steps + 1, 2 * ndim))
     alive = np.stack(A) if A else np.zeros((0, steps + 1), bool)
 
-    radar = radar_model(sc)
-    r = sc.get("radar", {})
-    if r.get("platform", "ground") == "uav":
-        poses_true, poses_est = _uav_poses(sc, steps, dt, rng)
+    r = sc.radar
+    radar = radar_model(r, ndim, state_dim(ndim, sc.motion))
+    if r.platform == "uav":
+        poses_true, poses_est = _uav_poses(sc.uav, steps, dt, rng)
     else:
         poses_true = poses_est = [radar.pose] * steps
-    pd = float(r.get("pd", 1.0))
-    lam = float(r.get("clutter_rate", 0.0))
-    r_max = detection_range(sc)
-    lo, hi = clutter_box(sc, radar)
-    missed = sc.get("missed", [])  # [[target, k_start, k_end]]: forced Pd = 0
+    pd = float(r.pd)
+    lam = float(r.clutter_rate)
+    r_max = detection_range(r)
+    lo, hi = clutter_box(r, radar)
+    missed = sc.missed  # [[target, k_start, k_end]]: forced Pd = 0
     scans, origins = [], []
     for k in range(1, steps + 1):
         meas = radar.with_pose(poses_true[k - 1])
@@ -245,61 +255,11 @@ def generate_run(sc: dict, rng: np.random.Generator, steps: int | None = None) -
 
 
 __all__ = [
-    "RunData", "build_models", "generate_run", "motion_model", "prior", "radar_model",
-    "state_dim",
+    "RunData", "build_models", "clutter_box", "detection_range",
+    "generate_run", "initial_prior", "motion_model", "prior", "radar_model", "state_dim",
 ]
 
 
 # ------------------------------------------------------------------------------ checks
-MOTION_MODELS = ("ncv", "ct")
 MAX_CLUTTER_PER_SCAN = 1e4  # mean false alarms per scan beyond which a run would not fit
 MAX_DETECTIONS = 2e7  # mean detections (clutter) over the whole job that are allowed
-
-
-def check_radar(sc: dict, where: str, fail) -> None:
-    """Ranges and shapes of a radar scenario's values (``fail(msg)`` raises)."""
-    ndim = sc.get("ndim", 2)
-    if ndim not in (2, 3) or isinstance(ndim, bool):
-        fail(f"{where}ndim = {ndim!r}: must be 2 or 3")
-    m = sc.get("motion", {})
-    if not isinstance(m, dict):
-        fail(f"{where}motion must be a table")
-    model = m.get("model", "ncv")
-    if model not in MOTION_MODELS:
-        fail(f"{where}motion.model = {model!r}: unknown motion model; known: "
-             f"{', '.join(MOTION_MODELS)}")
-    r = sc.get("radar", {})
-    if not isinstance(r, dict):
-        fail(f"{where}radar must be a table")
-    pd = r.get("pd", 1.0)
-    if not (isinstance(pd, int | float) and 0.0 < pd <= 1.0) or isinstance(pd, bool):
-        fail(f"{where}radar.pd = {pd!r}: must be a probability in (0, 1]")
-    lam = r.get("clutter_rate", 0.0)
-    if not isinstance(lam, int | float) or isinstance(lam, bool) or lam < 0:
-        fail(f"{where}radar.clutter_rate = {lam!r}: must be a number >= 0 (false alarms "
-             "per scan)")
-    if lam > MAX_CLUTTER_PER_SCAN:
-        gb = lam * 8 * 8 / 1e9
-        fail(f"{where}radar.clutter_rate = {lam:g}: about {gb:.2g} GB of detections per "
-             f"scan before association; at most {MAX_CLUTTER_PER_SCAN:g} per scan is "
-             "supported")
-    n = 2 * ndim
-    p = sc.get("prior", {})
-    if isinstance(p, dict):
-        for key in ("mean", "std"):
-            if key in p:
-                v = p[key]
-                if not isinstance(v, list) or len(v) not in (n, n + 1):
-                    fail(f"{where}prior.{key} = {v!r}: must be a list of {n} numbers "
-                         f"(the state [position, velocity] in {ndim}-D)")
-        if "std" in p and any(x < 0 for x in p["std"] if isinstance(x, int | float)):
-            fail(f"{where}prior.std = {p['std']!r}: standard deviations must be >= 0")
-    t = sc.get("tracker", {})
-    if isinstance(t, dict):
-        for k in ("confirm_m", "confirm_n", "delete_misses"):
-            v = t.get(k, 1)
-            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
-                fail(f"{where}tracker.{k} = {v!r}: must be an integer >= 1")
-        gp = t.get("gate_prob", 0.5)
-        if not (isinstance(gp, int | float) and 0.0 < gp < 1.0):
-            fail(f"{where}tracker.gate_prob = {gp!r}: must be a probability in (0, 1)")

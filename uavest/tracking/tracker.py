@@ -51,7 +51,8 @@ Track IDs are assigned at initiation (increasing integers) and never reused.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
+from typing import Any
 
 import numpy as np
 
@@ -67,7 +68,7 @@ Array = np.ndarray
 
 @dataclass(frozen=True)
 class TrackerConfig:
-    """Tracker parameters (scenario table ``[tracker]``)."""
+    """Tracker parameters (a scenario's ``[tracker]`` table, :meth:`from_tables`)."""
 
     gate_prob: float = 0.999
     confirm_m: int = 4
@@ -86,18 +87,22 @@ class TrackerConfig:
             raise InputError(f"tracker.association must be gnn or jpda, not {self.association!r}")
 
     @staticmethod
-    def from_scenario(sc: dict, clutter_volume: float | None = None) -> TrackerConfig:
-        """From the ``[tracker]`` table; JPDA's ``pd`` and ``clutter_density`` default to
-        the scenario's ``radar.pd`` and ``radar.clutter_rate / clutter_volume`` (the
-        measurement-space volume clutter is drawn in) unless the table sets them."""
-        t = dict(sc.get("tracker", {}))
-        r = sc.get("radar", {})
-        t.setdefault("pd", float(r.get("pd", 1.0)))
-        if clutter_volume and "clutter_density" not in t:
-            t["clutter_density"] = max(float(r.get("clutter_rate", 0.0)) / clutter_volume,
-                                       1e-12)
-        known = TrackerConfig.__dataclass_fields__
-        return TrackerConfig(**{k: v for k, v in t.items() if k in known})
+    def from_tables(tracker: Any, radar: Any, clutter_volume: float | None = None
+                    ) -> TrackerConfig:
+        """From a typed scenario's ``[tracker]`` table; JPDA's ``pd`` and
+        ``clutter_density`` (None there: not set) default to the ``[radar]`` table's ``pd``
+        and ``clutter_rate / clutter_volume`` (the measurement-space volume clutter is
+        drawn in)."""
+        kw = {f.name: getattr(tracker, f.name) for f in fields(TrackerConfig)
+              if hasattr(tracker, f.name)}
+        if kw.get("pd") is None:
+            kw["pd"] = float(radar.pd)
+        if kw.get("clutter_density") is None:
+            kw.pop("clutter_density", None)
+            if clutter_volume:
+                kw["clutter_density"] = max(float(radar.clutter_rate) / clutter_volume,
+                                            1e-12)
+        return TrackerConfig(**kw)
 
 
 @dataclass
