@@ -35,18 +35,19 @@ or of one whole tracker scan (tracker mode), in microseconds.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 
 from ..core.gaussian import Gaussian
 from ..core.guard import Guarded
+from ..core.spec import FilterSpec
 from ..engine import FilterRunner, Start, Step, TrackerRunner
 from ..engine import run as run_engine
 from ..engine.build import build_filters
 from ..eval.pcrlb import conditional_bounds, pcrlb, position_bound, velocity_bound
 from ..eval.tracking import nees, nees_band, track_quality
-from ..presets import build
+from ..presets import build, resolve_list, spec_labels
 from ..scenarios import ScenarioError
 from ..seeding import filter_stream, rng
 from ..sinks.base import Collector
@@ -56,7 +57,7 @@ from ..tracking.tracker import Tracker, TrackerConfig
 Array = np.ndarray
 
 
-def make_radar_filter(spec: str, dim: int | None = None):
+def make_radar_filter(spec: str | FilterSpec, dim: int | None = None):
     """A core filter from its spec with the ``radar`` preset (see ``uavest list``)."""
     return build(spec, "radar", dim)
 
@@ -143,7 +144,8 @@ def _bound_measurement(radar, rundata):
     return lambda k: models[k - 1]
 
 
-def bench_filter_mode(sc: dict, filters: list[str], runs: int, seed: int, steps: int | None):
+def bench_filter_mode(sc: dict, filters: Sequence[str | FilterSpec], runs: int, seed: int,
+                      steps: int | None):
     check_filter_mode(sc)
     motion, radar = build_models(sc)
     ndim = radar.ndim
@@ -163,8 +165,9 @@ def bench_filter_mode(sc: dict, filters: list[str], runs: int, seed: int, steps:
     cond = conditional_bounds(np.linalg.inv(P0), truths, motion, meas, dt, detected=detected)
     bcond = np.sqrt(np.einsum("rkii->k", cond[:, :, :ndim, :ndim]) / runs)  # RMS over runs
     out = {}
-    for label in filters:
-        filt = make_radar_filter(label, motion.space.dim)
+    for spec in filters:
+        label = spec.label if isinstance(spec, FilterSpec) else spec
+        filt = make_radar_filter(spec, motion.space.dim)
         E_pre = np.empty((runs, K, ndim))
         E = np.empty((runs, K, 2 * ndim))
         NE = np.empty((runs, K))
@@ -241,8 +244,8 @@ def run_trackers(sc: dict, filters: list[str], run, seed: int, r: int, sinks=(),
     runners = [
         TrackerRunner(label, lambda f=f, label=label: Tracker(f, motion, cfg,
                                                               filter_rng(seed, r, label)))
-        for label, f in ((sp.label, f)
-                         for sp, f in build_filters(filters, "radar", dim=motion.space.dim))
+        for label, f in ((sp.label, f) for sp, f in build_filters(
+            resolve_list(filters, "radar", dim=motion.space.dim)))
     ]
     run_engine(scan_steps(run, radar, motion, dt), runners, sinks, info)
     return {tr.label: tr.tracker for tr in runners}
@@ -277,15 +280,16 @@ def tracker_errors(tracker: Tracker, run, ndim: int, c: float, dt: float):
     return q, errs
 
 
-def bench_tracker_mode(sc: dict, filters: list[str], runs: int, seed: int, steps: int | None,
-                       record: tuple | None = None):
+def bench_tracker_mode(sc: dict, filters: Sequence[str | FilterSpec], runs: int, seed: int,
+                       steps: int | None, record: tuple | None = None):
     """Tracker-mode table over runs 0..runs-1; ``record = (r, sinks, info)`` hands run r's
     engine run (scans, truths, every tracker's records) to ``sinks``."""
     motion, radar = build_models(sc)
     ndim = radar.ndim
     dt = float(sc.get("dt", 1.0))
     c = float(sc.get("metrics", {}).get("gospa_c", 200.0))
-    acc = {lab: {"q": [], "e": [], "sec": 0.0, "scans": 0, "runrmse": []} for lab in filters}
+    labels = spec_labels(filters)
+    acc = {lab: {"q": [], "e": [], "sec": 0.0, "scans": 0, "runrmse": []} for lab in labels}
     K = None
     for r in range(runs):
         rd = generate_run(sc, data_rng(seed, r), steps)
@@ -306,7 +310,7 @@ def bench_tracker_mode(sc: dict, filters: list[str], runs: int, seed: int, steps
                     float(np.sqrt(np.mean([np.sum(e[2][:ndim] ** 2) for e in errs])))
                 )
     out = {}
-    for lab in filters:
+    for lab in labels:
         a = acc[lab]
         qs = a["q"]
         e = a["e"]
@@ -370,7 +374,7 @@ def trial_info(sc: dict, filters: list[str], seed: int, r: int, command: str = "
     from ..scenarios import resolved
 
     motion, _ = build_models(sc)
-    built = build_filters(filters, "radar", dim=motion.space.dim)
+    built = build_filters(resolve_list(filters, "radar", dim=motion.space.dim))
     return RunInfo(command, f"scenario:{sc.get('name')}", seed,
                    filters={sp.label: sp.as_dict() for sp, _ in built},
                    config={"scenario": sc.get("name"), "trial": r,
@@ -389,7 +393,8 @@ def run_bench(
     scenario's ``runs``. ``record = (r, sinks, info)``: trial r's tracker run goes to
     ``sinks`` (tracker mode: the very run the table uses; filter mode, which runs no
     tracker: the trackers on trial r's data, as ``uavest track`` does)."""
-    filters = list(filters or scenario.get("filters", ["ekf", "ukf", "hybrid"]))
+    filters = resolve_list(list(filters or scenario.get("filters", ["ekf", "ukf", "hybrid"])),
+                           "radar", dim=build_models(scenario)[0].space.dim)  # once for all runs
     runs = int(runs or scenario.get("runs", 100))
     if scenario.get("mode", "tracker") == "filter":
         out = bench_filter_mode(scenario, filters, runs, seed, steps)

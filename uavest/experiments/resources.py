@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Sequence
 
+from ..core.spec import FilterSpec
 from ..errors import InputError
 
 log = logging.getLogger("uavest")
@@ -38,7 +40,8 @@ def max_bytes() -> float:
     return cap
 
 
-def estimate(sc: dict, specs: list[str], runs: int, steps: int) -> tuple[float, float]:
+def estimate(sc: dict, specs: Sequence[str | FilterSpec], runs: int, steps: int
+             ) -> tuple[float, float]:
     """(bytes, seconds) a bench of ``runs`` x ``steps`` with ``specs`` may need."""
     nf = max(1, len(specs))
     dim = 6
@@ -53,12 +56,13 @@ def estimate(sc: dict, specs: list[str], runs: int, steps: int) -> tuple[float, 
     per_step = 8.0 * (3 * dim + 4) * nf + 8.0 * (lam + ntg) * 4
     held = runs if sc.get("kind") == "radar" else min(runs, 64)  # radar keeps every run
     mem = float(held) * steps * per_step + float(runs) * nf * 64 * 8  # + per-trial rows
-    us = sum(_US_PER_STEP.get(s.split("(")[0].strip(), 500) for s in specs) or 500
+    names = (s.name if isinstance(s, FilterSpec) else s.split("(")[0].strip() for s in specs)
+    us = sum(_US_PER_STEP.get(n, 500) for n in names) or 500
     secs = float(runs) * steps * (us + 5.0 * (lam + ntg) * nf) * 1e-6
     return mem, secs
 
 
-def check(sc: dict, specs: list[str], runs: int, steps: int, what: str) -> None:
+def check(sc: dict, specs: Sequence[str | FilterSpec], runs: int, steps: int, what: str) -> None:
     """Refuse (ValueError, one line) what would not fit in memory; warn on hours."""
     mem, secs = estimate(sc, specs, runs, steps)
     cap = max_bytes()
