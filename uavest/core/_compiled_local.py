@@ -27,11 +27,11 @@ import math
 from functools import lru_cache
 
 import numpy as np
-from numba import njit, types
-from numba.core import cgutils
-from numba.core.extending import intrinsic
+from numba import njit
 from numba.np.random.distributions import random_standard_normal
 from numba.np.random.generator_core import next_double
+
+from ..compiled.helpers import bitgen
 
 __all__ = ["add_noise", "centres", "local_draw", "local_gains", "local_update", "moments",
            "prior_moments",
@@ -40,32 +40,6 @@ __all__ = ["add_noise", "centres", "local_draw", "local_gains", "local_update", 
 #: LLVM may fuse a * b + c into one rounding (FMA): the results stay equal to the numpy
 #: path to rounding; no flag that assumes finite values (the NaN checks must hold).
 _FM = {"contract"}
-
-
-_BITGEN = types.NumPyRandomBitGeneratorType("bit_generator")
-
-
-@intrinsic
-def _bitgen(tyctx, state, next_u64, next_u32, next_dbl):  # pragma: no cover - compiled
-    """numba's bit-generator struct (what it unboxes from a ``Generator`` argument) from
-    the addresses of :func:`uavest.geometry.kernels.bitgen_pointers`, so that numba's
-    own ``random_standard_normal`` / ``next_double`` (numpy's algorithms: numpy's values,
-    in numpy's order) draw from the caller's generator without the ~8 us that numba
-    spends per call unboxing a ``Generator`` through ctypes."""
-    sig = _BITGEN(types.intp, types.intp, types.intp, types.intp)
-
-    def codegen(cgctx, builder, sig, args):
-        st = cgutils.create_struct_proxy(_BITGEN)(cgctx, builder)
-        st.state_address = args[0]
-        st.state = args[0]
-        st.fnptr_next_uint64 = args[1]
-        st.fnptr_next_uint32 = args[2]
-        st.fnptr_next_double = args[3]
-        st.bit_generator = cgctx.get_constant(types.uintp, 0)
-        st.parent = cgutils.get_null_value(cgctx.get_value_type(types.pyobject))
-        return st._getvalue()
-
-    return sig, codegen
 
 
 @lru_cache(maxsize=16)
@@ -328,7 +302,7 @@ def local_update(bits, C, Hs, B, R, nu, dY, w, confidence, regen_ess, Lb, Lr, ta
     the effective sample size of the updated weights, :func:`systematic_indices` if it is
     < ``regen_ess`` M, and :func:`local_draw` with the standard normals ``En`` (M, n)
     then ``Vn`` (M, m) drawn here from the caller's ``numpy.random.Generator`` (``bits``:
-    its :func:`uavest.geometry.kernels.bitgen_pointers`; numba's draws are numpy's,
+    its :func:`uavest.compiled.bitgen_pointers`; numba's draws are numpy's,
     value for value, and leave the generator in the same state). The draws come in the
     numpy path's order: the resampling uniform (if any), ``En``, ``Vn``.
 
@@ -345,7 +319,7 @@ def local_update(bits, C, Hs, B, R, nu, dY, w, confidence, regen_ess, Lb, Lr, ta
     for j in range(M):
         s2 += wu[j] * wu[j]
     resample = 1.0 / s2 < regen_ess * M
-    bg = _bitgen(bits[0], bits[1], bits[2], bits[3])
+    bg = bitgen(bits[0], bits[1], bits[2], bits[3])
     if resample:
         idx = systematic_indices(wu, next_double(bg))
         if idx[0] < 0:
@@ -371,7 +345,7 @@ def local_update(bits, C, Hs, B, R, nu, dY, w, confidence, regen_ess, Lb, Lr, ta
 @njit(cache=True, fastmath=_FM)
 def add_noise(bits, X, L, tag):  # pragma: no cover - compiled
     """X_j + L z_j with z_j ~ N(0, I) (n,) drawn here from the generator of ``bits``
-    (:func:`uavest.geometry.kernels.bitgen_pointers`), member after member
+    (:func:`uavest.compiled.bitgen_pointers`), member after member
     (numpy's ``rng.standard_normal((M, n))`` values in its order): the process noise of
     :func:`uavest.core.ensemble.propagate_members` on a vector space, ``L`` its lower
     factor (n, n)."""
@@ -379,7 +353,7 @@ def add_noise(bits, X, L, tag):  # pragma: no cover - compiled
     M = X.shape[0]
     out = np.empty((M, n))
     z = np.empty(n)
-    bg = _bitgen(bits[0], bits[1], bits[2], bits[3])
+    bg = bitgen(bits[0], bits[1], bits[2], bits[3])
     for j in range(M):
         for k in range(n):
             z[k] = random_standard_normal(bg)

@@ -1,6 +1,6 @@
 """Compiled (numba) kernels of the default hybrid (:class:`uavest.core.hybrid.Hybrid`,
 shift update) on a vector state space: the optional fast path (``pip install
-"uavest[fast]"``), dispatched by :func:`uavest.core.hybrid.shift_kernels`.
+"uavest[fast]"``), dispatched through :data:`uavest.core.hybrid.SHIFT_KERNELS`.
 
 On the UNGM (99 members) the hybrid's step was numpy's per-call floor (~60 calls of ~1 us,
 docs/speed.md), not arithmetic. These kernels do the work between the model's ``f`` /
@@ -33,32 +33,11 @@ import math
 import numpy as np
 from numba import njit
 
+from ..compiled.helpers import chol_into, factor, solve_lower
+
 __all__ = ["add_noise", "chol_jitter", "regenerate", "shift_update"]
 
 _OK, _NONFINITE, _NOT_PD = 0, 1, 2
-
-
-@njit(cache=True)
-def _chol(P, L):  # pragma: no cover - compiled
-    """Lower Cholesky factor of the lower triangle of ``P`` into ``L``; False if a pivot
-    is not positive (or not a number)."""
-    n = P.shape[0]
-    for j in range(n):
-        s = P[j, j]
-        for k in range(j):
-            s -= L[j, k] * L[j, k]
-        if not s > 0.0:
-            return False
-        d = math.sqrt(s)
-        L[j, j] = d
-        for i in range(j + 1, n):
-            t = P[i, j]
-            for k in range(j):
-                t -= L[i, k] * L[j, k]
-            L[i, j] = t / d
-        for i in range(j):
-            L[i, j] = 0.0
-    return True
 
 
 @njit(cache=True)
@@ -73,7 +52,7 @@ def chol_jitter(P):  # pragma: no cover - compiled
         if 0.0 < p < math.inf:
             L[0, 0] = math.sqrt(p)
             return _OK, L
-    elif _chol(P, L):
+    elif chol_into(P, L):
         return _OK, L
     for i in range(n):
         for j in range(i + 1):
@@ -91,7 +70,7 @@ def chol_jitter(P):  # pragma: no cover - compiled
         J = S.copy()
         for i in range(n):
             J[i, i] += jitter
-        if _chol(J, L):
+        if chol_into(J, L):
             return _OK, L
         jitter *= 100.0
     return _NOT_PD, L
@@ -214,35 +193,6 @@ def _regenerate_1d(X, w, u, Z, h, out):  # pragma: no cover - compiled
             cs = 1.0 if j == M - 1 else cs + w[j]
         out[i, 0] = x + (a * (X[j, 0] - x) + Z[i, 0] * hl)
     return _OK
-
-
-@njit(cache=True)
-def _solve_lower(L, b):  # pragma: no cover - compiled
-    """L^-1 b for a lower-triangular L (m, m) and b (m,); 1 x 1: b times 1 / L_00 (as
-    LAPACK's triangular solve)."""
-    m = b.shape[0]
-    y = np.empty(m)
-    for i in range(m):
-        t = b[i]
-        for k in range(i):
-            t -= L[i, k] * y[k]
-        y[i] = t * (1.0 / L[i, i]) if m == 1 else t / L[i, i]
-    return y
-
-
-@njit(cache=True)
-def _factor(S):  # pragma: no cover - compiled
-    """(ok, L): the plain lower factor of ``S`` (no jitter: the numpy path decides what a
-    failed one means); 1 x 1: the square root."""
-    m = S.shape[0]
-    L = np.zeros((m, m))
-    if m == 1:
-        s = S[0, 0]
-        if 0.0 < s < math.inf:
-            L[0, 0] = math.sqrt(s)
-            return True, L
-        return False, L
-    return _chol(S, L), L
 
 
 #: ``hybrid._PHI_GRID``: the tempering exponents as fractions of the share, 0 to 1
@@ -389,14 +339,14 @@ def shift_update(X, Y, z, w, R, V, tau, min_ess, confidence,
         nu[a] = z[a] - ybar[a]
         for b in range(m):
             S[a, b] += R[a, b]
-    ok, cS = _factor(S)
+    ok, cS = factor(S)
     if not ok:
         return _NOT_PD, 0.0
     if m == 1:  # innovation()'s float form: v (v i i), i = 1 / sqrt(S)
         i1 = 1.0 / cS[0, 0]
         nis = nu[0] * (nu[0] * i1 * i1)
     else:
-        v = _solve_lower(cS, nu)
+        v = solve_lower(cS, nu)
         nis = 0.0
         for a in range(m):
             nis += v[a] * v[a]
@@ -407,7 +357,7 @@ def shift_update(X, Y, z, w, R, V, tau, min_ess, confidence,
     for j in range(M):
         for a in range(m):
             r[j, a] = z[a] - Y[j, a]
-    ok, LR = _factor(R)
+    ok, LR = factor(R)
     if not ok:
         return _NOT_PD, nis
     share = 1.0
@@ -418,7 +368,7 @@ def shift_update(X, Y, z, w, R, V, tau, min_ess, confidence,
                 t = r[j, 0] * (1.0 / LR[0, 0])
                 ll[j] = -0.5 * (t * t)
             else:
-                u = _solve_lower(LR, r[j])
+                u = solve_lower(LR, r[j])
                 q = 0.0
                 for a in range(m):
                     q += u[a] * u[a]
@@ -437,7 +387,7 @@ def shift_update(X, Y, z, w, R, V, tau, min_ess, confidence,
         ww += W[j] * W[j]
     c = 1.0 / max(1.0 - ww, 1e-12)
     Rt = R * (1.0 / share)
-    ok, Lr = _factor(Rt)
+    ok, Lr = factor(Rt)
     if not ok:
         return _NOT_PD, nis
     yb = np.zeros(m)
@@ -456,7 +406,7 @@ def shift_update(X, Y, z, w, R, V, tau, min_ess, confidence,
             for b in range(m):
                 St[a, b] += A * (Y[j, b] - yb[b])
     St += Rt
-    ok, cSt = _factor(St)
+    ok, cSt = factor(St)
     if not ok:
         return _NOT_PD, nis
     K = np.empty((n, m))  # gain(): Pxy S'^-1 through the factor (1 x 1: times i i)
@@ -466,7 +416,7 @@ def shift_update(X, Y, z, w, R, V, tau, min_ess, confidence,
             K[i, 0] = Pyx[0, i] * i1 * i1
     else:
         for i in range(n):
-            y1 = _solve_lower(cSt, Pyx[:, i].copy())
+            y1 = solve_lower(cSt, Pyx[:, i].copy())
             for a in range(m - 1, -1, -1):  # back substitution with cSt^T
                 t = y1[a]
                 for b in range(a + 1, m):

@@ -44,7 +44,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..geometry.kernels import bitgen_pointers, load_kernels
+from ..compiled import bitgen_pointers, register
 from ..geometry.spaces import Space, VectorSpace
 from .base import (
     Ensemble,
@@ -350,28 +350,10 @@ def _mean(space: Space, X: Array, w: Array) -> Array:
     return space.mean(X, w, mean_start(space, X, w))
 
 
-#: the compiled shift kernels (:mod:`uavest.core._compiled_shift`), False if numba is
-#: missing, disabled (``UAVEST_NUMBA=0``) or failed; None before the first call.
-_SHIFT = None
-
-
-def shift_kernels() -> ModuleType | bool:
-    """The numba kernels of :class:`Hybrid` on vector spaces if they can be used here,
-    else False (the numpy path is used). Decided once per process at the first hybrid
-    step: numba must import, ``UAVEST_NUMBA`` must not be ``0``, and the kernels must
-    compile (first time: some seconds, then numba's on-disk cache) and agree with the
-    numpy path on a small case; any failure is logged and falls back to numpy."""
-    global _SHIFT
-    if _SHIFT is None:
-        _SHIFT = load_kernels("uavest.core._compiled_shift", "numba shift kernels",
-                              _self_check, "uavest.core")
-    return _SHIFT
-
-
-def _self_check(nb: ModuleType) -> bool:
-    """The kernels against the numpy path on small ensembles, 2-D with a 2-D measurement
-    (the general loops) and 1-D (their own loops): one regeneration and one tempered
-    shift update each."""
+def _shift_cases(nb: ModuleType):
+    """The self-check (:mod:`uavest.compiled`): the kernels against the numpy path on
+    small ensembles, 2-D with a 2-D measurement (the general loops) and 1-D (their own
+    loops): one regeneration and one tempered shift update each."""
 
     class _Sq(Measurement):
         def __init__(self, n: int) -> None:
@@ -382,7 +364,6 @@ def _self_check(nb: ModuleType) -> bool:
             return X * X
 
     f = Hybrid(n_cloud=2)
-    close = []
     for n in (2, 1):
         rng = np.random.default_rng(n)
         X = rng.standard_normal((15, n))
@@ -399,10 +380,28 @@ def _self_check(nb: ModuleType) -> bool:
         u = rng.random()
         rb = np.empty((15, n))
         st = nb.regenerate(X, w, u, rng.standard_normal((15, n)), f.kernel, rb)
-        close += [st == 0] + [np.allclose(p, q, rtol=1e-12, atol=1e-12) for p, q in (
-            (a.X, b.X), (a.w, b.w), (ga.x, gb.x), (ga.P, gb.P), (ia.nu, ib.nu),
-            (ia.S, ib.S), (ia.nis, ib.nis), (ra.X, rb))]
-    return all(close)
+        yield f"n={n} regenerate status", st, 0
+        for label, p, q in (("X", a.X, b.X), ("w", a.w, b.w), ("x", ga.x, gb.x),
+                            ("P", ga.P, gb.P), ("nu", ia.nu, ib.nu), ("S", ia.S, ib.S),
+                            ("nis", ia.nis, ib.nis), ("regenerated X", ra.X, rb)):
+            yield f"n={n} {label}", q, p
+
+
+#: The compiled kernels of :class:`Hybrid` on vector spaces
+#: (:mod:`uavest.core._compiled_shift`)
+SHIFT_KERNELS = register("shift", "uavest.core._compiled_shift", "numba shift kernels",
+                         _shift_cases, rtol=1e-12, atol=1e-12)
+
+
+def _plain_vector(model: Measurement) -> bool:
+    """A measurement of a vector state with the plain mean and residual (the kernels'
+    case)."""
+    return type(model.space) is VectorSpace and plain_measurement(model)
+
+
+def _float_vector(z: object, m: int) -> bool:
+    """``z`` is a float64 array of shape (m,) (what the kernels read)."""
+    return type(z) is np.ndarray and z.dtype == np.float64 and z.shape == (m,)
 
 
 class _HybridBase(EnsembleFilter):
@@ -531,8 +530,8 @@ class Hybrid(_HybridBase):
             raise ValueError("tau must be in (0, 1]")
 
     def init(self, prior: Gaussian, space, rng) -> Ensemble:
-        if _SHIFT is None and type(space) is VectorSpace:
-            shift_kernels()  # numba's import and cache load here, not in the first step
+        if type(space) is VectorSpace:
+            SHIFT_KERNELS.get()  # numba's import and cache load here, not in the first step
         return super().init(prior, space, rng)
 
     # -- the compiled path (numba installed; vector spaces, one stage, one shift) -------
@@ -548,7 +547,7 @@ class Hybrid(_HybridBase):
         process noise); with the shift kernels on a vector space with expanded sampling,
         the regeneration and the noise in kernel calls (a failure of the chol of Q
         raises before any draw here, after the regeneration's draws there)."""
-        nb = _SHIFT if _SHIFT is not None else shift_kernels()
+        nb = SHIFT_KERNELS.get()
         space = model.space
         if not nb or self.sampling != "expanded" or type(space) is not VectorSpace:
             return super().predict(E, model, t, dt, u, rng)
@@ -587,18 +586,20 @@ class Hybrid(_HybridBase):
         """Tempered confidence weights, then the EnKF shift (the module docstring;
         :meth:`_update_numpy`); one kernel call for one stage and one shift on a vector
         space with a plain measurement model and a float64 ``z`` of its size."""
-        nb = _SHIFT if _SHIFT is not None else shift_kernels()
-        if (nb and self.stages == 1 and self.shifts == 1 and type(model.space) is VectorSpace
-                and type(z) is np.ndarray and z.dtype == np.float64 and z.ndim == 1
-                and z.shape[0] == model.dim and plain_measurement(model)):
-            return self._update_compiled(nb, E, z, model, rng)
-        return self._update_numpy(E, z, model, rng)
+        nb = SHIFT_KERNELS.get()
+        out = self._update_compiled(nb, E, z, model, rng) if nb else None
+        return out if out is not None else self._update_numpy(E, z, model, rng)
 
     def _update_compiled(self, nb: ModuleType, E: Ensemble, z: Array, model: Measurement, rng
-                         ) -> tuple[Ensemble, Innovation]:
+                         ) -> tuple[Ensemble, Innovation] | None:
         """The update through :func:`uavest.core._compiled_shift.shift_update`; its
-        result carries its estimate (``Ensemble.gaussian``). A failure hands the drawn
-        normals to :meth:`_update_numpy`."""
+        result carries its estimate (``Ensemble.gaussian``). None, before any draw, where
+        the kernel does not apply (more than one stage or shift, a measurement model that
+        is not plain on a vector space, a ``z`` that is not the model's float64 vector).
+        A failure hands the drawn normals to :meth:`_update_numpy`."""
+        if not (self.stages == self.shifts == 1 and _plain_vector(model)
+                and _float_vector(z, model.dim)):
+            return None
         M = E.M
         w = _equal_writable(M) if E.w is None else E.w
         Y = model.h(E.X)
@@ -708,8 +709,8 @@ class HybridLocal(_HybridBase):
             raise ValueError("bandwidth must be in (0, 1)")
 
     def init(self, prior: Gaussian, space, rng) -> Ensemble:
-        if _LOCAL is None and type(space) is VectorSpace:
-            local_kernels()  # numba's import and cache load here, not in the first step
+        if type(space) is VectorSpace:
+            LOCAL_KERNELS.get()  # numba's import and cache load here, not in the first step
         return super().init(prior, space, rng)
 
     def _propagate(self, E: Ensemble, model: Transition, t, dt, u, rng) -> Ensemble:
@@ -717,7 +718,7 @@ class HybridLocal(_HybridBase):
         process noise is drawn and added in one compiled loop (``add_noise``: the same
         normals from ``rng``, in the same order; the sum equal to rounding)."""
         if type(model.space) is VectorSpace:
-            nb = _LOCAL if _LOCAL is not None else local_kernels()
+            nb = LOCAL_KERNELS.get()
             if nb:
                 X = np.ascontiguousarray(model.f(E.X, t, dt, u), dtype=float)
                 L = np.ascontiguousarray(chol(model.Q(t, dt, u)))
@@ -743,12 +744,12 @@ class HybridLocal(_HybridBase):
 
         On a :class:`~uavest.geometry.spaces.VectorSpace` with m <= 2 and numba installed
         (``uavest[fast]``; ``UAVEST_NUMBA=0`` switches it off) the same update runs as
-        compiled loops over the members (:func:`local_kernels`, :meth:`_update_compiled`):
+        compiled loops over the members (:data:`LOCAL_KERNELS`, :meth:`_update_compiled`):
         the same model calls and random draws in the same order, equal to this numpy
         path to rounding.
         """
         if type(E.space) is VectorSpace and model.dim <= 2:
-            nb = _LOCAL if _LOCAL is not None else local_kernels()
+            nb = LOCAL_KERNELS.get()
             if nb:
                 return self._update_compiled(nb, E, z, model, rng)
         return self._update_numpy(E, z, model, rng)
@@ -860,33 +861,11 @@ def _innovation2(nu: Array, S: Array) -> Innovation:
     return innovation(nu, S)
 
 
-#: The compiled kernels (module :mod:`uavest.core._compiled_local`) once loaded, False
-#: when numba is missing, disabled (``UAVEST_NUMBA=0``) or failed; None before the first
-#: call.
-_LOCAL = None
-
-
-def local_kernels():
-    """The compiled kernels of :meth:`HybridLocal.update` if they can be used here, else
-    False (the numpy path is used). Decided once per process at the first call, as
-    :func:`uavest.geometry.rotation.compiled_kernels` decides: numba must import,
-    ``UAVEST_NUMBA`` must not be ``0``, and the kernels must compile (first time: some
-    seconds, then numba's on-disk cache) and give the numpy path's update on a small
-    case (m = 1 and 2, weighted and equal, with and without resampling); any failure is
-    logged and falls back to numpy."""
-    global _LOCAL
-    if _LOCAL is None:
-        _LOCAL = load_kernels("uavest.core._compiled_local",
-                              "numba kernels of the local hybrid", _kernels_agree,
-                              "uavest.core")
-    return _LOCAL
-
-
-def _kernels_agree(nb) -> bool:
-    """True if :meth:`HybridLocal._update_compiled` with ``nb`` gives
-    :meth:`HybridLocal._update_numpy`'s members, weights and innovation (to 1e-10
-    relative) on small linear cases: m = 2 and 1, a weighted and an equally weighted
-    ensemble, one that resamples and one that does not."""
+def _local_cases(nb: ModuleType):
+    """The self-check (:mod:`uavest.compiled`): :meth:`HybridLocal._update_compiled`
+    against :meth:`HybridLocal._update_numpy` (members, weights, innovation) on small
+    linear cases: m = 2 and 1, a weighted and an equally weighted ensemble, one that
+    resamples and one that does not."""
     from .model import LinearMeasurement
 
     g = np.random.default_rng(7)
@@ -898,7 +877,7 @@ def _kernels_agree(nb) -> bool:
         (np.array([[0.5, -1.0, 2.0]]), np.array([[25.0]]), g.dirichlet(np.full(15, 9.0)),
          np.array([1.0])),
     )
-    for H, R, w, z in cases:
+    for i, (H, R, w, z) in enumerate(cases):
         model = LinearMeasurement(H, R)
         out = []
         for upd in (lambda *a: f._update_compiled(nb, *a), f._update_numpy):
@@ -907,11 +886,15 @@ def _kernels_agree(nb) -> bool:
             out.append((E1.X, np.array([E1.w is None]),
                         equal_weights(15) if E1.w is None else E1.w, inn.S,
                         np.array([inn.nis])))
-        for a, b in zip(*out, strict=True):
-            if a.shape != b.shape or not np.allclose(a, b, rtol=1e-10, atol=1e-12):
-                return False
-    return True
+        for label, a, b in zip(("X", "resampled", "w", "S", "nis"), *out, strict=True):
+            yield f"case {i} {label}", a, b
 
+
+#: The compiled kernels of :meth:`HybridLocal.update` and its process noise on vector
+#: spaces (:mod:`uavest.core._compiled_local`)
+LOCAL_KERNELS = register("local", "uavest.core._compiled_local",
+                         "numba kernels of the local hybrid", _local_cases, rtol=1e-10,
+                         atol=1e-12)
 
 
 @lru_cache(maxsize=64)

@@ -24,7 +24,7 @@ from types import ModuleType
 
 import numpy as np
 
-from ..geometry.kernels import load_kernels
+from ..compiled import register
 from ..geometry.spaces import VectorSpace
 from .base import Innovation, innovation
 from .contract import FilterBase
@@ -57,28 +57,9 @@ def plain_measurement(model: Measurement) -> bool:
             and getattr(t, "residual", None) is Measurement.residual)
 
 
-#: the compiled unscented kernels (:mod:`uavest.core._compiled_ut`), False if numba is
-#: missing, disabled (``UAVEST_NUMBA=0``) or failed; None before the first call.
-_UT = None
-
-
-def ut_kernels() -> ModuleType | bool:
-    """The numba kernels of the UKF on vector spaces if they can be used here, else False
-    (the array path is used). Decided once per process at the first UKF step on a vector
-    space of more than one dimension: numba must import, ``UAVEST_NUMBA`` must not be
-    ``0``, and the kernels must compile (first time: some seconds, then numba's on-disk
-    cache) and agree with the array path on a small case; any failure is logged and
-    falls back to numpy."""
-    global _UT
-    if _UT is None:
-        _UT = load_kernels("uavest.core._compiled_ut", "numba unscented kernels",
-                           _ut_self_check, "uavest.core")
-    return _UT
-
-
-def _ut_self_check(nb: ModuleType) -> bool:
-    """One predict and one update of a 3-D state with a 2-D measurement, the kernels
-    against the array path."""
+def _ut_cases(nb: ModuleType):
+    """The self-check (:mod:`uavest.compiled`): one predict and one update of a 3-D state
+    with a 2-D measurement, the kernels against the array path."""
 
     class _T(Transition):
         space = VectorSpace(3)
@@ -101,10 +82,27 @@ def _ut_self_check(nb: ModuleType) -> bool:
                                                         [0.1, -0.2, 1.5]]))
     a, b = f._predict(g, _T(), 1.0, 1.0, None)[0], f._predict_compiled(nb, g, _T(), 1.0,
                                                                        1.0, None)
+    if b is None:
+        yield "predict", None, a.x
+        return
+    yield "predict x", b.x, a.x
+    yield "predict P", b.P, a.P
     z = np.array([0.5, 1.0])
-    (ua, ia), (ub, ib) = f._update(g, z, _H()), f._update_compiled(nb, g, z, _H())
-    return all(np.allclose(p, q, rtol=1e-12, atol=1e-12) for p, q in (
-        (a.x, b.x), (a.P, b.P), (ua.x, ub.x), (ua.P, ub.P), (ia.S, ib.S), (ia.nis, ib.nis)))
+    ua, ia = f._update(g, z, _H())
+    got = f._update_compiled(nb, g, z, _H())
+    if got is None:
+        yield "update", None, ua.x
+        return
+    ub, ib = got
+    yield "update x", ub.x, ua.x
+    yield "update P", ub.P, ua.P
+    yield "S", ib.S, ia.S
+    yield "nis", ib.nis, ia.nis
+
+
+#: The compiled unscented kernels (:mod:`uavest.core._compiled_ut`)
+UT_KERNELS = register("ut", "uavest.core._compiled_ut", "numba unscented kernels", _ut_cases,
+                      rtol=1e-12, atol=1e-12)
 
 
 _MERWE = {"points": ("merwe",)}
@@ -131,9 +129,8 @@ class UKF(FilterBase):
         return sigma_weights(n, self.alpha, self.beta, self.kappa, self.points)
 
     def init(self, prior: Gaussian, space, rng=None) -> Gaussian:
-        if _UT is None and type(space) is VectorSpace and (
-                space.dim > 1 or self.points != "merwe"):
-            ut_kernels()  # numba's import and cache load here, not in the first step
+        if type(space) is VectorSpace and (space.dim > 1 or self.points != "merwe"):
+            UT_KERNELS.get()  # numba's import and cache load here, not in the first step
         return prior
 
     def _predict(self, g: Gaussian, model: Transition, t, dt, u):
@@ -159,7 +156,7 @@ class UKF(FilterBase):
             if space.dim == 1 and self.points == "merwe":
                 out = self._predict_1d(g, model, t, dt, u)
             else:
-                nb = _UT if _UT is not None else ut_kernels()
+                nb = UT_KERNELS.get()
                 out = self._predict_compiled(nb, g, model, t, dt, u) if nb else None
             if out is not None:
                 return out
@@ -278,7 +275,7 @@ class UKF(FilterBase):
                     and plain_measurement(model)):
                 out = self._update_1d(g, z, model)
             else:
-                nb = _UT if _UT is not None else ut_kernels()
+                nb = UT_KERNELS.get()
                 out = self._update_compiled(nb, g, z, model) if nb else None
             if out is not None:
                 return out

@@ -22,6 +22,8 @@ import math
 
 import numpy as np
 
+from ..compiled import register
+
 Array = np.ndarray
 
 #: Standard gravity (m/s^2 per g), also MAVLink's "milli-g" unit.
@@ -169,7 +171,7 @@ def quat_rotate(q: Array, v: Array) -> Array:
 def quat_rotate_inv(q: Array, v: Array) -> Array:
     """``R(q)^T v``: NED vector(s) ``v`` expressed in body FRD."""
     if q.ndim == 2 and np.ndim(v) == 1:  # rows against one vector (the attitude h)
-        nb = _NB if _NB is not None else compiled_kernels()
+        nb = MANIFOLD_KERNELS.get()
         if nb:
             return nb.rotate_inv_rows(q, np.asarray(v, float))
     return np.einsum("...ji,...j->...i", quat_to_dcm(q), v)
@@ -295,43 +297,28 @@ def quat_slerp_interp(t_ref: Array, q_ref: Array, t: Array) -> tuple[Array, Arra
 # With numba installed (``uavest[fast]``) the same kernels run compiled
 # (:mod:`uavest.geometry._compiled`, chosen by measurement: docs/speed.md).
 
-#: The compiled kernels (module :mod:`uavest.geometry._compiled`) once loaded, False when
-#: numba is missing, disabled (``UAVEST_NUMBA=0``) or failed; None before the first call.
-_NB = None
 
-
-def compiled_kernels():
-    """The numba kernels module if they can be used here, else False (the fused numpy
-    kernels below are used). Decided once per process at the first kernel call
-    (:func:`uavest.geometry.kernels.load_kernels`: numba importable, ``UAVEST_NUMBA`` not
-    ``0``, the kernels compile and agree with the numpy kernels on a small case)."""
-    global _NB
-    if _NB is None:
-        from .kernels import load_kernels
-
-        _NB = load_kernels("uavest.geometry._compiled", "numba kernels", _kernels_agree,
-                           "uavest.geometry")
-    return _NB
-
-
-def _kernels_agree(nb) -> bool:
-    """The compiled retract, local, gyro propagation, mean and inverse rotation against
-    the numpy kernels on a small case (1e-12)."""
+def _kernel_cases(nb):
+    """The self-check (:mod:`uavest.compiled`): the compiled retract, local, gyro
+    propagation, mean and inverse rotation against the numpy kernels on a small case."""
     x = np.array([0.9, 0.1, -0.3, 0.2, 1e-3, -2e-3, 3e-3])
     x[:4] /= np.sqrt(x[:4] @ x[:4])
     d = np.array([[1e-3, -2e-2, 3e-1, 1e-4, 0.0, -1e-4], [0.0, 1e-7, 0.0, 0.0, 0.0, 0.0]])
     X = _np_retract_rows(x, d)
     w = np.array([0.25, 0.75])
-    return bool(np.allclose(nb.retract_rows(x[None, :], d), X, rtol=0, atol=1e-12)
-                and np.allclose(nb.local_rows(x[None, :], X), _np_local_rows(x, X), rtol=0,
-                                atol=1e-12)
-                and np.allclose(nb.gyro_propagate(X, d[0, :3], 0.01),
-                                _np_gyro_propagate(X, d[0, :3], 0.01), rtol=0, atol=1e-12)
-                and np.allclose(nb.mean(X, w, X[0]), _np_mean(X, w, X[0]), rtol=0,
-                                atol=1e-12)
-                and np.allclose(nb.rotate_inv_rows(X[:, :4], d[0, :3]),
-                                np.einsum("...ji,...j->...i", quat_to_dcm(X[:, :4]),
-                                          d[0, :3]), rtol=0, atol=1e-12))
+    yield "retract_rows", nb.retract_rows(x[None, :], d), X
+    yield "local_rows", nb.local_rows(x[None, :], X), _np_local_rows(x, X)
+    yield ("gyro_propagate", nb.gyro_propagate(X, d[0, :3], 0.01),
+           _np_gyro_propagate(X, d[0, :3], 0.01))
+    yield "mean", nb.mean(X, w, X[0]), _np_mean(X, w, X[0])
+    yield ("rotate_inv_rows", nb.rotate_inv_rows(X[:, :4], d[0, :3]),
+           np.einsum("...ji,...j->...i", quat_to_dcm(X[:, :4]), d[0, :3]))
+
+
+#: The compiled attitude-manifold kernels (:mod:`uavest.geometry._compiled`)
+MANIFOLD_KERNELS = register("manifold", "uavest.geometry._compiled",
+                            "numba attitude-manifold kernels", _kernel_cases, rtol=0.0,
+                            atol=1e-12)
 
 
 #: Gather indices and signs of the left-multiplication matrix: p * q = L(p) q with
@@ -386,7 +373,7 @@ def _qmul_rows(p: Array, q: Array) -> Array:
 
 def retract_rows(x: Array, dx: Array) -> Array:
     """:meth:`AttitudeSpace.retract` for ``x`` (7,) or (M, 7) and ``dx`` (M, 6)."""
-    nb = _NB if _NB is not None else compiled_kernels()
+    nb = MANIFOLD_KERNELS.get()
     if nb:
         return nb.retract_rows(x.reshape(1, 7) if x.ndim == 1 else x, dx)
     return _np_retract_rows(x, dx)
@@ -407,7 +394,7 @@ def _np_retract_rows(x: Array, dx: Array) -> Array:
 
 def local_rows(x: Array, y: Array) -> Array:
     """:meth:`AttitudeSpace.local` for ``x`` (7,) or (M, 7) and ``y`` (M, 7)."""
-    nb = _NB if _NB is not None else compiled_kernels()
+    nb = MANIFOLD_KERNELS.get()
     if nb:
         return nb.local_rows(x.reshape(1, 7) if x.ndim == 1 else x, y)
     return _np_local_rows(x, y)
@@ -427,7 +414,7 @@ def _np_local_rows(x: Array, y: Array) -> Array:
 def gyro_propagate(X: Array, w: Array, dt: float) -> Array:
     """q <- q * Exp((w - b) dt), b <- b for every row of ``X`` (M, 7) (the gyro
     transition), ``w`` (3,) rad/s."""
-    nb = _NB if _NB is not None else compiled_kernels()
+    nb = MANIFOLD_KERNELS.get()
     if nb:
         return nb.gyro_propagate(X, w, float(dt))
     return _np_gyro_propagate(X, w, dt)
@@ -488,7 +475,7 @@ class AttitudeSpace:
 
     def mean(self, X: Array, w: Array, x0: Array | None = None) -> Array:
         ref = X[0] if x0 is None else x0
-        nb = _NB if _NB is not None else compiled_kernels()
+        nb = MANIFOLD_KERNELS.get()
         if nb:
             return nb.mean(X, w, ref)
         return _np_mean(X, w, ref)
