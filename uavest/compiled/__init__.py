@@ -36,7 +36,7 @@ import os
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from types import ModuleType
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -63,7 +63,7 @@ class Kernels:
     rtol: float
     atol: float
     logger: str
-    loaded: ModuleType | bool | None = None
+    loaded: ModuleType | Literal[False] | None = None
 
     def get(self) -> ModuleType | None:
         """The kernel module if it is used in this process, else None (take the numpy
@@ -95,7 +95,7 @@ def status() -> dict[str, bool | None]:
     return {n: None if k.loaded is None else bool(k.loaded) for n, k in REGISTRY.items()}
 
 
-def _load(k: Kernels) -> ModuleType | bool:
+def _load(k: Kernels) -> ModuleType | Literal[False]:
     """The self-check harness: the module if it can be used here, else False (one
     warning with the reason, unless numba is absent or switched off)."""
     if os.environ.get("UAVEST_NUMBA", "1") == "0":

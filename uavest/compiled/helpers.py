@@ -12,6 +12,8 @@ kernel modules (or set ``NUMBA_CACHE_DIR`` to a fresh directory); the self-check
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from numba import njit, types
@@ -20,9 +22,11 @@ from numba.core.extending import intrinsic
 
 __all__ = ["bitgen", "chol_into", "factor", "solve_lower"]
 
+Array = np.ndarray
+
 
 @njit(cache=True)
-def chol_into(P, L):  # pragma: no cover - compiled
+def chol_into(P: Array, L: Array) -> bool:  # pragma: no cover - compiled
     """Lower Cholesky factor of the lower triangle of ``P`` (n, n) into ``L``; False if a
     pivot is not finite and positive (then ``L`` is partial and the caller takes the
     numpy path, which decides what a covariance with no plain factor means).
@@ -50,7 +54,7 @@ def chol_into(P, L):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def factor(S):  # pragma: no cover - compiled
+def factor(S: Array) -> tuple[bool, Array]:  # pragma: no cover - compiled
     """(ok, L): the plain lower factor of ``S`` (m, m) (no jitter: the numpy path decides
     what a failed one means); 1 x 1: the square root (LAPACK's factor)."""
     m = S.shape[0]
@@ -65,7 +69,7 @@ def factor(S):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def solve_lower(L, b):  # pragma: no cover - compiled
+def solve_lower(L: Array, b: Array) -> Array:  # pragma: no cover - compiled
     """L^-1 b for a lower-triangular L (m, m) and b (m,); 1 x 1: b times 1 / L_00 (as
     LAPACK's triangular solve)."""
     m = b.shape[0]
@@ -82,7 +86,8 @@ _BITGEN = types.NumPyRandomBitGeneratorType("bit_generator")
 
 
 @intrinsic
-def bitgen(tyctx, state, next_u64, next_u32, next_dbl):  # pragma: no cover - compiled
+def bitgen(tyctx: Any, state: Any, next_u64: Any, next_u32: Any, next_dbl: Any
+           ) -> tuple[Any, Callable[..., Any]]:  # pragma: no cover - compiled
     """numba's bit-generator struct (what it unboxes from a ``Generator`` argument) from
     the addresses of :func:`uavest.compiled.bitgen_pointers`, so that numba's own
     ``random_standard_normal`` / ``next_double`` (numpy's algorithms: numpy's values, in
@@ -90,15 +95,16 @@ def bitgen(tyctx, state, next_u64, next_u32, next_dbl):  # pragma: no cover - co
     per call unboxing a ``Generator`` through ctypes."""
     sig = _BITGEN(types.intp, types.intp, types.intp, types.intp)
 
-    def codegen(cgctx, builder, sig, args):
-        st = cgutils.create_struct_proxy(_BITGEN)(cgctx, builder)
+    def codegen(cgctx: Any, builder: Any, sig: Any, args: Any) -> Any:
+        st = cgutils.create_struct_proxy(_BITGEN)(cgctx, builder)  # type: ignore[no-untyped-call]
         st.state_address = args[0]
         st.state = args[0]
         st.fnptr_next_uint64 = args[1]
         st.fnptr_next_uint32 = args[2]
         st.fnptr_next_double = args[3]
         st.bit_generator = cgctx.get_constant(types.uintp, 0)
-        st.parent = cgutils.get_null_value(cgctx.get_value_type(types.pyobject))
+        st.parent = cgutils.get_null_value(  # type: ignore[no-untyped-call]
+            cgctx.get_value_type(types.pyobject))
         return st._getvalue()
 
     return sig, codegen

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -41,9 +42,13 @@ __all__ = ["add_noise", "centres", "local_draw", "local_gains", "local_update", 
 #: path to rounding; no flag that assumes finite values (the NaN checks must hold).
 _FM = {"contract"}
 
+Array = np.ndarray
+#: local_update's outputs: members, moments (x, dX, P), weights, Pyy, resampled, status
+_Update = tuple[Array, Array, Array, Array, Array, Array, bool, int]
+
 
 @lru_cache(maxsize=16)
-def tag(n: int) -> tuple:
+def tag(n: int) -> tuple[float, ...]:
     """The tuple of n zeros that the kernels take as their last argument: its length is
     part of its numba type, so each kernel compiles once per state dimension n with n a
     constant (its loops over the state components unrolled), not once per call."""
@@ -51,7 +56,8 @@ def tag(n: int) -> tuple:
 
 
 @njit(cache=True, fastmath=_FM)
-def moments(X, w, tag):  # pragma: no cover - compiled
+def moments(X: Array, w: Array, tag: tuple[float, ...]
+            ) -> tuple[Array, Array, Array]:  # pragma: no cover - compiled
     """Weighted mean ``x`` (n,), deviations ``dX`` = X - x (M, n) and covariance
     ``P`` = sum_j w_j dX_j dX_j^T / max(1 - sum_j w_j^2, 1e-12) (n, n), symmetric by
     construction (:func:`uavest.core.base.ensemble_moments` on a vector space). ``tag``:
@@ -83,7 +89,8 @@ def moments(X, w, tag):  # pragma: no cover - compiled
 
 
 @njit(cache=True, fastmath=_FM)
-def centres(x, dX, a, tag):  # pragma: no cover - compiled
+def centres(x: Array, dX: Array, a: float, tag: tuple[float, ...]
+            ) -> Array:  # pragma: no cover - compiled
     """Mixture centres C_j = x + a dX_j (M, n) (the kernel's shrink towards the mean)."""
     n = len(tag)
     M = dX.shape[0]
@@ -95,14 +102,17 @@ def centres(x, dX, a, tag):  # pragma: no cover - compiled
 
 
 @njit(cache=True, fastmath=_FM)
-def prior_moments(X, w, a, tag):  # pragma: no cover - compiled
+def prior_moments(X: Array, w: Array, a: float, tag: tuple[float, ...]
+                  ) -> tuple[Array, Array, Array, Array]:  # pragma: no cover - compiled
     """:func:`moments` and :func:`centres` of them in one call: x, dX, P, C."""
     x, dX, P = moments(X, w, tag)
     return x, dX, P, centres(x, dX, a, tag)
 
 
 @njit(cache=True, fastmath=_FM)
-def local_gains(Hs, B, R, nu, dY, w, confidence, tag):  # pragma: no cover - compiled
+def local_gains(Hs: Array, B: Array, R: Array, nu: Array, dY: Array, w: Array,
+                confidence: bool, tag: tuple[float, ...]
+                ) -> tuple[Array, Array, Array, Array, int]:  # pragma: no cover - compiled
     """Innovation covariances and confidence weights of the Gaussian-mixture update
     (m = 1 or 2).
 
@@ -212,7 +222,7 @@ def local_gains(Hs, B, R, nu, dY, w, confidence, tag):  # pragma: no cover - com
 
 
 @njit(cache=True)
-def systematic_indices(w, u):  # pragma: no cover - compiled
+def systematic_indices(w: Array, u: float) -> Array:  # pragma: no cover - compiled
     """:func:`uavest.core.resample.systematic_resample`'s indices for the uniform draw
     ``u``: the first j with cs_j >= (u + i) / M, cs the running sum of ``w`` (its last
     entry set to 1), by one merge of the two sorted sequences instead of M binary
@@ -240,8 +250,9 @@ def systematic_indices(w, u):  # pragma: no cover - compiled
 
 
 @njit(cache=True, fastmath=_FM)
-def local_draw(C, HB, Si, Hs, nu, En, Lb, Vn, Lr, idx, resample, wp, tag
-               ):  # pragma: no cover - compiled
+def local_draw(C: Array, HB: Array, Si: Array, Hs: Array, nu: Array, En: Array, Lb: Array,
+               Vn: Array, Lr: Array, idx: Array, resample: bool, wp: Array, tag: tuple[float, ...]
+               ) -> tuple[Array, Array, Array, Array]:  # pragma: no cover - compiled
     """Posterior members and their moments.
 
     Member i is drawn from component j (j = idx[i] if ``resample`` else i) as
@@ -288,7 +299,8 @@ def local_draw(C, HB, Si, Hs, nu, En, Lb, Vn, Lr, idx, resample, wp, tag
 
 
 @njit(cache=True)
-def _no_draw(n, wu, Pyy, resampled, status):  # pragma: no cover - compiled
+def _no_draw(n: int, wu: Array, Pyy: Array, resampled: bool, status: int
+             ) -> _Update:  # pragma: no cover
     """:func:`local_update`'s outputs when it stops before drawing (empty members and
     moments, not read: the caller raises on ``status``)."""
     X = np.empty((0, n))
@@ -296,8 +308,9 @@ def _no_draw(n, wu, Pyy, resampled, status):  # pragma: no cover - compiled
 
 
 @njit(cache=True, fastmath=_FM)
-def local_update(bits, C, Hs, B, R, nu, dY, w, confidence, regen_ess, Lb, Lr, tag
-                 ):  # pragma: no cover - compiled
+def local_update(bits: Array, C: Array, Hs: Array, B: Array, R: Array, nu: Array, dY: Array,
+                 w: Array, confidence: bool, regen_ess: float, Lb: Array, Lr: Array,
+                 tag: tuple[float, ...]) -> _Update:  # pragma: no cover
     """The whole update after the model's terms, the draws included: :func:`local_gains`,
     the effective sample size of the updated weights, :func:`systematic_indices` if it is
     < ``regen_ess`` M, and :func:`local_draw` with the standard normals ``En`` (M, n)
@@ -319,7 +332,7 @@ def local_update(bits, C, Hs, B, R, nu, dY, w, confidence, regen_ess, Lb, Lr, ta
     for j in range(M):
         s2 += wu[j] * wu[j]
     resample = 1.0 / s2 < regen_ess * M
-    bg = bitgen(bits[0], bits[1], bits[2], bits[3])
+    bg: Any = bitgen(bits[0], bits[1], bits[2], bits[3])  # type: ignore[call-arg]
     if resample:
         idx = systematic_indices(wu, next_double(bg))
         if idx[0] < 0:
@@ -343,7 +356,8 @@ def local_update(bits, C, Hs, B, R, nu, dY, w, confidence, regen_ess, Lb, Lr, ta
 
 
 @njit(cache=True, fastmath=_FM)
-def add_noise(bits, X, L, tag):  # pragma: no cover - compiled
+def add_noise(bits: Array, X: Array, L: Array, tag: tuple[float, ...]
+              ) -> Array:  # pragma: no cover - compiled
     """X_j + L z_j with z_j ~ N(0, I) (n,) drawn here from the generator of ``bits``
     (:func:`uavest.compiled.bitgen_pointers`), member after member
     (numpy's ``rng.standard_normal((M, n))`` values in its order): the process noise of
@@ -353,7 +367,7 @@ def add_noise(bits, X, L, tag):  # pragma: no cover - compiled
     M = X.shape[0]
     out = np.empty((M, n))
     z = np.empty(n)
-    bg = bitgen(bits[0], bits[1], bits[2], bits[3])
+    bg: Any = bitgen(bits[0], bits[1], bits[2], bits[3])  # type: ignore[call-arg]
     for j in range(M):
         for k in range(n):
             z[k] = random_standard_normal(bg)

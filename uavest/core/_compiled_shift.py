@@ -39,9 +39,11 @@ __all__ = ["add_noise", "chol_jitter", "regenerate", "shift_update"]
 
 _OK, _NONFINITE, _NOT_PD = 0, 1, 2
 
+Array = np.ndarray
+
 
 @njit(cache=True)
-def chol_jitter(P):  # pragma: no cover - compiled
+def chol_jitter(P: Array) -> tuple[int, Array]:  # pragma: no cover - compiled
     """(status, L): :func:`uavest.core.linalg.chol` of ``P`` (n, n): the plain factor, else
     non-finite entries (status 1), else diagonal jitter from 1e-12 * mean|diag| growing
     x100 over six tries (status 2 if all fail)."""
@@ -77,7 +79,7 @@ def chol_jitter(P):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _moments(X, w):  # pragma: no cover - compiled
+def _moments(X: Array, w: Array) -> tuple[Array, Array, Array]:  # pragma: no cover - compiled
     """Weighted mean x (n,), deviations dX (M, n) and the reliability-weighted covariance
     sum w dX dX^T / max(1 - sum w^2, 1e-12), symmetric (``base.ensemble_moments`` on a
     vector space, with ``ensemble_estimate``'s symmetrising)."""
@@ -109,7 +111,8 @@ def _moments(X, w):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def regenerate(X, w, u, Z, h, out):  # pragma: no cover - compiled
+def regenerate(X: Array, w: Array, u: float, Z: Array, h: float, out: Array
+               ) -> int:  # pragma: no cover - compiled
     """Status; ``out`` (M, n) <- the members regenerated around the credible ones.
     Systematic selection idx_i = first j with cumsum(w)_j >= (u + i) / M (the last sum set
     to 1), then X'_i = x + (a dX_idx_i + Z_i (h L)^T) with a = sqrt(1 - h^2), L = chol(P),
@@ -145,7 +148,7 @@ def regenerate(X, w, u, Z, h, out):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def add_noise(X, Z, L, out):  # pragma: no cover - compiled
+def add_noise(X: Array, Z: Array, L: Array, out: Array) -> None:  # pragma: no cover - compiled
     """``out`` <- X + Z L^T (``propagate_members``' process noise with the lower factor
     ``L`` of Q; 1-D: X + Z l, the one product per member that BLAS makes too)."""
     M, n = X.shape
@@ -163,7 +166,8 @@ def add_noise(X, Z, L, out):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _regenerate_1d(X, w, u, Z, h, out):  # pragma: no cover - compiled
+def _regenerate_1d(X: Array, w: Array, u: float, Z: Array, h: float, out: Array
+                   ) -> int:  # pragma: no cover - compiled
     """:func:`regenerate` of a 1-D state, on scalars (accumulators in registers)."""
     M = X.shape[0]
     x = 0.0
@@ -200,7 +204,8 @@ _GRID = np.linspace(0.0, 1.0, 17)
 
 
 @njit(cache=True)
-def _normalised(logw0, ll, phi, W):  # pragma: no cover - compiled
+def _normalised(logw0: Array, ll: Array, phi: float, W: Array
+                ) -> None:  # pragma: no cover - compiled
     """``W`` <- exp(L - max L) / sum, L = logw0 + phi ll (non-finite entries propagate:
     the caller checks the sum)."""
     M = logw0.shape[0]
@@ -218,7 +223,8 @@ def _normalised(logw0, ll, phi, W):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _tempered(w, ll, phi_max, min_ess, W):  # pragma: no cover - compiled
+def _tempered(w: Array, ll: Array, phi_max: float, min_ess: float, W: Array
+              ) -> float:  # pragma: no cover - compiled
     """phi; ``W`` <- ``hybrid.tempered_weights``: w p^phi for the largest phi =
     phi_max * grid_g whose ESS stays >= min_ess M (the full share first, then the grid
     with its own test, as there; phi = 0 if none).
@@ -279,7 +285,7 @@ def _tempered(w, ll, phi_max, min_ess, W):  # pragma: no cover - compiled
         ok[g] = t <= 1.0
     for g in range(G, 0, -1):
         if ok[g]:
-            phi = phi_max * _GRID[g]
+            phi: float = phi_max * _GRID[g]
             _normalised(logw0, ll, phi, W)
             return phi
     _normalised(logw0, ll, 0.0, W)
@@ -287,12 +293,13 @@ def _tempered(w, ll, phi_max, min_ess, W):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _tempered_direct(logw0, ll, phi_max, floor, W):  # pragma: no cover - compiled
+def _tempered_direct(logw0: Array, ll: Array, phi_max: float, floor: float, W: Array
+                     ) -> float:  # pragma: no cover - compiled
     """The grid of :func:`_tempered` point by point (the reference form; used when the
     recursion's sums are not usable)."""
     M = logw0.shape[0]
     for g in range(_GRID.shape[0] - 1, 0, -1):
-        phi = phi_max * _GRID[g]
+        phi: float = phi_max * _GRID[g]
         _normalised(logw0, ll, phi, W)
         q = 0.0
         for j in range(M):
@@ -304,8 +311,9 @@ def _tempered_direct(logw0, ll, phi_max, floor, W):  # pragma: no cover - compil
 
 
 @njit(cache=True)
-def shift_update(X, Y, z, w, R, V, tau, min_ess, confidence,
-                 Xn, W, nu, S, x, P):  # pragma: no cover - compiled
+def shift_update(X: Array, Y: Array, z: Array, w: Array, R: Array, V: Array, tau: float,
+                 min_ess: float, confidence: bool, Xn: Array, W: Array, nu: Array, S: Array,
+                 x: Array, P: Array) -> tuple[int, float]:  # pragma: no cover - compiled
     """(status, nis): one ``Hybrid.update`` with ``stages`` = 1 and ``shifts`` = 1 on a
     vector space with a plain measurement model, into the caller's arrays.
 
@@ -445,8 +453,9 @@ def shift_update(X, Y, z, w, R, V, tau, min_ess, confidence,
 
 
 @njit(cache=True)
-def _shift_1d(X, Y, z, w, R, V, tau, min_ess, confidence,
-              Xn, W, nu, S, x, P):  # pragma: no cover - compiled
+def _shift_1d(X: Array, Y: Array, z: float, w: Array, R: float, V: Array, tau: float,
+              min_ess: float, confidence: bool, Xn: Array, W: Array, nu: Array, S: Array,
+              x: Array, P: Array) -> tuple[int, float]:  # pragma: no cover - compiled
     """:func:`shift_update` of a 1-D state and measurement, on scalars (accumulators in
     registers: several times faster than the general loops on 99 members)."""
     M = X.shape[0]

@@ -28,9 +28,11 @@ from ..compiled.helpers import chol_into
 
 __all__ = ["moments", "sigma", "update"]
 
+Array = np.ndarray
+
 
 @njit(cache=True)
-def sigma(x, P, U, D, X):  # pragma: no cover - compiled
+def sigma(x: Array, P: Array, U: Array, D: Array, X: Array) -> int:  # pragma: no cover - compiled
     """Status; ``D`` (J, n) <- U L^T and ``X`` <- x + D for L = chol(P) and the unit
     offsets ``U`` (J, n). 1: P has no plain factor."""
     J, n = U.shape
@@ -48,7 +50,8 @@ def sigma(x, P, U, D, X):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def moments(Y, Wm, Wc, Q, x, P):  # pragma: no cover - compiled
+def moments(Y: Array, Wm: Array, Wc: Array, Q: Array, x: Array, P: Array
+            ) -> None:  # pragma: no cover - compiled
     """``x`` <- Wm Y, ``P`` <- sum_j Wc_j (Y_j - x)(Y_j - x)^T + Q."""
     J, n = Y.shape
     for i in range(n):
@@ -69,7 +72,8 @@ def moments(Y, Wm, Wc, Q, x, P):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def update(x0, P0, D, E, Wc, R, nu, x, P, S):  # pragma: no cover - compiled
+def update(x0: Array, P0: Array, D: Array, E: Array, Wc: Array, R: Array, nu: Array,
+           x: Array, P: Array, S: Array) -> tuple[int, float]:  # pragma: no cover - compiled
     """(status, nis); ``x`` <- x0 + K nu, ``P`` <- P0 - K Pxz^T, ``S`` <- the innovation
     covariance, given the sigma offsets ``D`` (J, n), the measurement residuals ``E``
     (J, m) of the sigma points and ``nu`` (m,) of z. Status 1: S has no plain factor."""
