@@ -55,19 +55,19 @@ def main() -> None:
     from numba import njit
 
     import uavest.core._compiled_local as nb
+    from uavest.compiled import bitgen_pointers
     from uavest.core import hybrid, make_filter
     from uavest.core.base import Ensemble
     from uavest.core.gaussian import Gaussian
     from uavest.core.linalg import chol
     from uavest.core.model import Measurement
     from uavest.experiments.radar import data_rng
-    from uavest.geometry.kernels import bitgen_pointers
     from uavest.models import radar as radar_mod
     from uavest.presets import build
     from uavest.scenarios import load_typed
     from uavest.tracking.scenario import build_models, generate_run, prior
 
-    if not hybrid.local_kernels() or not radar_mod.radar_kernels():
+    if not hybrid.LOCAL_KERNELS.get() or not radar_mod.RADAR_KERNELS.get():
         raise SystemExit("radar_hybrid_parts: needs numba (and UAVEST_NUMBA not 0)")
     sc = load_typed("radar_far", ["radar.sigma_az_deg=5"])
     motion, radar = build_models(sc)
@@ -96,11 +96,11 @@ def main() -> None:
 
     def numpy_update():
         """The whole numpy path (the fallback without numba): the radar's terms too."""
-        kernel, radar_mod._RADAR = radar_mod._RADAR, False
+        kernel, radar_mod.RADAR_KERNELS.loaded = radar_mod.RADAR_KERNELS.loaded, False
         try:
             return f._update_numpy(Ensemble(X, motion.space, w), z, radar, rng)
         finally:
-            radar_mod._RADAR = kernel
+            radar_mod.RADAR_KERNELS.loaded = kernel
 
     rows = [
         ("normals (predict noise, M = 585)",

@@ -9,7 +9,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 
 def compiled_kernels(loader, what: str):
-    """The module of numba kernels ``loader()`` gives (e.g. ``hybrid.shift_kernels``), for
+    """The module of numba kernels ``loader()`` gives (e.g. ``hybrid.SHIFT_KERNELS.get``), for
     a test of a compiled path: skipped without numba or with ``UAVEST_NUMBA=0`` (.ci/run's
     second pass: the numpy paths only), failed if numba is there and the kernels were
     refused (their self-check disagreed or they did not compile: see the log)."""

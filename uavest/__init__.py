@@ -6,6 +6,8 @@ Layers (data flows one way; each imports only those above it in this list; check
 
 - ``uavest.errors`` (the error types), ``uavest.seeding`` (the per-stream random
   generators), ``uavest.layouts`` (the Foxglove layouts' data): leaves usable anywhere.
+- ``uavest.compiled``: the registry of the optional numba kernels (one self-check
+  against their numpy references, one fallback) and the compiled helpers they share.
 - ``uavest.geometry``: rotations, quaternions, state spaces (``retract``/``local``), geodesy.
 - ``uavest.link``: the MAVLink link beside it (transport: UDP, TCP, serial; MAVLink 2
   signing; framing: the encoder buffer, tlog records), shared by the live source, the

@@ -115,6 +115,9 @@ def resolve(spec: str | FilterSpec, preset_name: str, dim: int | None = None) ->
     counts, ``gamma``); a preset value that needs ``dim`` raises :class:`SpecError`
     without it."""
     p = preset(preset_name)
+    if isinstance(spec, FilterSpec) and dim is not None and (spec.preset, spec.dim) == (
+            p.name, dim):
+        return spec  # resolved here before (the CLI's): not again
     name = spec.name if isinstance(spec, FilterSpec) else None
     if name is None:
         from .core.spec import parse_text
@@ -131,9 +134,14 @@ def resolve_list(
     """:func:`resolve` for every spec of a list ('a,b(x=1),c' or a sequence), refusing
     an empty list and duplicates. In a preset with ``match_members`` and exactly one
     hybrid-family entry in the list, EnKF/ETKF that do not write ``members`` get that
-    hybrid's member count (so the run compares equal ensemble sizes)."""
+    hybrid's member count (so the run compares equal ensemble sizes). A list of specs
+    already resolved in this preset at this ``dim`` (this function's result) is returned
+    as it is."""
     p = preset(preset_name)
     items = split_filter_list(text) if isinstance(text, str) else list(text)
+    if items and dim is not None and all(
+            isinstance(i, FilterSpec) and i.preset == p.name and i.dim == dim for i in items):
+        return items  # a list this function resolved (the CLI's) is not resolved again
     texts = [i if isinstance(i, str) else i.label for i in items]
     # empty list / empty entry / the same label twice; whether two different labels are
     # the same filter is decided below, in this preset (not with the core's defaults:
@@ -173,6 +181,12 @@ def build(spec: FilterSpec | str, preset_name: str | None = None, dim: int | Non
     return _build(spec)
 
 
+def spec_labels(specs: Sequence[str | FilterSpec]) -> list[str]:
+    """The specs as the user wrote them (a resolved spec's ``label``), e.g. for a
+    configuration record."""
+    return [s.label if isinstance(s, FilterSpec) else s for s in specs]
+
+
 def _changed(spec: FilterSpec) -> str:
     """``name(k=v, ...)`` with the mode and the values that differ from the core's
     defaults in that mode."""
@@ -205,4 +219,4 @@ def describe_presets(names: Sequence[str] = ("hybrid", "enkf", "etkf")) -> str:
 
 
 __all__ = ["PRESETS", "Preset", "build", "describe_presets", "preset", "resolve",
-           "resolve_list"]
+           "resolve_list", "spec_labels"]

@@ -115,7 +115,7 @@ def test_ukf_plain_measurement_check():
 def _shift_kernels():
     from uavest.core import hybrid
 
-    return hybrid, compiled_kernels(hybrid.shift_kernels, "shift kernels")
+    return hybrid, compiled_kernels(hybrid.SHIFT_KERNELS.get, "shift kernels")
 
 
 def _states(name: str, spec: str, steps: int = 30):
@@ -129,8 +129,8 @@ def _states(name: str, spec: str, steps: int = 30):
     _, Z = simulate(sysm, 1, np.random.default_rng([0, 1]))
     f = make_filter(spec)
     rng = np.random.default_rng(7)
-    keep = hybrid._SHIFT
-    hybrid._SHIFT = False  # the numpy path
+    keep = hybrid.SHIFT_KERNELS.loaded
+    hybrid.SHIFT_KERNELS.loaded = False  # the numpy path
     try:
         E = f.init(sysm.filter_prior, tr.space, rng)
         out = []
@@ -141,7 +141,7 @@ def _states(name: str, spec: str, steps: int = 30):
             out[-1] = (out[-1][0], E, Z[0][k], t)
             E, _ = f.update(E, Z[0][k], me, rng)
     finally:
-        hybrid._SHIFT = keep
+        hybrid.SHIFT_KERNELS.loaded = keep
     return f, tr, me, out
 
 
@@ -200,8 +200,8 @@ def test_hybrid_compiled_runs_follow_the_numpy_path(name):
     f = make_filter("hybrid")
 
     def run(r, kernels):
-        keep = hybrid._SHIFT
-        hybrid._SHIFT = kernels
+        keep = hybrid.SHIFT_KERNELS.loaded
+        hybrid.SHIFT_KERNELS.loaded = kernels
         try:
             rng = np.random.default_rng([0, r])
             s = f.init(sysm.filter_prior, tr.space, rng)
@@ -212,7 +212,7 @@ def test_hybrid_compiled_runs_follow_the_numpy_path(name):
                 xs.append(f.estimate(s).x)
             return np.array(xs)
         finally:
-            hybrid._SHIFT = keep
+            hybrid.SHIFT_KERNELS.loaded = keep
 
     for r in range(5):
         np.testing.assert_allclose(run(r, nb), run(r, False), rtol=1e-5, atol=1e-5)
@@ -296,9 +296,9 @@ def _hybrid_failures(f, tr, me, E, z, t):
 def test_shift_kernels_can_be_switched_off(monkeypatch):
     from uavest.core import hybrid
 
-    monkeypatch.setattr(hybrid, "_SHIFT", None)
+    monkeypatch.setattr(hybrid.SHIFT_KERNELS, "loaded", None)
     monkeypatch.setenv("UAVEST_NUMBA", "0")
-    assert hybrid.shift_kernels() is False
+    assert hybrid.SHIFT_KERNELS.get() is None
     f, tr, me, states = _states("ungm", "hybrid", 2)
     _, E, z, _ = states[-1]
     ua, _ = f.update(E, z, me, np.random.default_rng(1))  # the numpy path
@@ -310,7 +310,7 @@ def test_shift_kernels_can_be_switched_off(monkeypatch):
 def _ut_kernels():
     from uavest.core import unscented
 
-    return compiled_kernels(unscented.ut_kernels, "unscented kernels")
+    return compiled_kernels(unscented.UT_KERNELS.get, "unscented kernels")
 
 
 def _radar_models():
@@ -368,8 +368,8 @@ def test_ukf_compiled_runs_follow_the_array_path():
              for s, o in zip(rd.scans, rd.origins, strict=True)]
         out = []
         for kernels in (nb, False):
-            keep = unscented._UT
-            unscented._UT = kernels
+            keep = unscented.UT_KERNELS.loaded
+            unscented.UT_KERNELS.loaded = kernels
             try:
                 g, xs = Gaussian(rd.x0, P0), []
                 for k, z in enumerate(Z):
@@ -379,7 +379,7 @@ def test_ukf_compiled_runs_follow_the_array_path():
                     xs.append(np.concatenate([g.x, g.P.ravel()]))
                 out.append(np.array(xs))
             finally:
-                unscented._UT = keep
+                unscented.UT_KERNELS.loaded = keep
         np.testing.assert_allclose(out[0], out[1], rtol=1e-8, atol=1e-8)
 
 
@@ -405,6 +405,6 @@ def test_ukf_compiled_failures_take_the_array_path(monkeypatch):
     g = Gaussian(x, np.diag([100.0, 100.0, 1.0, 4.0]))
     with pytest.raises(ValueError):
         UKF().update(g, np.array([2000.0, 1.0, 3.0]), radar)
-    monkeypatch.setattr(unscented, "_UT", None)
+    monkeypatch.setattr(unscented.UT_KERNELS, "loaded", None)
     monkeypatch.setenv("UAVEST_NUMBA", "0")
-    assert unscented.ut_kernels() is False
+    assert unscented.UT_KERNELS.get() is None

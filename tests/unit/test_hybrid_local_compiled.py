@@ -46,11 +46,11 @@ def _run(f, motion, radar, prior, Z, compiled: bool, monkeypatch):
     through one path (the predict's process noise too: compiled or numpy)."""
     from uavest.models import radar as radar_mod
 
-    monkeypatch.setattr(hybrid, "_LOCAL", nb if compiled else False)
+    monkeypatch.setattr(hybrid.LOCAL_KERNELS, "loaded", nb if compiled else False)
     if not compiled:  # the whole numpy path: the radar's composed terms too
-        monkeypatch.setattr(radar_mod, "_RADAR", False)
+        monkeypatch.setattr(radar_mod.RADAR_KERNELS, "loaded", False)
     else:
-        monkeypatch.setattr(radar_mod, "_RADAR", None)  # decided again (UAVEST_NUMBA)
+        monkeypatch.setattr(radar_mod.RADAR_KERNELS, "loaded", None)  # decided again (UAVEST_NUMBA)
     rng = np.random.default_rng([1, 0])
     E = f.init(prior, motion.space, rng)
     out = []
@@ -152,9 +152,9 @@ def test_compiled_update_raises_numerical_errors_like_the_numpy_path():
 def test_update_dispatches_to_the_kernels_unless_switched_off():
     """``update`` uses the kernels on a vector space with m <= 2 when numba is enabled and
     the numpy path with ``UAVEST_NUMBA=0`` (decided once per process)."""
-    k = hybrid.local_kernels()
+    k = hybrid.LOCAL_KERNELS.get()
     if os.environ.get("UAVEST_NUMBA", "1") == "0":
-        assert k is False
+        assert k is None
     else:
         assert k is nb
 
@@ -164,7 +164,7 @@ def test_kernels_draw_the_generators_own_normals(bitgen):
     """``add_noise`` draws from the caller's generator through its pointers: numpy's
     normals in numpy's order for any bit generator, the generator left where numpy
     leaves it, so that the compiled and numpy paths share one random stream."""
-    from uavest.geometry.kernels import bitgen_pointers
+    from uavest.compiled import bitgen_pointers
 
     X = np.arange(21.0).reshape(7, 3)
     L = np.linalg.cholesky(np.array([[4.0, 1.0, 0.0], [1.0, 2.0, 0.5], [0.0, 0.5, 1.0]]))

@@ -23,7 +23,7 @@ TOL = 1e-12
 def nb():
     """The kernel module, loaded through :func:`radar_kernels` (its self-check must
     pass: a failure there is a failure here, not a skip)."""
-    return compiled_kernels(radar_mod.radar_kernels, "radar kernel")
+    return compiled_kernels(radar_mod.RADAR_KERNELS.get, "radar kernel")
 
 
 @pytest.fixture
@@ -289,7 +289,7 @@ def test_other_layouts_take_the_default(monkeypatch, ndim, rr):
     """3-D and range-rate radars never call the kernel and give the default exactly."""
     def boom(*a):
         raise AssertionError("the kernel ran")
-    monkeypatch.setattr(radar_mod, "_RADAR", type("K", (), {"linearise2": boom})())
+    monkeypatch.setattr(radar_mod.RADAR_KERNELS, "loaded", type("K", (), {"linearise2": boom})())
     g = np.random.default_rng(12)
     radar = RadarMeasurement(ndim, sigma_rr=rr)
     X = np.c_[g.normal(1000.0, 50.0, (30, ndim)), g.normal(0.0, 5.0, (30, ndim))]
@@ -300,7 +300,7 @@ def test_other_layouts_take_the_default(monkeypatch, ndim, rr):
 
 def test_forced_off_uses_the_default(monkeypatch):
     """``_RADAR = False`` (numba missing, disabled or failed) gives the default exactly."""
-    monkeypatch.setattr(radar_mod, "_RADAR", False)
+    monkeypatch.setattr(radar_mod.RADAR_KERNELS, "loaded", False)
     g = np.random.default_rng(13)
     radar = RadarMeasurement(2, 5, pose=_poses()["rotated"])
     X = _members(radar.pose, 5, 100, g)
@@ -310,7 +310,7 @@ def test_forced_off_uses_the_default(monkeypatch):
 
 
 def test_uavest_numba_0_switches_it_off(monkeypatch):
-    monkeypatch.setattr(radar_mod, "_RADAR", None)
+    monkeypatch.setattr(radar_mod.RADAR_KERNELS, "loaded", None)
     monkeypatch.setenv("UAVEST_NUMBA", "0")
-    assert radar_mod.radar_kernels() is False
-    assert radar_mod._RADAR is False
+    assert radar_mod.RADAR_KERNELS.get() is None
+    assert radar_mod.RADAR_KERNELS.loaded is False

@@ -275,3 +275,34 @@ def test_split_hybrid_gives_the_numbers_of_the_flat_parameter_set(spec):
         out.append(f.estimate(E))
     for o in out[1:]:
         assert np.array_equal(out[0].x, o.x) and np.array_equal(out[0].P, o.P)
+
+
+# ---------------------------------------------------------------- resolved once, by the CLI
+
+
+def test_the_cli_resolves_filters_once_for_the_commands_state():
+    from uavest.cli import _check_filters, build_parser
+    from uavest.core.spec import FilterSpec
+    from uavest.engine.build import build_filters
+
+    def specs(*argv):
+        args = build_parser().parse_args(list(argv))
+        _check_filters(args)
+        return args.filter_specs
+
+    att = specs("replay", "some.tlog", "--filters", "hybrid,ekf")
+    assert all(isinstance(s, FilterSpec) and (s.preset, s.dim) == ("attitude", 6) for s in att)
+    assert att[0].params["n_cloud"] == 16  # the attitude preset's hybrid
+    again = presets.resolve_list(att, "attitude", dim=6)  # what the job does: a no-op
+    assert all(a is b for a, b in zip(again, att, strict=True))
+    (radar,) = specs("bench", "radar_crossing", "--filters", "hybrid")
+    assert (radar.preset, radar.dim, radar.params["update_mode"]) == ("radar", 4, "local")
+    bench = specs("bench", "ungm", "--filters", "enkf,hybrid(n_cloud=4)")
+    assert [(s.preset, s.dim) for s in bench] == [("bench", 1)] * 2
+    assert bench[0].params["members"] == 3 * 5  # the listed hybrid's M = (2n+1)(N+1)
+    assert specs("bench", "no_such_scenario", "--filters", "ekf") == ["ekf"]  # reported later
+    with pytest.raises(SpecError):
+        specs("bench", "ungm", "--filters", "hybrid(bogus=1)")
+    assert [type(f).__name__ for _, f in build_filters(bench)] == ["EnKF", "Hybrid"]
+    with pytest.raises(TypeError, match="resolved FilterSpecs"):
+        build_filters(["ekf"])  # the engine does not resolve spec text

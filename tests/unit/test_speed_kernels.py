@@ -280,7 +280,7 @@ def _numba_kernels():
 
     from uavest.geometry import rotation
 
-    return rotation, compiled_kernels(rotation.compiled_kernels, "attitude kernels")
+    return rotation, compiled_kernels(rotation.MANIFOLD_KERNELS.get, "attitude kernels")
 
 
 def test_compiled_kernels_equal_the_numpy_kernels():
@@ -316,7 +316,7 @@ def test_compiled_kernels_equal_the_numpy_kernels():
             nb.rotate_inv_rows(X[:, :4], v),
             np.einsum("...ji,...j->...i", rot.quat_to_dcm(X[:, :4]), v), rtol=0, atol=1e-12)
     # the public functions dispatch to the compiled kernels
-    assert rot.compiled_kernels() is nb
+    assert rot.MANIFOLD_KERNELS.get() is nb
 
 
 def test_numba_can_be_switched_off_and_gives_the_same_replay(tmp_path):
@@ -332,7 +332,7 @@ def test_numba_can_be_switched_off_and_gives_the_same_replay(tmp_path):
     code = ("import json,sys; from uavest.apps.replay import replay, ReplayConfig;"
             "from uavest.geometry import rotation as r;"
             "d = replay(sys.argv[1], ReplayConfig());"
-            "print(json.dumps({'nb': bool(r._NB), 'rows': d['filters']}))")
+            "print(json.dumps({'nb': bool(r.MANIFOLD_KERNELS.loaded), 'rows': d['filters']}))")
     out = {}
     for flag in ("0", "1"):
         env = dict(os.environ, UAVEST_NUMBA=flag)

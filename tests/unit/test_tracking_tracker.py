@@ -263,6 +263,6 @@ def test_tracker_loads_the_radar_kernel_when_made_for_the_local_hybrid(monkeypat
     first scan's time); a tracker around another filter leaves it undecided."""
     from uavest.models import radar
 
-    monkeypatch.setattr(radar, "_RADAR", None)
+    monkeypatch.setattr(radar.RADAR_KERNELS, "loaded", None)
     Tracker(make_filter(name), MOT, TrackerConfig(), np.random.default_rng(0))
-    assert (radar._RADAR is not None) == loads
+    assert (radar.RADAR_KERNELS.loaded is not None) == loads

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..core.spec import FilterSpec
 from ..engine.attitude import AttitudeOptions, AttitudeStream
 from ..engine.build import build_filters
 from ..engine.loop import Lane, run_lanes
@@ -61,6 +62,7 @@ from ..ingest.types import (
 )
 from ..models.motion import NearlyConstantVelocity
 from ..models.radar import RadarMeasurement, SensorPose
+from ..presets import resolve_list, spec_labels
 from ..seeding import filter_stream, rng
 from ..sinks.base import Sink
 from ..tracking.tracker import Tracker, TrackerConfig
@@ -86,14 +88,19 @@ LIVE_STREAMS = {
     "ADSB_VEHICLE": 10.0, "OBSTACLE_DISTANCE_3D": 10.0, "SCALED_PRESSURE": 10.0,
 }
 
+#: The tangent dimension of the live tracks' state (:class:`NearlyConstantVelocity` in
+#: 3-D: position and velocity, m and m/s), which the tracker specs are resolved for.
+TRACKER_DIM = 6
+
 
 @dataclass
 class LiveConfig:
     """Options of :func:`run_live` (see ``uavest run --help``)."""
 
     connect: str = "udpin:127.0.0.1:14550"
-    filters: tuple[str, ...] = ("ekf", "ukf", "hybrid")
-    trackers: tuple[str, ...] = ("ekf", "ukf", "hybrid")
+    # spec text, or specs the CLI resolved (attitude / radar preset)
+    filters: tuple[str | FilterSpec, ...] = ("ekf", "ukf", "hybrid")
+    trackers: tuple[str | FilterSpec, ...] = ("ekf", "ukf", "hybrid")
     seed: int = 0
     sysid: int | None = None
     signing_key: str | None = None
@@ -455,8 +462,9 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
                 info: RunInfo | None = None, link=None, status: bool | None = None) -> dict:
     """The live job over any sample stream (a live link, or a tlog for tests): both
     lanes, scorers, ``sinks``. Returns the result document."""
-    specs = build_filters(cfg.filters, "attitude", dim=6) if cfg.filters else []
-    tspecs = build_filters(cfg.trackers, "radar", dim=6) if cfg.trackers else []
+    specs = build_filters(resolve_list(cfg.filters, "attitude", dim=6)) if cfg.filters else []
+    tspecs = (build_filters(resolve_list(cfg.trackers, "radar", dim=TRACKER_DIM))
+              if cfg.trackers else [])
 
     def make_stream() -> AttitudeStream:
         d = declination() if declination is not None else None
@@ -567,7 +575,7 @@ def _config(cfg: LiveConfig) -> dict:
     d = {k: v for k, v in vars(cfg).items() if k not in ("radar", "signing_key")}
     d["radar"] = {k: v for k, v in vars(cfg.radar).items()}
     d["signing"] = cfg.signing_key is not None
-    d["filters"], d["trackers"] = list(cfg.filters), list(cfg.trackers)
+    d["filters"], d["trackers"] = spec_labels(cfg.filters), spec_labels(cfg.trackers)
     return d
 
 

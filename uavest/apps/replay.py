@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.spec import FilterSpec
 from ..engine.attitude import AttitudeOptions, AttitudeStream
 from ..engine.build import build_filters
 from ..engine.loop import Lane, run_lanes
@@ -28,6 +29,7 @@ from ..engine.smooth import smooth_records
 from ..eval.attitude import AttitudeScorer, choose_reference, nees_attitude, rmse_deg
 from ..geometry.rotation import quat_slerp_interp
 from ..ingest.types import AttitudeRef, ImuSample, IngestError, MagSample, NoSamplesError
+from ..presets import resolve_list, spec_labels
 from ..seeding import filter_stream, rng
 from ..sinks.base import Collector, Sink
 
@@ -47,7 +49,7 @@ class ReplayConfig:
     filters (spec strings, resolved with the ``attitude`` preset), smoothing, the seed,
     and the :class:`~uavest.engine.attitude.AttitudeOptions` fields."""
 
-    filters: tuple[str, ...] = DEFAULT_FILTERS
+    filters: tuple[str | FilterSpec, ...] = DEFAULT_FILTERS  # text or resolved specs
     start: float | None = None
     end: float | None = None
     smooth: bool = False
@@ -172,7 +174,7 @@ def replay_samples(
     """Run ``cfg.filters`` over a sample stream. Returns the per-filter result rows (and
     the stream, runners, scorer and collector for callers that report more)."""
     opts = cfg.attitude_options()
-    specs = build_filters(cfg.filters, "attitude", dim=6)
+    specs = build_filters(resolve_list(cfg.filters, "attitude", dim=6))
     rng_for = rng_for or (lambda label: rng(cfg.seed, 0, filter_stream(label)))
     runners = [
         FilterRunner(sp.label, flt, rng_for(sp.label), smooth=cfg.smooth) for sp, flt in specs
@@ -396,5 +398,5 @@ def reliability(doc: dict, summary: dict) -> list[str]:
 
 def _config_dict(cfg: ReplayConfig) -> dict:
     d = {k: v for k, v in vars(cfg).items() if k != "filters"}
-    d["filters"] = list(cfg.filters)
+    d["filters"] = spec_labels(cfg.filters)
     return d

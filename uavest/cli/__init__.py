@@ -76,7 +76,7 @@ def _lazy(module: str, name: str):
 
 def cmd_list(args) -> int:
     from ..core.registry import FILTER_NAMES
-    from ..engine.build import describe_presets
+    from ..presets import describe_presets
     from ..scenarios import list_scenarios
 
     print("scenarios:", ", ".join(list_scenarios()))
@@ -144,25 +144,44 @@ def _restore_logging(saved: tuple) -> None:
     root.setLevel(level)
 
 
-def _preset_for(args) -> str:
-    """The preset the command will resolve ``--filters`` in: ``uavest bench`` on a radar
-    scenario runs the radar preset (``experiments.radar``), not the bench one."""
+def _preset_for(args) -> tuple[str, int | None]:
+    """(preset, state dimension) the command's ``--filters`` are resolved in and for:
+    ``uavest replay`` / ``run`` / ``demo`` the attitude preset on the attitude state
+    (tangent dimension 6); ``uavest track`` and ``uavest bench`` on a radar scenario the
+    radar preset (``experiments.radar``) on the scenario's motion model, ``bench`` on any
+    other scenario the bench preset on its system. The dimension is None when the
+    scenario cannot be loaded (the command reports that itself)."""
     preset = args.filters_preset
-    if preset == "bench" and getattr(args, "scenario", None):
-        from ..errors import InputError
-        from ..scenarios import load_scenario
+    if preset == "attitude":
+        from ..geometry.rotation import AttitudeSpace
 
-        try:
-            kind = load_scenario(args.scenario, getattr(args, "sets", None) or ()).get("kind")
-        except (InputError, OSError):  # a bad scenario is reported by the command itself
-            return preset
-        if kind == "radar":
-            return "radar"
-    return preset
+        return preset, AttitudeSpace.dim
+    scenario = getattr(args, "scenario", None)
+    if not scenario:
+        return preset, None
+    from ..errors import InputError
+    from ..scenarios import load_scenario
+
+    sets = getattr(args, "sets", None) or getattr(args, "set", None) or ()
+    try:
+        sc = load_scenario(scenario, sets)
+        if sc.get("kind") == "radar":
+            from ..tracking.scenario import build_models
+
+            return "radar", build_models(sc)[0].space.dim
+        if preset == "bench":
+            from ..experiments.systems import build_system
+
+            return preset, build_system(sc).transition.space.dim
+    except (InputError, OSError):  # a bad scenario is reported by the command itself
+        pass
+    return preset, None
 
 
 def _check_filters(args) -> None:
-    """Parse ``--filters`` once into ``args.filter_specs``; bad specs fail here."""
+    """Resolve ``--filters`` once, against the command's preset and for its state, into
+    ``args.filter_specs`` (FilterSpecs the command passes down; None without
+    ``--filters``); bad specs fail here (one line, exit 2) before any work."""
     if not hasattr(args, "filters_preset"):
         return
     text = getattr(args, "filters", None)
@@ -171,11 +190,14 @@ def _check_filters(args) -> None:
         return
     from ..presets import resolve_list
 
-    # one-line SpecError (exit 2) before any work; the dimension is the job's (any works here)
-    resolve_list(text, _preset_for(args), dim=1)
-    from ..core.spec import split_filter_list
+    preset, dim = _preset_for(args)
+    if dim is None:  # the scenario is bad: check the specs, the command reports the rest
+        resolve_list(text, preset, dim=1)
+        from ..core.spec import split_filter_list
 
-    args.filter_specs = split_filter_list(text)
+        args.filter_specs = split_filter_list(text)
+        return
+    args.filter_specs = resolve_list(text, preset, dim)
 
 
 def main(argv: list[str] | None = None) -> int:

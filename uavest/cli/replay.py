@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 from ..apps.replay import DEFAULT_FILTERS, ReplayConfig, replay
+from ..core.spec import FilterSpec
 from ..engine.attitude import DEFAULT_MAX_RATE_HZ
 from ..errors import InputError
 from ..models.attitude import AttitudeNoise
@@ -29,7 +30,8 @@ LINEAR_ONLY = ("kf",)
 def reject_linear_only(specs, command: str, models: str) -> None:
     """One-line ValueError for a filter that cannot run on ``command``'s models."""
     for sp in specs or ():
-        name = str(sp).split("(")[0].strip().lower()
+        name = sp.name if isinstance(sp, FilterSpec) else str(sp).split("(")[0].strip().lower()
+        sp = sp.label if isinstance(sp, FilterSpec) else sp
         if name in LINEAR_ONLY:
             raise InputError(
                 f"--filters {sp}: the linear Kalman filter needs linear models; {command} "

@@ -10,7 +10,7 @@ import socket
 import sys
 import threading
 
-from ..apps.live import LiveConfig, run_live
+from ..apps.live import TRACKER_DIM, LiveConfig, run_live
 from ..errors import InputError
 from ..ingest.adsb_radar import RadarConfig
 from ..sinks.jsonout import write_json
@@ -93,6 +93,7 @@ def _cfg(args, connect: str) -> LiveConfig:
     trackers = () if args.trackers.strip() in ("", "none") else tuple(
         s for s in args.trackers.split(","))
     from ..core.spec import split_filter_list
+    from ..presets import resolve_list
 
     if args.duration is not None and not args.duration > 0:
         raise InputError(f"--duration must be > 0 s, got {args.duration}")
@@ -101,7 +102,7 @@ def _cfg(args, connect: str) -> LiveConfig:
             raise InputError(f"--{name} must be >= 0 Hz (0 = every step), got {v}")
     return LiveConfig(
         connect=connect, filters=tuple(args.filter_specs or split_filter_list(args.filters)),
-        trackers=tuple(split_filter_list(",".join(trackers))) if trackers else (),
+        trackers=tuple(resolve_list(",".join(trackers), "radar", TRACKER_DIM)) if trackers else (),
         seed=args.seed, sysid=getattr(args, "sysid", None),
         signing_key=getattr(args, "signing_key", None), tlog=args.tlog,
         heartbeat_timeout=getattr(args, "heartbeat_timeout", 30.0),

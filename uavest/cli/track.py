@@ -12,6 +12,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..experiments.radar import data_rng, run_trackers, tracker_errors
+from ..presets import spec_labels
 from ..scenarios import load_typed, resolved, typed
 from ..sinks.jsonout import write_json
 from ..tracking.scenario import generate_run
@@ -33,7 +34,7 @@ def track_table(sc, filters: list[str], seed: int, sinks=(), command: str = "") 
     from ..engine.records import RunInfo, package_versions
 
     info = RunInfo(command, f"scenario:{scn.name}", seed,
-                   filters={lab: {"spec": lab, "preset": "radar"} for lab in filters},
+                   filters={lab: {"spec": lab, "preset": "radar"} for lab in spec_labels(filters)},
                    config={"scenario": scn.name, "dt": dt, "gospa_c": c},
                    versions=package_versions(), scenario=resolved(scn))
     trackers: dict[str, Tracker] = run_trackers(scn, filters, run, seed, 0, sinks, info)

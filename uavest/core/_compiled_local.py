@@ -25,13 +25,14 @@ from __future__ import annotations
 
 import math
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
-from numba import njit, types
-from numba.core import cgutils
-from numba.core.extending import intrinsic
+from numba import njit
 from numba.np.random.distributions import random_standard_normal
 from numba.np.random.generator_core import next_double
+
+from ..compiled.helpers import bitgen
 
 __all__ = ["add_noise", "centres", "local_draw", "local_gains", "local_update", "moments",
            "prior_moments",
@@ -41,35 +42,13 @@ __all__ = ["add_noise", "centres", "local_draw", "local_gains", "local_update", 
 #: path to rounding; no flag that assumes finite values (the NaN checks must hold).
 _FM = {"contract"}
 
-
-_BITGEN = types.NumPyRandomBitGeneratorType("bit_generator")
-
-
-@intrinsic
-def _bitgen(tyctx, state, next_u64, next_u32, next_dbl):  # pragma: no cover - compiled
-    """numba's bit-generator struct (what it unboxes from a ``Generator`` argument) from
-    the addresses of :func:`uavest.geometry.kernels.bitgen_pointers`, so that numba's
-    own ``random_standard_normal`` / ``next_double`` (numpy's algorithms: numpy's values,
-    in numpy's order) draw from the caller's generator without the ~8 us that numba
-    spends per call unboxing a ``Generator`` through ctypes."""
-    sig = _BITGEN(types.intp, types.intp, types.intp, types.intp)
-
-    def codegen(cgctx, builder, sig, args):
-        st = cgutils.create_struct_proxy(_BITGEN)(cgctx, builder)
-        st.state_address = args[0]
-        st.state = args[0]
-        st.fnptr_next_uint64 = args[1]
-        st.fnptr_next_uint32 = args[2]
-        st.fnptr_next_double = args[3]
-        st.bit_generator = cgctx.get_constant(types.uintp, 0)
-        st.parent = cgutils.get_null_value(cgctx.get_value_type(types.pyobject))
-        return st._getvalue()
-
-    return sig, codegen
+Array = np.ndarray
+#: local_update's outputs: members, moments (x, dX, P), weights, Pyy, resampled, status
+_Update = tuple[Array, Array, Array, Array, Array, Array, bool, int]
 
 
 @lru_cache(maxsize=16)
-def tag(n: int) -> tuple:
+def tag(n: int) -> tuple[float, ...]:
     """The tuple of n zeros that the kernels take as their last argument: its length is
     part of its numba type, so each kernel compiles once per state dimension n with n a
     constant (its loops over the state components unrolled), not once per call."""
@@ -77,7 +56,8 @@ def tag(n: int) -> tuple:
 
 
 @njit(cache=True, fastmath=_FM)
-def moments(X, w, tag):  # pragma: no cover - compiled
+def moments(X: Array, w: Array, tag: tuple[float, ...]
+            ) -> tuple[Array, Array, Array]:  # pragma: no cover - compiled
     """Weighted mean ``x`` (n,), deviations ``dX`` = X - x (M, n) and covariance
     ``P`` = sum_j w_j dX_j dX_j^T / max(1 - sum_j w_j^2, 1e-12) (n, n), symmetric by
     construction (:func:`uavest.core.base.ensemble_moments` on a vector space). ``tag``:
@@ -109,7 +89,8 @@ def moments(X, w, tag):  # pragma: no cover - compiled
 
 
 @njit(cache=True, fastmath=_FM)
-def centres(x, dX, a, tag):  # pragma: no cover - compiled
+def centres(x: Array, dX: Array, a: float, tag: tuple[float, ...]
+            ) -> Array:  # pragma: no cover - compiled
     """Mixture centres C_j = x + a dX_j (M, n) (the kernel's shrink towards the mean)."""
     n = len(tag)
     M = dX.shape[0]
@@ -121,14 +102,17 @@ def centres(x, dX, a, tag):  # pragma: no cover - compiled
 
 
 @njit(cache=True, fastmath=_FM)
-def prior_moments(X, w, a, tag):  # pragma: no cover - compiled
+def prior_moments(X: Array, w: Array, a: float, tag: tuple[float, ...]
+                  ) -> tuple[Array, Array, Array, Array]:  # pragma: no cover - compiled
     """:func:`moments` and :func:`centres` of them in one call: x, dX, P, C."""
     x, dX, P = moments(X, w, tag)
     return x, dX, P, centres(x, dX, a, tag)
 
 
 @njit(cache=True, fastmath=_FM)
-def local_gains(Hs, B, R, nu, dY, w, confidence, tag):  # pragma: no cover - compiled
+def local_gains(Hs: Array, B: Array, R: Array, nu: Array, dY: Array, w: Array,
+                confidence: bool, tag: tuple[float, ...]
+                ) -> tuple[Array, Array, Array, Array, int]:  # pragma: no cover - compiled
     """Innovation covariances and confidence weights of the Gaussian-mixture update
     (m = 1 or 2).
 
@@ -238,7 +222,7 @@ def local_gains(Hs, B, R, nu, dY, w, confidence, tag):  # pragma: no cover - com
 
 
 @njit(cache=True)
-def systematic_indices(w, u):  # pragma: no cover - compiled
+def systematic_indices(w: Array, u: float) -> Array:  # pragma: no cover - compiled
     """:func:`uavest.core.resample.systematic_resample`'s indices for the uniform draw
     ``u``: the first j with cs_j >= (u + i) / M, cs the running sum of ``w`` (its last
     entry set to 1), by one merge of the two sorted sequences instead of M binary
@@ -266,8 +250,9 @@ def systematic_indices(w, u):  # pragma: no cover - compiled
 
 
 @njit(cache=True, fastmath=_FM)
-def local_draw(C, HB, Si, Hs, nu, En, Lb, Vn, Lr, idx, resample, wp, tag
-               ):  # pragma: no cover - compiled
+def local_draw(C: Array, HB: Array, Si: Array, Hs: Array, nu: Array, En: Array, Lb: Array,
+               Vn: Array, Lr: Array, idx: Array, resample: bool, wp: Array, tag: tuple[float, ...]
+               ) -> tuple[Array, Array, Array, Array]:  # pragma: no cover - compiled
     """Posterior members and their moments.
 
     Member i is drawn from component j (j = idx[i] if ``resample`` else i) as
@@ -314,7 +299,8 @@ def local_draw(C, HB, Si, Hs, nu, En, Lb, Vn, Lr, idx, resample, wp, tag
 
 
 @njit(cache=True)
-def _no_draw(n, wu, Pyy, resampled, status):  # pragma: no cover - compiled
+def _no_draw(n: int, wu: Array, Pyy: Array, resampled: bool, status: int
+             ) -> _Update:  # pragma: no cover
     """:func:`local_update`'s outputs when it stops before drawing (empty members and
     moments, not read: the caller raises on ``status``)."""
     X = np.empty((0, n))
@@ -322,13 +308,14 @@ def _no_draw(n, wu, Pyy, resampled, status):  # pragma: no cover - compiled
 
 
 @njit(cache=True, fastmath=_FM)
-def local_update(bits, C, Hs, B, R, nu, dY, w, confidence, regen_ess, Lb, Lr, tag
-                 ):  # pragma: no cover - compiled
+def local_update(bits: Array, C: Array, Hs: Array, B: Array, R: Array, nu: Array, dY: Array,
+                 w: Array, confidence: bool, regen_ess: float, Lb: Array, Lr: Array,
+                 tag: tuple[float, ...]) -> _Update:  # pragma: no cover
     """The whole update after the model's terms, the draws included: :func:`local_gains`,
     the effective sample size of the updated weights, :func:`systematic_indices` if it is
     < ``regen_ess`` M, and :func:`local_draw` with the standard normals ``En`` (M, n)
     then ``Vn`` (M, m) drawn here from the caller's ``numpy.random.Generator`` (``bits``:
-    its :func:`uavest.geometry.kernels.bitgen_pointers`; numba's draws are numpy's,
+    its :func:`uavest.compiled.bitgen_pointers`; numba's draws are numpy's,
     value for value, and leave the generator in the same state). The draws come in the
     numpy path's order: the resampling uniform (if any), ``En``, ``Vn``.
 
@@ -345,7 +332,7 @@ def local_update(bits, C, Hs, B, R, nu, dY, w, confidence, regen_ess, Lb, Lr, ta
     for j in range(M):
         s2 += wu[j] * wu[j]
     resample = 1.0 / s2 < regen_ess * M
-    bg = _bitgen(bits[0], bits[1], bits[2], bits[3])
+    bg: Any = bitgen(bits[0], bits[1], bits[2], bits[3])  # type: ignore[call-arg]
     if resample:
         idx = systematic_indices(wu, next_double(bg))
         if idx[0] < 0:
@@ -369,9 +356,10 @@ def local_update(bits, C, Hs, B, R, nu, dY, w, confidence, regen_ess, Lb, Lr, ta
 
 
 @njit(cache=True, fastmath=_FM)
-def add_noise(bits, X, L, tag):  # pragma: no cover - compiled
+def add_noise(bits: Array, X: Array, L: Array, tag: tuple[float, ...]
+              ) -> Array:  # pragma: no cover - compiled
     """X_j + L z_j with z_j ~ N(0, I) (n,) drawn here from the generator of ``bits``
-    (:func:`uavest.geometry.kernels.bitgen_pointers`), member after member
+    (:func:`uavest.compiled.bitgen_pointers`), member after member
     (numpy's ``rng.standard_normal((M, n))`` values in its order): the process noise of
     :func:`uavest.core.ensemble.propagate_members` on a vector space, ``L`` its lower
     factor (n, n)."""
@@ -379,7 +367,7 @@ def add_noise(bits, X, L, tag):  # pragma: no cover - compiled
     M = X.shape[0]
     out = np.empty((M, n))
     z = np.empty(n)
-    bg = _bitgen(bits[0], bits[1], bits[2], bits[3])
+    bg: Any = bitgen(bits[0], bits[1], bits[2], bits[3])  # type: ignore[call-arg]
     for j in range(M):
         for k in range(n):
             z[k] = random_standard_normal(bg)

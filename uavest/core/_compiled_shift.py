@@ -1,6 +1,6 @@
 """Compiled (numba) kernels of the default hybrid (:class:`uavest.core.hybrid.Hybrid`,
 shift update) on a vector state space: the optional fast path (``pip install
-"uavest[fast]"``), dispatched by :func:`uavest.core.hybrid.shift_kernels`.
+"uavest[fast]"``), dispatched through :data:`uavest.core.hybrid.SHIFT_KERNELS`.
 
 On the UNGM (99 members) the hybrid's step was numpy's per-call floor (~60 calls of ~1 us,
 docs/speed.md), not arithmetic. These kernels do the work between the model's ``f`` /
@@ -33,36 +33,17 @@ import math
 import numpy as np
 from numba import njit
 
+from ..compiled.helpers import chol_into, factor, solve_lower
+
 __all__ = ["add_noise", "chol_jitter", "regenerate", "shift_update"]
 
 _OK, _NONFINITE, _NOT_PD = 0, 1, 2
 
-
-@njit(cache=True)
-def _chol(P, L):  # pragma: no cover - compiled
-    """Lower Cholesky factor of the lower triangle of ``P`` into ``L``; False if a pivot
-    is not positive (or not a number)."""
-    n = P.shape[0]
-    for j in range(n):
-        s = P[j, j]
-        for k in range(j):
-            s -= L[j, k] * L[j, k]
-        if not s > 0.0:
-            return False
-        d = math.sqrt(s)
-        L[j, j] = d
-        for i in range(j + 1, n):
-            t = P[i, j]
-            for k in range(j):
-                t -= L[i, k] * L[j, k]
-            L[i, j] = t / d
-        for i in range(j):
-            L[i, j] = 0.0
-    return True
+Array = np.ndarray
 
 
 @njit(cache=True)
-def chol_jitter(P):  # pragma: no cover - compiled
+def chol_jitter(P: Array) -> tuple[int, Array]:  # pragma: no cover - compiled
     """(status, L): :func:`uavest.core.linalg.chol` of ``P`` (n, n): the plain factor, else
     non-finite entries (status 1), else diagonal jitter from 1e-12 * mean|diag| growing
     x100 over six tries (status 2 if all fail)."""
@@ -73,7 +54,7 @@ def chol_jitter(P):  # pragma: no cover - compiled
         if 0.0 < p < math.inf:
             L[0, 0] = math.sqrt(p)
             return _OK, L
-    elif _chol(P, L):
+    elif chol_into(P, L):
         return _OK, L
     for i in range(n):
         for j in range(i + 1):
@@ -91,14 +72,14 @@ def chol_jitter(P):  # pragma: no cover - compiled
         J = S.copy()
         for i in range(n):
             J[i, i] += jitter
-        if _chol(J, L):
+        if chol_into(J, L):
             return _OK, L
         jitter *= 100.0
     return _NOT_PD, L
 
 
 @njit(cache=True)
-def _moments(X, w):  # pragma: no cover - compiled
+def _moments(X: Array, w: Array) -> tuple[Array, Array, Array]:  # pragma: no cover - compiled
     """Weighted mean x (n,), deviations dX (M, n) and the reliability-weighted covariance
     sum w dX dX^T / max(1 - sum w^2, 1e-12), symmetric (``base.ensemble_moments`` on a
     vector space, with ``ensemble_estimate``'s symmetrising)."""
@@ -130,7 +111,8 @@ def _moments(X, w):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def regenerate(X, w, u, Z, h, out):  # pragma: no cover - compiled
+def regenerate(X: Array, w: Array, u: float, Z: Array, h: float, out: Array
+               ) -> int:  # pragma: no cover - compiled
     """Status; ``out`` (M, n) <- the members regenerated around the credible ones.
     Systematic selection idx_i = first j with cumsum(w)_j >= (u + i) / M (the last sum set
     to 1), then X'_i = x + (a dX_idx_i + Z_i (h L)^T) with a = sqrt(1 - h^2), L = chol(P),
@@ -166,7 +148,7 @@ def regenerate(X, w, u, Z, h, out):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def add_noise(X, Z, L, out):  # pragma: no cover - compiled
+def add_noise(X: Array, Z: Array, L: Array, out: Array) -> None:  # pragma: no cover - compiled
     """``out`` <- X + Z L^T (``propagate_members``' process noise with the lower factor
     ``L`` of Q; 1-D: X + Z l, the one product per member that BLAS makes too)."""
     M, n = X.shape
@@ -184,7 +166,8 @@ def add_noise(X, Z, L, out):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _regenerate_1d(X, w, u, Z, h, out):  # pragma: no cover - compiled
+def _regenerate_1d(X: Array, w: Array, u: float, Z: Array, h: float, out: Array
+                   ) -> int:  # pragma: no cover - compiled
     """:func:`regenerate` of a 1-D state, on scalars (accumulators in registers)."""
     M = X.shape[0]
     x = 0.0
@@ -216,41 +199,13 @@ def _regenerate_1d(X, w, u, Z, h, out):  # pragma: no cover - compiled
     return _OK
 
 
-@njit(cache=True)
-def _solve_lower(L, b):  # pragma: no cover - compiled
-    """L^-1 b for a lower-triangular L (m, m) and b (m,); 1 x 1: b times 1 / L_00 (as
-    LAPACK's triangular solve)."""
-    m = b.shape[0]
-    y = np.empty(m)
-    for i in range(m):
-        t = b[i]
-        for k in range(i):
-            t -= L[i, k] * y[k]
-        y[i] = t * (1.0 / L[i, i]) if m == 1 else t / L[i, i]
-    return y
-
-
-@njit(cache=True)
-def _factor(S):  # pragma: no cover - compiled
-    """(ok, L): the plain lower factor of ``S`` (no jitter: the numpy path decides what a
-    failed one means); 1 x 1: the square root."""
-    m = S.shape[0]
-    L = np.zeros((m, m))
-    if m == 1:
-        s = S[0, 0]
-        if 0.0 < s < math.inf:
-            L[0, 0] = math.sqrt(s)
-            return True, L
-        return False, L
-    return _chol(S, L), L
-
-
 #: ``hybrid._PHI_GRID``: the tempering exponents as fractions of the share, 0 to 1
 _GRID = np.linspace(0.0, 1.0, 17)
 
 
 @njit(cache=True)
-def _normalised(logw0, ll, phi, W):  # pragma: no cover - compiled
+def _normalised(logw0: Array, ll: Array, phi: float, W: Array
+                ) -> None:  # pragma: no cover - compiled
     """``W`` <- exp(L - max L) / sum, L = logw0 + phi ll (non-finite entries propagate:
     the caller checks the sum)."""
     M = logw0.shape[0]
@@ -268,7 +223,8 @@ def _normalised(logw0, ll, phi, W):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _tempered(w, ll, phi_max, min_ess, W):  # pragma: no cover - compiled
+def _tempered(w: Array, ll: Array, phi_max: float, min_ess: float, W: Array
+              ) -> float:  # pragma: no cover - compiled
     """phi; ``W`` <- ``hybrid.tempered_weights``: w p^phi for the largest phi =
     phi_max * grid_g whose ESS stays >= min_ess M (the full share first, then the grid
     with its own test, as there; phi = 0 if none).
@@ -329,7 +285,7 @@ def _tempered(w, ll, phi_max, min_ess, W):  # pragma: no cover - compiled
         ok[g] = t <= 1.0
     for g in range(G, 0, -1):
         if ok[g]:
-            phi = phi_max * _GRID[g]
+            phi: float = phi_max * _GRID[g]
             _normalised(logw0, ll, phi, W)
             return phi
     _normalised(logw0, ll, 0.0, W)
@@ -337,12 +293,13 @@ def _tempered(w, ll, phi_max, min_ess, W):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _tempered_direct(logw0, ll, phi_max, floor, W):  # pragma: no cover - compiled
+def _tempered_direct(logw0: Array, ll: Array, phi_max: float, floor: float, W: Array
+                     ) -> float:  # pragma: no cover - compiled
     """The grid of :func:`_tempered` point by point (the reference form; used when the
     recursion's sums are not usable)."""
     M = logw0.shape[0]
     for g in range(_GRID.shape[0] - 1, 0, -1):
-        phi = phi_max * _GRID[g]
+        phi: float = phi_max * _GRID[g]
         _normalised(logw0, ll, phi, W)
         q = 0.0
         for j in range(M):
@@ -354,8 +311,9 @@ def _tempered_direct(logw0, ll, phi_max, floor, W):  # pragma: no cover - compil
 
 
 @njit(cache=True)
-def shift_update(X, Y, z, w, R, V, tau, min_ess, confidence,
-                 Xn, W, nu, S, x, P):  # pragma: no cover - compiled
+def shift_update(X: Array, Y: Array, z: Array, w: Array, R: Array, V: Array, tau: float,
+                 min_ess: float, confidence: bool, Xn: Array, W: Array, nu: Array, S: Array,
+                 x: Array, P: Array) -> tuple[int, float]:  # pragma: no cover - compiled
     """(status, nis): one ``Hybrid.update`` with ``stages`` = 1 and ``shifts`` = 1 on a
     vector space with a plain measurement model, into the caller's arrays.
 
@@ -389,14 +347,14 @@ def shift_update(X, Y, z, w, R, V, tau, min_ess, confidence,
         nu[a] = z[a] - ybar[a]
         for b in range(m):
             S[a, b] += R[a, b]
-    ok, cS = _factor(S)
+    ok, cS = factor(S)
     if not ok:
         return _NOT_PD, 0.0
     if m == 1:  # innovation()'s float form: v (v i i), i = 1 / sqrt(S)
         i1 = 1.0 / cS[0, 0]
         nis = nu[0] * (nu[0] * i1 * i1)
     else:
-        v = _solve_lower(cS, nu)
+        v = solve_lower(cS, nu)
         nis = 0.0
         for a in range(m):
             nis += v[a] * v[a]
@@ -407,7 +365,7 @@ def shift_update(X, Y, z, w, R, V, tau, min_ess, confidence,
     for j in range(M):
         for a in range(m):
             r[j, a] = z[a] - Y[j, a]
-    ok, LR = _factor(R)
+    ok, LR = factor(R)
     if not ok:
         return _NOT_PD, nis
     share = 1.0
@@ -418,7 +376,7 @@ def shift_update(X, Y, z, w, R, V, tau, min_ess, confidence,
                 t = r[j, 0] * (1.0 / LR[0, 0])
                 ll[j] = -0.5 * (t * t)
             else:
-                u = _solve_lower(LR, r[j])
+                u = solve_lower(LR, r[j])
                 q = 0.0
                 for a in range(m):
                     q += u[a] * u[a]
@@ -437,7 +395,7 @@ def shift_update(X, Y, z, w, R, V, tau, min_ess, confidence,
         ww += W[j] * W[j]
     c = 1.0 / max(1.0 - ww, 1e-12)
     Rt = R * (1.0 / share)
-    ok, Lr = _factor(Rt)
+    ok, Lr = factor(Rt)
     if not ok:
         return _NOT_PD, nis
     yb = np.zeros(m)
@@ -456,7 +414,7 @@ def shift_update(X, Y, z, w, R, V, tau, min_ess, confidence,
             for b in range(m):
                 St[a, b] += A * (Y[j, b] - yb[b])
     St += Rt
-    ok, cSt = _factor(St)
+    ok, cSt = factor(St)
     if not ok:
         return _NOT_PD, nis
     K = np.empty((n, m))  # gain(): Pxy S'^-1 through the factor (1 x 1: times i i)
@@ -466,7 +424,7 @@ def shift_update(X, Y, z, w, R, V, tau, min_ess, confidence,
             K[i, 0] = Pyx[0, i] * i1 * i1
     else:
         for i in range(n):
-            y1 = _solve_lower(cSt, Pyx[:, i].copy())
+            y1 = solve_lower(cSt, Pyx[:, i].copy())
             for a in range(m - 1, -1, -1):  # back substitution with cSt^T
                 t = y1[a]
                 for b in range(a + 1, m):
@@ -495,8 +453,9 @@ def shift_update(X, Y, z, w, R, V, tau, min_ess, confidence,
 
 
 @njit(cache=True)
-def _shift_1d(X, Y, z, w, R, V, tau, min_ess, confidence,
-              Xn, W, nu, S, x, P):  # pragma: no cover - compiled
+def _shift_1d(X: Array, Y: Array, z: float, w: Array, R: float, V: Array, tau: float,
+              min_ess: float, confidence: bool, Xn: Array, W: Array, nu: Array, S: Array,
+              x: Array, P: Array) -> tuple[int, float]:  # pragma: no cover - compiled
     """:func:`shift_update` of a 1-D state and measurement, on scalars (accumulators in
     registers: several times faster than the general loops on 99 members)."""
     M = X.shape[0]

@@ -1,6 +1,6 @@
 """Compiled (numba) kernels of the unscented transform's algebra on a vector state space:
 the optional fast path of :class:`uavest.core.unscented.UKF` (``pip install
-"uavest[fast]"``), dispatched by :func:`uavest.core.unscented.ut_kernels`.
+"uavest[fast]"``), dispatched through :data:`uavest.core.unscented.UT_KERNELS`.
 
 A UKF step on a few sigma points costs numpy's per-call floor (~35 calls of ~1 us), not
 arithmetic. These kernels do the algebra between the model's calls in one call each,
@@ -21,44 +21,23 @@ array path, which jitters or raises as it always has.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit
 
+from ..compiled.helpers import chol_into
+
 __all__ = ["moments", "sigma", "update"]
 
-
-@njit(cache=True)
-def _chol(P, L):  # pragma: no cover - compiled
-    """Lower Cholesky factor of the lower triangle of ``P`` into ``L``; False if a pivot
-    is not positive (or not a number). 1 x 1: the square root."""
-    n = P.shape[0]
-    for j in range(n):
-        s = P[j, j]
-        for k in range(j):
-            s -= L[j, k] * L[j, k]
-        if not 0.0 < s < math.inf:
-            return False
-        d = math.sqrt(s)
-        L[j, j] = d
-        for i in range(j + 1, n):
-            t = P[i, j]
-            for k in range(j):
-                t -= L[i, k] * L[j, k]
-            L[i, j] = t / d
-        for i in range(j):
-            L[i, j] = 0.0
-    return True
+Array = np.ndarray
 
 
 @njit(cache=True)
-def sigma(x, P, U, D, X):  # pragma: no cover - compiled
+def sigma(x: Array, P: Array, U: Array, D: Array, X: Array) -> int:  # pragma: no cover - compiled
     """Status; ``D`` (J, n) <- U L^T and ``X`` <- x + D for L = chol(P) and the unit
     offsets ``U`` (J, n). 1: P has no plain factor."""
     J, n = U.shape
     L = np.empty((n, n))
-    if not _chol(P, L):
+    if not chol_into(P, L):
         return 1
     for j in range(J):
         for i in range(n):
@@ -71,7 +50,8 @@ def sigma(x, P, U, D, X):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def moments(Y, Wm, Wc, Q, x, P):  # pragma: no cover - compiled
+def moments(Y: Array, Wm: Array, Wc: Array, Q: Array, x: Array, P: Array
+            ) -> None:  # pragma: no cover - compiled
     """``x`` <- Wm Y, ``P`` <- sum_j Wc_j (Y_j - x)(Y_j - x)^T + Q."""
     J, n = Y.shape
     for i in range(n):
@@ -92,7 +72,8 @@ def moments(Y, Wm, Wc, Q, x, P):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def update(x0, P0, D, E, Wc, R, nu, x, P, S):  # pragma: no cover - compiled
+def update(x0: Array, P0: Array, D: Array, E: Array, Wc: Array, R: Array, nu: Array,
+           x: Array, P: Array, S: Array) -> tuple[int, float]:  # pragma: no cover - compiled
     """(status, nis); ``x`` <- x0 + K nu, ``P`` <- P0 - K Pxz^T, ``S`` <- the innovation
     covariance, given the sigma offsets ``D`` (J, n), the measurement residuals ``E``
     (J, m) of the sigma points and ``nu`` (m,) of z. Status 1: S has no plain factor."""
@@ -112,7 +93,7 @@ def update(x0, P0, D, E, Wc, R, nu, x, P, S):  # pragma: no cover - compiled
                 s += E[j, a] * Wc[j] * E[j, b]
             S[a, b] = s + R[a, b]
     L = np.empty((m, m))
-    if not _chol(S, L):
+    if not chol_into(S, L):
         return 1, 0.0
     # K = Pxz S^-1: rows k_i solve S k_i = Pxz_i by L y = Pxz_i, L^T k_i = y
     K = np.empty((n, m))

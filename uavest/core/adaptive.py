@@ -18,20 +18,26 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any, cast
 
 import numpy as np
 
 from ..geometry.spaces import Space
-from .contract import FilterBase
+from .base import Innovation
+from .contract import Filter, FilterBase
 from .gaussian import Gaussian
 from .linalg import nearest_pd
+from .model import Measurement, Transition
 from .spec import param
+
+Array = np.ndarray
+Rng = np.random.Generator
 
 
 @dataclass(frozen=True, slots=True)
 class AdaptiveState:
-    inner: object
-    R: dict | None  # measurement kind (class name, dim) -> adapted R
+    inner: Any
+    R: dict[tuple[str, int], Array] | None  # measurement kind (class name, dim) -> adapted R
     Q: np.ndarray | None
     k: int
     prior: Gaussian | None = None  # predicted estimate (for the Q estimator)
@@ -41,19 +47,19 @@ class AdaptiveState:
 class _NoiseOverride:
     """A model proxy that substitutes adapted R or Q and delegates everything else."""
 
-    def __init__(self, model, R=None, Q=None):
+    def __init__(self, model: Any, R: Array | None = None, Q: Array | None = None) -> None:
         self._m = model
         self._R = R
         self._Q = Q
 
-    def __getattr__(self, k):
+    def __getattr__(self, k: str) -> Any:
         return getattr(self._m, k)
 
     @property
-    def R(self):
+    def R(self) -> Array:
         return self._m.R if self._R is None else self._R
 
-    def Q(self, t, dt, u=None):
+    def Q(self, t: float, dt: float, u: Array | None = None) -> Array:
         return self._m.Q(t, dt, u) if self._Q is None else self._Q
 
 
@@ -62,7 +68,7 @@ class SageHusa(FilterBase):
     """Adaptive wrapper. ``b`` forgetting factor (0.98), ``adapt`` in {"R", "Q", "RQ"},
     ``floor`` relative eigenvalue floor (0.1). Spec name: ``<filter>_sh``."""
 
-    filter: object
+    filter: Filter
     b: float = field(default=0.98, metadata=param(
         "float", lo=0.0, hi=1.0, lo_open=True, hi_open=True, doc="forgetting factor"))
     adapt: str = field(default="R", metadata=param(
@@ -74,25 +80,29 @@ class SageHusa(FilterBase):
     def name(self) -> str:
         return f"{self.filter.name}_sh"
 
-    def init(self, prior: Gaussian, space, rng=None) -> AdaptiveState:
+    def init(self, prior: Gaussian, space: Space, rng: Rng | None = None) -> AdaptiveState:
         return AdaptiveState(self.filter.init(prior, space, rng), None, None, 0)
 
     def _d(self, k: int) -> float:
         return (1.0 - self.b) / (1.0 - self.b ** (k + 1))
 
-    def predict(self, s: AdaptiveState, model, t, dt, u=None, rng=None) -> AdaptiveState:
+    def predict(self, s: AdaptiveState, model: Transition, t: float, dt: float,
+                u: Array | None = None, rng: Rng | None = None) -> AdaptiveState:
         Q0 = model.Q(t, dt, u)
         Q = s.Q if ("Q" in self.adapt and s.Q is not None) else None
-        inner = self.filter.predict(s.inner, _NoiseOverride(model, Q=Q), t, dt, u, rng)
+        noisy: Any = _NoiseOverride(model, Q=Q)  # a Transition by delegation
+        inner = self.filter.predict(s.inner, noisy, t, dt, u, rng)
         g = self.filter.estimate(inner)
         return AdaptiveState(inner, s.R, s.Q if s.Q is not None else Q0, s.k, g, Q0)
 
-    def update(self, s: AdaptiveState, z, model, rng=None):
+    def update(self, s: AdaptiveState, z: Array, model: Measurement, rng: Rng | None = None
+               ) -> tuple[AdaptiveState, Innovation | None]:
         R0 = np.asarray(model.R, float)
         key = (type(model).__name__, R0.shape[0])
         R_prev = s.R.get(key, R0) if s.R is not None else R0
-        m = _NoiseOverride(model, R=R_prev if "R" in self.adapt else None)
-        inner, inn = self.filter.update(s.inner, z, m, rng)
+        m: Any = _NoiseOverride(model, R=R_prev if "R" in self.adapt else None)
+        inner, got = self.filter.update(s.inner, z, m, rng)
+        inn = cast(Innovation, got)  # the wrapped filters' updates return one
         d = self._d(s.k)
         R_new, Q_new = s.R, s.Q
         if "R" in self.adapt:
@@ -101,38 +111,44 @@ class SageHusa(FilterBase):
         if "Q" in self.adapt and s.prior is not None:
             post = self.filter.estimate(inner)
             dx = model.space.local(s.prior.x, post.x)
-            Qp = s.Q if s.Q is not None else s.Qfix
+            Qfix = cast(Array, s.Qfix)  # set with the prior by predict
+            Qp = s.Q if s.Q is not None else Qfix
             raw = (1 - d) * Qp + d * (np.outer(dx, dx) + post.P - s.prior.P + Qp)
-            Q_new = _floor(raw, s.Qfix, self.floor)
+            Q_new = _floor(raw, Qfix, self.floor)
         return AdaptiveState(inner, R_new, Q_new, s.k + 1, None, s.Qfix), inn
 
     def estimate(self, s: AdaptiveState) -> Gaussian:
         return self.filter.estimate(s.inner)
 
-    def rts_terms(self, s_prev: AdaptiveState, s_pred: AdaptiveState | None, model, t, dt,
-                  u=None, prev: Gaussian | None = None):
+    def rts_terms(self, s_prev: AdaptiveState, s_pred: AdaptiveState | None,
+                  model: Transition, t: float, dt: float, u: Array | None = None,
+                  prev: Gaussian | None = None) -> tuple[Gaussian, Array]:
         """The inner filter's, with the model as given (the smoother sees the nominal
         transition; with the default ``adapt="R"`` that is the one predict used)."""
         inner = None if s_pred is None else s_pred.inner
         return self.filter.rts_terms(s_prev.inner, inner, model, t, dt, u, prev)
 
-    def mix(self, states: Sequence[AdaptiveState], w, space: Space, rng) -> AdaptiveState:
+    def mix(self, states: Sequence[AdaptiveState], w: Array, space: Space, rng: Rng
+            ) -> AdaptiveState:
         """The inner filter's mixture; the adapted R and Q are the w-weighted means of
         the hypotheses' estimates (those that have one), the step count the largest."""
         w = np.asarray(w, float)
         inner = self.filter.mix([s.inner for s in states], w, space, rng)
         keys = {k for s in states if s.R for k in s.R}
-        R = {k: _wmean([(s.R or {}).get(k) for s in states], w) for k in keys} or None
+        # (every key is some hypothesis's: its mean is never None)
+        R = {k: v for k in keys
+             if (v := _wmean([(s.R or {}).get(k) for s in states], w)) is not None} or None
         return AdaptiveState(inner, R, _wmean([s.Q for s in states], w),
                              max(s.k for s in states), None, states[0].Qfix)
 
 
-def _wmean(As: list, w: np.ndarray):
+def _wmean(As: Sequence[Array | None], w: Array) -> Array | None:
     idx = [i for i, A in enumerate(As) if A is not None]
     if not idx:
         return None
     ws = w[idx] / w[idx].sum()
-    return sum(wi * As[i] for wi, i in zip(ws, idx, strict=True))
+    res: Array = sum(wi * As[i] for wi, i in zip(ws, idx, strict=True))
+    return res
 
 
 def _floor(P: np.ndarray, P0: np.ndarray, rel: float) -> np.ndarray:
@@ -140,4 +156,5 @@ def _floor(P: np.ndarray, P0: np.ndarray, rel: float) -> np.ndarray:
     out = nearest_pd(P)
     vals, vecs = np.linalg.eigh(out)
     vals = np.maximum(vals, lo)
-    return (vecs * vals) @ vecs.T
+    res: Array = (vecs * vals) @ vecs.T
+    return res

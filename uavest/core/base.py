@@ -38,12 +38,14 @@ class Ensemble:
     # memo of ensemble_moments / ensemble_estimate (pure functions of this immutable
     # value): the guard's check, the filter's update and the caller's estimate of one
     # state share one computation instead of repeating the manifold mean
-    moments: tuple | None = field(default=None, compare=False, repr=False)
+    moments: tuple[Array, Array, Array, Array] | None = field(  # (x, dX, w, P)
+        default=None, compare=False, repr=False)
     gaussian: Gaussian | None = field(default=None, compare=False, repr=False)
 
     @property
     def M(self) -> int:
-        return self.X.shape[0]
+        res: int = self.X.shape[0]
+        return res
 
 
 @lru_cache(maxsize=32)
@@ -83,7 +85,8 @@ def mean_start(space: Space, X: Array, w: Array) -> Array | None:
     unused, on vector spaces, where the mean is a plain weighted sum)."""
     if isinstance(space, VectorSpace):
         return None
-    return X[int(np.argmax(w))]
+    res: Array | None = X[int(np.argmax(w))]
+    return res
 
 
 def ensemble_estimate(E: Ensemble) -> Gaussian:

@@ -103,7 +103,8 @@ def sigma_point_terms(
     gives: alpha=1, beta=2, kappa=0)."""
     if ukf is None:
         return unscented_cross(g, model, t, dt, u)
-    return ukf.predict_cross(g, model, t, dt, u)
+    res: tuple[Gaussian, Array] = ukf.predict_cross(g, model, t, dt, u)
+    return res
 
 
 def ensemble_cross(E_f: Ensemble, E_p: Ensemble, x_f: Array, x_p: Array) -> Array:
@@ -117,7 +118,8 @@ def ensemble_cross(E_f: Ensemble, E_p: Ensemble, x_f: Array, x_p: Array) -> Arra
     dB = E_p.space.local(x_p, E_p.X)
     dA = dA - w @ dA
     dB = dB - w @ dB
-    return (dA.T * w) @ dB / max(1.0 - float(w @ w), 1e-12)
+    res: Array = (dA.T * w) @ dB / max(1.0 - float(w @ w), 1e-12)
+    return res
 
 
 def moment_match(gs: Sequence[Gaussian], w: Array, space: Space) -> Gaussian:

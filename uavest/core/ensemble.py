@@ -16,9 +16,11 @@ ETKF update (no perturbations): with C = dY R^-1, A = (M-1) I + C dY^T = V diag(
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
+from ..geometry.spaces import Space
 from .base import Ensemble, Innovation, ensemble_estimate, innovation, sample_gaussian
 from .contract import EnsembleFilter
 from .gaussian import Gaussian
@@ -30,7 +32,8 @@ Array = np.ndarray
 
 
 def propagate_members(
-    E: Ensemble, model: Transition, t, dt, u, rng: np.random.Generator, inflation: float = 1.0
+    E: Ensemble, model: Transition, t: float, dt: float, u: Array | None,
+    rng: np.random.Generator, inflation: float = 1.0
 ) -> Ensemble:
     """f on every member, then additive tangent process noise w ~ N(0, Q) per member."""
     space = model.space
@@ -44,7 +47,9 @@ def propagate_members(
     return Ensemble(space.retract(X, W), space, E.w)
 
 
-def _equal_moments(E: Ensemble, model: Measurement):
+def _equal_moments(E: Ensemble, model: Measurement
+                   ) -> tuple[Array, Array, Array, Array, Array]:
+    """(x, dX, Y, ybar, dY): equal-weight moments of the members and their images."""
     space = model.space
     M = E.M
     w = np.full(M, 1.0 / M)
@@ -66,10 +71,13 @@ class _PersistentEnsemble(EnsembleFilter):
     members: int
     inflation: float
 
-    def init(self, prior: Gaussian, space, rng: np.random.Generator) -> Ensemble:
+    def init(  # type: ignore[override]  # (a generator is required here)
+        self, prior: Gaussian, space: Space, rng: np.random.Generator
+    ) -> Ensemble:
         return Ensemble(sample_gaussian(prior, space, self.members, rng), space)
 
-    def predict(self, E: Ensemble, model: Transition, t, dt, u=None, rng=None) -> Ensemble:
+    def predict(self, E: Ensemble, model: Transition, t: float, dt: float,
+                u: Array | None = None, rng: Any = None) -> Ensemble:
         return propagate_members(E, model, t, dt, u, rng, self.inflation)
 
     def estimate(self, E: Ensemble) -> Gaussian:
@@ -86,7 +94,8 @@ class EnKF(_PersistentEnsemble):
         "float", lo=0.0, lo_open=True, doc="multiplicative anomaly inflation (1: none)"))
     name: str = "enkf"
 
-    def update(self, E: Ensemble, z, model: Measurement, rng=None) -> tuple[Ensemble, Innovation]:
+    def update(self, E: Ensemble, z: Array, model: Measurement, rng: Any = None
+               ) -> tuple[Ensemble, Innovation]:
         M = E.M
         _, dX, Y, ybar, dY = _equal_moments(E, model)
         Pxy = dX.T @ dY / (M - 1)
@@ -108,7 +117,8 @@ class ETKF(_PersistentEnsemble):
         "float", lo=0.0, lo_open=True, doc="multiplicative anomaly inflation (1: none)"))
     name: str = "etkf"
 
-    def update(self, E: Ensemble, z, model: Measurement, rng=None) -> tuple[Ensemble, Innovation]:
+    def update(self, E: Ensemble, z: Array, model: Measurement, rng: Any = None
+               ) -> tuple[Ensemble, Innovation]:
         M = E.M
         x, dX, Y, ybar, dY = _equal_moments(E, model)
         S = symmetrize(dY.T @ dY / (M - 1) + model.R)

@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 
 @dataclass(frozen=True, slots=True)
@@ -20,13 +21,13 @@ class Gaussian:
     P: np.ndarray
 
     @staticmethod
-    def of(x, P) -> Gaussian:
+    def of(x: ArrayLike, P: ArrayLike) -> Gaussian:
         """Build from array-likes (scalars allowed for 1-D states)."""
-        x = np.atleast_1d(np.asarray(x, dtype=float))
-        P = np.atleast_2d(np.asarray(P, dtype=float))
-        if P.shape == (1, 1) and x.shape[0] > 1:
-            P = P[0, 0] * np.eye(x.shape[0])
-        return Gaussian(x, P)
+        xa = np.atleast_1d(np.asarray(x, dtype=float))
+        Pa = np.atleast_2d(np.asarray(P, dtype=float))
+        if Pa.shape == (1, 1) and xa.shape[0] > 1:
+            Pa = Pa[0, 0] * np.eye(xa.shape[0])
+        return Gaussian(xa, Pa)
 
     def finite(self) -> bool:
         """True if no entry of x or P is NaN or infinite (one scalar check)."""

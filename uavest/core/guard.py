@@ -29,14 +29,19 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from functools import lru_cache
+from typing import Any, cast
 
 import numpy as np
 
 from ..geometry.spaces import Space
 from . import linalg as _linalg
 from .base import Innovation
-from .contract import FilterBase
+from .contract import Filter, FilterBase
 from .gaussian import Gaussian
+from .model import Measurement, Transition
+
+Array = np.ndarray
+Rng = np.random.Generator
 
 #: What the guard recovers from (numerical failures only; see the module docstring).
 NUMERICAL_ERRORS = (np.linalg.LinAlgError, FloatingPointError)
@@ -46,14 +51,14 @@ NUMERICAL_ERRORS = (np.linalg.LinAlgError, FloatingPointError)
 def nis_gate(m: int, prob: float) -> float:
     """The ``prob`` quantile of chi-square with ``m`` degrees of freedom
     (chi2.ppf(prob, m) == chdtri(m, 1 - prob), without importing scipy.stats)."""
-    from scipy.special import chdtri  # at the first gate, not at import (start-up)
+    from scipy.special import chdtri  # type: ignore[import-untyped] # at the first gate, not at import (start-up)
 
     return float(chdtri(m, 1.0 - prob))
 
 
 @dataclass(frozen=True, slots=True)
 class GuardState:
-    inner: object
+    inner: Any
     last_good: Gaussian
     strikes: int = 0
     resets: int = 0
@@ -67,7 +72,7 @@ class GuardState:
 class Guarded(FilterBase):
     """Wraps ``filter`` with divergence detection and recovery (see module docstring)."""
 
-    filter: object
+    filter: Filter
     gate_prob: float = 0.9999
     strikes: int = 5
     inflate: float = 10.0
@@ -77,11 +82,12 @@ class Guarded(FilterBase):
     def name(self) -> str:
         return self.filter.name
 
-    def init(self, prior: Gaussian, space, rng=None) -> GuardState:
+    def init(self, prior: Gaussian, space: Space, rng: Rng | None = None) -> GuardState:
         limit = self.max_growth * float(np.max(np.diag(prior.P)))
         return GuardState(self.filter.init(prior, space, rng), prior, var_limit=limit)
 
-    def _recover(self, s: GuardState, space, rng, reason: str) -> GuardState:
+    def _recover(self, s: GuardState, space: Space, rng: Rng | None, reason: str
+                 ) -> GuardState:
         g = s.last_good
         P = g.P * self.inflate
         top = float(np.max(np.diag(P)))
@@ -90,7 +96,7 @@ class Guarded(FilterBase):
         inner = self.filter.init(Gaussian(g.x.copy(), P), space, rng)
         return GuardState(inner, g, 0, s.resets + 1, True, reason, s.var_limit)
 
-    def _check(self, inner, var_limit: float = np.inf) -> tuple[Gaussian | None, str]:
+    def _check(self, inner: Any, var_limit: float = np.inf) -> tuple[Gaussian | None, str]:
         """(estimate, "") or (None, why). One Cholesky does the finite and the PD check:
         LAPACK's factor of a lower triangle holding a NaN or an infinity has a NaN on its
         diagonal (or fails), so a finite factor diagonal and a finite mean mean a finite,
@@ -109,22 +115,25 @@ class Guarded(FilterBase):
             return None, "covariance exploded"
         return g, ""
 
-    def predict(self, s: GuardState, model, t, dt, u=None, rng=None) -> GuardState:
+    def predict(self, s: GuardState, model: Transition, t: float, dt: float,
+                u: Array | None = None, rng: Rng | None = None) -> GuardState:
         try:
             inner = self.filter.predict(s.inner, model, t, dt, u, rng)
         except NUMERICAL_ERRORS as e:
             return self._recover(s, model.space, rng, f"predict failed: {e}")
         return self._after_predict(s, inner, model, rng)
 
-    def update(self, s: GuardState, z, model, rng=None) -> tuple[GuardState, Innovation | None]:
+    def update(self, s: GuardState, z: Array, model: Measurement, rng: Rng | None = None
+               ) -> tuple[GuardState, Innovation | None]:
         try:
             inner, inn = self.filter.update(s.inner, z, model, rng)
         except NUMERICAL_ERRORS as e:
             return self._recover(s, model.space, rng, f"update failed: {e}"), None
-        return self._after_update(s, inner, inn, model, rng)
+        return self._after_update(s, inner, cast(Innovation, inn), model, rng)
 
     # -- many states at once (the tracker) -------------------------------------------
-    def predict_many(self, states: Sequence[GuardState], model, t, dt, u=None, rng=None
+    def predict_many(self, states: Sequence[GuardState], model: Transition, t: float,
+                     dt: float, u: Array | None = None, rng: Rng | None = None
                      ) -> list[GuardState]:
         """:meth:`predict` of every state; the inner filter's ``predict_many`` (one batched
         computation) when it has one and every state is fine, each result then checked as
@@ -140,8 +149,8 @@ class Guarded(FilterBase):
                         for s, inner in zip(states, inners, strict=True)]
         return [self.predict(s, model, t, dt, u, rng) for s in states]
 
-    def update_many(self, states: Sequence[GuardState], zs, model, rng=None
-                    ) -> list[tuple[GuardState, Innovation | None]]:
+    def update_many(self, states: Sequence[GuardState], zs: Array, model: Measurement,
+                    rng: Rng | None = None) -> list[tuple[GuardState, Innovation | None]]:
         """:meth:`update` of every state with its measurement; batched through the inner
         filter's ``update_many`` as :meth:`predict_many`."""
         many = getattr(self.filter, "update_many", None)
@@ -155,14 +164,15 @@ class Guarded(FilterBase):
                         for s, (inner, inn) in zip(states, res, strict=True)]
         return [self.update(s, z, model, rng) for s, z in zip(states, zs, strict=True)]
 
-    def _after_predict(self, s: GuardState, inner, model, rng) -> GuardState:
+    def _after_predict(self, s: GuardState, inner: Any, model: Transition, rng: Rng | None
+                       ) -> GuardState:
         g, why = self._check(inner, s.var_limit)
         if g is None:
             return self._recover(s, model.space, rng, why)
         return GuardState(inner, s.last_good, s.strikes, s.resets, var_limit=s.var_limit, est=g)
 
-    def _after_update(self, s: GuardState, inner, inn, model, rng
-                      ) -> tuple[GuardState, Innovation | None]:
+    def _after_update(self, s: GuardState, inner: Any, inn: Innovation, model: Measurement,
+                      rng: Rng | None) -> tuple[GuardState, Innovation | None]:
         g, why = self._check(inner, s.var_limit)
         if g is None or not math.isfinite(inn.nis):
             return self._recover(s, model.space, rng, why or "non-finite NIS"), inn
@@ -171,8 +181,8 @@ class Guarded(FilterBase):
             return self._recover(s, model.space, rng, f"NIS above gate {strikes} times"), inn
         return GuardState(inner, g, strikes, s.resets, False, "", s.var_limit, g), inn
 
-    def adopt(self, s: GuardState, inner, space, rng=None, resets: int | None = None
-              ) -> GuardState:
+    def adopt(self, s: GuardState, inner: Any, space: Space, rng: Rng | None = None,
+              resets: int | None = None) -> GuardState:
         """``s`` with its inner state replaced by ``inner`` (e.g. a mixture of hypothesis
         updates), checked like any update; ``resets`` overrides the reset count."""
         resets = s.resets if resets is None else resets
@@ -187,8 +197,9 @@ class Guarded(FilterBase):
         g, _ = self._check(s.inner)
         return s.last_good if g is None else g
 
-    def rts_terms(self, s_prev: GuardState, s_pred: GuardState | None, model, t, dt,
-                  u=None, prev: Gaussian | None = None) -> tuple[Gaussian, np.ndarray]:
+    def rts_terms(self, s_prev: GuardState, s_pred: GuardState | None, model: Transition,
+                  t: float, dt: float, u: Array | None = None, prev: Gaussian | None = None
+                  ) -> tuple[Gaussian, Array]:
         """The inner filter's smoothing terms; after a reset in this predict (or with
         ``s_pred=None``) its sigma-point fallback from the filtered estimate ``prev``
         (default ``estimate(s_prev)``), see the module docstring."""
@@ -196,7 +207,8 @@ class Guarded(FilterBase):
         inner = None if s_pred is None or s_pred.reset else s_pred.inner
         return self.filter.rts_terms(s_prev.inner, inner, model, t, dt, u, prev)
 
-    def mix(self, states: Sequence[GuardState], w, space: Space, rng) -> GuardState:
+    def mix(self, states: Sequence[GuardState], w: Array, space: Space, rng: Rng
+            ) -> GuardState:
         """The inner filter's mixture of the hypotheses' inner states, checked like an
         update (:meth:`adopt`), keeping the largest reset count of the hypotheses."""
         inner = self.filter.mix([s.inner for s in states], np.asarray(w, float), space, rng)

@@ -37,14 +37,15 @@ irrelevant are refused in specs (their ``when`` declaration).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from functools import lru_cache
 from types import ModuleType
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
-from ..geometry.kernels import bitgen_pointers, load_kernels
+from ..compiled import bitgen_pointers, register
 from ..geometry.spaces import Space, VectorSpace
 from .base import (
     Ensemble,
@@ -60,11 +61,13 @@ from .ensemble import propagate_members
 from .gaussian import Gaussian
 from .linalg import NotPositiveDefinite, NumericalError, chol, gain, is_pd, symmetrize
 from .model import Measurement, Transition
-from .particle import ess, log_likelihood, systematic_resample
-from .spec import param
+from .particle import ess, log_likelihood
+from .resample import systematic_resample
+from .spec import Param, param
 from .unscented import plain_measurement  # mean / residual plain: residuals centred
 
 Array = np.ndarray
+Rng = np.random.Generator
 
 SAMPLINGS = ("expanded", "random")
 UPDATE_MODES = ("shift", "local")
@@ -88,11 +91,12 @@ def expanded_offsets(
     sig = np.vstack([np.zeros((1, n)), gamma * L.T, -gamma * L.T])  # (2n+1, n)
     E = rng.standard_normal((2 * n + 1, n_cloud, n)) @ (spread * L.T)
     cloud = np.concatenate([np.zeros((2 * n + 1, 1, n)), E], axis=1)
-    return (sig[:, None, :] + cloud).reshape(-1, n)
+    res: Array = (sig[:, None, :] + cloud).reshape(-1, n)
+    return res
 
 
 def sample_offsets(
-    sampling: str, L: Array, gamma: float | None, n_cloud: int, spread: float, rng
+    sampling: str, L: Array, gamma: float | None, n_cloud: int, spread: float, rng: Any
 ) -> Array:
     """Tangent offsets of M = (2n+1)(N+1) members around the mean for a covariance with
     lower factor ``L``: ``expanded`` (sigma points + clouds, first row the centre) or
@@ -102,7 +106,8 @@ def sample_offsets(
         return expanded_offsets(L, gamma or default_gamma(n), n_cloud, spread, rng)
     D = rng.standard_normal(((2 * n + 1) * (n_cloud + 1), n)) @ L.T
     D[0] = 0.0
-    return D
+    res: Array = D
+    return res
 
 
 def match_moments(D: Array, L: Array) -> Array:
@@ -111,7 +116,8 @@ def match_moments(D: Array, L: Array) -> Array:
     D = D - D.mean(axis=0)
     C = D.T @ D / (D.shape[0] - 1)
     Lc = chol(C)
-    return np.linalg.solve(Lc, D.T).T @ L.T
+    res: Array = np.linalg.solve(Lc, D.T).T @ L.T
+    return res
 
 
 def confidence_weights(
@@ -133,7 +139,8 @@ def confidence_weights(
     raw[centre] = 0.0
     w = (1.0 - omega) * raw / raw.sum()
     w[centre] = omega
-    return w
+    res: Array = w
+    return res
 
 
 # ------------------------------------------------------------------------------ literal
@@ -153,15 +160,15 @@ _EXPANDED = {"sampling": ("expanded",)}
 _CONFIDENCE = {"weights": ("confidence",)}
 
 
-def _sampling_param() -> dict:
+def _sampling_param() -> dict[str, Param]:
     return param("choice", choices=SAMPLINGS, doc="expanded (sigma clouds) | random")
 
 
-def _weights_param() -> dict:
+def _weights_param() -> dict[str, Param]:
     return param("choice", choices=WEIGHTINGS, doc="confidence | equal")
 
 
-def _gamma_param() -> dict:
+def _gamma_param() -> dict[str, Param]:
     return param("float", lo=0.0, lo_open=True, none_ok=True, when=_EXPANDED,
                  doc="sigma scaling; none = sqrt(3) for n <= 3 else sqrt(n)")
 
@@ -218,7 +225,7 @@ class HybridLiteral(FilterBase):
     def members(self, n: int) -> int:
         return (2 * n + 1) * (self.n_cloud + 1)
 
-    def init(self, prior: Gaussian, space, rng=None) -> Gaussian:
+    def init(self, prior: Gaussian, space: Space, rng: Rng | None = None) -> Gaussian:
         return prior
 
     def _weights(self, d: Array) -> Array:
@@ -226,7 +233,8 @@ class HybridLiteral(FilterBase):
             return np.full(d.shape[0], 1.0 / d.shape[0])
         return confidence_weights(d, self.omega, self.eps, self.distance)
 
-    def predict(self, s, model: Transition, t, dt, u=None, rng=None) -> HybridPrior:
+    def predict(self, s: Gaussian | HybridPrior, model: Transition, t: float, dt: float,
+                u: Array | None = None, rng: Any = None) -> HybridPrior:
         g = s.g if isinstance(s, HybridPrior) else s
         space = model.space
         D = sample_offsets(self.sampling, chol(g.P), self.gamma, self.n_cloud, self.spread, rng)
@@ -242,7 +250,8 @@ class HybridLiteral(FilterBase):
             P = P + Q
         return HybridPrior(Gaussian(x, symmetrize(P)), X, w)
 
-    def update(self, s, z, model: Measurement, rng=None) -> tuple[Gaussian, Innovation]:
+    def update(self, s: Gaussian | HybridPrior, z: Array, model: Measurement, rng: Any = None
+               ) -> tuple[Gaussian, Innovation]:
         if not isinstance(s, HybridPrior):  # update without a predict: sample the cloud now
             s = _prior_from_gaussian(self, s, model.space, rng)
         space = model.space
@@ -270,11 +279,12 @@ class HybridLiteral(FilterBase):
             P = symmetrize((dA.T * wa) @ dA)
         return Gaussian(x, P), innovation(model.residual(z, ybar), S)
 
-    def estimate(self, s) -> Gaussian:
+    def estimate(self, s: Gaussian | HybridPrior) -> Gaussian:
         return s.g if isinstance(s, HybridPrior) else s
 
 
-def _prior_from_gaussian(f: HybridLiteral, g: Gaussian, space: Space, rng) -> HybridPrior:
+def _prior_from_gaussian(f: HybridLiteral, g: Gaussian, space: Space, rng: Any
+                         ) -> HybridPrior:
     D = sample_offsets(f.sampling, chol(g.P), f.gamma, f.n_cloud, f.spread, rng)
     X = space.retract(g.x, D)
     return HybridPrior(g, X, f._weights(D))
@@ -307,7 +317,8 @@ def _log_equal(M: int) -> Array:
     """log(max(1/M, 1e-300)) as :func:`tempered_weights` computes it for equal weights."""
     a = np.log(np.maximum(equal_weights(M), 1e-300))
     a.flags.writeable = False
-    return a
+    res: Array = a
+    return res
 
 
 @lru_cache(maxsize=32)
@@ -346,43 +357,26 @@ def _mean(space: Space, X: Array, w: Array) -> Array:
     """``space.mean`` of members ``X`` with weights ``w`` (``np.dot`` on a plain vector
     space: the same numbers as its ``w @ X``)."""
     if type(space) is VectorSpace:
-        return _dot(w, X)
+        res: Array = _dot(w, X)
+        return res
     return space.mean(X, w, mean_start(space, X, w))
 
 
-#: the compiled shift kernels (:mod:`uavest.core._compiled_shift`), False if numba is
-#: missing, disabled (``UAVEST_NUMBA=0``) or failed; None before the first call.
-_SHIFT = None
-
-
-def shift_kernels() -> ModuleType | bool:
-    """The numba kernels of :class:`Hybrid` on vector spaces if they can be used here,
-    else False (the numpy path is used). Decided once per process at the first hybrid
-    step: numba must import, ``UAVEST_NUMBA`` must not be ``0``, and the kernels must
-    compile (first time: some seconds, then numba's on-disk cache) and agree with the
-    numpy path on a small case; any failure is logged and falls back to numpy."""
-    global _SHIFT
-    if _SHIFT is None:
-        _SHIFT = load_kernels("uavest.core._compiled_shift", "numba shift kernels",
-                              _self_check, "uavest.core")
-    return _SHIFT
-
-
-def _self_check(nb: ModuleType) -> bool:
-    """The kernels against the numpy path on small ensembles, 2-D with a 2-D measurement
-    (the general loops) and 1-D (their own loops): one regeneration and one tempered
-    shift update each."""
+def _shift_cases(nb: ModuleType) -> Iterator[tuple[str, Any, Any]]:
+    """The self-check (:mod:`uavest.compiled`): the kernels against the numpy path on
+    small ensembles, 2-D with a 2-D measurement (the general loops) and 1-D (their own
+    loops): one regeneration and one tempered shift update each."""
 
     class _Sq(Measurement):
         def __init__(self, n: int) -> None:
             self.R = np.array([[0.5, 0.1], [0.1, 0.8]])[:n, :n]
             self.space = VectorSpace(n)
 
-        def h(self, X):
-            return X * X
+        def h(self, X: Array) -> Array:
+            Y: Array = X * X
+            return Y
 
     f = Hybrid(n_cloud=2)
-    close = []
     for n in (2, 1):
         rng = np.random.default_rng(n)
         X = rng.standard_normal((15, n))
@@ -392,17 +386,39 @@ def _self_check(nb: ModuleType) -> bool:
         me = _Sq(n)
         z = np.array([0.7, 1.9])[:n]
         a, ia = f._update_numpy(E, z, me, np.random.default_rng(2))
-        b, ib = f._update_compiled(nb, E, z, me, np.random.default_rng(2))
+        got = f._update_compiled(nb, E, z, me, np.random.default_rng(2))
+        if got is None:
+            yield f"n={n} update", None, a.X
+            return
+        b, ib = got
         ga, gb = ensemble_estimate(a), ensemble_estimate(b)
         ra = f._regenerate(E, np.random.default_rng(3))
         rng = np.random.default_rng(3)  # systematic_resample's uniform, then the normals
         u = rng.random()
         rb = np.empty((15, n))
         st = nb.regenerate(X, w, u, rng.standard_normal((15, n)), f.kernel, rb)
-        close += [st == 0] + [np.allclose(p, q, rtol=1e-12, atol=1e-12) for p, q in (
-            (a.X, b.X), (a.w, b.w), (ga.x, gb.x), (ga.P, gb.P), (ia.nu, ib.nu),
-            (ia.S, ib.S), (ia.nis, ib.nis), (ra.X, rb))]
-    return all(close)
+        yield f"n={n} regenerate status", st, 0
+        for label, p, q in (("X", a.X, b.X), ("w", a.w, b.w), ("x", ga.x, gb.x),
+                            ("P", ga.P, gb.P), ("nu", ia.nu, ib.nu), ("S", ia.S, ib.S),
+                            ("nis", ia.nis, ib.nis), ("regenerated X", ra.X, rb)):
+            yield f"n={n} {label}", q, p
+
+
+#: The compiled kernels of :class:`Hybrid` on vector spaces
+#: (:mod:`uavest.core._compiled_shift`)
+SHIFT_KERNELS = register("shift", "uavest.core._compiled_shift", "numba shift kernels",
+                         _shift_cases, rtol=1e-12, atol=1e-12)
+
+
+def _plain_vector(model: Measurement) -> bool:
+    """A measurement of a vector state with the plain mean and residual (the kernels'
+    case)."""
+    return type(model.space) is VectorSpace and plain_measurement(model)
+
+
+def _float_vector(z: object, m: int) -> bool:
+    """``z`` is a float64 array of shape (m,) (what the kernels read)."""
+    return type(z) is np.ndarray and z.dtype == np.float64 and z.shape == (m,)
 
 
 class _HybridBase(EnsembleFilter):
@@ -421,7 +437,7 @@ class _HybridBase(EnsembleFilter):
         """Ensemble size M = (2n+1)(N+1) for tangent dimension n."""
         return (2 * n + 1) * (self.n_cloud + 1)
 
-    def _draw(self, g: Gaussian, space: Space, rng) -> Array:
+    def _draw(self, g: Gaussian, space: Space, rng: Any) -> Array:
         L = chol(g.P)
         if self.sampling == "expanded":
             D = match_moments(expanded_offsets(
@@ -430,10 +446,12 @@ class _HybridBase(EnsembleFilter):
             D = rng.standard_normal((self.members(L.shape[0]), L.shape[0])) @ L.T
         return space.retract(g.x, D)
 
-    def init(self, prior: Gaussian, space, rng) -> Ensemble:
+    def init(  # type: ignore[override]  # (a generator is required here)
+        self, prior: Gaussian, space: Space, rng: np.random.Generator
+    ) -> Ensemble:
         return Ensemble(self._draw(prior, space, rng), space)
 
-    def _regenerate(self, E: Ensemble, rng) -> Ensemble:
+    def _regenerate(self, E: Ensemble, rng: Any) -> Ensemble:
         x, dX, w, P = ensemble_moments(E)
         idx = systematic_resample(w, rng)
         h = self.kernel
@@ -449,14 +467,16 @@ class _HybridBase(EnsembleFilter):
             return False
         return E.w is None or ess(E.w) >= self.regen_ess * E.M
 
-    def predict(self, E: Ensemble, model: Transition, t, dt, u=None, rng=None) -> Ensemble:
+    def predict(self, E: Ensemble, model: Transition, t: float, dt: float,
+                u: Array | None = None, rng: Any = None) -> Ensemble:
         if self.sampling == "random":
             E = Ensemble(self._draw(ensemble_estimate(E), E.space, rng), E.space)
         elif not self.keeps_members(E):
             E = self._regenerate(E, rng)
         return self._propagate(E, model, t, dt, u, rng)
 
-    def _propagate(self, E: Ensemble, model: Transition, t, dt, u, rng) -> Ensemble:
+    def _propagate(self, E: Ensemble, model: Transition, t: float, dt: float,
+                   u: Array | None, rng: Any) -> Ensemble:
         """f on every member plus process noise (:func:`propagate_members`)."""
         return propagate_members(E, model, t, dt, u, rng)
 
@@ -530,9 +550,11 @@ class Hybrid(_HybridBase):
         if not 0.0 < self.tau <= 1.0:
             raise ValueError("tau must be in (0, 1]")
 
-    def init(self, prior: Gaussian, space, rng) -> Ensemble:
-        if _SHIFT is None and type(space) is VectorSpace:
-            shift_kernels()  # numba's import and cache load here, not in the first step
+    def init(  # type: ignore[override]  # (a generator is required here)
+        self, prior: Gaussian, space: Space, rng: np.random.Generator
+    ) -> Ensemble:
+        if type(space) is VectorSpace:
+            SHIFT_KERNELS.get()  # numba's import and cache load here, not in the first step
         return super().init(prior, space, rng)
 
     # -- the compiled path (numba installed; vector spaces, one stage, one shift) -------
@@ -543,12 +565,13 @@ class Hybrid(_HybridBase):
     # results, a covariance that is not positive definite) go to the numpy path, which
     # raises or continues as it always has.
 
-    def predict(self, E: Ensemble, model: Transition, t, dt, u=None, rng=None) -> Ensemble:
+    def predict(self, E: Ensemble, model: Transition, t: float, dt: float,
+                u: Array | None = None, rng: Any = None) -> Ensemble:
         """``_HybridBase.predict`` (regenerate if the ESS is low, then propagate with
         process noise); with the shift kernels on a vector space with expanded sampling,
         the regeneration and the noise in kernel calls (a failure of the chol of Q
         raises before any draw here, after the regeneration's draws there)."""
-        nb = _SHIFT if _SHIFT is not None else shift_kernels()
+        nb = SHIFT_KERNELS.get()
         space = model.space
         if not nb or self.sampling != "expanded" or type(space) is not VectorSpace:
             return super().predict(E, model, t, dt, u, rng)
@@ -583,22 +606,26 @@ class Hybrid(_HybridBase):
         nb.add_noise(X, Z, L, out)
         return Ensemble(out, space, w)
 
-    def update(self, E: Ensemble, z, model: Measurement, rng=None) -> tuple[Ensemble, Innovation]:
+    def update(self, E: Ensemble, z: Array, model: Measurement, rng: Any = None
+               ) -> tuple[Ensemble, Innovation]:
         """Tempered confidence weights, then the EnKF shift (the module docstring;
         :meth:`_update_numpy`); one kernel call for one stage and one shift on a vector
         space with a plain measurement model and a float64 ``z`` of its size."""
-        nb = _SHIFT if _SHIFT is not None else shift_kernels()
-        if (nb and self.stages == 1 and self.shifts == 1 and type(model.space) is VectorSpace
-                and type(z) is np.ndarray and z.dtype == np.float64 and z.ndim == 1
-                and z.shape[0] == model.dim and plain_measurement(model)):
-            return self._update_compiled(nb, E, z, model, rng)
-        return self._update_numpy(E, z, model, rng)
+        nb = SHIFT_KERNELS.get()
+        out = self._update_compiled(nb, E, z, model, rng) if nb else None
+        return out if out is not None else self._update_numpy(E, z, model, rng)
 
-    def _update_compiled(self, nb: ModuleType, E: Ensemble, z: Array, model: Measurement, rng
-                         ) -> tuple[Ensemble, Innovation]:
+    def _update_compiled(self, nb: ModuleType, E: Ensemble, z: Array, model: Measurement,
+                         rng: Any
+                         ) -> tuple[Ensemble, Innovation] | None:
         """The update through :func:`uavest.core._compiled_shift.shift_update`; its
-        result carries its estimate (``Ensemble.gaussian``). A failure hands the drawn
-        normals to :meth:`_update_numpy`."""
+        result carries its estimate (``Ensemble.gaussian``). None, before any draw, where
+        the kernel does not apply (more than one stage or shift, a measurement model that
+        is not plain on a vector space, a ``z`` that is not the model's float64 vector).
+        A failure hands the drawn normals to :meth:`_update_numpy`."""
+        if not (self.stages == self.shifts == 1 and _plain_vector(model)
+                and _float_vector(z, model.dim)):
+            return None
         M = E.M
         w = _equal_writable(M) if E.w is None else E.w
         Y = model.h(E.X)
@@ -615,7 +642,8 @@ class Hybrid(_HybridBase):
         return (Ensemble(X, E.space, wn if confidence else None, gaussian=Gaussian(x, P)),
                 Innovation(nu, S, nis))
 
-    def _update_numpy(self, E: Ensemble, z, model: Measurement, rng=None, V0=None
+    def _update_numpy(self, E: Ensemble, z: Array, model: Measurement, rng: Any = None,
+                      V0: Array | None = None
                       ) -> tuple[Ensemble, Innovation]:
         """The update on numpy arrays (any space, stages and shifts; the reference of the
         compiled path). ``V0``: the first shift's standard normals if already drawn."""
@@ -687,7 +715,7 @@ class HybridLocal(_HybridBase):
     """
 
     update_mode: ClassVar[str] = "local"
-    kernel: ClassVar[float] = 0.3  # regeneration kernel of an externally weighted state
+    kernel: ClassVar[float] = 0.3  # type: ignore[misc]  # regeneration kernel of an externally weighted state
 
     sampling: str = field(default="expanded", metadata=_sampling_param())
     weights: str = field(default="confidence", metadata=_weights_param())
@@ -707,17 +735,20 @@ class HybridLocal(_HybridBase):
         if self.bandwidth is not None and not 0.0 < self.bandwidth < 1.0:
             raise ValueError("bandwidth must be in (0, 1)")
 
-    def init(self, prior: Gaussian, space, rng) -> Ensemble:
-        if _LOCAL is None and type(space) is VectorSpace:
-            local_kernels()  # numba's import and cache load here, not in the first step
+    def init(  # type: ignore[override]  # (a generator is required here)
+        self, prior: Gaussian, space: Space, rng: np.random.Generator
+    ) -> Ensemble:
+        if type(space) is VectorSpace:
+            LOCAL_KERNELS.get()  # numba's import and cache load here, not in the first step
         return super().init(prior, space, rng)
 
-    def _propagate(self, E: Ensemble, model: Transition, t, dt, u, rng) -> Ensemble:
+    def _propagate(self, E: Ensemble, model: Transition, t: float, dt: float,
+                   u: Array | None, rng: Any) -> Ensemble:
         """:func:`propagate_members`; on a vector space with the compiled kernels the
         process noise is drawn and added in one compiled loop (``add_noise``: the same
         normals from ``rng``, in the same order; the sum equal to rounding)."""
         if type(model.space) is VectorSpace:
-            nb = _LOCAL if _LOCAL is not None else local_kernels()
+            nb = LOCAL_KERNELS.get()
             if nb:
                 X = np.ascontiguousarray(model.f(E.X, t, dt, u), dtype=float)
                 L = np.ascontiguousarray(chol(model.Q(t, dt, u)))
@@ -725,7 +756,7 @@ class HybridLocal(_HybridBase):
                                 model.space, E.w)
         return propagate_members(E, model, t, dt, u, rng)
 
-    def update(self, E: Ensemble, z, model: Measurement, rng=None
+    def update(self, E: Ensemble, z: Array, model: Measurement, rng: Any = None
                ) -> tuple[Ensemble, Innovation]:
         """Kernel (Gaussian-mixture) update with a local gain per member.
 
@@ -743,17 +774,17 @@ class HybridLocal(_HybridBase):
 
         On a :class:`~uavest.geometry.spaces.VectorSpace` with m <= 2 and numba installed
         (``uavest[fast]``; ``UAVEST_NUMBA=0`` switches it off) the same update runs as
-        compiled loops over the members (:func:`local_kernels`, :meth:`_update_compiled`):
+        compiled loops over the members (:data:`LOCAL_KERNELS`, :meth:`_update_compiled`):
         the same model calls and random draws in the same order, equal to this numpy
         path to rounding.
         """
         if type(E.space) is VectorSpace and model.dim <= 2:
-            nb = _LOCAL if _LOCAL is not None else local_kernels()
+            nb = LOCAL_KERNELS.get()
             if nb:
                 return self._update_compiled(nb, E, z, model, rng)
         return self._update_numpy(E, z, model, rng)
 
-    def _update_numpy(self, E: Ensemble, z, model: Measurement, rng=None
+    def _update_numpy(self, E: Ensemble, z: Array, model: Measurement, rng: Any = None
                       ) -> tuple[Ensemble, Innovation]:
         """:meth:`update` in numpy, vectorised over the members (every space, every m;
         the reference of the compiled path)."""
@@ -800,7 +831,8 @@ class HybridLocal(_HybridBase):
         X = space.retract(Cp, e + np.einsum("jm,jmn->jn", d, KT))
         return Ensemble(X, space, wn), innov
 
-    def _update_compiled(self, nb, E: Ensemble, z, model: Measurement, rng=None
+    def _update_compiled(self, nb: ModuleType, E: Ensemble, z: Array, model: Measurement,
+                         rng: Any = None
                          ) -> tuple[Ensemble, Innovation]:
         """:meth:`update` on a vector space with m <= 2 through the compiled kernels
         ``nb`` (:mod:`uavest.core._compiled_local`): the numpy path's model calls and
@@ -860,33 +892,11 @@ def _innovation2(nu: Array, S: Array) -> Innovation:
     return innovation(nu, S)
 
 
-#: The compiled kernels (module :mod:`uavest.core._compiled_local`) once loaded, False
-#: when numba is missing, disabled (``UAVEST_NUMBA=0``) or failed; None before the first
-#: call.
-_LOCAL = None
-
-
-def local_kernels():
-    """The compiled kernels of :meth:`HybridLocal.update` if they can be used here, else
-    False (the numpy path is used). Decided once per process at the first call, as
-    :func:`uavest.geometry.rotation.compiled_kernels` decides: numba must import,
-    ``UAVEST_NUMBA`` must not be ``0``, and the kernels must compile (first time: some
-    seconds, then numba's on-disk cache) and give the numpy path's update on a small
-    case (m = 1 and 2, weighted and equal, with and without resampling); any failure is
-    logged and falls back to numpy."""
-    global _LOCAL
-    if _LOCAL is None:
-        _LOCAL = load_kernels("uavest.core._compiled_local",
-                              "numba kernels of the local hybrid", _kernels_agree,
-                              "uavest.core")
-    return _LOCAL
-
-
-def _kernels_agree(nb) -> bool:
-    """True if :meth:`HybridLocal._update_compiled` with ``nb`` gives
-    :meth:`HybridLocal._update_numpy`'s members, weights and innovation (to 1e-10
-    relative) on small linear cases: m = 2 and 1, a weighted and an equally weighted
-    ensemble, one that resamples and one that does not."""
+def _local_cases(nb: ModuleType) -> Iterator[tuple[str, Any, Any]]:
+    """The self-check (:mod:`uavest.compiled`): :meth:`HybridLocal._update_compiled`
+    against :meth:`HybridLocal._update_numpy` (members, weights, innovation) on small
+    linear cases: m = 2 and 1, a weighted and an equally weighted ensemble, one that
+    resamples and one that does not."""
     from .model import LinearMeasurement
 
     g = np.random.default_rng(7)
@@ -898,7 +908,7 @@ def _kernels_agree(nb) -> bool:
         (np.array([[0.5, -1.0, 2.0]]), np.array([[25.0]]), g.dirichlet(np.full(15, 9.0)),
          np.array([1.0])),
     )
-    for H, R, w, z in cases:
+    for i, (H, R, w, z) in enumerate(cases):
         model = LinearMeasurement(H, R)
         out = []
         for upd in (lambda *a: f._update_compiled(nb, *a), f._update_numpy):
@@ -907,11 +917,15 @@ def _kernels_agree(nb) -> bool:
             out.append((E1.X, np.array([E1.w is None]),
                         equal_weights(15) if E1.w is None else E1.w, inn.S,
                         np.array([inn.nis])))
-        for a, b in zip(*out, strict=True):
-            if a.shape != b.shape or not np.allclose(a, b, rtol=1e-10, atol=1e-12):
-                return False
-    return True
+        for label, a, b in zip(("X", "resampled", "w", "S", "nis"), *out, strict=True):
+            yield f"case {i} {label}", a, b
 
+
+#: The compiled kernels of :meth:`HybridLocal.update` and its process noise on vector
+#: spaces (:mod:`uavest.core._compiled_local`)
+LOCAL_KERNELS = register("local", "uavest.core._compiled_local",
+                         "numba kernels of the local hybrid", _local_cases, rtol=1e-10,
+                         atol=1e-12)
 
 
 @lru_cache(maxsize=64)

@@ -21,6 +21,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from ..geometry.spaces import Space
 from . import linalg as _linalg
 from .base import Innovation
 from .contract import FilterBase, sigma_point_terms
@@ -29,6 +30,7 @@ from .linalg import chol
 from .model import Measurement, Transition
 
 Array = np.ndarray
+Rng = np.random.Generator
 
 
 _dot = np.dot
@@ -45,7 +47,8 @@ def _sym(A: Array) -> Array:
     """(A + A^T) / 2 of a fresh product (written into the sum: no second temporary)."""
     S = A + A.T
     S *= 0.5
-    return S
+    res: Array = S
+    return res
 
 
 def _gain_nis(PHt: Array, S: Array, nu: Array) -> tuple[Array, float]:
@@ -69,7 +72,7 @@ class EKF(FilterBase):
 
     name: str = "ekf"
 
-    def init(self, prior: Gaussian, space, rng=None) -> Gaussian:
+    def init(self, prior: Gaussian, space: Space, rng: Rng | None = None) -> Gaussian:
         return prior
 
     def predict_jac(
@@ -82,11 +85,12 @@ class EKF(FilterBase):
         A += model.Q(t, dt, u)
         return Gaussian(x, _sym(A)), F
 
-    def predict(self, g: Gaussian, model: Transition, t: float, dt: float, u=None, rng=None):
+    def predict(self, g: Gaussian, model: Transition, t: float, dt: float,
+                u: Array | None = None, rng: Rng | None = None) -> Gaussian:
         return self.predict_jac(g, model, t, dt, u)[0]
 
     def update(
-        self, g: Gaussian, z: Array, model: Measurement, rng=None
+        self, g: Gaussian, z: Array, model: Measurement, rng: Rng | None = None
     ) -> tuple[Gaussian, Innovation]:
         zhat, H = model.h_H(g.x)
         nu = model.residual(z, zhat)
@@ -105,7 +109,9 @@ class EKF(FilterBase):
     def estimate(self, g: Gaussian) -> Gaussian:
         return g
 
-    def rts_terms(self, s_prev, s_pred, model, t, dt, u=None, prev=None):
+    def rts_terms(self, s_prev: Gaussian, s_pred: Gaussian | None, model: Transition,
+                  t: float, dt: float, u: Array | None = None, prev: Gaussian | None = None
+                  ) -> tuple[Gaussian, Array]:
         """(estimate(s_pred), P F^T), F the transition's tangent Jacobian at the prior
         mean (the RTS smoother's cross-covariance). ``s_pred=None``: the sigma-point
         fallback from the prior (see :mod:`uavest.core.contract`)."""
@@ -124,12 +130,14 @@ class KF(EKF):
 
     name: str = "kf"
 
-    def predict_jac(self, g, model, t, dt, u=None):
+    def predict_jac(self, g: Gaussian, model: Transition, t: float, dt: float,
+                    u: Array | None = None) -> tuple[Gaussian, Array]:
         if not getattr(model, "linear", False):
             raise TypeError(f"KF needs a linear transition model, got {type(model).__name__}")
         return super().predict_jac(g, model, t, dt, u)
 
-    def update(self, g, z, model, rng=None):
+    def update(self, g: Gaussian, z: Array, model: Measurement, rng: Rng | None = None
+               ) -> tuple[Gaussian, Innovation]:
         if not getattr(model, "linear", False):
             raise TypeError(f"KF needs a linear measurement model, got {type(model).__name__}")
         return super().update(g, z, model, rng)

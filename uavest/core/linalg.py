@@ -8,20 +8,22 @@ PSD up to rounding still yields a factor.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
 Array = np.ndarray
 
 
-def _lapack(name: str):
+def _lapack(name: str) -> Callable[..., Any]:
     """LAPACK routine ``name`` through scipy, imported at its first call rather than at
     import (importing scipy.linalg costs 0.3-0.8 s, which every command, even ``--help``,
     paid). The stub replaces itself in this module's globals, so later calls go straight
     to LAPACK with no per-call overhead."""
 
-    def stub(*args, **kwargs):
-        from scipy.linalg import lapack
+    def stub(*args: Any, **kwargs: Any) -> Any:
+        from scipy.linalg import lapack  # type: ignore[import-untyped]
 
         fn = getattr(lapack, name)
         globals()[name] = fn
@@ -61,7 +63,8 @@ class NotPositiveDefinite(NumericalError):
 
 def symmetrize(P: Array) -> Array:
     """(P + P^T) / 2."""
-    return 0.5 * (P + P.T)
+    res: Array = 0.5 * (P + P.T)
+    return res
 
 
 def chol(P: Array, max_tries: int = 6) -> Array:
@@ -76,7 +79,8 @@ def chol(P: Array, max_tries: int = 6) -> Array:
             return np.array([[math.sqrt(p)]])
     L, info = dpotrf(P, lower=1)  # LAPACK directly: ~7x less overhead than np.linalg
     if info == 0:
-        return L
+        res: Array = L
+        return res
     if not np.isfinite(P).all():
         raise NotPositiveDefinite("covariance has non-finite entries")
     P = symmetrize(P)
@@ -95,7 +99,8 @@ def is_pd(P: Array) -> bool:
     """True if ``P`` is finite and Cholesky-factorable without jitter."""
     if not math.isfinite(float(P.sum())):
         return False
-    return dpotrf(P, lower=1)[1] == 0
+    res: bool = dpotrf(P, lower=1)[1] == 0
+    return res
 
 
 def gain(Pxy: Array, S: Array) -> Array:
@@ -116,9 +121,9 @@ def gain_factor(Pxy: Array, S: Array) -> tuple[Array, Array]:
     if S.shape[0] == 1:  # 1 x 1 S: the solve LAPACK does, without the call (see below)
         s = float(S[0, 0])
         if 0.0 < s < math.inf:
-            c = math.sqrt(s)
-            i = 1.0 / c
-            return Pxy * i * i, np.array([[c]])
+            r = math.sqrt(s)
+            i = 1.0 / r
+            return Pxy * i * i, np.array([[r]])
     c, X, info = dposv(S, Pxy.T, lower=1)
     if info != 0:
         c = chol(S)

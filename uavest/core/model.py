@@ -11,6 +11,8 @@ overriding ``F``/``H``, otherwise central finite differences through ``retract``
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from ..geometry.spaces import Space, VectorSpace
@@ -88,17 +90,21 @@ class Measurement:
         return fd_jacobians(self.h, self.residual, self.space, X)
 
     def residual(self, a: Array, b: Array) -> Array:
-        return a - b
+        res: Array = a - b
+        return res
 
     def mean(self, Y: Array, w: Array) -> Array:
-        return np.dot(w, Y)  # = w @ Y, with less per-call overhead
+        res: Array = np.dot(w, Y)  # = w @ Y, with less per-call overhead
+        return res
 
     @property
     def dim(self) -> int:
-        return self.R.shape[0]
+        res: int = self.R.shape[0]
+        return res
 
 
-def fd_jacobian(fun, space: Space, out_space: Space | None, x: Array, eps: float = 1e-6) -> Array:
+def fd_jacobian(fun: Callable[[Array], Array], space: Space, out_space: Space | None, x: Array,
+                eps: float = 1e-6) -> Array:
     """Central finite-difference Jacobian of ``fun`` (vectorised) at ``x``.
 
     Perturbs ``x`` in its tangent space; reads outputs through ``out_space.local`` (or plain
@@ -116,10 +122,12 @@ def fd_jacobian(fun, space: Space, out_space: Space | None, x: Array, eps: float
     else:
         y0 = fun(x[None, :])[0]
         dY = out_space.local(y0, Y[:n]) - out_space.local(y0, Y[n:])
-    return (dY / (2.0 * scale[:, None])).T
+    res: Array = (dY / (2.0 * scale[:, None])).T
+    return res
 
 
-def fd_jacobians(fun, residual, space: Space, X: Array, eps: float = 1e-6) -> Array:
+def fd_jacobians(fun: Callable[[Array], Array], residual: Callable[[Array, Array], Array],
+                 space: Space, X: Array, eps: float = 1e-6) -> Array:
     """Central finite-difference Jacobians of the vectorised ``fun`` at every row of ``X``
     (M, size) -> (M, m, n), differences read through ``residual`` (e.g. wrapped angles).
     One batched call of ``fun`` on 2 n M rows; no Python loop over rows."""
@@ -132,7 +140,8 @@ def fd_jacobians(fun, residual, space: Space, X: Array, eps: float = 1e-6) -> Ar
     Xr = np.repeat(X, n, axis=0)
     Y = fun(np.vstack([space.retract(Xr, D), space.retract(Xr, -D)]))
     dY = residual(Y[: M * n], Y[M * n :]).reshape(M, n, -1)
-    return (dY / (2.0 * scale[:, :, None])).transpose(0, 2, 1)
+    res: Array = (dY / (2.0 * scale[:, :, None])).transpose(0, 2, 1)
+    return res
 
 
 class LinearTransition(Transition):
@@ -146,16 +155,16 @@ class LinearTransition(Transition):
         self._B = None if B is None else np.asarray(B, float)
         self.space = VectorSpace(self._F.shape[0])
 
-    def f(self, X, t, dt, u=None):
-        Y = X @ self._F.T
+    def f(self, X: Array, t: float, dt: float, u: Array | None = None) -> Array:
+        Y: Array = X @ self._F.T
         if self._B is not None and u is not None:
             Y = Y + self._B @ u
         return Y
 
-    def Q(self, t, dt, u=None):
+    def Q(self, t: float, dt: float, u: Array | None = None) -> Array:
         return self._Q
 
-    def F(self, x, t, dt, u=None):
+    def F(self, x: Array, t: float, dt: float, u: Array | None = None) -> Array:
         return self._F
 
 
@@ -169,11 +178,12 @@ class LinearMeasurement(Measurement):
         self.R = np.atleast_2d(np.asarray(R, float))
         self.space = VectorSpace(self._H.shape[1])
 
-    def h(self, X):
-        return X @ self._H.T
+    def h(self, X: Array) -> Array:
+        Y: Array = X @ self._H.T
+        return Y
 
-    def H(self, x):
+    def H(self, x: Array) -> Array:
         return self._H
 
-    def H_rows(self, X):
+    def H_rows(self, X: Array) -> Array:
         return np.broadcast_to(self._H, (X.shape[0], *self._H.shape))

@@ -11,15 +11,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
+from ..geometry.spaces import Space
 from . import linalg as _linalg
 from .base import Ensemble, Innovation, ensemble_estimate, innovation, sample_gaussian
 from .contract import EnsembleFilter
 from .ensemble import propagate_members
 from .gaussian import Gaussian
 from .linalg import chol, symmetrize
+from .model import Measurement, Transition
 from .resample import systematic_resample
 from .spec import param
 
@@ -42,7 +45,8 @@ def log_likelihood(r: Array, R: Array) -> Array:
         u = r[:, 0] * (1.0 / math.sqrt(float(R[0, 0])))
         return -0.5 * (u * u)
     u = _linalg.dtrtrs(chol(R), r.T, lower=1)[0]  # LAPACK, bound at the first call
-    return -0.5 * np.add.reduce(u * u, axis=0)  # = .sum(axis=0), one call less
+    res: Array = -0.5 * np.add.reduce(u * u, axis=0)  # = .sum(axis=0), one call less
+    return res
 
 
 def normalise_log(logw: Array) -> Array:
@@ -51,7 +55,8 @@ def normalise_log(logw: Array) -> Array:
     s = w.sum()
     if not np.isfinite(s) or s <= 0:
         return np.full(logw.shape[0], 1.0 / logw.shape[0])
-    return w / s
+    res: Array = w / s
+    return res
 
 
 @dataclass(frozen=True)
@@ -71,15 +76,19 @@ class PF(EnsembleFilter):
     def keeps_members(self, E: Ensemble) -> bool:
         return False
 
-    def init(self, prior: Gaussian, space, rng: np.random.Generator) -> Ensemble:
+    def init(  # type: ignore[override]  # (a generator is required here)
+        self, prior: Gaussian, space: Space, rng: np.random.Generator
+    ) -> Ensemble:
         return Ensemble(sample_gaussian(prior, space, self.particles, rng), space)
 
-    def predict(self, E: Ensemble, model, t, dt, u=None, rng=None) -> Ensemble:
+    def predict(self, E: Ensemble, model: Transition, t: float, dt: float,
+                u: Array | None = None, rng: Any = None) -> Ensemble:
         if E.w is not None and ess(E.w) < self.resample_threshold * E.M:
             E = Ensemble(E.X[systematic_resample(E.w, rng)], E.space)
         return propagate_members(E, model, t, dt, u, rng)
 
-    def update(self, E: Ensemble, z, model, rng=None) -> tuple[Ensemble, Innovation]:
+    def update(self, E: Ensemble, z: Array, model: Measurement, rng: Any = None
+               ) -> tuple[Ensemble, Innovation]:
         M = E.M
         w = np.full(M, 1.0 / M) if E.w is None else E.w
         Y = model.h(E.X)

@@ -77,7 +77,8 @@ def _known() -> str:
     return ", ".join(FILTER_NAMES)
 
 
-def filter_class(name: str, given: Mapping[str, Any] | None = None) -> tuple[type, dict]:
+def filter_class(name: str, given: Mapping[str, Any] | None = None
+                 ) -> tuple[type, dict[str, Any]]:
     """(class, {mode key: mode}) a registry name (``_sh`` allowed) resolves to, the mode
     read from ``given`` (validated). Raises :class:`SpecError` for unknown names."""
     base = name.removesuffix("_sh")
@@ -130,7 +131,7 @@ def parse_spec(
     return FilterSpec(name, params, label, preset, user, dim)
 
 
-def _check_mode_params(name: str, cls: type, mode: dict, user: frozenset[str]) -> None:
+def _check_mode_params(name: str, cls: type, mode: dict[str, Any], user: frozenset[str]) -> None:
     """A written parameter that belongs to another mode of the same name: say so."""
     entry = REGISTRY[name.removesuffix("_sh")]
     if not isinstance(entry, Modes):
@@ -159,7 +160,7 @@ def parse_filter_list(
     if not all(items):
         raise SpecError(f"the filter list {text!r} has an empty entry")
     specs = [parse_spec(t, defaults) for t in items]
-    seen: dict[tuple, str] = {}
+    seen: dict[tuple[str, tuple[tuple[str, Any], ...]], str] = {}
     for s in specs:
         key = (s.name, tuple(sorted(s.params.items())))
         if s.label in seen.values() or key in seen:
@@ -184,18 +185,18 @@ def build(spec: FilterSpec | str) -> Filter:
 # ------------------------------------------------------------------- compatibility layer
 
 
-def parse_filter_spec(spec: str) -> tuple[str, dict]:
+def parse_filter_spec(spec: str) -> tuple[str, dict[str, Any]]:
     """Syntax only: ``"ukf(alpha=0.001, kappa=0)"`` -> ("ukf", {"alpha": 0.001, "kappa": 0})."""
     return parse_text(spec)
 
 
-def make_filter(spec: str, **defaults) -> Filter:
+def make_filter(spec: str, **defaults: Any) -> Filter:
     """Build a filter from a spec string; ``defaults`` apply unless the spec overrides
     (defaults a filter does not have, or that have no effect, are ignored)."""
     return build(parse_spec(spec, defaults))
 
 
-def make_filter_in_context(spec: str, hybrid_defaults: dict) -> Filter:
+def make_filter_in_context(spec: str, hybrid_defaults: dict[str, Any]) -> Filter:
     """``make_filter`` with an application's defaults for the ``hybrid`` family (plain and
     ``_sh``); parameters written in the spec still win, other filters are unaffected.
     Prefer :func:`uavest.presets.resolve` / :func:`uavest.presets.build`."""

@@ -51,7 +51,7 @@ class Param:
     hi_open: bool = False
     choices: tuple[str, ...] = ()
     none_ok: bool = False
-    when: Mapping[str, tuple] = dataclasses.field(default_factory=dict)
+    when: Mapping[str, tuple[Any, ...]] = dataclasses.field(default_factory=dict)
     doc: str = ""
 
     def allowed(self) -> str:
@@ -108,7 +108,7 @@ class Param:
         return SpecError(f"{filt}: {key} must be {self.allowed()}, got {_show(v)}")
 
 
-def param(kind: str, doc: str = "", **kw) -> dict:
+def param(kind: str, doc: str = "", **kw: Any) -> dict[str, Param]:
     """Field metadata declaring a spec parameter: ``field(default=1.0,
     metadata=param("float", lo=0, lo_open=True, doc="..."))``."""
     return {"param": Param(kind, doc=doc, **kw)}
@@ -176,9 +176,9 @@ class FilterSpec:
     def adaptive(self) -> bool:
         return self.name.endswith("_sh")
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         """JSON-ready: {"name", "label", "preset", "params"} (+ "dim" when resolved)."""
-        d = {"name": self.name, "label": self.label, "preset": self.preset,
+        d: dict[str, Any] = {"name": self.name, "label": self.label, "preset": self.preset,
              "params": dict(self.params)}
         if self.dim is not None:
             d["dim"] = self.dim

@@ -18,14 +18,16 @@ update:   fresh sigma points of (x-, P-); Z_j = h(chi_j); z- = mean(Z, Wm)
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from functools import lru_cache
 from types import ModuleType
+from typing import Any
 
 import numpy as np
 
-from ..geometry.kernels import load_kernels
-from ..geometry.spaces import VectorSpace
+from ..compiled import register
+from ..geometry.spaces import Space, VectorSpace
 from .base import Innovation, innovation
 from .contract import FilterBase
 from .gaussian import Gaussian
@@ -35,6 +37,7 @@ from .sigma import sigma_weights, unscented_predict
 from .spec import param
 
 Array = np.ndarray
+Rng = np.random.Generator
 _dot = np.dot  # the same BLAS products as @ without the gufunc's per-call cost
 _array = np.array
 _empty = np.empty
@@ -57,43 +60,25 @@ def plain_measurement(model: Measurement) -> bool:
             and getattr(t, "residual", None) is Measurement.residual)
 
 
-#: the compiled unscented kernels (:mod:`uavest.core._compiled_ut`), False if numba is
-#: missing, disabled (``UAVEST_NUMBA=0``) or failed; None before the first call.
-_UT = None
-
-
-def ut_kernels() -> ModuleType | bool:
-    """The numba kernels of the UKF on vector spaces if they can be used here, else False
-    (the array path is used). Decided once per process at the first UKF step on a vector
-    space of more than one dimension: numba must import, ``UAVEST_NUMBA`` must not be
-    ``0``, and the kernels must compile (first time: some seconds, then numba's on-disk
-    cache) and agree with the array path on a small case; any failure is logged and
-    falls back to numpy."""
-    global _UT
-    if _UT is None:
-        _UT = load_kernels("uavest.core._compiled_ut", "numba unscented kernels",
-                           _ut_self_check, "uavest.core")
-    return _UT
-
-
-def _ut_self_check(nb: ModuleType) -> bool:
-    """One predict and one update of a 3-D state with a 2-D measurement, the kernels
-    against the array path."""
+def _ut_cases(nb: ModuleType) -> Iterator[tuple[str, Any, Any]]:
+    """The self-check (:mod:`uavest.compiled`): one predict and one update of a 3-D state
+    with a 2-D measurement, the kernels against the array path."""
 
     class _T(Transition):
         space = VectorSpace(3)
 
-        def f(self, X, t, dt=1.0, u=None):
-            return X + 0.1 * np.sin(X[:, ::-1])
+        def f(self, X: Array, t: float, dt: float = 1.0, u: Array | None = None) -> Array:
+            Y: Array = X + 0.1 * np.sin(X[:, ::-1])
+            return Y
 
-        def Q(self, t, dt=1.0, u=None):
+        def Q(self, t: float, dt: float = 1.0, u: Array | None = None) -> Array:
             return np.diag([0.1, 0.2, 0.3])
 
     class _H(Measurement):
         space = VectorSpace(3)
         R = np.array([[0.5, 0.1], [0.1, 0.4]])
 
-        def h(self, X):
+        def h(self, X: Array) -> Array:
             return np.stack([X[:, 0] * X[:, 1], X[:, 2]], axis=1)
 
     f = UKF(alpha=0.7)
@@ -101,10 +86,27 @@ def _ut_self_check(nb: ModuleType) -> bool:
                                                         [0.1, -0.2, 1.5]]))
     a, b = f._predict(g, _T(), 1.0, 1.0, None)[0], f._predict_compiled(nb, g, _T(), 1.0,
                                                                        1.0, None)
+    if b is None:
+        yield "predict", None, a.x
+        return
+    yield "predict x", b.x, a.x
+    yield "predict P", b.P, a.P
     z = np.array([0.5, 1.0])
-    (ua, ia), (ub, ib) = f._update(g, z, _H()), f._update_compiled(nb, g, z, _H())
-    return all(np.allclose(p, q, rtol=1e-12, atol=1e-12) for p, q in (
-        (a.x, b.x), (a.P, b.P), (ua.x, ub.x), (ua.P, ub.P), (ia.S, ib.S), (ia.nis, ib.nis)))
+    ua, ia = f._update(g, z, _H())
+    got = f._update_compiled(nb, g, z, _H())
+    if got is None:
+        yield "update", None, ua.x
+        return
+    ub, ib = got
+    yield "update x", ub.x, ua.x
+    yield "update P", ub.P, ua.P
+    yield "S", ib.S, ia.S
+    yield "nis", ib.nis, ia.nis
+
+
+#: The compiled unscented kernels (:mod:`uavest.core._compiled_ut`)
+UT_KERNELS = register("ut", "uavest.core._compiled_ut", "numba unscented kernels", _ut_cases,
+                      rtol=1e-12, atol=1e-12)
 
 
 _MERWE = {"points": ("merwe",)}
@@ -127,16 +129,16 @@ class UKF(FilterBase):
         "choice", choices=("merwe", "cubature"), doc="sigma-point set"))
     name: str = "ukf"
 
-    def _w(self, n: int):
+    def _w(self, n: int) -> tuple[float, Array, Array, Array]:
         return sigma_weights(n, self.alpha, self.beta, self.kappa, self.points)
 
-    def init(self, prior: Gaussian, space, rng=None) -> Gaussian:
-        if _UT is None and type(space) is VectorSpace and (
-                space.dim > 1 or self.points != "merwe"):
-            ut_kernels()  # numba's import and cache load here, not in the first step
+    def init(self, prior: Gaussian, space: Space, rng: Rng | None = None) -> Gaussian:
+        if type(space) is VectorSpace and (space.dim > 1 or self.points != "merwe"):
+            UT_KERNELS.get()  # numba's import and cache load here, not in the first step
         return prior
 
-    def _predict(self, g: Gaussian, model: Transition, t, dt, u):
+    def _predict(self, g: Gaussian, model: Transition, t: float, dt: float, u: Array | None
+                 ) -> tuple[Gaussian, Array, Array, Array]:
         """(prediction, offsets D, deviations dY, Wc): :func:`.sigma.unscented_predict`."""
         return unscented_predict(g, model, t, dt, u, self._w(model.space.dim))
 
@@ -148,25 +150,29 @@ class UKF(FilterBase):
         gp, D, dY, Wc = self._predict(g, model, t, dt, u)
         return gp, (D.T * Wc) @ dY
 
-    def rts_terms(self, s_prev, s_pred, model, t, dt, u=None, prev=None):
+    def rts_terms(self, s_prev: Any, s_pred: Any, model: Transition, t: float, dt: float,
+                  u: Array | None = None, prev: Gaussian | None = None
+                  ) -> tuple[Gaussian, Array]:
         """The sigma-point prediction of the prior and its cross-covariance
         (:meth:`predict_cross`); identical to ``predict`` for the prediction."""
         return self.predict_cross(s_prev if prev is None else prev, model, t, dt, u)
 
-    def predict(self, g: Gaussian, model: Transition, t: float, dt: float, u=None, rng=None):
+    def predict(self, g: Gaussian, model: Transition, t: float, dt: float,
+                u: Array | None = None, rng: Rng | None = None) -> Gaussian:
         space = model.space
         if type(space) is VectorSpace:
             if space.dim == 1 and self.points == "merwe":
                 out = self._predict_1d(g, model, t, dt, u)
             else:
-                nb = _UT if _UT is not None else ut_kernels()
+                nb = UT_KERNELS.get()
                 out = self._predict_compiled(nb, g, model, t, dt, u) if nb else None
             if out is not None:
                 return out
         return self._predict(g, model, t, dt, u)[0]
 
     # -- vector spaces with numba: the algebra between the model calls compiled ------------
-    def _sigma_compiled(self, nb: ModuleType, g: Gaussian, n: int) -> tuple | None:
+    def _sigma_compiled(self, nb: ModuleType, g: Gaussian, n: int
+                        ) -> tuple[Array, Array, Array, Array] | None:
         """(Wm, Wc, D, X): the weights, the offsets D = U L^T and the sigma points X of
         ``g`` by the kernel; None if P has no plain factor (the array path then jitters or
         raises)."""
@@ -176,7 +182,8 @@ class UKF(FilterBase):
             return None
         return Wm, Wc, D, X
 
-    def _predict_compiled(self, nb: ModuleType, g: Gaussian, model: Transition, t, dt, u
+    def _predict_compiled(self, nb: ModuleType, g: Gaussian, model: Transition, t: float,
+                          dt: float, u: Array | None
                           ) -> Gaussian | None:
         """``_predict`` with the sigma points and the moments in two kernel calls
         (:mod:`uavest.core._compiled_ut`); None if P has no plain factor."""
@@ -190,7 +197,7 @@ class UKF(FilterBase):
         nb.moments(Y, Wm, Wc, model.Q(t, dt, u), x, P)
         return Gaussian(x, P)
 
-    def _update_compiled(self, nb: ModuleType, g: Gaussian, z, model: Measurement
+    def _update_compiled(self, nb: ModuleType, g: Gaussian, z: Array, model: Measurement
                          ) -> tuple[Gaussian, Innovation] | None:
         """``_update`` with the sigma points and the gain algebra in two kernel calls, the
         model's ``h``, ``mean`` and ``residual`` between them; None if P or S has no plain
@@ -225,7 +232,8 @@ class UKF(FilterBase):
     # its own ``mean`` / ``residual``) takes the array path, which also decides what a
     # failure raises.
 
-    def _sigma_1d(self, g: Gaussian) -> tuple | None:
+    def _sigma_1d(self, g: Gaussian
+                  ) -> tuple[float, float, float, tuple[float, float, float, float], Array] | None:
         """(p, x0, s, (wm0, wm1, wc0, wc1), X): the 1-D prior's variance and mean, the
         sigma offset s = c sqrt(p), the weights and the points x0, x0 + s, x0 - s (3, 1);
         None if p is not finite and positive."""
@@ -237,7 +245,8 @@ class UKF(FilterBase):
         s = c * math.sqrt(p)
         return p, x0, s, (wm0, wm1, wc0, wc1), _array([[x0], [x0 + s], [x0 - s]])
 
-    def _predict_1d(self, g: Gaussian, model: Transition, t, dt, u) -> Gaussian | None:
+    def _predict_1d(self, g: Gaussian, model: Transition, t: float, dt: float,
+                    u: Array | None) -> Gaussian | None:
         sp = self._sigma_1d(g)
         if sp is None:
             return None
@@ -248,7 +257,7 @@ class UKF(FilterBase):
         P = wc0 * d0 * d0 + wc1 * d1 * d1 + wc1 * d2 * d2 + model.Q(t, dt, u).item(0)
         return Gaussian(_array([x]), _array([[P]]))
 
-    def _update_1d(self, g: Gaussian, z, model: Measurement
+    def _update_1d(self, g: Gaussian, z: Array, model: Measurement
                    ) -> tuple[Gaussian, Innovation] | None:
         if type(z) is not np.ndarray or z.shape != (1,):
             return None
@@ -270,7 +279,7 @@ class UKF(FilterBase):
                 Innovation(_array([v]), _array([[S]]), v * (v * i * i)))
 
     def update(
-        self, g: Gaussian, z: Array, model: Measurement, rng=None
+        self, g: Gaussian, z: Array, model: Measurement, rng: Rng | None = None
     ) -> tuple[Gaussian, Innovation]:
         space = model.space
         if type(space) is VectorSpace:
@@ -278,7 +287,7 @@ class UKF(FilterBase):
                     and plain_measurement(model)):
                 out = self._update_1d(g, z, model)
             else:
-                nb = _UT if _UT is not None else ut_kernels()
+                nb = UT_KERNELS.get()
                 out = self._update_compiled(nb, g, z, model) if nb else None
             if out is not None:
                 return out
@@ -310,8 +319,8 @@ class UKF(FilterBase):
         return g
 
     # -- many states at once (the tracker: every track of a scan) ------------------------
-    def predict_many(self, gs: list[Gaussian], model: Transition, t, dt, u=None, rng=None
-                     ) -> list[Gaussian]:
+    def predict_many(self, gs: list[Gaussian], model: Transition, t: float, dt: float,
+                     u: Array | None = None, rng: Rng | None = None) -> list[Gaussian]:
         """:meth:`predict` of every Gaussian of ``gs`` with one batched Cholesky and one
         call of ``model.f`` on all sigma points (vector state spaces; the same numbers as
         one at a time up to rounding). Other spaces: one at a time."""
@@ -329,7 +338,8 @@ class UKF(FilterBase):
         P = np.einsum("tjn,j,tjk->tnk", dY, Wc, dY) + model.Q(t, dt, u)
         return [Gaussian(xm[i], P[i]) for i in range(T)]
 
-    def update_many(self, gs: list[Gaussian], zs: Array, model: Measurement, rng=None
+    def update_many(self, gs: list[Gaussian], zs: Array, model: Measurement,
+                    rng: Rng | None = None
                     ) -> list[tuple[Gaussian, Innovation]]:
         """:meth:`update` of every Gaussian of ``gs`` with its measurement ``zs[i]``: one
         batched Cholesky of the covariances, one call of ``model.h`` on all sigma points,
@@ -418,12 +428,13 @@ def cholupdate(L: Array, v: Array, sign: float = 1.0) -> Array:
 
 def _qr_lower(A: Array) -> Array:
     """Lower-triangular L with L L^T = A^T A, via QR of A (positive diagonal)."""
-    R = np.linalg.qr(A, mode="r")
+    R: Array = np.linalg.qr(A, mode="r")  # type: ignore[assignment]  # (mode r: R only)
     n = A.shape[1]
     R = R[:n, :n]
     sgn = np.sign(np.diag(R))
     sgn[sgn == 0] = 1.0
-    return (R * sgn[:, None]).T
+    res: Array = (R * sgn[:, None]).T
+    return res
 
 
 @dataclass(frozen=True)
@@ -440,10 +451,10 @@ class SRUKF(FilterBase):
     kappa: float = field(default=0.0, metadata=param("float", doc="secondary scaling"))
     name: str = "srukf"
 
-    def _w(self, n: int):
+    def _w(self, n: int) -> tuple[float, Array, Array, Array]:
         return sigma_weights(n, self.alpha, self.beta, self.kappa, "merwe")
 
-    def init(self, prior: Gaussian, space, rng=None) -> SqrtGaussian:
+    def init(self, prior: Gaussian, space: Space, rng: Rng | None = None) -> SqrtGaussian:
         return SqrtGaussian(prior.x, chol(prior.P))
 
     @staticmethod
@@ -452,7 +463,8 @@ class SRUKF(FilterBase):
         L = _qr_lower(A)
         return cholupdate(L, np.sqrt(abs(Wc[0])) * dev[0], 1.0 if Wc[0] >= 0 else -1.0)
 
-    def predict(self, s: SqrtGaussian, model: Transition, t, dt, u=None, rng=None):
+    def predict(self, s: SqrtGaussian, model: Transition, t: float, dt: float,
+                u: Array | None = None, rng: Rng | None = None) -> SqrtGaussian:
         space = model.space
         _, Wm, Wc, U = self._w(space.dim)
         D = U @ s.S.T
@@ -461,7 +473,8 @@ class SRUKF(FilterBase):
         dY = space.local(x, Y)
         return SqrtGaussian(x, self._sqrt_cov(dY, Wc, chol(model.Q(t, dt, u))))
 
-    def update(self, s: SqrtGaussian, z, model: Measurement, rng=None):
+    def update(self, s: SqrtGaussian, z: Array, model: Measurement, rng: Rng | None = None
+               ) -> tuple[SqrtGaussian, Innovation]:
         space = model.space
         _, Wm, Wc, U = self._w(space.dim)
         D = U @ s.S.T
@@ -483,7 +496,9 @@ class SRUKF(FilterBase):
     def estimate(self, s: SqrtGaussian) -> Gaussian:
         return Gaussian(s.x, s.S @ s.S.T)
 
-    def rts_terms(self, s_prev, s_pred, model, t, dt, u=None, prev=None):
+    def rts_terms(self, s_prev: Any, s_pred: Any, model: Transition, t: float, dt: float,
+                  u: Array | None = None, prev: Gaussian | None = None
+                  ) -> tuple[Gaussian, Array]:
         """The sigma-point prediction (a UKF with the same alpha, beta, kappa) of the
         prior and its cross-covariance."""
         g = self.estimate(s_prev) if prev is None else prev

@@ -1,21 +1,29 @@
-"""Filters from spec strings for the engine's jobs, through the presets table
-(:mod:`uavest.presets`: what a filter name means in each command)."""
+"""Filters from resolved specs for the engine's jobs.
+
+The engine builds what it is given: :class:`~uavest.core.spec.FilterSpec`\\ s already
+resolved for the job's state (what a filter name means in a command is the
+application's decision, :mod:`uavest.presets`; the CLI resolves ``--filters`` once
+against its command's preset and passes the specs down)."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
-from ..core.registry import parse_filter_list
+from ..core.contract import Filter
+from ..core.registry import build
 from ..core.spec import FilterSpec
-from ..presets import build, describe_presets, resolve_list
 
-__all__ = ["build_filters", "describe_presets", "parse_filter_list"]
+__all__ = ["build_filters"]
 
 
-def build_filters(
-    specs: str | Sequence[str | FilterSpec], preset: str, dim: int
-) -> list[tuple[FilterSpec, object]]:
-    """[(fully resolved spec, unguarded filter)] for a list of specs in ``preset``, for a
-    state of tangent dimension ``dim``; bad specs raise :class:`uavest.core.SpecError`
-    (one line)."""
-    return [(sp, build(sp)) for sp in resolve_list(specs, preset, dim)]
+def build_filters(specs: Sequence[FilterSpec]) -> list[tuple[FilterSpec, Filter]]:
+    """[(spec, unguarded filter)] for specs resolved by
+    :func:`uavest.presets.resolve_list` (a spec string is refused with ``TypeError``:
+    resolving it is the caller's, against the command's preset)."""
+    out = []
+    for sp in specs:
+        if not isinstance(sp, FilterSpec):
+            raise TypeError(f"build_filters takes resolved FilterSpecs, got {sp!r} "
+                            "(resolve spec text with uavest.presets.resolve_list)")
+        out.append((sp, build(sp)))
+    return out

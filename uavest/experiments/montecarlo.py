@@ -18,6 +18,7 @@ from ..engine import FilterRunner, Start, Step, run
 from ..engine.build import build_filters
 from ..engine.records import RunInfo, package_versions
 from ..eval.metrics import mean_abs, nees, nees_band, rmse
+from ..presets import resolve_list
 from ..seeding import filter_stream, rng
 from ..sinks.base import Collector
 from .systems import System, simulate
@@ -59,7 +60,7 @@ def trial_info(sysm: System, specs: list[str], seed: int, r: int, scenario: str 
                command: str = "") -> RunInfo:
     """The run description of trial ``r`` for a recording: scenario, seed, trial, the
     resolved filters (label -> resolved spec), the system's steps and dt."""
-    built = build_filters(specs, "bench", dim=sysm.transition.space.dim)
+    built = build_filters(resolve_list(specs, "bench", dim=sysm.transition.space.dim))
     return RunInfo(command, f"scenario:{scenario}" if scenario else "bench", seed,
                    filters={sp.label: sp.as_dict() for sp, _ in built},
                    config={"scenario": scenario, "trial": r, "steps": sysm.steps,
@@ -76,7 +77,7 @@ def run_trial(sysm: System, specs: list[str], seed: int, r: int, sinks: Sequence
     the numbers do not depend on them."""
     X, Z = trial_data(sysm, seed, r)
     n = sysm.transition.space.dim
-    built = build_filters(specs, "bench", dim=n)
+    built = build_filters(resolve_list(specs, "bench", dim=n))
     runners = [FilterRunner(sp.label, f, rng(seed, r, filter_stream(sp.label)),
                             record_prediction=True) for sp, f in built]
     coll = Collector()

@@ -35,19 +35,20 @@ or of one whole tracker scan (tracker mode), in microseconds.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 import numpy as np
 
 from ..core.gaussian import Gaussian
 from ..core.guard import Guarded
+from ..core.spec import FilterSpec
 from ..engine import FilterRunner, Start, Step, TrackerRunner
 from ..engine import run as run_engine
 from ..engine.build import build_filters
 from ..eval.pcrlb import conditional_bounds, pcrlb, position_bound, velocity_bound
 from ..eval.tracking import nees, nees_band, track_quality
-from ..presets import build
+from ..presets import build, resolve_list, spec_labels
 from ..scenarios import ScenarioError, typed
 from ..seeding import filter_stream, rng
 from ..sinks.base import Collector
@@ -64,7 +65,7 @@ from ..tracking.tracker import Tracker, TrackerConfig
 Array = np.ndarray
 
 
-def make_radar_filter(spec: str, dim: int | None = None):
+def make_radar_filter(spec: str | FilterSpec, dim: int | None = None):
     """A core filter from its spec with the ``radar`` preset (see ``uavest list``)."""
     return build(spec, "radar", dim)
 
@@ -163,7 +164,8 @@ def _bound_measurement(radar, rundata):
     return lambda k: models[k - 1]
 
 
-def bench_filter_mode(sc: Any, filters: list[str], runs: int, seed: int, steps: int | None):
+def bench_filter_mode(sc: Any, filters: Sequence[str | FilterSpec], runs: int, seed: int,
+                      steps: int | None):
     """Filter-mode table of the typed scenario ``sc`` over runs 0..runs-1 (module doc)."""
     check_filter_mode(sc)
     motion, radar = filter_models(sc)
@@ -184,8 +186,9 @@ def bench_filter_mode(sc: Any, filters: list[str], runs: int, seed: int, steps: 
     cond = conditional_bounds(np.linalg.inv(P0), truths, motion, meas, dt, detected=detected)
     bcond = np.sqrt(np.einsum("rkii->k", cond[:, :, :ndim, :ndim]) / runs)  # RMS over runs
     out = {}
-    for label in filters:
-        filt = make_radar_filter(label, motion.space.dim)
+    for spec in filters:
+        label = spec.label if isinstance(spec, FilterSpec) else spec
+        filt = make_radar_filter(spec, motion.space.dim)
         E_pre = np.empty((runs, K, ndim))
         E = np.empty((runs, K, 2 * ndim))
         NE = np.empty((runs, K))
@@ -264,8 +267,8 @@ def run_trackers(sc: Any, filters: list[str], run, seed: int, r: int, sinks=(),
     runners = [
         TrackerRunner(label, lambda f=f, label=label: Tracker(f, motion, cfg,
                                                               filter_rng(seed, r, label)))
-        for label, f in ((sp.label, f)
-                         for sp, f in build_filters(filters, "radar", dim=motion.space.dim))
+        for label, f in ((sp.label, f) for sp, f in build_filters(
+            resolve_list(filters, "radar", dim=motion.space.dim)))
     ]
     run_engine(scan_steps(run, radar, motion, dt), runners, sinks, info)
     return {tr.label: tr.tracker for tr in runners}
@@ -300,15 +303,16 @@ def tracker_errors(tracker: Tracker, run, ndim: int, c: float, dt: float):
     return q, errs
 
 
-def bench_tracker_mode(sc: Any, filters: list[str], runs: int, seed: int, steps: int | None,
-                       record: tuple | None = None):
+def bench_tracker_mode(sc: Any, filters: Sequence[str | FilterSpec], runs: int, seed: int,
+                       steps: int | None, record: tuple | None = None):
     """Tracker-mode table of the typed scenario ``sc`` over runs 0..runs-1;
     ``record = (r, sinks, info)`` hands run r's engine run (scans, truths, every tracker's
     records) to ``sinks``."""
     ndim = sc.ndim
     dt = float(sc.dt)
     c = float(sc.metrics.gospa_c)
-    acc = {lab: {"q": [], "e": [], "sec": 0.0, "scans": 0, "runrmse": []} for lab in filters}
+    labels = spec_labels(filters)
+    acc = {lab: {"q": [], "e": [], "sec": 0.0, "scans": 0, "runrmse": []} for lab in labels}
     K = None
     for r in range(runs):
         rd = generate_run(sc, data_rng(seed, r), steps)
@@ -329,7 +333,7 @@ def bench_tracker_mode(sc: Any, filters: list[str], runs: int, seed: int, steps:
                     float(np.sqrt(np.mean([np.sum(e[2][:ndim] ** 2) for e in errs])))
                 )
     out = {}
-    for lab in filters:
+    for lab in labels:
         a = acc[lab]
         qs = a["q"]
         e = a["e"]
@@ -393,7 +397,7 @@ def trial_info(sc: Any, filters: list[str], seed: int, r: int, command: str = ""
     from ..scenarios import resolved
 
     sc = typed(sc)
-    built = build_filters(filters, "radar", dim=state_dim(sc.ndim, sc.motion))
+    built = build_filters(resolve_list(filters, "radar", dim=state_dim(sc.ndim, sc.motion)))
     return RunInfo(command, f"scenario:{sc.name}", seed,
                    filters={sp.label: sp.as_dict() for sp, _ in built},
                    config={"scenario": sc.name, "trial": r, "mode": sc.mode,
@@ -412,7 +416,8 @@ def run_bench(
     ``sinks`` (tracker mode: the very run the table uses; filter mode, which runs no
     tracker: the trackers on trial r's data, as ``uavest track`` does)."""
     sc = typed(scenario)
-    filters = list(filters or sc.filters)
+    filters = resolve_list(list(filters or sc.filters), "radar",
+                           dim=state_dim(sc.ndim, sc.motion))  # once for all runs
     runs = int(runs or sc.runs)
     if sc.mode == "filter":
         out = bench_filter_mode(sc, filters, runs, seed, steps)

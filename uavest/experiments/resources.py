@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Sequence
 from typing import Any
 
+from ..core.spec import FilterSpec
 from ..errors import InputError
 from ..scenarios import typed
 
@@ -40,7 +42,8 @@ def max_bytes() -> float:
     return cap
 
 
-def estimate(sc: Any, specs: list[str], runs: int, steps: int) -> tuple[float, float]:
+def estimate(sc: Any, specs: Sequence[str | FilterSpec], runs: int, steps: int
+             ) -> tuple[float, float]:
     """(bytes, seconds) a bench of the typed scenario ``sc`` with ``runs`` x ``steps`` and
     ``specs`` may need."""
     nf = max(1, len(specs))
@@ -55,12 +58,13 @@ def estimate(sc: Any, specs: list[str], runs: int, steps: int) -> tuple[float, f
     per_step = 8.0 * (3 * dim + 4) * nf + 8.0 * (lam + ntg) * 4
     held = runs if sc.kind == "radar" else min(runs, 64)  # radar keeps every run
     mem = float(held) * steps * per_step + float(runs) * nf * 64 * 8  # + per-trial rows
-    us = sum(_US_PER_STEP.get(s.split("(")[0].strip(), 500) for s in specs) or 500
+    names = (s.name if isinstance(s, FilterSpec) else s.split("(")[0].strip() for s in specs)
+    us = sum(_US_PER_STEP.get(n, 500) for n in names) or 500
     secs = float(runs) * steps * (us + 5.0 * (lam + ntg) * nf) * 1e-6
     return mem, secs
 
 
-def check(sc: Any, specs: list[str], runs: int, steps: int, what: str) -> None:
+def check(sc: Any, specs: Sequence[str | FilterSpec], runs: int, steps: int, what: str) -> None:
     """Refuse (InputError, one line) what would not fit in memory; warn on hours (``sc``:
     the scenario, typed or its dict)."""
     mem, secs = estimate(typed(sc), specs, runs, steps)

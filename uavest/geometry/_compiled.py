@@ -21,9 +21,12 @@ from numba import njit
 
 __all__ = ["gyro_propagate", "local_rows", "mean", "retract_rows", "rotate_inv_rows"]
 
+Array = np.ndarray
+
 
 @njit(cache=True)
-def _qexp(vx, vy, vz):  # pragma: no cover - compiled
+def _qexp(vx: float, vy: float, vz: float
+          ) -> tuple[float, float, float, float]:  # pragma: no cover - compiled
     th = math.sqrt(vx * vx + vy * vy + vz * vz)
     h = 0.5 * th
     s = 0.5 - th * th / 48.0 if th < 1e-5 else math.sin(h) / th
@@ -31,13 +34,14 @@ def _qexp(vx, vy, vz):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _qmul(aw, ax, ay, az, bw, bx, by, bz):  # pragma: no cover - compiled
+def _qmul(aw: float, ax: float, ay: float, az: float, bw: float, bx: float, by: float,
+          bz: float) -> tuple[float, float, float, float]:  # pragma: no cover - compiled
     return (aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
             aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw)
 
 
 @njit(cache=True)
-def retract_rows(x, dx):  # pragma: no cover - compiled
+def retract_rows(x: Array, dx: Array) -> Array:  # pragma: no cover - compiled
     """q_i * Exp(dx_i[:3]) normalised, b_i + dx_i[3:]; ``x`` (1, 7) or (M, 7)."""
     M = dx.shape[0]
     one = x.shape[0] == 1
@@ -57,7 +61,7 @@ def retract_rows(x, dx):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def local_rows(x, y):  # pragma: no cover - compiled
+def local_rows(x: Array, y: Array) -> Array:  # pragma: no cover - compiled
     """Log(q_x^-1 q_y) the short way, b_y - b_x; ``x`` (1, 7) or (M, 7)."""
     M = y.shape[0]
     one = x.shape[0] == 1
@@ -80,7 +84,7 @@ def local_rows(x, y):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def gyro_propagate(X, u, dt):  # pragma: no cover - compiled
+def gyro_propagate(X: Array, u: Array, dt: float) -> Array:  # pragma: no cover - compiled
     """q_i <- q_i * Exp((u - b_i) dt) normalised, b_i <- b_i."""
     M = X.shape[0]
     out = np.empty((M, 7))
@@ -100,7 +104,7 @@ def gyro_propagate(X, u, dt):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def mean(X, w, ref):  # pragma: no cover - compiled
+def mean(X: Array, w: Array, ref: Array) -> Array:  # pragma: no cover - compiled
     """Sign-aligned chordal mean, then one Gauss-Newton (Karcher) step
     (``AttitudeSpace.mean``)."""
     M = X.shape[0]
@@ -123,11 +127,12 @@ def mean(X, w, ref):  # pragma: no cover - compiled
     for i in range(M):
         for j in range(6):
             step[0, j] += w[i] * d[i, j]
-    return retract_rows(start, step)[0]
+    out: Array = retract_rows(start, step)[0]
+    return out
 
 
 @njit(cache=True)
-def rotate_inv_rows(Q, v):  # pragma: no cover - compiled
+def rotate_inv_rows(Q: Array, v: Array) -> Array:  # pragma: no cover - compiled
     """R(q_i)^T v for every row q_i of ``Q`` (M, 4) (NED -> body FRD), ``v`` (3,): the
     transposed :func:`~uavest.geometry.rotation.quat_to_dcm` applied, summed j = 0..2."""
     M = Q.shape[0]

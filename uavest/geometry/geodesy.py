@@ -22,7 +22,7 @@ E2 = F * (2.0 - F)  # first eccentricity squared
 B = A * (1.0 - F)
 
 
-def geodetic_to_ecef(lat: Array, lon: Array, h: Array) -> Array:
+def geodetic_to_ecef(lat: Array | float, lon: Array | float, h: Array | float) -> Array:
     """ECEF (..., 3) m from latitude, longitude (rad) and ellipsoidal height (m)."""
     lat, lon, h = np.asarray(lat, float), np.asarray(lon, float), np.asarray(h, float)
     sl, cl = np.sin(lat), np.cos(lat)
@@ -83,7 +83,8 @@ class LocalFrame:
     def geodetic_to_ned(self, lat_deg: Array, lon_deg: Array, h: Array) -> Array:
         """NED (..., 3) m of geodetic points (degrees, m)."""
         ecef = geodetic_to_ecef(np.deg2rad(lat_deg), np.deg2rad(lon_deg), h)
-        return np.einsum("ji,...j->...i", self.R_en, ecef - self.origin_ecef)
+        res: Array = np.einsum("ji,...j->...i", self.R_en, ecef - self.origin_ecef)
+        return res
 
 
 def geodetic_to_ned(lla_deg: Array, origin_deg: Array) -> Array:
@@ -103,7 +104,8 @@ def gravity(lat: Array, h: Array) -> Array:
     g0 = 9.7803253359 * (1.0 + 0.001931853 * s2) / np.sqrt(1.0 - E2 * s2)
     omega, mu = 7.292115e-5, 3.986004418e14
     m = omega * omega * A * A * B / mu
-    return g0 * (1.0 - 2.0 / A * (1.0 + F + m - 2.0 * F * s2) * h + 3.0 * h * h / (A * A))
+    res: Array = g0 * (1.0 - 2.0 / A * (1.0 + F + m - 2.0 * F * s2) * h + 3.0 * h * h / (A * A))
+    return res
 
 
 #: Earth's rotation rate, rad/s (WGS84).

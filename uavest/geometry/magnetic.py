@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from datetime import UTC, date, datetime
 from functools import lru_cache
+from typing import Any
 
 from ..errors import InputError
 
@@ -36,8 +37,8 @@ def decimal_year(when: datetime | date | float) -> float:
 
 
 @lru_cache(maxsize=1)
-def _model():
-    from pygeomag import GeoMag
+def _model() -> Any:
+    from pygeomag import GeoMag  # type: ignore[import-untyped]
 
     return GeoMag(base_year=2025)  # WMM-2025, valid 2025.0 .. 2030.0
 

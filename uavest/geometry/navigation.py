@@ -89,14 +89,16 @@ class NavSpace:
         if dx.ndim == 2 and x.ndim <= 2 and (x.ndim == 1 or x.shape[0] == dx.shape[0]):
             return nav_retract_rows(x, dx)
         if dx.ndim == 1 and x.ndim == 1:
-            return nav_retract_rows(x, dx[None, :])[0]
+            res: Array = nav_retract_rows(x, dx[None, :])[0]
+            return res
         return self._retract_broadcast(x, dx)
 
     def local(self, x: Array, y: Array) -> Array:
         if y.ndim == 2 and x.ndim <= 2 and (x.ndim == 1 or x.shape[0] == y.shape[0]):
             return nav_local_rows(x, y)
         if y.ndim == 1 and x.ndim == 1:
-            return nav_local_rows(x, y[None, :])[0]
+            res: Array = nav_local_rows(x, y[None, :])[0]
+            return res
         return self._local_broadcast(x, y)
 
     def _retract_broadcast(self, x: Array, dx: Array) -> Array:
@@ -124,7 +126,8 @@ class NavSpace:
         start[:4] = qm / nq if nq > 1e-9 else ref[:4]
         start[4:] = w @ X[:, 4:]
         # one Gauss-Newton (Karcher) step after the chordal start, as AttitudeSpace.mean
-        return nav_retract_rows(start, (w @ nav_local_rows(start, X))[None, :])[0]
+        res: Array = nav_retract_rows(start, (w @ nav_local_rows(start, X))[None, :])[0]
+        return res
 
     def __repr__(self) -> str:
         return "NavSpace(q*Exp(dtheta), v+dv, p+dp, bg+dbg, ba+dba)"

@@ -19,10 +19,16 @@ the test-suite checks both agree.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator, Sequence
+from types import ModuleType
 
 import numpy as np
 
+from ..compiled import register
+
 Array = np.ndarray
+#: one quaternion (w, x, y, z) or rotation vector as floats: a tuple, list or 1-D array
+Quat = Sequence[float] | Array
 
 #: Standard gravity (m/s^2 per g), also MAVLink's "milli-g" unit.
 G0 = 9.80665
@@ -74,11 +80,13 @@ def quat_mul(p: Array, q: Array) -> Array:
     if p.ndim == 1 and q.ndim > 1:
         w, x, y, z = p
         L = np.array([[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]])
-        return q @ L.T
+        res: Array = q @ L.T
+        return res
     if q.ndim == 1 and p.ndim > 1:
         w, x, y, z = q
         Rm = np.array([[w, -x, -y, -z], [x, w, z, -y], [y, -z, w, x], [z, y, -x, w]])
-        return p @ Rm.T
+        res = p @ Rm.T
+        return res
     pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
     qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     out = np.empty(np.broadcast_shapes(p.shape, q.shape))
@@ -91,7 +99,8 @@ def quat_mul(p: Array, q: Array) -> Array:
 
 def quat_conj(q: Array) -> Array:
     """Conjugate (= inverse for unit quaternions)."""
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
+    res: Array = q * np.array([1.0, -1.0, -1.0, -1.0])
+    return res
 
 
 def quat_canonical(q: Array) -> Array:
@@ -133,7 +142,8 @@ def quat_log(q: Array) -> Array:
     k = np.where(
         small, 2.0 / np.maximum(w, 1e-300), 2.0 * np.arctan2(n, w) / np.where(small, 1.0, n)
     )
-    return k[..., None] * xyz
+    res: Array = k[..., None] * xyz
+    return res
 
 
 def quat_to_dcm(q: Array) -> Array:
@@ -154,7 +164,7 @@ def quat_to_dcm(q: Array) -> Array:
 
 def dcm_to_quat(R: Array) -> Array:
     """Unit quaternion(s) (scalar-first, w >= 0) of rotation matrices ``(..., 3, 3)``."""
-    from scipy.spatial.transform import Rotation
+    from scipy.spatial.transform import Rotation  # type: ignore[import-untyped]
 
     shape = R.shape[:-2]
     q = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat()[:, [3, 0, 1, 2]]
@@ -163,16 +173,19 @@ def dcm_to_quat(R: Array) -> Array:
 
 def quat_rotate(q: Array, v: Array) -> Array:
     """``R(q) v``: body vector(s) ``v`` expressed in NED."""
-    return np.einsum("...ij,...j->...i", quat_to_dcm(q), v)
+    res: Array = np.einsum("...ij,...j->...i", quat_to_dcm(q), v)
+    return res
 
 
 def quat_rotate_inv(q: Array, v: Array) -> Array:
     """``R(q)^T v``: NED vector(s) ``v`` expressed in body FRD."""
     if q.ndim == 2 and np.ndim(v) == 1:  # rows against one vector (the attitude h)
-        nb = _NB if _NB is not None else compiled_kernels()
+        nb = MANIFOLD_KERNELS.get()
         if nb:
-            return nb.rotate_inv_rows(q, np.asarray(v, float))
-    return np.einsum("...ji,...j->...i", quat_to_dcm(q), v)
+            res: Array = nb.rotate_inv_rows(q, np.asarray(v, float))
+            return res
+    res = np.einsum("...ji,...j->...i", quat_to_dcm(q), v)
+    return res
 
 
 def quat_to_euler(q: Array) -> Array:
@@ -220,12 +233,14 @@ def right_jacobian(phi: Array) -> Array:
     th2 = float(phi @ phi)
     K = skew(phi)
     if th2 < 1e-10:
-        return np.eye(3) - 0.5 * K + K @ K / 6.0
+        res: Array = np.eye(3) - 0.5 * K + K @ K / 6.0
+        return res
     th = np.sqrt(th2)
-    return np.eye(3) - (1 - np.cos(th)) / th2 * K + (th - np.sin(th)) / (th2 * th) * K @ K
+    res = np.eye(3) - (1 - np.cos(th)) / th2 * K + (th - np.sin(th)) / (th2 * th) * K @ K
+    return res
 
 
-def qmul_f(p, q) -> tuple[float, float, float, float]:
+def qmul_f(p: Quat, q: Quat) -> tuple[float, float, float, float]:
     """Hamilton product ``p * q`` of two single quaternions on Python floats (the formula of
     :func:`quat_mul`, without numpy's per-call cost)."""
     pw, px, py, pz = p
@@ -234,7 +249,7 @@ def qmul_f(p, q) -> tuple[float, float, float, float]:
             pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw)
 
 
-def qlog_f(q) -> tuple[float, float, float]:
+def qlog_f(q: Quat) -> tuple[float, float, float]:
     """:func:`quat_log` of one quaternion on Python floats (rad, the short way)."""
     w, x, y, z = q
     if w < 0.0:
@@ -244,7 +259,7 @@ def qlog_f(q) -> tuple[float, float, float]:
     return (k * x, k * y, k * z)
 
 
-def qexp_f(v) -> tuple[float, float, float, float]:
+def qexp_f(v: Quat) -> tuple[float, float, float, float]:
     """:func:`quat_exp` of one rotation vector (rad) on Python floats."""
     x, y, z = v
     th = math.sqrt(x * x + y * y + z * z)
@@ -252,7 +267,7 @@ def qexp_f(v) -> tuple[float, float, float, float]:
     return (math.cos(0.5 * th), s * x, s * y, s * z)
 
 
-def slerp_one(q0, q1, s: float) -> tuple[float, float, float, float]:
+def slerp_one(q0: Quat, q1: Quat, s: float) -> tuple[float, float, float, float]:
     """``q0 Exp(s Log(q0^-1 q1))`` of two single quaternions on Python floats: the
     streaming scorer and the recorder interpolate one reference sample pair per step."""
     w, x, y, z = (float(v) for v in q0)
@@ -295,43 +310,28 @@ def quat_slerp_interp(t_ref: Array, q_ref: Array, t: Array) -> tuple[Array, Arra
 # With numba installed (``uavest[fast]``) the same kernels run compiled
 # (:mod:`uavest.geometry._compiled`, chosen by measurement: docs/speed.md).
 
-#: The compiled kernels (module :mod:`uavest.geometry._compiled`) once loaded, False when
-#: numba is missing, disabled (``UAVEST_NUMBA=0``) or failed; None before the first call.
-_NB = None
 
-
-def compiled_kernels():
-    """The numba kernels module if they can be used here, else False (the fused numpy
-    kernels below are used). Decided once per process at the first kernel call
-    (:func:`uavest.geometry.kernels.load_kernels`: numba importable, ``UAVEST_NUMBA`` not
-    ``0``, the kernels compile and agree with the numpy kernels on a small case)."""
-    global _NB
-    if _NB is None:
-        from .kernels import load_kernels
-
-        _NB = load_kernels("uavest.geometry._compiled", "numba kernels", _kernels_agree,
-                           "uavest.geometry")
-    return _NB
-
-
-def _kernels_agree(nb) -> bool:
-    """The compiled retract, local, gyro propagation, mean and inverse rotation against
-    the numpy kernels on a small case (1e-12)."""
+def _kernel_cases(nb: ModuleType) -> Iterator[tuple[str, Array, Array]]:
+    """The self-check (:mod:`uavest.compiled`): the compiled retract, local, gyro
+    propagation, mean and inverse rotation against the numpy kernels on a small case."""
     x = np.array([0.9, 0.1, -0.3, 0.2, 1e-3, -2e-3, 3e-3])
     x[:4] /= np.sqrt(x[:4] @ x[:4])
     d = np.array([[1e-3, -2e-2, 3e-1, 1e-4, 0.0, -1e-4], [0.0, 1e-7, 0.0, 0.0, 0.0, 0.0]])
     X = _np_retract_rows(x, d)
     w = np.array([0.25, 0.75])
-    return bool(np.allclose(nb.retract_rows(x[None, :], d), X, rtol=0, atol=1e-12)
-                and np.allclose(nb.local_rows(x[None, :], X), _np_local_rows(x, X), rtol=0,
-                                atol=1e-12)
-                and np.allclose(nb.gyro_propagate(X, d[0, :3], 0.01),
-                                _np_gyro_propagate(X, d[0, :3], 0.01), rtol=0, atol=1e-12)
-                and np.allclose(nb.mean(X, w, X[0]), _np_mean(X, w, X[0]), rtol=0,
-                                atol=1e-12)
-                and np.allclose(nb.rotate_inv_rows(X[:, :4], d[0, :3]),
-                                np.einsum("...ji,...j->...i", quat_to_dcm(X[:, :4]),
-                                          d[0, :3]), rtol=0, atol=1e-12))
+    yield "retract_rows", nb.retract_rows(x[None, :], d), X
+    yield "local_rows", nb.local_rows(x[None, :], X), _np_local_rows(x, X)
+    yield ("gyro_propagate", nb.gyro_propagate(X, d[0, :3], 0.01),
+           _np_gyro_propagate(X, d[0, :3], 0.01))
+    yield "mean", nb.mean(X, w, X[0]), _np_mean(X, w, X[0])
+    yield ("rotate_inv_rows", nb.rotate_inv_rows(X[:, :4], d[0, :3]),
+           np.einsum("...ji,...j->...i", quat_to_dcm(X[:, :4]), d[0, :3]))
+
+
+#: The compiled attitude-manifold kernels (:mod:`uavest.geometry._compiled`)
+MANIFOLD_KERNELS = register("manifold", "uavest.geometry._compiled",
+                            "numba attitude-manifold kernels", _kernel_cases, rtol=0.0,
+                            atol=1e-12)
 
 
 #: Gather indices and signs of the left-multiplication matrix: p * q = L(p) q with
@@ -381,14 +381,16 @@ def _normalise_into(q: Array, out: Array) -> None:
 
 def _qmul_rows(p: Array, q: Array) -> Array:
     """Row-wise Hamilton product of (M, 4) arrays (one gather and one einsum)."""
-    return np.einsum("mij,mj->mi", p[:, _LI] * _LS, q)
+    res: Array = np.einsum("mij,mj->mi", p[:, _LI] * _LS, q)
+    return res
 
 
 def retract_rows(x: Array, dx: Array) -> Array:
     """:meth:`AttitudeSpace.retract` for ``x`` (7,) or (M, 7) and ``dx`` (M, 6)."""
-    nb = _NB if _NB is not None else compiled_kernels()
+    nb = MANIFOLD_KERNELS.get()
     if nb:
-        return nb.retract_rows(x.reshape(1, 7) if x.ndim == 1 else x, dx)
+        res: Array = nb.retract_rows(x.reshape(1, 7) if x.ndim == 1 else x, dx)
+        return res
     return _np_retract_rows(x, dx)
 
 
@@ -407,9 +409,10 @@ def _np_retract_rows(x: Array, dx: Array) -> Array:
 
 def local_rows(x: Array, y: Array) -> Array:
     """:meth:`AttitudeSpace.local` for ``x`` (7,) or (M, 7) and ``y`` (M, 7)."""
-    nb = _NB if _NB is not None else compiled_kernels()
+    nb = MANIFOLD_KERNELS.get()
     if nb:
-        return nb.local_rows(x.reshape(1, 7) if x.ndim == 1 else x, y)
+        res: Array = nb.local_rows(x.reshape(1, 7) if x.ndim == 1 else x, y)
+        return res
     return _np_local_rows(x, y)
 
 
@@ -427,9 +430,10 @@ def _np_local_rows(x: Array, y: Array) -> Array:
 def gyro_propagate(X: Array, w: Array, dt: float) -> Array:
     """q <- q * Exp((w - b) dt), b <- b for every row of ``X`` (M, 7) (the gyro
     transition), ``w`` (3,) rad/s."""
-    nb = _NB if _NB is not None else compiled_kernels()
+    nb = MANIFOLD_KERNELS.get()
     if nb:
-        return nb.gyro_propagate(X, w, float(dt))
+        res: Array = nb.gyro_propagate(X, w, float(dt))
+        return res
     return _np_gyro_propagate(X, w, dt)
 
 
@@ -459,14 +463,16 @@ class AttitudeSpace:
         if dx.ndim == 2 and x.ndim <= 2 and (x.ndim == 1 or x.shape[0] == dx.shape[0]):
             return retract_rows(x, dx)
         if dx.ndim == 1 and x.ndim == 1:
-            return retract_rows(x, dx[None, :])[0]
+            res: Array = retract_rows(x, dx[None, :])[0]
+            return res
         return self._retract_broadcast(x, dx)
 
     def local(self, x: Array, y: Array) -> Array:
         if y.ndim == 2 and x.ndim <= 2 and (x.ndim == 1 or x.shape[0] == y.shape[0]):
             return local_rows(x, y)
         if y.ndim == 1 and x.ndim == 1:
-            return local_rows(x, y[None, :])[0]
+            res: Array = local_rows(x, y[None, :])[0]
+            return res
         return self._local_broadcast(x, y)
 
     # general broadcasting forms (any leading axes); the fused kernels above cover the
@@ -488,9 +494,10 @@ class AttitudeSpace:
 
     def mean(self, X: Array, w: Array, x0: Array | None = None) -> Array:
         ref = X[0] if x0 is None else x0
-        nb = _NB if _NB is not None else compiled_kernels()
+        nb = MANIFOLD_KERNELS.get()
         if nb:
-            return nb.mean(X, w, ref)
+            res: Array = nb.mean(X, w, ref)
+            return res
         return _np_mean(X, w, ref)
 
     def __repr__(self) -> str:
@@ -508,5 +515,6 @@ def _np_mean(X: Array, w: Array, ref: Array) -> Array:
     # one Gauss-Newton (Karcher) step after the chordal start: its error is third
     # order in the spread, far below sensor noise at filter spreads (tested);
     # = manifold_mean(self, X, w, start, iters=1), inlined on the fused kernels
-    return _np_retract_rows(start, (w @ _np_local_rows(start, X))[None, :])[0]
+    res: Array = _np_retract_rows(start, (w @ _np_local_rows(start, X))[None, :])[0]
+    return res
 

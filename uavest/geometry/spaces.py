@@ -44,13 +44,16 @@ class VectorSpace:
         self.size = int(dim)
 
     def retract(self, x: Array, dx: Array) -> Array:
-        return x + dx
+        res: Array = x + dx
+        return res
 
     def local(self, x: Array, y: Array) -> Array:
-        return y - x
+        res: Array = y - x
+        return res
 
     def mean(self, X: Array, w: Array, x0: Array | None = None) -> Array:
-        return w @ X
+        res: Array = w @ X
+        return res
 
     def __repr__(self) -> str:
         return f"VectorSpace({self.dim})"

@@ -1,6 +1,6 @@
 """Compiled (numba) kernel of :meth:`uavest.models.radar.RadarMeasurement.linearise_rows`
 for the 2-D range / azimuth radar (no range rate): the optional fast path (``pip install
-"uavest[fast]"``), dispatched by :func:`uavest.models.radar.radar_kernels`.
+"uavest[fast]"``), dispatched through :data:`uavest.models.radar.RADAR_KERNELS`.
 
 The composed default (:meth:`uavest.core.model.Measurement.linearise_rows`: ``h_H_rows``,
 one circular ``mean``, three ``residual`` calls) costs ~15 numpy calls on (M, 2) and

@@ -35,8 +35,8 @@ from ..core.model import Measurement, Transition
 from ..errors import InputError
 from ..geometry.rotation import (
     G0,
+    MANIFOLD_KERNELS,
     AttitudeSpace,
-    compiled_kernels,
     dcm_to_quat,
     euler_to_quat,
     gyro_propagate,
@@ -409,7 +409,7 @@ class GravityDirection(Measurement):
     def h(self, X: Array) -> Array:
         if self.ref is not None:
             return quat_rotate_inv(X[..., :4], self.ref)
-        if X.ndim == 2 and compiled_kernels():  # R^T (0, 0, 1), compiled: the same sums
+        if X.ndim == 2 and MANIFOLD_KERNELS.get():  # R^T (0, 0, 1), compiled: the same sums
             return quat_rotate_inv(X[:, :4], _DOWN)
         w, x, y, z = X[..., 0], X[..., 1], X[..., 2], X[..., 3]
         return np.stack(

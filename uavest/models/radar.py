@@ -38,9 +38,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..compiled import register
 from ..core.model import Measurement
 from ..errors import InputError
-from ..geometry.kernels import load_kernels
 from ..geometry.spaces import VectorSpace
 
 Array = np.ndarray
@@ -299,11 +299,11 @@ class RadarMeasurement(Measurement):
         """:meth:`Measurement.linearise_rows` (the local hybrid's Jacobians ``Hs`` (M, m, n),
         residuals ``nu`` (M, m), deviations ``dY`` (M, m) from the weighted mean and its
         residual ``nubar`` (m,)). The 2-D range / azimuth radar runs it as one compiled
-        kernel if numba is there (:func:`radar_kernels`; ``UAVEST_NUMBA=0`` switches it
+        kernel if numba is there (:data:`RADAR_KERNELS`; ``UAVEST_NUMBA=0`` switches it
         off): the composed default's arrays to rounding, ~10x faster at M = 585. Every
         other layout (3-D, range rate), and arguments of other shapes, take the default."""
         if self.ndim == 2 and self._rr is None:
-            nb = _RADAR if _RADAR is not None else radar_kernels()
+            nb = RADAR_KERNELS.get()
             if nb:
                 out = self._linearise_compiled(nb, X, z, w)
                 if out is not None:
@@ -423,40 +423,19 @@ class RadarMeasurement(Measurement):
         return np.asarray(lo), np.asarray(hi)
 
 
-#: The compiled kernel of :meth:`RadarMeasurement.linearise_rows` (module
-#: :mod:`uavest.models._compiled_radar`) once loaded, False when numba is missing,
-#: disabled (``UAVEST_NUMBA=0``) or failed; None before the first call.
-_RADAR = None
-
-
-def radar_kernels():
-    """The compiled kernel of :meth:`RadarMeasurement.linearise_rows` if it can be used
-    here, else False (the composed numpy default is used). Decided once per process at
-    the first call (:func:`uavest.geometry.kernels.load_kernels`): numba must import,
-    ``UAVEST_NUMBA`` must not be ``0``, and the kernel must compile (first time: some
-    seconds, then numba's on-disk cache) and give the default's arrays on a small case.
-    A filter may call it at init, so that the load is not in its first step."""
-    global _RADAR
-    if _RADAR is None:
-        _RADAR = load_kernels("uavest.models._compiled_radar",
-                              "numba kernel of the radar's linearise_rows", _kernels_agree,
-                              "uavest.models")
-    return _RADAR
-
-
-def _kernels_agree(nb) -> bool:
-    """True if the kernel gives :meth:`Measurement.linearise_rows`' arrays on small cases
-    (a ground radar: axes aligned, n = 4, equal weights; a rotated and offset one: n = 5,
-    unequal weights; the members' azimuths straddling +-pi, one member at the sensor):
-    the Jacobian rows to 1e-10 of their largest entry, ranges to 1e-6 m, angles to
-    1e-10 rad."""
+def _kernel_cases(nb):
+    """The self-check (:mod:`uavest.compiled`): the kernel against
+    :meth:`Measurement.linearise_rows` on small cases (a ground radar: axes aligned,
+    n = 4, equal weights; a rotated and offset one: n = 5, unequal weights; the members'
+    azimuths straddling +-pi, one member at the sensor), compared to 1e-10 of the
+    Jacobian rows' largest entry, of 1e4 m for ranges and of 1 rad for angles."""
     g = np.random.default_rng(5)
     M = 24
     poses = (SensorPose.fixed(2), SensorPose(np.array([150.0, -40.0]), rot_z(2.5)[:2, :2],
                                              np.zeros(2)))
     scale = np.array([1e4, 1.0])  # m, rad
-    for pose, n, w in ((poses[0], 4, np.full(M, 1.0 / M)),
-                       (poses[1], 5, g.dirichlet(np.full(M, 2.0)))):
+    for i, (pose, n, w) in enumerate(((poses[0], 4, np.full(M, 1.0 / M)),
+                                      (poses[1], 5, g.dirichlet(np.full(M, 2.0))))):
         radar = RadarMeasurement(2, n, pose=pose)
         X = np.zeros((M, n))  # behind the sensor's x axis, 2 km away: azimuths near +-pi
         X[:, :2] = pose.position + (np.array([-2000.0, 0.0]) + g.normal(0.0, 100.0, (M, 2))
@@ -466,12 +445,19 @@ def _kernels_agree(nb) -> bool:
         z = np.array([2000.0, math.pi - 0.01])
         got = radar._linearise_compiled(nb, X, z, w)
         want = Measurement.linearise_rows(radar, X, z, w)
-        if got is None or any(a.shape != b.shape for a, b in zip(got, want, strict=True)):
-            return False
-        Hs, Hw = got[0], want[0]
-        if not np.all(np.abs(Hs - Hw) <= 1e-10 * np.abs(Hw).max(axis=2, keepdims=True)):
-            return False
-        for a, b in zip(got[1:], want[1:], strict=True):
-            if not np.all(np.abs(a - b) <= 1e-10 * scale):
-                return False
-    return True
+        if got is None:
+            yield f"case {i}", None, want[0]
+            return
+        row = np.abs(want[0]).max(axis=2, keepdims=True)
+        row = np.where(row > 0.0, row, 1.0)
+        yield f"case {i} Hs", got[0] / row, want[0] / row
+        for label, a, b in zip(("nu", "dY", "nubar"), got[1:], want[1:], strict=True):
+            yield f"case {i} {label}", np.asarray(a) / scale, np.asarray(b) / scale
+
+
+#: The compiled kernel of :meth:`RadarMeasurement.linearise_rows`
+#: (:mod:`uavest.models._compiled_radar`). A filter may ``get()`` it at init, so that
+#: the load is not in its first step.
+RADAR_KERNELS = register("radar", "uavest.models._compiled_radar",
+                         "numba kernel of the radar's linearise_rows", _kernel_cases,
+                         rtol=0.0, atol=1e-10)

@@ -61,7 +61,7 @@ from ..core.guard import Guarded, nis_gate
 from ..core.linalg import bind_lapack, chol
 from ..core.unscented import sigma_weights
 from ..errors import InputError
-from ..models.radar import RadarMeasurement, radar_kernels
+from ..models.radar import RADAR_KERNELS, RadarMeasurement
 
 Array = np.ndarray
 
@@ -262,7 +262,7 @@ class Tracker:
         self.filter.init(Gaussian(np.zeros(n), np.eye(n)), motion.space,
                          np.random.default_rng(0))
         if getattr(filt, "update_mode", None) == "local":  # it reads linearise_rows
-            radar_kernels()
+            RADAR_KERNELS.get()
 
     # -- helpers --------------------------------------------------------------------------
     def _init_state(self, z: Array, meas: RadarMeasurement) -> Gaussian:

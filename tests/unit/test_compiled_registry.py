@@ -1,0 +1,107 @@
+"""The one registry of optional compiled kernels (:mod:`uavest.compiled`): every kernel
+module is registered once, the self-check harness refuses a module whose kernels
+disagree with their numpy reference or fail, with one warning, and ``UAVEST_NUMBA=0``
+gives the numpy paths silently; the shared Cholesky helper refuses non-finite pivots."""
+
+from __future__ import annotations
+
+import logging
+import math
+import types
+
+import numpy as np
+import pytest
+
+from uavest import compiled
+from uavest.compiled import Kernels
+
+
+def _kernels(cases, name="fake") -> Kernels:
+    # a module that imports: the harness only compares what ``cases`` yields
+    return Kernels(name, "uavest.compiled", f"{name} kernels", cases, 1e-12, 1e-12,
+                   "uavest.test")
+
+
+@pytest.fixture
+def numba_on(monkeypatch):
+    pytest.importorskip("numba", reason="numba not installed (the optional uavest[fast])")
+    monkeypatch.delenv("UAVEST_NUMBA", raising=False)
+
+
+def test_every_kernel_module_is_registered_once():
+    import uavest.core.hybrid  # noqa: F401 - registers shift and local
+    import uavest.core.unscented  # noqa: F401
+    import uavest.geometry.rotation  # noqa: F401
+    import uavest.models.radar  # noqa: F401
+
+    assert set(compiled.REGISTRY) == {"manifold", "ut", "shift", "local", "radar"}
+    mods = [k.module for k in compiled.REGISTRY.values()]
+    assert len(set(mods)) == len(mods)
+    assert all(v in (None, True, False) for v in compiled.status().values())
+    with pytest.raises(ValueError, match="registered twice"):
+        compiled.register("ut", "x", "x", lambda nb: (), rtol=0.0, atol=0.0)
+
+
+def test_agreeing_kernels_are_used(numba_on):
+    k = _kernels(lambda nb: [("a", np.ones(3), np.ones(3) + 1e-14), ("b", 0, 0)])
+    assert isinstance(k.get(), types.ModuleType) and k.loaded is k.get()
+
+
+@pytest.mark.parametrize("cases, reason", [
+    (lambda nb: [("ok", 1.0, 1.0), ("x", np.ones(2), np.array([1.0, 1.1]))],
+     "x: max difference 0.1"),
+    (lambda nb: [("x", np.ones(2), np.ones(3))], "x: shape (2,) against (3,)"),
+    (lambda nb: [("x", None, np.ones(2))], "x: no result"),
+    (lambda nb: [("x", np.array([math.nan]), np.array([math.nan]))], "x: max difference"),
+])
+def test_disagreeing_kernels_fall_back_with_one_warning(numba_on, caplog, cases, reason):
+    k = _kernels(cases)
+    with caplog.at_level(logging.WARNING, logger="uavest.test"):
+        assert k.get() is None
+        assert k.get() is None  # decided once: no second check, no second warning
+    assert k.loaded is False
+    msgs = [r.getMessage() for r in caplog.records]
+    assert len(msgs) == 1 and reason in msgs[0] and "using numpy" in msgs[0]
+
+
+def test_failing_kernels_fall_back_with_one_warning(numba_on, caplog):
+    def cases(nb):
+        raise RuntimeError("does not compile")
+        yield  # pragma: no cover
+
+    k = _kernels(cases)
+    with caplog.at_level(logging.WARNING, logger="uavest.test"):
+        assert k.get() is None
+    (rec,) = caplog.records
+    assert "unavailable (RuntimeError: does not compile)" in rec.getMessage()
+    bad = Kernels("m", "uavest.no_such_module", "m kernels", lambda nb: (), 0.0, 0.0,
+                  "uavest.test")
+    assert bad.get() is None
+
+
+def test_switched_off_is_silent(monkeypatch, caplog):
+    monkeypatch.setenv("UAVEST_NUMBA", "0")
+    calls = []
+    k = _kernels(lambda nb: calls.append(1) or ())
+    with caplog.at_level(logging.DEBUG, logger="uavest.test"):
+        assert k.get() is None
+    assert not calls and not caplog.records
+
+
+def test_the_one_cholesky_refuses_non_finite_pivots(numba_on):
+    from uavest.compiled.helpers import chol_into, factor, solve_lower
+
+    P = np.array([[4.0, 2.0, 0.4], [2.0, 5.0, 1.0], [0.4, 1.0, 3.0]])
+    L = np.empty((3, 3))
+    assert chol_into(P, L)
+    np.testing.assert_allclose(L, np.linalg.cholesky(P), rtol=1e-14, atol=0)
+    for bad in (np.inf, np.nan, -1.0, 0.0):  # an infinite pivot is no factor either
+        Q = P.copy()
+        Q[1, 1] = bad
+        assert not chol_into(Q, np.empty((3, 3)))
+    ok, L1 = factor(np.array([[np.inf]]))
+    assert not ok
+    ok, L2 = factor(P[:2, :2])
+    assert ok
+    np.testing.assert_allclose(L2 @ solve_lower(L2, np.array([1.0, -2.0])), [1.0, -2.0],
+                               rtol=1e-14)
