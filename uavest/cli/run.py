@@ -122,6 +122,9 @@ def format_live(doc: dict) -> str:
                   f"{doc['scans']} scans); GOSPA and position RMSE in m",
                   table(doc["tracks"], ["pos_rmse", "gospa", "nees_mean", "track_breaks",
                                         "id_swaps", "false_tracks", "us_per_scan"])]
+    if not doc["attitude"] or not any(r.get("n") or r.get("us_per_step")
+                                      for r in doc["attitude"].values()):
+        lines.append("attitude: no estimates (no IMU sample received)")
     link = doc.get("link", {})
     if link:
         bad = link["bad_data"]
@@ -129,6 +132,9 @@ def format_live(doc: dict) -> str:
                      f"{math.degrees(link['declination_rad'] or 0.0):.2f} deg "
                      f"({link['declination_source']}), gaps {len(link['gaps'])}, bad data "
                      f"{bad['bad_total']}")
+        miss = link.get("missing_streams") or []
+        if miss:
+            lines.append(f"streams missing (none received): {', '.join(miss)}")
     if doc.get("latency_ms"):
         lat = doc["latency_ms"]
         lines.append(f"latency sample -> estimate: p50 {lat['p50']:.2f} ms, "
@@ -154,17 +160,29 @@ def _stop_on_signals() -> threading.Event:
     return stop
 
 
-def cmd_run(args) -> int:
-    cfg = _cfg(args, args.connect)
-    doc = run_live(cfg, command=" ".join(sys.argv), status=False if args.no_status else None,
-                   on_wait=_wait, publish=args.publish, publish_sysid=args.publish_sysid,
-                   stop=_stop_on_signals(), sinks=recording_sinks(args))
+def _finish(args, doc: dict, failures: list) -> int:
+    """Tables, ``--json``, the recording's line; then a sink that failed during the run
+    ends the command as its error would have: an ``OSError`` (a full disk, a path that
+    cannot be written) as bad input (one line, exit 2), anything else as an internal
+    error (exit 1, the traceback with ``-v``). The estimates were made either way."""
     print(format_live(doc))
     if args.json:
         write_json(args.json, doc)
         print(f"wrote {args.json}")
+    if failures:
+        raise failures[0].error
     finish_recording(args)
     return 0
+
+
+def cmd_run(args) -> int:
+    cfg = _cfg(args, args.connect)
+    failures: list = []
+    doc = run_live(cfg, command=" ".join(sys.argv), status=False if args.no_status else None,
+                   on_wait=_wait, publish=args.publish, publish_sysid=args.publish_sysid,
+                   stop=_stop_on_signals(), sinks=recording_sinks(args), on_note=_wait,
+                   failures=failures)
+    return _finish(args, doc, failures)
 
 
 # ----------------------------------------------------------------------------- demo
@@ -225,7 +243,8 @@ def demo(args) -> dict:
             args.mcap = args.mcap_default = None
         doc = run_live(cfg, command=" ".join(sys.argv),
                        status=False if args.no_status else None, on_wait=_wait,
-                       stop=_stop_on_signals(), sinks=recording_sinks(args))
+                       stop=_stop_on_signals(), sinks=recording_sinks(args), on_note=_wait,
+                       failures=getattr(args, "failures", None))
     finally:
         stop.set()
         th.join(timeout=10)
@@ -239,10 +258,6 @@ def demo(args) -> dict:
 
 
 def cmd_demo(args) -> int:
+    args.failures = []
     doc = demo(args)
-    print(format_live(doc))
-    if args.json:
-        write_json(args.json, doc)
-        print(f"wrote {args.json}")
-    finish_recording(args)
-    return 0
+    return _finish(args, doc, args.failures)
