@@ -644,7 +644,14 @@ def run_live(cfg: LiveConfig, *, sinks=(), stop: threading.Event | None = None,
     """Attach to the vehicle at ``cfg.connect`` and run until ``cfg.duration`` s of wall
     time, ``stop`` or Ctrl-C; every output is complete when it returns or raises.
     ``on_note`` gets the one-line notes of the run (the achieved rate of every requested
-    stream, ``cfg.rate_window_s`` s after the start); default: logged."""
+    stream, ``cfg.rate_window_s`` s after the start); default: logged.
+
+    ``cfg.connect`` naming a tlog file (a session ``--tlog`` recorded) runs the same job
+    over it (:func:`replay_session`) instead: the live run's estimates again."""
+    from pathlib import Path
+
+    if Path(cfg.connect).is_file():
+        return replay_session(cfg, sinks=sinks, command=command, failures=failures)
     from ..ingest.live import open_live
 
     link = open_live(cfg.connect, sysid=cfg.sysid, signing_key=cfg.signing_key,
@@ -680,6 +687,32 @@ def run_live(cfg: LiveConfig, *, sinks=(), stop: threading.Event | None = None,
         "signing": link.signing_active, "tlog": cfg.tlog,
         "streams": streams,
         "missing_streams": [k for k, v in streams.items() if v["end_status"] == "missing"],
+    }
+    return doc
+
+
+def replay_session(cfg: LiveConfig, *, sinks=(), command: str = "",
+                   failures: list | None = None) -> dict:
+    """The live job over the tlog of a live session (``cfg.connect`` = its path): the same
+    lanes, seeds, reorder window (``cfg.reorder_window``, which must be the session's:
+    ``uavest run``'s default 0.05 s) and causal decisions (declination taken when the
+    stream gives it), so the attitude estimates are the live run's step by step; only the
+    last step differs (the live run closed it when it stopped; the tlog also holds what
+    the link had accepted but the engine not yet used). ``uavest replay`` of the same tlog
+    is a file replay: it looks ahead for the GNSS fix (the magnetic model's declination at
+    the alignment) and orders with a 1 s window, so its yaw can differ."""
+    from ..ingest import open_source
+
+    src = open_source(cfg.connect, sysid=cfg.sysid, reorder_window=cfg.reorder_window)
+    info = RunInfo(command, cfg.connect, cfg.seed, config=_config(cfg),
+                   versions=package_versions())
+    doc = run_samples(src, cfg, params=src.params, sinks=list(sinks), info=info,
+                      status=False, failures=failures)
+    doc["link"] = {
+        "connect": cfg.connect, "replay_of_session": True, "vehicle_sysid": cfg.sysid,
+        "declination_rad": None, "declination_source": "the log's parameters",
+        "rates_hz": {}, "bad_data": src.stats.as_dict(), "gaps": [], "signing": False,
+        "tlog": None, "streams": {}, "missing_streams": [],
     }
     return doc
 

@@ -72,7 +72,8 @@ def add_run_parser(sub) -> argparse.ArgumentParser:
         "ground-station-side link, under the estimator's own system id (docs/live.md).")
     p.add_argument("--connect", required=True, help="pymavlink connection string: "
                    "udpin:127.0.0.1:14550, tcp:127.0.0.1:5760 (ArduPilot SITL), "
-                   "/dev/ttyACM0,115200")
+                   "/dev/ttyACM0,115200; or the tlog of a session (--tlog) to run the "
+                   "same job over it again (the live run's estimates)")
     p.add_argument("--publish", help="ground-station-side link for the estimates, e.g. "
                    "udpout:127.0.0.1:14551 (never the vehicle's link)")
     p.add_argument("--publish-sysid", type=int, default=250,
