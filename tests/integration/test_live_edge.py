@@ -77,6 +77,7 @@ def test_a_vehicle_without_any_imu_runs_and_says_so(tmp_path):
     assert r.returncode == 0, r.stderr[-2000:]
     assert "attitude: no estimates (no IMU sample received)" in r.stdout
     doc = json.loads(out.read_text())
+    assert doc["imu_samples"] == 0 and doc["attitude_steps"] == 0
     assert {"HIGHRES_IMU", "RAW_IMU"} <= set(doc["link"]["missing_streams"])
     assert doc["scans"] > 0  # the tracking lane ran all the same (ownship from GPS)
 

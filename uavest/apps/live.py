@@ -58,6 +58,7 @@ from ..ingest.types import (
     AdsbSample,
     AttitudeRef,
     DetectionSample,
+    ImuSample,
     LinkEvent,
     NoSamplesError,
     PositionSample,
@@ -319,9 +320,12 @@ class _Status(Sink):
         self.nis: dict[str, float] = {}
         self.lat: list[float] = []
         self.t_sample = time.monotonic()
+        self.imu_samples = 0
 
     def sample(self, s) -> None:
         self.t_sample = time.monotonic()
+        if isinstance(s, ImuSample):
+            self.imu_samples += 1
 
     def record(self, rec) -> None:
         now = time.monotonic()
@@ -620,6 +624,8 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
                      for r in runners},
         "tracks": tscore.result(cfg.gospa_c),
         "scans": len(lane.truth),
+        "attitude_steps": steps - len(lane.truth),
+        "imu_samples": st.imu_samples,
         "targets_seen": len({i for _, tr in lane.truth for i in tr}),
         "attitude_restarts": att.restarts,
         "sink_failures": [f.as_dict() for f in failures],

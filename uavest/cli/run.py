@@ -123,9 +123,11 @@ def format_live(doc: dict) -> str:
                   f"{doc['scans']} scans); GOSPA and position RMSE in m",
                   table(doc["tracks"], ["pos_rmse", "gospa", "nees_mean", "track_breaks",
                                         "id_swaps", "false_tracks", "us_per_scan"])]
-    if not doc["attitude"] or not any(r.get("n") or r.get("us_per_step")
-                                      for r in doc["attitude"].values()):
-        lines.append("attitude: no estimates (no IMU sample received)")
+    attitude_filters = [k for k in doc["run"]["filters"] if not k.startswith("track:")]
+    if attitude_filters and not doc.get("attitude_steps", 1):
+        lines.append("attitude: no estimates (" + (
+            "no IMU sample received)" if not doc.get("imu_samples") else
+            f"{doc['imu_samples']} IMU samples but no alignment)"))
     link = doc.get("link", {})
     if link:
         bad = link["bad_data"]
