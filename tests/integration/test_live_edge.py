@@ -89,17 +89,17 @@ def test_empty_scans_are_recorded_to_mcap(tmp_path):
     mcap = tmp_path / "live.mcap"
     with FakeVehicle(port, params=PARAMS):  # ownship position but no ADS-B: empty scans
         r = _run(port, "--mcap", str(mcap), "--clutter-rate", "0", "--json",
-                 str(tmp_path / "r.json"))
+                 str(tmp_path / "r.json"), duration=9.0)
     _no_traceback(r)
     assert r.returncode == 0, r.stderr[-2000:]
     doc = json.loads((tmp_path / "r.json").read_text())
-    assert doc["scans"] >= 3 and doc["targets_seen"] == 0
+    assert doc["scans"] >= 2 and doc["targets_seen"] == 0, doc["scans"]  # 1 Hz radar
     counts: dict[str, int] = {}
     with open(mcap, "rb") as f:
         for _s, ch, _m in make_reader(f).iter_messages():
             counts[ch.topic] = counts.get(ch.topic, 0) + 1
     radar = {k: v for k, v in counts.items() if "radar" in k or "detection" in k}
-    assert radar and all(v >= 3 for v in radar.values()), counts
+    assert radar and all(v >= 2 for v in radar.values()), counts
 
 
 def test_mcap_path_that_cannot_be_created_is_one_line_exit_2(tmp_path):
