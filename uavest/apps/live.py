@@ -24,6 +24,7 @@ and is reported. Every estimate is made from samples that are also in the tlog
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import sys
@@ -31,6 +32,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -48,6 +50,7 @@ from ..engine.records import (
     package_versions,
 )
 from ..engine.runner import FilterRunner, TrackerRunner
+from ..errors import InputError
 from ..eval.attitude import AttitudeScorer, select_reference
 from ..eval.metrics import nees
 from ..eval.tracking import track_quality
@@ -56,6 +59,7 @@ from ..ingest.types import (
     AdsbSample,
     AttitudeRef,
     DetectionSample,
+    ImuSample,
     LinkEvent,
     NoSamplesError,
     PositionSample,
@@ -81,7 +85,8 @@ _T = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # NED <-> E
 #: virtual radar), SIMSTATE (a SITL's truth; a real vehicle ignores it), time, and the
 #: radar lanes' inputs: ADSB_VEHICLE (ArduPilot sends traffic only when asked on that link,
 #: about 1 Hz per aircraft at most) and OBSTACLE_DISTANCE_3D, and barometric pressure.
-#: Streams the vehicle does not serve are named by ``check_rates`` (a warning per stream).
+#: The achieved rate of each is said on one line ``rate_window_s`` after the start, a
+#: stream the vehicle does not serve as ``missing: X`` (:mod:`uavest.apps.streams`).
 LIVE_STREAMS = {
     "HIGHRES_IMU": 100.0, "RAW_IMU": 50.0, "ATTITUDE": 10.0, "GLOBAL_POSITION_INT": 10.0,
     "GPS_RAW_INT": 5.0, "SIMSTATE": 10.0, "SYSTEM_TIME": 1.0,
@@ -115,6 +120,7 @@ class LiveConfig:
     motion_q: float = 1.0  # NCV noise intensity of the tracks (m^2/s^3)
     gospa_c: float = 200.0
     bridge_s: float = 2.0
+    rate_window_s: float = 5.0  # s after the start when the achieved stream rates are said
     streams: dict = field(default_factory=lambda: dict(LIVE_STREAMS))
 
 
@@ -321,9 +327,12 @@ class _Status(Sink):
         self.nis: dict[str, float] = {}
         self.lat: list[float] = []
         self.t_sample = time.monotonic()
+        self.imu_samples = 0
 
     def sample(self, s) -> None:
         self.t_sample = time.monotonic()
+        if isinstance(s, ImuSample):
+            self.imu_samples += 1
 
     def record(self, rec) -> None:
         now = time.monotonic()
@@ -347,26 +356,89 @@ class _Status(Sink):
             sys.stderr.write("\n")
 
 
+class _StreamCheck:
+    """Checks, once ``window_s`` s after the samples start (or at the end of a shorter
+    run), the achieved rate of every requested stream (:mod:`uavest.apps.streams`) and
+    says it on one line per stream through ``note`` (default: logged, a warning for a
+    missing or low stream)."""
+
+    def __init__(self, link, window_s: float, note: Callable[[str], None] | None) -> None:
+        self.link = link
+        self.window_s = window_s
+        self.note = note
+        self.t0 = time.monotonic()
+        self.result: list = []
+        self.done = False
+        if hasattr(link, "_rates_checked"):
+            link._rates_checked = True  # the link's own 3-s check: said here, once
+
+    def due(self, now: float) -> bool:
+        return not self.done and now - self.t0 >= self.window_s
+
+    def check(self) -> None:
+        from .streams import achieved_rates
+
+        self.done = True
+        span = min(self.window_s, time.monotonic() - self.t0)
+        self.result = achieved_rates(self._status(), self.link.rates(), span)
+        for r in self.result:
+            self._say(r.line(), r.status == "ok")
+
+    def _status(self) -> dict:
+        return getattr(self.link, "stream_status", {}) or {}
+
+    def _say(self, line: str, ok: bool) -> None:
+        if self.note is not None:
+            self.note(line)
+        elif ok:
+            log.info("%s", line)
+        else:
+            log.warning("%s", line)
+
+    def final(self, wall_s: float) -> dict:
+        """Per stream: the check's result, the rate at the end (the link's last 5 s) and
+        the mean over the run (messages accepted / ``wall_s``); a stream whose status
+        changed since the check (ADS-B traffic that starts late) is said once more."""
+        from .streams import achieved_rates, mean_rates
+
+        now = achieved_rates(self._status(), self.link.rates(), 5.0)
+        end = {r.name: r for r in now}
+        counts = dict(getattr(getattr(self.link, "stats", None), "messages", {}) or {})
+        mean = mean_rates(counts, [r.name for r in self.result], wall_s)
+        out = {}
+        for r in self.result:
+            e = end.get(r.name, r)
+            if e.status != r.status:
+                self._say(f"stream {r.name}: {r.status} at {r.window_s:.0f} s, {e.status} at "
+                          f"the end ({e.achieved_hz:.1f} Hz; mean {mean[r.name]:.1f} Hz over "
+                          f"the run)", e.status == "ok")
+            out[r.name] = {**r.as_dict(), "end_hz": e.achieved_hz, "end_status": e.status,
+                           "mean_hz": mean[r.name]}
+        return out
+
+
 def _live_samples(link, stop: threading.Event | None, duration: float | None,
-                  events: list, check_after: float = 3.0) -> Iterator:
+                  events: list, check: _StreamCheck | None = None) -> Iterator:
     t0 = time.monotonic()
     t_end = None if duration is None else t0 + duration
-    checked = False
-    for s in link:
-        now = time.monotonic()
-        if (stop is not None and stop.is_set()) or (t_end and now >= t_end):
-            return
-        if not checked and now - t0 >= check_after:  # what actually arrives, once
-            checked = True
-            for w in link.check_rates():
-                log.warning("%s", w)
-        if isinstance(s, LinkEvent):
-            events.append(s)
-            if s.kind == "link_lost":
-                log.warning("link lost at t = %.1f s (no message for the gap timeout)", s.t)
-            elif s.kind == "link_restored":
-                log.warning("link restored after %.1f s", s.duration or float("nan"))
-        yield s
+    try:
+        for s in link:
+            now = time.monotonic()
+            if (stop is not None and stop.is_set()) or (t_end and now >= t_end):
+                return
+            if check is not None and check.due(now):  # what actually arrives, once
+                check.check()
+            if isinstance(s, LinkEvent):
+                events.append(s)
+                if s.kind == "link_lost":
+                    log.warning("link lost at t = %.1f s (no message for the gap timeout)",
+                                s.t)
+                elif s.kind == "link_restored":
+                    log.warning("link restored after %.1f s", s.duration or float("nan"))
+            yield s
+    finally:
+        if check is not None and not check.done:  # a run shorter than the window
+            check.check()
 
 
 class _GapAware:
@@ -454,14 +526,83 @@ class PublishSink(Sink):
         self.pub.close()
 
 
+class SinkFailure(NamedTuple):
+    """A sink that raised: its name, the call (open, sample, start, record, close), the
+    vehicle time of the last record (s, None before any) and the exception."""
+
+    sink: str
+    call: str
+    t: float | None
+    error: BaseException
+
+    def line(self) -> str:
+        at = "" if self.t is None else f" at t = {self.t:.1f} s"
+        kind = "" if isinstance(self.error, OSError | InputError) else "internal error: "
+        return (f"{self.sink} failed in {self.call}{at} ({kind}{type(self.error).__name__}: "
+                f"{self.error}); the run went on without it")
+
+    def as_dict(self) -> dict:
+        return {"sink": self.sink, "call": self.call, "t": self.t,
+                "error": type(self.error).__name__, "message": str(self.error),
+                "internal": not isinstance(self.error, OSError | InputError)}
+
+
+class _Guarded(Sink):
+    """A caller's sink (a recorder, the publisher) whose failure stops only that sink: the
+    first exception it raises (a full disk, a closed file, a bug) is said on one line,
+    kept in ``failures`` and the sink is not called again (but closed); the estimates and
+    every other output go on. A live run does not end because its recording did."""
+
+    def __init__(self, sink, failures: list) -> None:
+        self.sink = sink
+        path = getattr(sink, "path", None)
+        self.name = type(sink).__name__ + ("" if path is None else f" ({path})")
+        self.failures = failures
+        self.dead = False
+        self.t: float | None = None
+
+    def _call(self, call: str, *a) -> None:
+        if self.dead:
+            return
+        try:
+            getattr(self.sink, call)(*a)
+        except Exception as e:  # noqa: BLE001 - kept and said; the caller decides the exit
+            self.dead = True
+            f = SinkFailure(self.name, call, self.t, e)
+            self.failures.append(f)
+            log.error("%s", f.line())
+            if call != "close":
+                with contextlib.suppress(Exception):
+                    self.sink.close()
+
+    def open(self, info) -> None:
+        self._call("open", info)
+
+    def sample(self, s) -> None:
+        self._call("sample", s)
+
+    def start(self, label, t0, x0, P0) -> None:
+        self._call("start", label, t0, x0, P0)
+
+    def record(self, rec) -> None:
+        self.t = rec.t
+        self._call("record", rec)
+
+    def close(self) -> None:
+        self._call("close")
+
+
 # ----------------------------------------------------------------------- the job
 
 
 def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
                 declination: Callable[[], float | None] | None = None, sinks=(),
-                info: RunInfo | None = None, link=None, status: bool | None = None) -> dict:
+                info: RunInfo | None = None, link=None, status: bool | None = None,
+                failures: list | None = None) -> dict:
     """The live job over any sample stream (a live link, or a tlog for tests): both
-    lanes, scorers, ``sinks``. Returns the result document."""
+    lanes, scorers, ``sinks``. Returns the result document. A sink that raises is
+    stopped alone (:class:`_Guarded`); its :class:`SinkFailure` is appended to
+    ``failures`` and described in the document's ``sink_failures``."""
     specs = build_filters(resolve_list(cfg.filters, "attitude", dim=6)) if cfg.filters else []
     tspecs = (build_filters(resolve_list(cfg.trackers, "radar", dim=TRACKER_DIM))
               if cfg.trackers else [])
@@ -489,7 +630,9 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
     info.filters = {sp.label: sp.as_dict() for sp, _ in specs}
     info.filters.update({f"track:{sp.label}": sp.as_dict() for sp, _ in tspecs})
     lanes = [Lane(att, runners)] + ([Lane(_NoEvents(lane), trackers)] if trackers else [])
-    sinks = [s.bind(lane) if isinstance(s, _LazyPublish) else s for s in sinks]
+    failures = [] if failures is None else failures
+    sinks = [_Guarded(s.bind(lane) if isinstance(s, _LazyPublish) else s, failures)
+             for s in sinks]
     wall0 = time.perf_counter()
     steps = run_lanes(samples, lanes, [_Score(scorer), tscore, st, *sinks], info)
     wall = time.perf_counter() - wall0
@@ -506,9 +649,12 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
                      for r in runners},
         "tracks": tscore.result(cfg.gospa_c),
         "scans": len(lane.truth),
+        "attitude_steps": steps - len(lane.truth),
+        "imu_samples": st.imu_samples,
         "targets_seen": len({i for _, tr in lane.truth for i in tr}),
         "attitude_restarts": att.restarts,
         "decisions": att.decisions, "t_first": att.t_first,
+        "sink_failures": [f.as_dict() for f in failures],
         "latency_ms": ({"p50": 1e3 * float(np.percentile(st.lat, 50)),
                         "p99": 1e3 * float(np.percentile(st.lat, 99))} if st.lat else None),
     }
@@ -524,9 +670,20 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
 def run_live(cfg: LiveConfig, *, sinks=(), stop: threading.Event | None = None,
              command: str = "", status: bool | None = None,
              on_wait: Callable[[str], None] | None = None, publish: str | None = None,
-             publish_sysid: int = 250, allow_vehicle_link: bool = False) -> dict:
+             publish_sysid: int = 250, allow_vehicle_link: bool = False,
+             on_note: Callable[[str], None] | None = None,
+             failures: list | None = None) -> dict:
     """Attach to the vehicle at ``cfg.connect`` and run until ``cfg.duration`` s of wall
-    time, ``stop`` or Ctrl-C; every output is complete when it returns or raises."""
+    time, ``stop`` or Ctrl-C; every output is complete when it returns or raises.
+    ``on_note`` gets the one-line notes of the run (the achieved rate of every requested
+    stream, ``cfg.rate_window_s`` s after the start); default: logged.
+
+    ``cfg.connect`` naming a tlog file (a session ``--tlog`` recorded) runs the same job
+    over it (:func:`replay_session`) instead: the live run's estimates again."""
+    from pathlib import Path
+
+    if Path(cfg.connect).is_file():
+        return replay_session(cfg, sinks=sinks, command=command, failures=failures)
     from ..ingest.live import open_live
 
     link = open_live(cfg.connect, sysid=cfg.sysid, signing_key=cfg.signing_key,
@@ -545,9 +702,12 @@ def run_live(cfg: LiveConfig, *, sinks=(), stop: threading.Event | None = None,
             pub = Publisher(publish, sysid=publish_sysid, vehicle_conn=cfg.connect,
                             allow_vehicle_link=allow_vehicle_link)
             sinks.append(_LazyPublish(pub))
-        doc = run_samples(_live_samples(link, stop, cfg.duration, events), cfg,
+        check = _StreamCheck(link, cfg.rate_window_s, on_note)
+        doc = run_samples(_live_samples(link, stop, cfg.duration, events, check), cfg,
                           params=link.params, declination=lambda: link.declination,
-                          sinks=sinks, info=info, link=link, status=status)
+                          sinks=sinks, info=info, link=link, status=status,
+                          failures=failures)
+        streams = check.final(doc["wall_s"])
     finally:
         link.close()
     doc["link"] = {
@@ -557,6 +717,34 @@ def run_live(cfg: LiveConfig, *, sinks=(), stop: threading.Event | None = None,
         "gaps": [{"t": e.t, "duration_s": e.duration} for e in events
                  if e.kind == "link_restored"],
         "signing": link.signing_active, "tlog": cfg.tlog,
+        "streams": streams,
+        "missing_streams": [k for k, v in streams.items() if v["end_status"] == "missing"],
+    }
+    return doc
+
+
+def replay_session(cfg: LiveConfig, *, sinks=(), command: str = "",
+                   failures: list | None = None) -> dict:
+    """The live job over the tlog of a live session (``cfg.connect`` = its path): the same
+    lanes, seeds, reorder window (``cfg.reorder_window``, which must be the session's:
+    ``uavest run``'s default 0.05 s) and causal decisions (declination taken when the
+    stream gives it), so the attitude estimates are the live run's step by step; only the
+    last step differs (the live run closed it when it stopped; the tlog also holds what
+    the link had accepted but the engine not yet used). ``uavest replay`` of the same tlog
+    is a file replay: it looks ahead for the GNSS fix (the magnetic model's declination at
+    the alignment) and orders with a 1 s window, so its yaw can differ."""
+    from ..ingest import open_source
+
+    src = open_source(cfg.connect, sysid=cfg.sysid, reorder_window=cfg.reorder_window)
+    info = RunInfo(command, cfg.connect, cfg.seed, config=_config(cfg),
+                   versions=package_versions())
+    doc = run_samples(src, cfg, params=src.params, sinks=list(sinks), info=info,
+                      status=False, failures=failures)
+    doc["link"] = {
+        "connect": cfg.connect, "replay_of_session": True, "vehicle_sysid": cfg.sysid,
+        "declination_rad": None, "declination_source": "the log's parameters",
+        "rates_hz": {}, "bad_data": src.stats.as_dict(), "gaps": [], "signing": False,
+        "tlog": None, "streams": {}, "missing_streams": [],
     }
     return doc
 

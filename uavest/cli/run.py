@@ -73,7 +73,8 @@ def add_run_parser(sub) -> argparse.ArgumentParser:
         "ground-station-side link, under the estimator's own system id (docs/live.md).")
     p.add_argument("--connect", required=True, help="pymavlink connection string: "
                    "udpin:127.0.0.1:14550, tcp:127.0.0.1:5760 (ArduPilot SITL), "
-                   "/dev/ttyACM0,115200")
+                   "/dev/ttyACM0,115200; or the tlog of a session (--tlog) to run the "
+                   "same job over it again (the live run's estimates)")
     p.add_argument("--publish", help="ground-station-side link for the estimates, e.g. "
                    "udpout:127.0.0.1:14551 (never the vehicle's link)")
     p.add_argument("--publish-sysid", type=int, default=250,
@@ -125,6 +126,11 @@ def format_live(doc: dict) -> str:
                   f"{doc['scans']} scans); GOSPA and position RMSE in m",
                   table(doc["tracks"], ["pos_rmse", "gospa", "nees_mean", "track_breaks",
                                         "id_swaps", "false_tracks", "us_per_scan"])]
+    attitude_filters = [k for k in doc["run"]["filters"] if not k.startswith("track:")]
+    if attitude_filters and not doc.get("attitude_steps", 1):
+        lines.append("attitude: no estimates (" + (
+            "no IMU sample received)" if not doc.get("imu_samples") else
+            f"{doc['imu_samples']} IMU samples but no alignment)"))
     link = doc.get("link", {})
     if link:
         bad = link["bad_data"]
@@ -132,6 +138,9 @@ def format_live(doc: dict) -> str:
                      f"{math.degrees(link['declination_rad'] or 0.0):.2f} deg "
                      f"({link['declination_source']}), gaps {len(link['gaps'])}, bad data "
                      f"{bad['bad_total']}")
+        miss = link.get("missing_streams") or []
+        if miss:
+            lines.append(f"streams missing (none received): {', '.join(miss)}")
     if doc.get("latency_ms"):
         lat = doc["latency_ms"]
         lines.append(f"latency sample -> estimate: p50 {lat['p50']:.2f} ms, "
@@ -157,17 +166,29 @@ def _stop_on_signals() -> threading.Event:
     return stop
 
 
-def cmd_run(args) -> int:
-    cfg = _cfg(args, args.connect)
-    doc = run_live(cfg, command=" ".join(sys.argv), status=False if args.no_status else None,
-                   on_wait=_wait, publish=args.publish, publish_sysid=args.publish_sysid,
-                   stop=_stop_on_signals(), sinks=recording_sinks(args))
+def _finish(args, doc: dict, failures: list) -> int:
+    """Tables, ``--json``, the recording's line; then a sink that failed during the run
+    ends the command as its error would have: an ``OSError`` (a full disk, a path that
+    cannot be written) as bad input (one line, exit 2), anything else as an internal
+    error (exit 1, the traceback with ``-v``). The estimates were made either way."""
     print(format_live(doc))
     if args.json:
         write_json(args.json, doc)
         print(f"wrote {args.json}")
+    if failures:
+        raise failures[0].error
     finish_recording(args)
     return 0
+
+
+def cmd_run(args) -> int:
+    cfg = _cfg(args, args.connect)
+    failures: list = []
+    doc = run_live(cfg, command=" ".join(sys.argv), status=False if args.no_status else None,
+                   on_wait=_wait, publish=args.publish, publish_sysid=args.publish_sysid,
+                   stop=_stop_on_signals(), sinks=recording_sinks(args), on_note=_wait,
+                   failures=failures)
+    return _finish(args, doc, failures)
 
 
 # ----------------------------------------------------------------------------- demo
@@ -228,7 +249,8 @@ def demo(args) -> dict:
             args.mcap = args.mcap_default = None
         doc = run_live(cfg, command=" ".join(sys.argv),
                        status=False if args.no_status else None, on_wait=_wait,
-                       stop=_stop_on_signals(), sinks=recording_sinks(args))
+                       stop=_stop_on_signals(), sinks=recording_sinks(args), on_note=_wait,
+                       failures=getattr(args, "failures", None))
     finally:
         stop.set()
         th.join(timeout=10)
@@ -242,10 +264,6 @@ def demo(args) -> dict:
 
 
 def cmd_demo(args) -> int:
+    args.failures = []
     doc = demo(args)
-    print(format_live(doc))
-    if args.json:
-        write_json(args.json, doc)
-        print(f"wrote {args.json}")
-    finish_recording(args)
-    return 0
+    return _finish(args, doc, args.failures)
