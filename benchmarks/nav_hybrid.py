@@ -3,7 +3,7 @@ navigation model (GNSS-aided INS), side by side on the same seeded simulated fli
 
     OMP_NUM_THREADS=1 python benchmarks/nav_hybrid.py [--runs 50] [--seed 0]
         [--cases heading,outage,magdist] [--filters ekf,ukf,hybrid] [--gate mag,gnss]
-        [--filter-rate 25] [--jobs 1] [--json out.json]
+        [--filter-rate 25] [--mag-rate 12.5] [--mag-dip 64] [--jobs 1] [--json out.json]
 
 Cases (uavest/experiments/nav.py, ``CASES``): (a) ``heading``: no magnetometer, the
 true initial yaw uniform in [-pi, pi), every filter starts at yaw 0 with std pi/sqrt(3);
@@ -65,6 +65,10 @@ def table(title: str, agg: dict[str, dict]) -> str:
             f"{a['yaw_deg']:6.2f} {a['vel_mps']:6.2f} {a['pos_m']:7.2f} {a['max_pos_m']:7.2f} "
             f"{a['nees_mean']:8.1f} {a['nees_in_band']:5.2f} {a['resets']:6d} "
             f"{a['rejected_per_run']:7.1f} {a['us_per_step']:7.0f} {a['cost_vs_ukf']:5.2f}")
+    for lab, a in agg.items():
+        if a["reset_reasons"]:
+            why = ", ".join(f"{k} x{v}" for k, v in sorted(a["reset_reasons"].items()))
+            lines.append(f"  {lab} resets: {why}")
     return "\n".join(lines)
 
 
@@ -79,6 +83,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--gate", default="", help="gate these aiding sensors: gnss, mag")
     ap.add_argument("--filter-rate", type=int, default=nav.NavSim().filter_rate,
                     help="filter steps per s (IMU at 200 Hz averaged into them)")
+    ap.add_argument("--mag-rate", type=float, default=nav.NavSim().mag_rate,
+                    help="magnetometer samples per s (filter rate a whole multiple)")
+    ap.add_argument("--mag-dip", type=float, default=nav.NavSim().mag_dip,
+                    help="inclination of the simulated field, deg")
     ap.add_argument("--jobs", type=int, default=1, help="processes (trials are independent)")
     ap.add_argument("--json", help="write the tables (and the settings) to this file")
     a = ap.parse_args(argv)
@@ -91,13 +99,15 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     specs = split_filter_list(a.filters)
     try:
-        sim = replace(nav.NavSim(), gate=gate, filter_rate=a.filter_rate)
+        sim = replace(nav.NavSim(), gate=gate, filter_rate=a.filter_rate,
+                      mag_rate=a.mag_rate, mag_dip=a.mag_dip)
     except ValueError as e:
         print(f"nav_hybrid: {e}", file=sys.stderr)
         return 2
     cmd = "python benchmarks/nav_hybrid.py " + " ".join(sys.argv[1:] if argv is None else argv)
     print(f"{cmd}\n{a.runs} runs per case, seed {a.seed}, IMU {sim.imu_rate} Hz -> filter "
-          f"{sim.filter_rate} Hz, GNSS {sim.gnss_rate:g} Hz, mag {sim.mag_rate:g} Hz, "
+          f"{sim.filter_rate} Hz, GNSS {sim.gnss_rate:g} Hz, mag {sim.mag_rate:g} Hz "
+          f"(dip {sim.mag_dip:g} deg), "
           f"gate: {', '.join(gate) or 'none'}; preset {nav.PRESET}\n")
     out: dict = {"command": cmd, "runs": a.runs, "seed": a.seed, "filters": specs,
                  "gate": list(gate), "filter_rate": sim.filter_rate, "cases": {}}

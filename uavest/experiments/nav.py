@@ -1,5 +1,6 @@
 """Seeded Monte Carlo of the navigation model (GNSS-aided INS): EKF, UKF and the hybrid
-(Cui, Sun and Wen, "A hybrid sampling-driven Kalman filter", Sensors 2022, as
+(Cui, Sun and Wen, "A Novel Data Sampling Driven Kalman Filter Is Designed by Combining
+the Characteristic Sampling of UKF and the Random Sampling of EnKF", Sensors 2022, as
 :mod:`uavest.core.hybrid` implements it) side by side on the same simulated flights
 (issue 19 item 4, docs/navigation.md "Where the hybrid earns its place").
 
@@ -32,8 +33,8 @@ unless said otherwise: attitude RMSE (Euler angle differences, deg), 3-D velocit
 dimensions (mean, and the fraction of steps inside the per-step two-sided 95 % band of
 chi-square with 9 dof), the time to converge (the first time after which the yaw error
 stays below 5 deg to the end of the flight; ``inf`` when the last step's is above),
-guard resets, gated measurements and the cost (us per filter step, timed around the
-filter's calls only).
+guard resets (with the guard's reasons), gated measurements and the cost (us per filter
+step, timed around the filter's calls only).
 """
 
 from __future__ import annotations
@@ -68,8 +69,8 @@ SP = NavSpace()
 CONVERGED_YAW = math.radians(5.0)
 #: the filters' preset: the one ``uavest replay`` uses (hybrid n_cloud = 16, tau = 0.9)
 PRESET = "attitude"
-#: NED magnetic field, gauss (declination 0)
-MAG_FIELD = np.array([0.21, 0.0, 0.43])
+#: strength of the simulated Earth field, gauss (declination 0)
+MAG_STRENGTH = 0.48
 
 
 @dataclass(frozen=True)
@@ -118,8 +119,9 @@ class NavSim:
     multiples / divisors of it: the filter steps on the mean of ``imu_rate /
     filter_rate`` IMU samples, aiding arrives every ``filter_rate / rate`` steps), the
     noise of the simulated sensors and of the filters (one :class:`NavNoise`), the GNSS
-    noise (std, m and m/s), the sensors whose measurements are gated (``gate``: any of
-    "gnss", "mag"; none by default) and the gate probability."""
+    noise (std, m and m/s), the field's inclination (``mag_dip``, deg, down positive;
+    64 deg as in central Europe), the sensors whose measurements are gated (``gate``:
+    any of "gnss", "mag"; none by default) and the gate probability."""
 
     imu_rate: int = 200
     filter_rate: int = 25
@@ -128,6 +130,7 @@ class NavSim:
     noise: NavNoise = field(default_factory=NavNoise)
     gnss_pos_std: tuple[float, float, float] = (0.5, 0.5, 1.0)
     gnss_vel_std: float = 0.1
+    mag_dip: float = 64.0
     gate: tuple[str, ...] = ()
     gate_prob: float = 0.999
 
@@ -272,9 +275,10 @@ def flight(case: NavCase, sim: NavSim, seed: int, r: int) -> Flight:
         if case.mag_disturbance is not None:
             t0, t1, ang = case.mag_disturbance
             delta = delta + np.where((t[km] >= t0) & (t[km] < t1), ang, 0.0)
-        c, s = np.cos(delta), np.sin(delta)
-        m_n = np.stack([c * MAG_FIELD[0] - s * MAG_FIELD[1], s * MAG_FIELD[0] + c * MAG_FIELD[1],
-                        np.full(km.size, MAG_FIELD[2])], axis=1)
+        dip = math.radians(sim.mag_dip)
+        hz, vt = MAG_STRENGTH * math.cos(dip), MAG_STRENGTH * math.sin(dip)
+        # the field turned by delta about down: the heading the magnetometer gives
+        m_n = np.stack([np.cos(delta) * hz, np.sin(delta) * hz, np.full(km.size, vt)], axis=1)
         m_b = quat_rotate_inv(x[km, :4], m_n)
         mag = {int(k): m_b[i] for i, k in enumerate(km)}
     prior = _prior(case, n, x[0], g_x0)
@@ -338,22 +342,33 @@ def run_filter(f, fl: Flight, sim: NavSim, g: np.random.Generator) -> dict:
     e = f.estimate(s)
     X[0], P[0] = e.x, e.P
     rejected = 0
+    reasons: dict[str, int] = {}
+
+    def note(s) -> None:  # the guard's reason of a reset, without its numbers
+        if s.reset:
+            why = s.reason.split(":")[0].split(" (")[0]
+            reasons[why] = reasons.get(why, 0) + 1
+
     for k in range(T):
         s = f.predict(s, tr, fl.t[k + 1], dt, fl.u[k], g)
+        note(s)
         j = k + 1
         if j in fl.gnss:
             zp, zv = fl.gnss[j]
             s, ok1 = _gated(f, s, zp, mp, c3, g)
+            note(s)
             s, ok2 = _gated(f, s, zv, mv, c3, g)
+            note(s)
             rejected += (not ok1) + (not ok2)
         if j in fl.mag:
             s, ok = _gated(f, s, np.zeros(1), OnNav(MagHeading(fl.mag[j], Rm)), c1, g)
+            note(s)
             rejected += not ok
         e = f.estimate(s)
         X[j], P[j] = e.x, e.P
     sec = time.perf_counter() - sec
-    return {"x": X, "P": P, "resets": int(s.resets), "rejected": int(rejected),
-            "seconds": sec, "steps": T}
+    return {"x": X, "P": P, "resets": int(s.resets), "reasons": reasons,
+            "rejected": int(rejected), "seconds": sec, "steps": T}
 
 
 # --------------------------------------------------------------------------- metrics
@@ -389,6 +404,7 @@ def trial_metrics(case: NavCase, fl: Flight, out: dict) -> dict:
         "nees": float(np.mean(ne)),
         "nees_in": float(np.mean((ne >= NEES_BAND_9[0]) & (ne <= NEES_BAND_9[1]))),
         "resets": out["resets"],
+        "reset_reasons": out["reasons"],
         "rejected": out["rejected"],
         "us_per_step": 1e6 * out["seconds"] / out["steps"],
     }
@@ -450,8 +466,17 @@ def aggregate(rows: list[dict[str, dict]], ref: str | None = "ukf") -> dict[str,
             "nees_mean": float(np.mean([x["nees"] for x in c])),
             "nees_in_band": float(np.mean([x["nees_in"] for x in c])),
             "resets": int(sum(x["resets"] for x in c)),
+            "reset_reasons": _sum_counts(x["reset_reasons"] for x in c),
             "rejected_per_run": float(np.mean([x["rejected"] for x in c])),
             "us_per_step": float(np.mean([x["us_per_step"] for x in c])),
             "cost_vs_ukf": ratio,
         }
+    return out
+
+
+def _sum_counts(ds: Iterable[dict[str, int]]) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for d in ds:
+        for k, v in d.items():
+            out[k] = out.get(k, 0) + v
     return out
