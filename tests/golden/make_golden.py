@@ -83,9 +83,9 @@ def main(argv: list[str] | None = None) -> int:
         old = _extract(args.rev, Path(tmp) / "old")
         for log in LOGS:
             raw = Path(tmp) / f"{log}.npz"
+            env = dict(os.environ, PYTHONPATH=str(old), OPENBLAS_NUM_THREADS="1")
             subprocess.run([sys.executable, "-c", _SCRIPT, str(args.logs / log), str(raw),
-                            ",".join(FILTERS)], env=dict(os.environ, PYTHONPATH=str(old), OPENBLAS_NUM_THREADS="1"),
-                           check=True, cwd=tmp)
+                            ",".join(FILTERS)], env=env, check=True, cwd=tmp)
             ref = dict(np.load(raw))
             meta = {"rev": args.rev, "log": log, "filters": list(FILTERS),
                     "seeding": "default_rng([0, crc32(label)])"}
