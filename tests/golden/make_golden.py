@@ -76,8 +76,10 @@ def _extract(rev: str, dest: Path) -> Path:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--rev", default=REV, help="reference commit (default %(default)s)")
-    ap.add_argument("--logs", type=Path, default=ROOT.parent / "shared" / "logs",
-                    help="folder of the shared logs (default: ../shared/logs of the repo)")
+    logs = os.environ.get("UAVEST_LOGS") or ROOT.parent / "shared" / "logs"
+    ap.add_argument("--logs", type=Path, default=logs,
+                    help="folder of the shared logs (default: $UAVEST_LOGS, else "
+                    "../shared/logs of the repository)")
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         old = _extract(args.rev, Path(tmp) / "old")

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import shared_logs_dir
+from conftest import shared_log, shared_logs_dir
 
 from uavest.apps.replay import ReplayConfig, replay
 from uavest.engine.attitude import AttitudeOptions, AttitudeStream
@@ -26,9 +26,8 @@ BIN = LOGS / "test.BIN"
 
 
 def need(p: Path) -> Path:
-    if not p.is_file():
-        pytest.skip(f"shared log {p} not present (tests read ../shared/logs, never copies)")
-    return p
+    """``p`` (a shared log under LOGS), or skip with the reason (tests/conftest.py)."""
+    return shared_log(p.name)
 
 
 def _prefix(tmp_path: Path, nbytes: int = 250_000) -> bytes:
