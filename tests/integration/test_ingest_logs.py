@@ -79,6 +79,7 @@ def _splice(data: bytes, seed: int, n: int = 12, size: int = 40) -> bytes:
     return bytes(b)
 
 
+@pytest.mark.slow
 def test_corrupt_tlog_still_reads(tmp_path):
     src = shared("vtol.tlog")
     good = read_log(src)
