@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import struct
 
+import pytest
 from conftest import shared_log
 
 from tests.hostile.corpus import tlog_records
@@ -44,6 +45,7 @@ def _stats(path):
     return src.stats
 
 
+@pytest.mark.slow
 def test_zero_imu_instance_is_an_absent_sensor_not_bad_data(tmp_path, capsys):
     base = shared_log("vtol.tlog")
     f = tmp_path / "zero_imu3.tlog"
@@ -58,6 +60,7 @@ def test_zero_imu_instance_is_an_absent_sensor_not_bad_data(tmp_path, capsys):
     assert "absent sensors" in text and "SCALED_IMU3" in text
 
 
+@pytest.mark.slow
 def test_zeros_after_real_data_are_still_bad(tmp_path):
     """An instance that sent real data and then zeros is a fault: the zeros before its
     first real record are "not fitted", the ones after are counted as bad (empty)."""

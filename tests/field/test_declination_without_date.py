@@ -78,6 +78,7 @@ def _tlog_without_utc(src, dst) -> None:
     dst.write_bytes(bytes(out))
 
 
+@pytest.mark.slow
 def test_ulog_fix_without_utc_uses_the_model_at_its_epoch(tmp_path, capsys):
     base = shared_log("sample_px4_events.ulg")
     f = tmp_path / "no_utc.ulg"
@@ -92,6 +93,7 @@ def test_ulog_fix_without_utc_uses_the_model_at_its_epoch(tmp_path, capsys):
     assert "declination: " in out and "no date in the log: the model's epoch" in out
 
 
+@pytest.mark.slow
 def test_tlog_fix_without_utc_uses_the_receive_dates(tmp_path):
     base = shared_log("vtol.tlog")
     f = tmp_path / "no_utc.tlog"

@@ -10,6 +10,7 @@ from __future__ import annotations
 import struct
 
 import numpy as np
+import pytest
 from conftest import shared_log
 
 from tests.hostile.corpus import tlog_records
@@ -67,6 +68,7 @@ def _errors(path) -> tuple[dict, dict, dict]:
     return doc, err, {f: coll.arrays(f)["t"] for f in FILTERS}
 
 
+@pytest.mark.slow
 def test_imu_gap_is_reported_and_every_filter_holds(tmp_path, capsys):
     f = tmp_path / "imu_gap.tlog"
     assert drop_imu(shared_log("vtol.tlog"), f) > 100
@@ -86,6 +88,7 @@ def test_imu_gap_is_reported_and_every_filter_holds(tmp_path, capsys):
     assert "IMU gaps: 1 longer than" in text and "re-alignment: after an IMU gap" in text
 
 
+@pytest.mark.slow
 def test_no_gap_in_the_shared_log(capsys):
     doc = replay(shared_log("vtol.tlog"), ReplayConfig(filters=("ekf",)))
     assert doc["imu_gaps"] == 0

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import re
 
+import pytest
 from conftest import shared_log
 
 from tests.hostile.corpus import tlog_records
@@ -62,6 +63,7 @@ def _run(path, js, capsys) -> tuple[dict, str]:
     return json.loads(js.read_text()), out
 
 
+@pytest.mark.slow
 def test_acceleration_compensation_switches_on_at_the_fix(tmp_path, capsys):
     base = shared_log("vtol.tlog")
     f = tmp_path / "late_fix.tlog"
@@ -85,6 +87,7 @@ def test_acceleration_compensation_switches_on_at_the_fix(tmp_path, capsys):
     assert "UNRELIABLE" not in text
 
 
+@pytest.mark.slow
 def test_compensation_off_by_option_stays_off(tmp_path, capsys):
     f = tmp_path / "late_fix.tlog"
     delay_fix(shared_log("vtol.tlog"), f)

@@ -27,6 +27,9 @@ from tests.hostile.corpus import tlog_records
 from uavest.cli import main
 from uavest.ingest.mavlink import MavlinkSource
 
+# each test decodes whole logs with uavest and pymavlink: seconds of CPU each
+pytestmark = pytest.mark.slow
+
 BANNER = (b"Init ArduRover V4.7.0-dev (8a1b2c3d)\r\n\r\nFree RAM: 131072\r\nFRAM: 0\r\n"
           b"Starting SITL input...\r\nbind port 5760 for 0\r\nSerial port 0 on TCP port "
           b"5760\r\nWaiting for connection ....\r\n")[:150]

@@ -1,11 +1,8 @@
 import pytest
-
-from . import corpus
+from conftest import shared_log
 
 
 @pytest.fixture(scope="session")
 def logs():
-    d = corpus.logs_dir()
-    if not (d / "vtol.tlog").exists():
-        pytest.skip("shared logs not found at repo_root/../shared/logs")
-    return d
+    """The shared logs folder (corpus.logs_dir()), or skip with where it was looked for."""
+    return shared_log("vtol.tlog").parent

@@ -122,6 +122,7 @@ def test_directory_and_missing_file(tmp_path):
         detect_format(tmp_path / "missing.tlog")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("special", ["FIFO", "/dev/zero"])
 def test_special_files_child_process(special, tmp_path):
     """Issue: FIFO and /dev/zero reported as 'no such log file' (and /dev/zero a

@@ -110,6 +110,7 @@ def test_flipped_vtol_rmse_within_one_percent(tmp_path, logs):
         assert b["filters"]["ekf"][k] == pytest.approx(a["filters"]["ekf"][k], rel=0.01)
 
 
+@pytest.mark.slow
 def test_light_byte_flips_within_10_percent_or_flagged(tmp_path, logs):
     """Issue: byte flips at 1e-4 wrecked a tlog replay silently (yaw 3.68 -> 93.7, exit 0)."""
     from uavest.apps.replay import ReplayConfig, replay

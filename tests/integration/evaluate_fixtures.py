@@ -8,7 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
+from conftest import shared_log as _shared_log
 from conftest import shared_logs_dir
 
 REPO = Path(__file__).resolve().parents[2]
@@ -41,11 +41,8 @@ def make_windows(folder: Path, n: int, length: float = 2.5, step: float = 5.0) -
 
 
 def shared_log(name: str) -> Path:
-    p = SHARED / name
-    if not p.is_file():
-        pytest.skip(f"shared log {p} not present (repo_root/../shared/logs, or set "
-                    "UAVEST_LOGS)")
-    return p
+    """One shared log, or skip with the reason (tests/conftest.py's ``shared_log``)."""
+    return _shared_log(name)
 
 
 def cli_env(**extra) -> dict:

@@ -65,6 +65,7 @@ def test_speed_benchmark_runs(tmp_path):
     assert sp["ukf_over_filterpy"] > 0 and sp["hybrid_over_ukf"] > 0
 
 
+@pytest.mark.slow
 def test_ungm_hybrid_beats_ukf_and_enkf_and_literal_loses_same_run():
     """Same seeded truths for all filters (30 runs; the 200-run numbers are in docs)."""
     sysm = build_system(load_scenario("ungm"))

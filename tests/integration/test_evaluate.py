@@ -79,6 +79,7 @@ def test_shards_give_the_bench_table(tmp_path):
     assert sum(a["wins"] for a in agg.values()) == 12
 
 
+@pytest.mark.slow
 def test_bad_logs_are_listed_with_their_reason(tmp_path, windows):
     folder = tmp_path / "flights"
     (folder / "day2").mkdir(parents=True)
@@ -163,6 +164,7 @@ def test_interrupted_run_resumes_with_only_the_rest(tmp_path):
     assert numbers(s["groups"]) == numbers(whole["groups"])
 
 
+@pytest.mark.slow
 def test_pool_worker_killed_every_time_is_reported_and_others_finish(tmp_path, monkeypatch):
     monkeypatch.setenv("UAVEST_EVALUATE_CRASH_ON", "ungm*3:6*")
     s = evaluate(["ungm"], tmp_path, backend=PoolBackend(2), **MC)
@@ -206,6 +208,7 @@ def test_dask_processes_worker_killed_mid_task(tmp_path, monkeypatch):
             assert numbers(d) == numbers(b[k])
 
 
+@pytest.mark.slow
 def test_cli_errors_are_one_line(tmp_path):
     r = run_cli([str(tmp_path / "nothing-here"), "--out", str(tmp_path / "o")])
     assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr

@@ -79,6 +79,7 @@ async def _client(url: str, timeout: float = 60.0) -> dict:
     return got
 
 
+@pytest.mark.slow
 def test_live_server_advertises_and_streams_while_a_replay_runs():
     sink = FoxgloveLiveSink("127.0.0.1", 0, wait_for_client=30.0)
     assert sink.port > 0

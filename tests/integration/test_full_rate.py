@@ -11,6 +11,9 @@ import pytest
 
 from uavest.apps.replay import ReplayConfig, replay
 
+# the module fixture replays a log at the full IMU rate (about 20 s of CPU)
+pytestmark = pytest.mark.slow
+
 LOG = Path(__file__).resolve().parents[2] / "logs" / "sim_200hz.tlog"
 AXES = ("roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg")
 

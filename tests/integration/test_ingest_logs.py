@@ -3,21 +3,12 @@
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import shared_log as shared  # $UAVEST_LOGS or repo_root/../shared/logs, else skip
 
 from uavest.ingest import IngestError, open_source, read_log
-
-LOGS = Path(__file__).resolve().parents[2] / ".." / "shared" / "logs"
-
-
-def shared(name: str) -> Path:
-    p = LOGS / name
-    if not p.is_file():
-        pytest.skip(f"shared log {name} not found at {p}")
-    return p
 
 
 def test_vtol_tlog():
@@ -88,6 +79,7 @@ def _splice(data: bytes, seed: int, n: int = 12, size: int = 40) -> bytes:
     return bytes(b)
 
 
+@pytest.mark.slow
 def test_corrupt_tlog_still_reads(tmp_path):
     src = shared("vtol.tlog")
     good = read_log(src)

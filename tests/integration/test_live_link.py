@@ -141,6 +141,7 @@ def test_fallback_to_request_data_stream(ack):
     assert link.declination is None and "unknown" in link.declination_source
 
 
+@pytest.mark.slow
 def test_rate_below_request_is_warned():
     port = free_port()
     with FakeVehicle(port, rate_cap={"HIGHRES_IMU": 40.0}) as fv:
@@ -265,6 +266,7 @@ def _rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+@pytest.mark.slow
 def test_flood_is_bounded_and_counted():
     port = free_port()
     with FakeVehicle(port, auto_streams={"ATTITUDE": 10.0}) as fv:
@@ -313,6 +315,7 @@ def test_flood_is_bounded_and_counted():
     assert len(got) > 0
 
 
+@pytest.mark.slow
 def test_udp_gap_reported_and_resumed():
     port = free_port()
     with FakeVehicle(port, auto_streams={"ATTITUDE": 20.0}) as fv:
@@ -333,6 +336,7 @@ def test_udp_gap_reported_and_resumed():
     assert len(after) > 5
 
 
+@pytest.mark.slow
 def test_tcp_reconnect_after_server_restart_and_reboot():
     port = free_port(socket.SOCK_STREAM)
     fv = FakeVehicle(port, tcp=True, banner=b"Init ArduCopter V4.6.0\r\nStarting sketch\r\n",
@@ -408,6 +412,7 @@ finally:
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
 def test_tlog_complete_after_signal(tmp_path, sig):
     import signal
@@ -491,6 +496,7 @@ def test_unreachable_tcp_times_out_cleanly():
         open_live("udpin:127.0.0.1:notaport", heartbeat_timeout=0.3)
 
 
+@pytest.mark.slow
 def test_silent_tcp_peer_is_reconnected():
     port = free_port(socket.SOCK_STREAM)
     with FakeVehicle(port, tcp=True, auto_streams={"ATTITUDE": 20.0}) as fv:

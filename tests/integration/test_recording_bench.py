@@ -116,6 +116,7 @@ def test_ungm_metadata(ungm):
     assert rec.json["/run/info"][0]["config"]["trial"] == 1
 
 
+@pytest.mark.slow
 def test_report_on_a_ungm_bench_recording(ungm, tmp_path):
     paths = write_report(ungm["path"], tmp_path)
     m = json.loads(paths["metrics"].read_text())
@@ -136,6 +137,7 @@ def test_trial_out_of_range_is_a_usage_error(tmp_path, capsys):
     assert "--trial" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_radar_bench_trial_recording(tmp_path):
     path = tmp_path / "radar.mcap"
     specs = ["ekf", "ukf"]

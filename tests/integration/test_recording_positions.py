@@ -5,6 +5,7 @@ the first fix."""
 import json
 
 import numpy as np
+import pytest
 
 from uavest.engine.records import RunInfo, StepRecord
 from uavest.geometry.geodesy import LocalFrame
@@ -35,6 +36,7 @@ def _lla_run(path, with_ned: bool = False):
     return ned
 
 
+@pytest.mark.slow
 def test_lla_only_positions_give_a_local_ned_trajectory(tmp_path):
     path = tmp_path / "lla.mcap"
     ned = _lla_run(path)

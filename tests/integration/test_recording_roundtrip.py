@@ -51,6 +51,7 @@ def vtol(tmp_path_factory):
             "rec": read_recording(path)}
 
 
+@pytest.mark.slow
 def test_every_channel_has_a_well_known_or_titled_json_schema(vtol):
     rec = vtol["rec"]
     assert not rec.truncated and rec.chunks >= 2
@@ -120,6 +121,7 @@ def test_values_equal_what_the_run_computed(vtol):
         np.testing.assert_allclose(ts, a["t"], atol=1e-9)
 
 
+@pytest.mark.slow
 def test_error_channel_and_report_reproduce_the_replay_scores(vtol, tmp_path):
     doc, rec = vtol["doc"], vtol["rec"]
     assert doc["reference"] == "SIMSTATE"
@@ -175,6 +177,7 @@ def test_metadata_and_layout(vtol):
     assert referenced <= set(rec.counts), referenced - set(rec.counts)
 
 
+@pytest.mark.slow
 def test_radar_recording_round_trip(tmp_path):
     path = tmp_path / "radar.mcap"
     out = run_radar_demo([McapSink(path)], steps=25, filters=("ekf", "ukf"))
@@ -260,6 +263,7 @@ def test_own_protobuf_channels_decode_with_google_protobuf(vtol):
                 assert m["gyro_rad_s"] == list(g.gyro_rad_s) and m["source"] == g.source
 
 
+@pytest.mark.slow
 def test_batched_recording_equals_one_message_at_a_time(tmp_path):
     """The recorder encodes in batches (the default) or one record at a time (batch=1, as
     the live view): the same messages on every topic, in the same order per topic."""

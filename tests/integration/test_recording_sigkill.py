@@ -16,7 +16,9 @@ from conftest import shared_logs_dir
 from uavest.report import read_recording, write_report
 
 VTOL = shared_logs_dir() / "vtol.tlog"
-pytestmark = pytest.mark.skipif(not VTOL.exists(), reason=f"needs {VTOL} (or UAVEST_LOGS)")
+# a recording subprocess killed mid-run, then read back
+pytestmark = [pytest.mark.slow,
+              pytest.mark.skipif(not VTOL.exists(), reason=f"needs {VTOL} (or UAVEST_LOGS)")]
 
 SCRIPT = r"""
 import sys, time

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import shared_logs_dir
+from conftest import shared_log, shared_logs_dir
 
 from uavest.apps.replay import ReplayConfig, replay
 from uavest.engine.attitude import AttitudeOptions, AttitudeStream
@@ -26,15 +26,15 @@ BIN = LOGS / "test.BIN"
 
 
 def need(p: Path) -> Path:
-    if not p.is_file():
-        pytest.skip(f"shared log {p} not present (tests read ../shared/logs, never copies)")
-    return p
+    """``p`` (a shared log under LOGS), or skip with the reason (tests/conftest.py)."""
+    return shared_log(p.name)
 
 
 def _prefix(tmp_path: Path, nbytes: int = 250_000) -> bytes:
     return need(VTOL).read_bytes()[:nbytes]
 
 
+@pytest.mark.slow
 def test_spliced_random_bytes_are_counted_and_replay_survives(tmp_path):
     data = bytearray(_prefix(tmp_path))
     rng = np.random.default_rng(7)
@@ -79,6 +79,7 @@ def _gyro_only_rmse(path: Path, end: float) -> dict:
     return rmse_deg(q, ref_q, mask)
 
 
+@pytest.mark.slow
 def test_vtol_window_beats_gyro_only_and_reports_truth(tmp_path):
     need(VTOL)
     doc = replay(VTOL, ReplayConfig(filters=("ekf",), end=700.0, smooth=True))
@@ -96,6 +97,7 @@ def _total_rmse(row: dict) -> float:
     return float(np.sqrt(sum(row[f"{a}_rmse_deg"] ** 2 for a in ("roll", "pitch", "yaw"))))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("spec", ["hybrid(sampling=random)", "hybrid_sh"])
 def test_smoothing_works_when_members_are_not_kept_or_filter_is_wrapped(spec):
     # members redrawn every step (sampling=random) or the hybrid wrapped in SageHusa:
@@ -142,6 +144,7 @@ def test_cli_json_shape(tmp_path, capsys):
     assert "reference: ATT" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_cli_errors_exit_2_without_traceback(tmp_path):
     code = (
         "import sys;from uavest.cli import main;sys.exit(main(sys.argv[1:]))"
@@ -163,6 +166,7 @@ def test_cli_errors_exit_2_without_traceback(tmp_path):
     assert r.returncode == 2 and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow
 def test_filter_numbers_do_not_depend_on_the_other_filters():
     """Each filter draws from (seed, its own label), so running it alone or beside others
     gives identical numbers (the bench harness has the same property)."""

@@ -9,6 +9,9 @@ from pathlib import Path
 import pytest
 from conftest import shared_logs_dir
 
+# a replay to MCAP, then the report rendered (headless chromium, a subprocess)
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[2]
 VTOL = shared_logs_dir() / "vtol.tlog"
 

@@ -267,6 +267,7 @@ def test_udpin_server_answers_whoever_calls():
     assert sim.received["HEARTBEAT"] >= 1 and sim.received["COMMAND_LONG"] == 1
 
 
+@pytest.mark.slow
 def test_radar_detections_over_udp_match_truth(live):
     lv = live(sc_sets=["radar.rate_hz=4"], speed=0.0, imu_rate=50.0, duration=150.0)
     lv.hello()
@@ -374,6 +375,7 @@ def make_log(tmp_path, name="a", seed=0, sets=(), rates=None, duration=20.0, imu
     return sim, path
 
 
+@pytest.mark.slow
 def test_simstate_consistent_with_imu(tmp_path):
     sim, path = make_log(tmp_path, duration=20.0, imu_rate=200.0)
     recs = read_tlog(path)
@@ -449,6 +451,7 @@ def test_adsb_matches_targets(tmp_path):
     assert np.all(errs[:, :2].std(0) < 4.5) and errs[:, 2].std() < 7.0
 
 
+@pytest.mark.slow
 def test_determinism_and_stream_independence(tmp_path):
     _, a = make_log(tmp_path, "a", seed=3, duration=5.0)
     _, b = make_log(tmp_path, "b", seed=3, duration=5.0)
@@ -463,6 +466,7 @@ def test_determinism_and_stream_independence(tmp_path):
     assert imu[0] != imu[1]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_subprocess_signal_leaves_whole_tlog(tmp_path, sig):
     path = tmp_path / "int.tlog"
@@ -510,6 +514,7 @@ def test_cli_rejects_bad_arguments(capsys):
     assert "unknown message" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_committed_log(tmp_path):
     """logs/sim_200hz.tlog is whole, as documented, and reproduced by its command
     (logs/README.md). If the simulator changes on purpose, regenerate it with that command."""

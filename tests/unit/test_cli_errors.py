@@ -47,6 +47,7 @@ def test_bad_input_in_a_subprocess_is_one_line_and_exit_2(argv, says):
     assert "Traceback" not in r.stderr and "internal error" not in r.stderr
 
 
+@pytest.mark.slow
 def test_an_os_error_is_one_clear_line_and_exit_2(tmp_path):
     # the JSON's folder cannot be made: its parent is a file (NotADirectoryError et al.)
     f = tmp_path / "a_file"
@@ -142,6 +143,7 @@ def test_replay_decides_on_the_type_not_on_the_message(monkeypatch):
         rp.replay(REPO_LOG)
 
 
+@pytest.mark.slow
 def test_a_window_without_samples_is_an_input_error_exit_2():
     r = _run("replay", str(REPO_LOG), "--start", "1e9")
     assert r.returncode == 2, r.stderr

@@ -93,7 +93,7 @@ def test_sigma_point_filters_equal_kf_on_linear_model(cv_case, flt, tol_x, tol_P
         # sampling filters: averaged over the last 40 steps the state error vs KF must be a
         # small fraction of the KF's own posterior std
         (EnKF(members=2000), 0.15),
-        (ETKF(members=500), 0.15),
+        pytest.param(ETKF(members=500), 0.15, marks=pytest.mark.slow),  # 2 s of CPU
         (Hybrid(n_cloud=400), 0.15),
         (HybridLocal(n_cloud=400), 0.15),
         # the literal cloud has covariance (2 g^2/(2n+1) + s^2 N/(N+1)) P (spec, point 3):

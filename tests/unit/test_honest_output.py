@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import pytest
 
 from uavest.core.gaussian import Gaussian
 from uavest.engine.records import Start, Step
@@ -99,6 +100,7 @@ def test_line_progress_off_a_terminal(capsys):
     assert lines[1].startswith("report: writing: 2/3") and lines[2] == lines[1]
 
 
+@pytest.mark.slow
 def test_report_prints_one_line_per_stage_when_not_a_terminal(tmp_path, capsys, monkeypatch):
     from conftest import shared_log
 

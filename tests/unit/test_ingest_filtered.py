@@ -184,6 +184,7 @@ def _df_damage(data: bytes) -> dict[str, bytes]:
 # ------------------------------------------------------------------------- tests
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sysid", [None, 2])
 def test_vtol_tlog_same_as_decoding_everything(shared, sysid):
     new = _assert_same(shared / "vtol.tlog", sysid=sysid)
@@ -197,6 +198,7 @@ def test_dataflash_bin_same_as_decoding_everything(shared):
     _assert_same(shared / "test.BIN")
 
 
+@pytest.mark.slow
 def test_sim_200hz_tlog_same_as_decoding_everything():
     if not SIM_200HZ.is_file():
         pytest.skip(f"{SIM_200HZ} not present")
@@ -211,10 +213,14 @@ def vtol_part(shared) -> bytes:
     return data[: recs[len(recs) * 2 // 5][0]]
 
 
-@pytest.mark.parametrize("case", [
-    "flip 1e-3 s0", "flip 1e-3 s1", "flip 1e-2", "cut inside a record",
-    "cut after a time stamp", "crc errors", "bad receive times", "bad frame headers",
-    "junk between records", "text between records"])
+def _slow(*cases: str) -> list:
+    return [pytest.param(c, marks=pytest.mark.slow) for c in cases]
+
+
+# the fast tier keeps two kinds of damage (a byte flip, CRC errors), the full suite all ten
+@pytest.mark.parametrize("case", ["flip 1e-3 s0", "crc errors"] + _slow(
+    "flip 1e-3 s1", "flip 1e-2", "cut inside a record", "cut after a time stamp",
+    "bad receive times", "bad frame headers", "junk between records", "text between records"))
 def test_damaged_tlog_same_counts(vtol_part, tmp_path, case):
     p = tmp_path / "damaged.tlog"
     p.write_bytes(_tlog_damage(vtol_part)[case])

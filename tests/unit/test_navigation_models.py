@@ -88,6 +88,7 @@ def _flight(seed, steps=1500, dt=0.02):
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("spec", ["ekf", "ukf", "hybrid"])
 def test_filters_converge_and_are_consistent_on_a_synthetic_flight(spec):
     n = NavNoise()

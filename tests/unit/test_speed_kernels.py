@@ -319,6 +319,7 @@ def test_compiled_kernels_equal_the_numpy_kernels():
     assert rot.MANIFOLD_KERNELS.get() is nb
 
 
+@pytest.mark.slow
 def test_numba_can_be_switched_off_and_gives_the_same_replay(tmp_path):
     """UAVEST_NUMBA=0 uses the numpy kernels; a replay with either gives the same RMSE."""
     import json

@@ -45,8 +45,10 @@ causal, so a live link computes it exactly as a replay does.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections import deque
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -55,7 +57,7 @@ from ..errors import InputError
 from ..geometry.rotation import G0, AttitudeSpace, qexp_f, qlog_f, qmul_f, quat_exp, quat_rotate
 from ..ingest.api import choose_source
 from ..ingest.semantics import default_integration
-from ..ingest.types import ImuSample, MagSample, NoSamplesError, PositionSample
+from ..ingest.types import ImuSample, MagSample, NoSamplesError, PositionSample, Sample
 from ..models.attitude import (
     AttitudeNoise,
     GravityDirection,
@@ -108,7 +110,7 @@ class AttitudeOptions:
     update_hz: float | None = None
     integration: str = "auto"
     declination: float | None = None
-    noise: dict = field(default_factory=dict)
+    noise: dict[str, float] = field(default_factory=dict)
     imu: str | None = None
     use_mag: bool = True
     accel_comp: str = "auto"
@@ -161,15 +163,13 @@ class _StepBuilder:
 
     def __init__(self, integration: str, factor: int, use_pos: bool, ref: int = 1,
                  every: int = 1) -> None:
-        from collections import deque
-
         self.integration = integration
         self.factor = factor
         self.every = every  # steps per accelerometer/magnetometer update
         self.since = 0  # steps since the last update
         self.t_upd: float | None = None  # end of the last step with an update
         self.acc_upd: list[Array] = []  # accelerometer samples since that update
-        self.acc_hist = deque(maxlen=max(ref, factor) if every == 1 else 1)
+        self.acc_hist: deque[Array] = deque(maxlen=max(ref, factor) if every == 1 else 1)
         self.use_pos = use_pos
         self.t_edge: float | None = None  # end of the last closed step (t_{k-1})
         self.g_edge: Array | None = None  # gyro at that edge (trapezoid)
@@ -200,10 +200,10 @@ class _StepBuilder:
             r.accel_ned = acc
         return r
 
-    def push(self, s) -> list[_Raw]:
+    def push(self, s: Sample) -> list[_Raw | _Gap]:
         """Feed one sample (of the chosen IMU / mag / position source); returns the steps
-        it closed (zero or one)."""
-        out = []
+        it closed (zero or one), after an IMU gap with the :class:`_Gap`."""
+        out: list[_Raw | _Gap] = []
         if self.pending is not None and s.t > self.pending.t:
             out.append(self._finish(self.pending))
             self.pending = None
@@ -214,6 +214,7 @@ class _StepBuilder:
             if self.t_edge is None:  # the first sample: t_0 of the first step
                 self.t_edge, self.g_edge, self.t_last = s.t, s.gyro, s.t
                 return out
+            assert self.t_last is not None  # set with t_edge
             if s.t - self.t_last > self.gap_s:  # a gap: close what came before, restart
                 if self.block:
                     if self.pending is not None:
@@ -248,6 +249,7 @@ class _StepBuilder:
 
     def _close(self) -> _Raw:
         b, t0 = self.block, self.t_edge
+        assert t0 is not None and self.g_edge is not None  # set by the first IMU sample
         t1 = b[-1].t
         if self.integration == "trapezoid":
             if len(b) == 1:
@@ -265,7 +267,7 @@ class _StepBuilder:
             if self.since >= self.every:
                 a = np.sum(self.acc_upd, axis=0) / len(self.acc_upd)
                 self.acc_upd, self.since = [], 0
-        elif self.acc_hist.maxlen > self.factor:  # faster than the reference rate
+        elif (self.acc_hist.maxlen or 0) > self.factor:  # faster than the reference rate
             self.acc_hist.extend(s.accel for s in b)
             a = np.sum(list(self.acc_hist), axis=0) / len(self.acc_hist)
         else:
@@ -275,7 +277,7 @@ class _StepBuilder:
         return _Raw(t1, t0, w, a, len(b))
 
 
-def _preintegrate(t0: float, block: list, g0: Array | None = None
+def _preintegrate(t0: float, block: list[ImuSample], g0: Array | None = None
                   ) -> tuple[float, float, float]:
     """Log of the product of Exp(g_i (t_i - t_{i-1})) over the block's samples (rad, body
     FRD): the exact rotation of the step, on Python floats (``qexp_f``, ``qmul_f``,
@@ -302,18 +304,29 @@ class AttitudeStream:
     items it completed), or iterate it over ``samples``. :attr:`summary` describes what
     was chosen and counted (sources, rates, integration, steps, inclination...)."""
 
+    # set when the alignment window is complete (_setup) and when it ends (_start)
+    _imu: str
+    _mag: str | None
+    _pos: str | None
+    _model: GyroTransition
+    _first: ImuSample
+    _mag0: Array | None
+    _mref: Array | None  # unit Earth field, NED (None: heading-only or no magnetometer)
+    _accel_weight: float
+    _mag_weight: float
+
     def __init__(
-        self, samples: Iterable = (), opts: AttitudeOptions | None = None,
-        params: dict | None = None,
+        self, samples: Iterable[Sample] = (), opts: AttitudeOptions | None = None,
+        params: dict[str, Any] | None = None,
     ) -> None:
         self.samples = samples
         self.opts = opts or AttitudeOptions()
         self.params = {} if params is None else params  # filled by the source as it reads
         self.declination = 0.0
         self.space = AttitudeSpace()
-        self.summary: dict = {}
+        self.summary: dict[str, Any] = {}
         self.noise: AttitudeNoise | None = None
-        self._held: list | None = []  # samples of the alignment window (None once set up)
+        self._held: list[Sample] | None = []  # samples of the alignment window (None once set up)
         self._imu_t0: float | None = None
         self._align: list[_Raw] | None = None  # steps of the alignment, before the Start
         self._builder: _StepBuilder | None = None
@@ -322,16 +335,16 @@ class AttitudeStream:
         #: what was decided and when it took effect: dicts of ``what``, ``value``, ``t``
         #: (s, vehicle clock) and ``why``, in the order they were made (see
         #: :meth:`_decide`); also ``summary["decisions"]``
-        self.decisions: list[dict] = []
+        self.decisions: list[dict[str, Any]] = []
         self._decl_pending = False  # declination unknown so far: take it when it arrives
         self._gap: _Gap | None = None  # an IMU gap waiting for its first step after it
-        self._decl_seen: tuple | None = None  # (params size, geo) last looked at
+        self._decl_seen: tuple[int, bool] | None = None  # (params size, geo) last looked at
         #: other IMU sources seen after the set-up: name -> [samples since the chosen IMU's
         #: last sample, first time, last time, samples in all] (the failover's evidence)
-        self._other_imu: dict[str, list] = {}
+        self._other_imu: dict[str, list[float]] = {}
         self._switched = False  # the gap pending is an IMU switch (biases not kept)
 
-    def _decide(self, what: str, value, t: float, why: str) -> None:
+    def _decide(self, what: str, value: Any, t: float, why: str) -> None:
         """Record a decision ``what`` = ``value`` taking effect at ``t`` (s) because ``why``."""
         self.decisions.append({"what": what, "value": value, "t": float(t), "why": why})
         self.summary["decisions"] = self.decisions
@@ -342,7 +355,7 @@ class AttitudeStream:
         yield from self.flush()
 
     # ------------------------------------------------------------------ pushing
-    def push(self, s) -> list[Start | Step]:
+    def push(self, s: Sample) -> list[Start | Step]:
         """Feed one sample; returns the items (start, steps) it completed."""
         o = self.opts
         if not o.in_window(s.t):
@@ -359,11 +372,12 @@ class AttitudeStream:
 
     def flush(self) -> list[Start | Step]:
         """End of the stream: close the last step; returns the remaining items."""
-        out: list = []
+        out: list[Start | Step] = []
         if self._held is not None:
             if not self._held:
                 raise NoSamplesError("no samples in the stream (or in the chosen window)")
             out += self._setup()
+        assert self._builder is not None  # made by _setup
         out += self._emit(list(self._builder.flush()))
         if self._align is not None:  # the stream ended during the alignment
             out += self._start()
@@ -371,14 +385,14 @@ class AttitudeStream:
         return out
 
     # ------------------------------------------------------------------ internals
-    def _mine(self, s) -> bool:
+    def _mine(self, s: Sample) -> bool:
         if isinstance(s, ImuSample):
             return s.source == self._imu
         if isinstance(s, MagSample):
             return s.source == self._mag
         return isinstance(s, PositionSample) and s.source == self._pos
 
-    def _feed(self, s) -> list:
+    def _feed(self, s: Sample) -> list[Start | Step]:
         if (isinstance(s, ImuSample) and s.source != self._imu and self.opts.imu is None
                 and self._builder is not None and self._align is None):
             before = self._failover(s)
@@ -395,12 +409,13 @@ class AttitudeStream:
         if isinstance(s, ImuSample):
             self._imu_n[0] += 1
             self._imu_n[2] = s.t
+        assert self._builder is not None  # made by _setup
         raws = self._builder.push(s)
-        return self._emit(raws) if raws else raws
+        return self._emit(raws) if raws else []
 
-    def _emit(self, raws: list) -> list:
+    def _emit(self, raws: Sequence[_Raw | _Gap]) -> list[Start | Step]:
+        out: list[Start | Step] = []
         if self._align is None:
-            out: list = []
             for r in raws:
                 if isinstance(r, _Gap):
                     self._gap = r
@@ -409,17 +424,16 @@ class AttitudeStream:
                 else:
                     out.append(self._step(r))
             return out
-        raws = [r for r in raws if not isinstance(r, _Gap)]  # in the alignment: no filter yet
-        out = []
-        for i, r in enumerate(raws):
+        steps = [r for r in raws if not isinstance(r, _Gap)]  # in the alignment: no filter yet
+        for i, r in enumerate(steps):
             self._align.append(r)
             if r.t > self._first.t + self.opts.align_s:
                 out += self._start()
-                out += [self._step(x) for x in raws[i + 1:]]
+                out += [self._step(x) for x in steps[i + 1:]]
                 break
         return out
 
-    def _realign(self, r: _Raw) -> list:
+    def _realign(self, r: _Raw) -> list[Start | Step]:
         """The first step after an IMU gap: a new Start at its beginning, attitude from its
         accelerometer (and magnetometer) with the alignment's uncertainty, the filters'
         gyro biases kept (``keep_tail``), then the step itself. Nothing is propagated
@@ -427,6 +441,8 @@ class AttitudeStream:
         gap, self._gap = self._gap, None
         switched, self._switched = self._switched, False
         noise = self.noise
+        assert gap is not None and r.a is not None  # called so by _emit
+        assert noise is not None and self._builder is not None  # set by _setup
         mag = r.mag
         if mag is None and self._builder.mag_last is not None \
                 and self._builder.mag_last[0] >= gap.t1 - 1.0:
@@ -434,7 +450,8 @@ class AttitudeStream:
         use_mag = self._mag is not None and mag is not None and np.any(mag)
         acc = r.accel_ned
         comp = acc is not None and np.isfinite(acc).all()
-        if use_mag and np.any(r.a):  # TRIAD: exact in a turn with the vehicle's acceleration
+        # TRIAD: exact in a turn with the vehicle's acceleration
+        if use_mag and mag is not None and np.any(r.a):
             f_ned = (acc if comp else np.zeros(3)) - np.array([0.0, 0.0, G0])
             m_ned = (self._mref if self._mref is not None
                      else mag_reference(self.declination, 0.0))
@@ -455,7 +472,7 @@ class AttitudeStream:
         return [Start(r.t0, prior, self.space, reason="imu switch" if switched else "gap",
                       keep_tail=0 if switched else 3), self._step(r)]
 
-    def _failover(self, s: ImuSample) -> list | None:
+    def _failover(self, s: ImuSample) -> list[Start | Step] | None:
         """The IMU choice re-decided when the evidence arrives: the chosen IMU has been
         silent for longer than the gap threshold while ``s.source`` kept delivering (at
         least :data:`FAILOVER_SAMPLES` samples since its last one). Then ``s.source``
@@ -463,6 +480,7 @@ class AttitudeStream:
         at its first step (gyro biases not kept: they belong to the other sensor).
         Returns None (no switch) or the items the silent IMU's last samples closed."""
         b = self._builder
+        assert b is not None  # _feed calls this after the set-up only
         last = b.t_last if b.t_last is not None else s.t
         ev = self._other_imu.setdefault(s.source, [0, s.t, s.t, 0])
         ev[0] = ev[0] + 1 if ev[2] > last else 1  # delivered since the chosen one's last
@@ -500,6 +518,7 @@ class AttitudeStream:
         """Compensation switches on with the first valid velocity of ``s.source`` (a log
         that starts before the GNSS fix has none in the alignment window)."""
         self._pos = s.source
+        assert self._builder is not None  # made by _setup
         self._builder.use_pos = True
         self.summary["accel_compensation"] = s.source
         self.summary["accel_compensation_from_t"] = float(s.t)
@@ -530,9 +549,10 @@ class AttitudeStream:
         self._k += 1
         return Step(self._k, r.t, r.t - r.t0, self._model, self._updates(r, self._mref), r.w)
 
-    def _setup(self) -> list:
+    def _setup(self) -> list[Start | Step]:
         """Choose sources, rate and integration from the held window; replay it."""
         o, held = self.opts, self._held
+        assert held is not None  # called once, while holding
         self._held = None
         imu_counts: dict[str, int] = {}
         mag_counts: dict[str, int] = {}
@@ -618,15 +638,16 @@ class AttitudeStream:
                     break
         self._imu_n = [0, first.t, first.t]
         self._align = []
-        out: list = []
+        out: list[Start | Step] = []
         for s in held:
             out += self._feed(s)
         return out
 
-    def _start(self) -> list:
+    def _start(self) -> list[Start | Step]:
         """Alignment done: declination, inclination, prior; the Start and held steps."""
         o, first, mag0, noise = self.opts, self._first, self._mag0, self.noise
         align, self._align = self._align, None
+        assert align is not None and noise is not None  # set by _setup
         decl, src = o.declination, "option"
         if decl is None:
             decl, src = declination_and_source(self.params)
@@ -639,10 +660,10 @@ class AttitudeStream:
         self._mref = None
         if self._mag is not None and o.mag_mode == "field":
             win = [r for r in align if r.t <= first.t + o.align_s and r.mag is not None]
-            acc = [r.a for r in win]
-            fld = [r.mag for r in win]
+            acc: list[Array | None] = [r.a for r in win]  # every step with a field has an a
+            fld: list[Array | None] = [r.mag for r in win]
             if mag0 is not None:
-                acc, fld = [first.accel] + acc, [mag0] + fld
+                acc, fld = [first.accel, *acc], [mag0, *fld]
             self._mref = mag_reference(
                 decl, inclination_from_samples(np.array(acc).reshape(-1, 3),
                                                np.array(fld).reshape(-1, 3)))
@@ -657,7 +678,7 @@ class AttitudeStream:
                      + (", yaw from the magnetometer" if mag0 is not None and self._mag
                         else ", yaw 0 (no magnetometer)")
                      + f"; {len(align)} steps of the {o.align_s:g} s window held")
-        return [start] + [self._step(r) for r in align]
+        return [start, *(self._step(r) for r in align)]
 
     def _finish_summary(self) -> None:
         n, t0, t1 = self._imu_n
@@ -673,11 +694,14 @@ class AttitudeStream:
             filter_rate_hz=self._k / span if span > 0 else 0.0,
         )
 
-    def _updates(self, r: _Raw, mref: Array | None) -> tuple:
+    def _updates(self, r: _Raw, mref: Array | None) -> tuple[tuple[Array, Any], ...]:
+        """The step's (z, measurement model) pairs: gravity direction, magnetometer
+        (field or heading), stacked into one when both are there."""
         o, noise = self.opts, self.noise
         if r.a is None:
             return ()
-        meas = []
+        assert noise is not None  # set by _setup
+        meas: list[tuple[Array, Any]] = []
         a = GravityDirection.from_accel(r.a, noise, accel_ned=r.accel_ned,
                                         weight=self._accel_weight)
         if a is not None:

@@ -17,6 +17,7 @@ import gc
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import Any, Protocol
 
 from .records import RunInfo, Start, Step
 
@@ -48,15 +49,51 @@ def frozen_heap() -> Iterator[None]:
             gc.unfreeze()
 
 
+class StepBuilder(Protocol):
+    """Turns samples into engine items (e.g. :class:`~uavest.engine.attitude.AttitudeStream`)."""
+
+    def push(self, sample: Any) -> Iterable[Start | Step]: ...
+
+    def flush(self) -> Iterable[Start | Step]: ...
+
+
+class Estimator(Protocol):
+    """What the loop calls of an estimator (:mod:`uavest.engine.runner`)."""
+
+    @property
+    def label(self) -> str: ...
+
+    def start(self, st: Start) -> None: ...
+
+    def step(self, st: Step) -> Any: ...
+
+
+class RecordSink(Protocol):
+    """What the loop calls of a sink (:class:`uavest.sinks.base.Sink`, a layer above):
+    ``start`` gets the label, the start time (s) and the prior's mean and covariance (or
+    None)."""
+
+    def open(self, info: RunInfo) -> None: ...
+
+    def sample(self, s: Any) -> None: ...
+
+    def start(self, label: str, t0: float, x0: Any, P0: Any) -> None: ...
+
+    def record(self, rec: Any) -> None: ...
+
+    def close(self) -> None: ...
+
+
 @dataclass
 class Lane:
     """A step builder and the estimators its items go to."""
 
-    builder: object
-    estimators: Sequence
+    builder: StepBuilder
+    estimators: Sequence[Estimator]
 
 
-def _dispatch(items, estimators, sinks) -> int:
+def _dispatch(items: Iterable[Start | Step], estimators: Sequence[Estimator],
+              sinks: Sequence[RecordSink]) -> int:
     n = 0
     for it in items:
         if isinstance(it, Step):
@@ -81,8 +118,8 @@ def _dispatch(items, estimators, sinks) -> int:
 
 def run(
     items: Iterable[Start | Step],
-    estimators: Sequence,
-    sinks: Sequence = (),
+    estimators: Sequence[Estimator],
+    sinks: Sequence[RecordSink] = (),
     info: RunInfo | None = None,
 ) -> int:
     """Run ``estimators`` over ``items``, handing every record to every sink; returns the
@@ -100,9 +137,9 @@ def run(
 
 
 def run_lanes(
-    samples: Iterable,
+    samples: Iterable[Any],
     lanes: Sequence[Lane],
-    sinks: Sequence = (),
+    sinks: Sequence[RecordSink] = (),
     info: RunInfo | None = None,
 ) -> int:
     """Feed every sample to every sink and every lane's builder; step each lane's

@@ -63,7 +63,7 @@ class Step:
     transition: Any
     updates: tuple[tuple[Array, Any], ...] = ()
     u: Array | None = None
-    info: dict | None = None
+    info: dict[str, Any] | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -182,12 +182,12 @@ class RunInfo:
     command: str
     source: str
     seed: int
-    filters: dict[str, dict] = field(default_factory=dict)
-    config: dict = field(default_factory=dict)
+    filters: dict[str, dict[str, Any]] = field(default_factory=dict)
+    config: dict[str, Any] = field(default_factory=dict)
     versions: dict[str, str] = field(default_factory=dict)
-    scenario: dict = field(default_factory=dict)
+    scenario: dict[str, Any] = field(default_factory=dict)
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         return {
             "command": self.command, "source": self.source, "seed": self.seed,
             "filters": self.filters, "config": self.config, "versions": self.versions,

@@ -7,6 +7,7 @@ filter-mode trials and the speed benchmark all step filters through it.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -54,14 +55,14 @@ class FilterRunner:
         self.rng = rng
         self.record_prediction = record_prediction
         self.smooth = smooth
-        self.state = None
-        self.space = None
+        self.state: Any = None  # the filter's state (its own type), None before start
+        self.space: Any = None
         self.smooth_seconds = 0.0
         self.seconds = 0.0  # wall time of all steps (without smoothing's share)
         self.steps = 0
         self.timed_seconds = 0.0  # wall time of the steps after the first WARMUP_STEPS
         self.timed_steps = 0
-        self._last = None
+        self._last: Any = None
 
     def start(self, st: Start) -> None:
         self.space = st.space
@@ -98,7 +99,7 @@ class FilterRunner:
             dt_s = time.perf_counter() - c1
             self.smooth_seconds += dt_s
             c0 += dt_s
-        ups = []
+        ups: list[Update] = []
         for z, m in st.updates:
             s, inn = f.update(s, z, m, rng)
             if inn is not None:
@@ -134,10 +135,11 @@ class TrackerRunner:
     """Runs a multi-target :class:`uavest.tracking.tracker.Tracker` over scans: a step's
     single update is ``(Z (N, m) detections, radar model at the scan's pose)``."""
 
-    def __init__(self, label: str, make_tracker) -> None:
+    def __init__(self, label: str, make_tracker: Callable[[], Any]) -> None:
         self.label = label
         self.make_tracker = make_tracker
-        self.tracker = None
+        # a Tracker (uavest.tracking, a sibling layer the engine does not import)
+        self.tracker: Any = None
 
     def start(self, st: Start) -> None:
         self.tracker = self.make_tracker()

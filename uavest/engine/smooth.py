@@ -21,17 +21,29 @@ usual for multiplicative-error smoothers on SO(3) at these step sizes.
 
 from __future__ import annotations
 
+from typing import Protocol
+
 import numpy as np
 
 from ..core.linalg import symmetrize
+from ..geometry.spaces import Space
 
 Array = np.ndarray
 
 __all__ = ["rts_backward", "smooth_records"]
 
 
+class KeptRecords(Protocol):
+    """What :func:`smooth_records` reads of a :class:`uavest.sinks.base.Collector`: the
+    start ``(t0, x0, P0)`` and the stacked record fields of each label."""
+
+    starts: dict[str, tuple[float, Array, Array]]
+
+    def arrays(self, label: str) -> dict[str, Array]: ...
+
+
 def rts_backward(
-    space, x_f: Array, P_f: Array, x_p: Array, P_p: Array, C: Array
+    space: Space, x_f: Array, P_f: Array, x_p: Array, P_p: Array, C: Array
 ) -> tuple[Array, Array]:
     """Smoothed states/covariances from a forward pass.
 
@@ -54,7 +66,7 @@ def rts_backward(
     return x_s, P_s
 
 
-def smooth_records(coll, label: str, space) -> tuple[Array, Array, Array]:
+def smooth_records(coll: KeptRecords, label: str, space: Space) -> tuple[Array, Array, Array]:
     """RTS-smoothed run of ``label`` from a :class:`uavest.sinks.base.Collector` that kept
     a runner's records made with ``smooth=True``: step times (K,), smoothed means
     (K, size) and covariances (K, n, n) (the start, row 0 of the recursion, left out)."""
