@@ -57,8 +57,9 @@ class NavNoise:
     mag_noise: heading / field-direction std, rad.
     gate_chi2: innovation gate, chi-square value per measurement dimension group
         (applied as the 99.9 % quantile for the dimension when None).
-    init_tilt, init_yaw: prior std of roll/pitch and yaw, rad (init_yaw is large when
-        no magnetometer is available: yaw comes from the GNSS course once moving).
+    init_tilt, init_yaw: prior std of roll/pitch and yaw, rad (yaw from the
+        magnetometer); init_yaw_course: prior std of a yaw taken from the GNSS course
+        once moving (no magnetometer), rad: the crab/sideslip it leaves.
     init_vel: m/s; init_pos: m; init_gyro_bias: rad/s; init_accel_bias: m/s^2.
     """
 
@@ -74,6 +75,7 @@ class NavNoise:
     mag_noise: float = 0.08
     init_tilt: float = np.deg2rad(5.0)
     init_yaw: float = np.deg2rad(15.0)
+    init_yaw_course: float = np.deg2rad(20.0)
     init_vel: float = 1.0
     init_pos: float = 5.0
     init_gyro_bias: float = np.deg2rad(0.5)
