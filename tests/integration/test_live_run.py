@@ -158,6 +158,13 @@ def test_link_cut_is_reported_and_the_run_resumes():
     assert big > 2.5 * SPEED * 0.5, big  # the gap is in the records (vehicle time)
     assert t[-1] > t[np.argmax(np.diff(t))] + 1.0  # and estimates resumed after it
     assert doc["attitude"]["ekf"]["yaw_rmse_deg"] < 10.0  # incl. the realignment after the gap
+    # the live summary names every decision with its time, the restart among them
+    whats = [d["what"] for d in doc["decisions"]]
+    assert whats.count("restart") == 1 and whats.count("alignment") == 2, whats
+    from uavest.cli.run import format_live
+
+    out = format_live(doc)
+    assert "decision: IMU: " in out and "decision: restart: new alignment at t=" in out
 
 
 @pytest.mark.slow

@@ -100,9 +100,9 @@ def test_line_progress_off_a_terminal(capsys):
 
 
 def test_report_prints_one_line_per_stage_when_not_a_terminal(tmp_path, capsys, monkeypatch):
-    import uavest.cli.progress as rep
     from conftest import shared_log
 
+    import uavest.cli.progress as rep
     from uavest.cli import main
 
     monkeypatch.setattr(rep, "PROGRESS_AFTER_S", 0.0)

@@ -371,11 +371,28 @@ class _GapAware:
         self.bridge_s = bridge_s
         self.stream = make()
         self.restarts = 0
+        self._past: list[dict] = []  # the decisions of the streams before a restart
+
+    @property
+    def decisions(self) -> list[dict]:
+        """Every stream's decisions in order, each restart one of them (``what``,
+        ``value``, ``t`` s vehicle clock, ``why``)."""
+        return self._past + self.stream.decisions
+
+    @property
+    def t_first(self) -> float | None:
+        """Vehicle time (s) of the first IMU sample of the run, None before one."""
+        ts = [d["t"] for d in self.decisions if d["what"] == "IMU"]
+        return ts[0] if ts else None
 
     def push(self, s) -> list:
         if isinstance(s, LinkEvent):
             if s.kind == "link_restored" and (s.duration or 0.0) > self.bridge_s:
                 out = self.stream.flush() if self.stream._builder is not None else []
+                self._past += self.stream.decisions
+                self._past.append({"what": "restart", "value": "new alignment", "t": s.t,
+                                   "why": f"link gap of {s.duration:.1f} s "
+                                          f"(> bridge {self.bridge_s:g} s)"})
                 self.stream = self.make()
                 self.restarts += 1
                 return out
@@ -483,6 +500,7 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
         "scans": len(lane.truth),
         "targets_seen": len({i for _, tr in lane.truth for i in tr}),
         "attitude_restarts": att.restarts,
+        "decisions": att.decisions, "t_first": att.t_first,
         "latency_ms": ({"p50": 1e3 * float(np.percentile(st.lat, 50)),
                         "p99": 1e3 * float(np.percentile(st.lat, 99))} if st.lat else None),
     }

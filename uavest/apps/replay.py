@@ -291,6 +291,7 @@ def replay(
         "log": str(path),
         "format": "dataflash" if src.format == "dataflash-text" else src.format,
         "imu_source": sm.get("imu_source"),
+        "imu_switches": list(sm.get("imu_switches") or []),
         "mag_source": sm.get("mag_source"),
         "reference": ref_name,
         "reference_kind": None if ref_name is None else refs[ref_name].kind,

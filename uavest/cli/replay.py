@@ -88,10 +88,24 @@ class _Progress(Sink):
         self.bar.close()
 
 
+def decision_lines(doc: dict) -> list[str]:
+    """One ``decision:`` line per entry of ``doc["decisions"]`` (what, value, the vehicle
+    time it took effect, s, and how far into the IMU data, why)."""
+    t0, lines = doc.get("t_first"), []
+    for d in doc.get("decisions") or []:
+        rel = f", {d['t'] - t0:+.1f} s into the IMU data" if t0 is not None else ""
+        when = "at" if d["what"].endswith("alignment") or d["what"] == "restart" else "from"
+        lines.append(f"decision: {d['what']}: {d['value']} {when} t={d['t']:.1f} s{rel} "
+                     f"({d['why']})")
+    return lines
+
+
 def format_doc(doc: dict) -> str:
     """The human-readable result of a replay: what was read, the table, bad data."""
+    then = "".join(f" then {w['to']} from t={w['t']:.1f} s" for w in doc.get("imu_switches") or [])
     lines = [
-        f"{doc['log']}: {doc['format']}, IMU {doc['imu_source']} at {doc['imu_rate_hz']:.1f} Hz,"
+        f"{doc['log']}: {doc['format']}, IMU {doc['imu_source']}{then} at "
+        f"{doc['imu_rate_hz']:.1f} Hz,"
         f" {doc['duration_s']:.1f} s, {doc['steps']} filter steps at "
         f"{doc['filter_rate_hz']:.1f} Hz ({doc['integration']})",
         f"integration: {doc['integration']} ({doc.get('integration_why') or 'option'})",
@@ -108,12 +122,7 @@ def format_doc(doc: dict) -> str:
     if doc.get("declination_source"):
         lines.append(f"declination: {math.degrees(doc['declination_rad'] or 0.0):.2f} deg "
                      f"({doc['declination_source']})")
-    t0 = doc.get("t_first")
-    for d in doc.get("decisions") or []:
-        rel = f", {d['t'] - t0:+.1f} s into the IMU data" if t0 is not None else ""
-        when = "at" if d["what"].endswith("alignment") else "from"
-        lines.append(f"decision: {d['what']}: {d['value']} {when} t={d['t']:.1f} s{rel} "
-                     f"({d['why']})")
+    lines += decision_lines(doc)
     if doc.get("imu_gaps"):
         (g0, _), = [max(doc["imu_gap_list"], key=lambda g: g[1] - g[0])]
         lines.append(f"IMU gaps: {doc['imu_gaps']} longer than "

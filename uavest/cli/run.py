@@ -16,6 +16,7 @@ from ..ingest.adsb_radar import RadarConfig
 from ..sinks.jsonout import write_json
 from ..sinks.table import table
 from .record import add_recording_options, finish_recording, recording_sinks
+from .replay import decision_lines
 
 __all__ = ["add_demo_parser", "add_run_parser", "format_live"]
 
@@ -114,7 +115,8 @@ def format_live(doc: dict) -> str:
     ref, kind = doc["reference"], doc["reference_kind"]
     what = "none" if ref is None else (f"{ref} (truth)" if kind == "truth"
                                        else f"{ref} ({kind} estimate, not truth)")
-    lines = [f"attitude against {what}; RMSE in degrees", table(doc["attitude"], [
+    lines = decision_lines(doc)
+    lines += [f"attitude against {what}; RMSE in degrees", table(doc["attitude"], [
         "roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg", "nees_mean", "resets",
         "us_per_step"])]
     if doc["tracks"]:

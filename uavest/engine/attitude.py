@@ -81,6 +81,10 @@ DEFAULT_MAX_RATE_HZ = 25.0
 #: alignment window) is a gap: reported, not integrated across, the filters re-aligned.
 GAP_MIN_S = 0.5
 GAP_MEDIANS = 20.0
+#: samples another IMU must have delivered since the chosen one's last before it takes over
+FAILOVER_SAMPLES = 10
+
+
 @dataclass(frozen=True)
 class AttitudeOptions:
     """How samples become steps (see the module docstring and ``uavest replay --help``).
@@ -322,6 +326,10 @@ class AttitudeStream:
         self._decl_pending = False  # declination unknown so far: take it when it arrives
         self._gap: _Gap | None = None  # an IMU gap waiting for its first step after it
         self._decl_seen: tuple | None = None  # (params size, geo) last looked at
+        #: other IMU sources seen after the set-up: name -> [samples since the chosen IMU's
+        #: last sample, first time, last time, samples in all] (the failover's evidence)
+        self._other_imu: dict[str, list] = {}
+        self._switched = False  # the gap pending is an IMU switch (biases not kept)
 
     def _decide(self, what: str, value, t: float, why: str) -> None:
         """Record a decision ``what`` = ``value`` taking effect at ``t`` (s) because ``why``."""
@@ -371,6 +379,12 @@ class AttitudeStream:
         return isinstance(s, PositionSample) and s.source == self._pos
 
     def _feed(self, s) -> list:
+        if (isinstance(s, ImuSample) and s.source != self._imu and self.opts.imu is None
+                and self._builder is not None and self._align is None):
+            before = self._failover(s)
+            if before is None:
+                return []
+            return before + self._feed(s)
         if not self._mine(s):
             if (self._pos is None and self.opts.accel_comp == "auto"
                     and isinstance(s, PositionSample) and s.vel_ned is not None
@@ -411,6 +425,7 @@ class AttitudeStream:
         gyro biases kept (``keep_tail``), then the step itself. Nothing is propagated
         across the gap (one step of 17 s through a UKF's sigma points diverged)."""
         gap, self._gap = self._gap, None
+        switched, self._switched = self._switched, False
         noise = self.noise
         mag = r.mag
         if mag is None and self._builder.mag_last is not None \
@@ -429,11 +444,57 @@ class AttitudeStream:
         P0 = np.diag([noise.init_tilt**2, noise.init_tilt**2, noise.init_yaw**2]
                      + [noise.init_bias**2] * 3)
         prior = Gaussian(np.concatenate([q0, np.zeros(3)]), P0)
-        self._decide("re-alignment", f"after an IMU gap of {gap.t1 - gap.t0:.1f} s", r.t0,
+        what = (f"after the IMU switch to {self._imu}" if switched
+                else f"after an IMU gap of {gap.t1 - gap.t0:.1f} s")
+        self._decide("re-alignment", what, r.t0,
                      "no IMU data from t=" f"{gap.t0:.1f} s; attitude from the accelerometer"
                      + (" and magnetometer" if use_mag else "")
-                     + (" with the vehicle's acceleration" if comp else "") + ", gyro biases kept")
-        return [Start(r.t0, prior, self.space, reason="gap", keep_tail=3), self._step(r)]
+                     + (" with the vehicle's acceleration" if comp else "")
+                     + (", gyro biases from zero (another sensor)" if switched
+                        else ", gyro biases kept"))
+        return [Start(r.t0, prior, self.space, reason="imu switch" if switched else "gap",
+                      keep_tail=0 if switched else 3), self._step(r)]
+
+    def _failover(self, s: ImuSample) -> list | None:
+        """The IMU choice re-decided when the evidence arrives: the chosen IMU has been
+        silent for longer than the gap threshold while ``s.source`` kept delivering (at
+        least :data:`FAILOVER_SAMPLES` samples since its last one). Then ``s.source``
+        becomes the IMU from ``s.t``: its own noise, rate and integration, a re-alignment
+        at its first step (gyro biases not kept: they belong to the other sensor).
+        Returns None (no switch) or the items the silent IMU's last samples closed."""
+        b = self._builder
+        last = b.t_last if b.t_last is not None else s.t
+        ev = self._other_imu.setdefault(s.source, [0, s.t, s.t, 0])
+        ev[0] = ev[0] + 1 if ev[2] > last else 1  # delivered since the chosen one's last
+        ev[2], ev[3] = s.t, ev[3] + 1
+        if s.t - last <= b.gap_s or ev[0] < FAILOVER_SAMPLES:
+            return None
+        o, old = self.opts, self._imu
+        rate = (ev[3] - 1) / max(ev[2] - ev[1], 1e-9)
+        integ, why = o.integration, "option"
+        if integ == "auto":
+            integ, why = default_integration(s.source, rate)
+        cap = DEFAULT_MAX_RATE_HZ if o.rate_hz is None else float(o.rate_hz)
+        factor = 1 if cap <= 0 else max(1, round(rate / cap))
+        nb = _StepBuilder(integ, factor, b.use_pos, 1, 1)
+        nb.mag_last, nb.vel, nb.gaps, nb.dropped = b.mag_last, b.vel, b.gaps, b.dropped
+        nb.gap_s = max(GAP_MIN_S, GAP_MEDIANS / max(rate, 1e-9))
+        nb.gaps.append((last, s.t))
+        out = self._emit(list(b.flush()))  # what the silent IMU left, before the switch
+        self._builder = nb
+        self._imu, self._gap, self._switched = s.source, _Gap(last, s.t), True
+        if self._mag == old:  # that sensor's magnetometer went with it
+            self._mag = s.source if self._mag is not None else None
+        self.noise = noise_for_source(s.source).with_(**o.noise)
+        self._model = GyroTransition(self.noise)
+        self._accel_weight = 1.0
+        self._other_imu.pop(s.source)
+        switches = self.summary.setdefault("imu_switches", [])
+        switches.append({"from": old, "to": s.source, "t": float(s.t)})
+        self._decide("IMU", s.source, s.t,
+                     f"{old} silent since t={last:.1f} s ({s.t - last:.1f} s), {s.source} "
+                     f"continued ({rate:.1f} Hz, {integ}: {why})")
+        return out
 
     def _accel_comp_on(self, s: PositionSample) -> None:
         """Compensation switches on with the first valid velocity of ``s.source`` (a log
