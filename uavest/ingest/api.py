@@ -11,6 +11,10 @@ import numpy as np
 from .mavlink import MavlinkSource
 from .types import (
     AttitudeRef,
+    BaroSample,
+    BaroSeries,
+    GnssSample,
+    GnssSeries,
     ImuSample,
     ImuSeries,
     IngestError,
@@ -186,6 +190,8 @@ def _collect_stream(src: MavlinkSource):
     mag: dict[str, list] = {}
     refs: dict[str, list] = {}
     pos: dict[str, list] = {}
+    gnss: dict[str, list] = {}
+    baro: dict[str, list] = {}
     for m in src:
         if isinstance(m, ImuSample):
             imu.setdefault(m.source, []).append(m)
@@ -195,6 +201,10 @@ def _collect_stream(src: MavlinkSource):
             refs.setdefault(m.source, []).append(m)
         elif isinstance(m, PositionSample):
             pos.setdefault(m.source, []).append(m)
+        elif isinstance(m, GnssSample):
+            gnss.setdefault(m.source, []).append(m)
+        elif isinstance(m, BaroSample):
+            baro.setdefault(m.source, []).append(m)
     nan3 = np.full(3, np.nan)
     out_imu = {
         s: (
@@ -222,7 +232,45 @@ def _collect_stream(src: MavlinkSource):
         )
         for s, v in pos.items()
     }
-    return out_imu, out_mag, out_refs, out_pos
+    return out_imu, out_mag, out_refs, out_pos, gnss_arrays(gnss), baro_arrays(baro)
+
+
+def gnss_arrays(gnss: dict[str, list]) -> dict[str, dict]:
+    """Source -> the :class:`GnssSeries` fields as arrays, from lists of :class:`GnssSample`."""
+    out = {}
+    for s, v in gnss.items():
+        out[s] = {
+            "t": np.array([x.t for x in v]),
+            "lat_lon_alt": np.array([x.lat_lon_alt for x in v]).reshape(-1, 3),
+            "vel_ned": np.array([x.vel_ned for x in v]).reshape(-1, 3),
+            "fix_type": np.array([x.fix_type for x in v], dtype=int),
+            **{k: np.array([getattr(x, k) for x in v], dtype=float)
+               for k in ("h_acc", "v_acc", "s_acc", "hdop", "vdop")},
+            "satellites": np.array([x.satellites for x in v], dtype=int),
+            "instance": v[0].instance,
+        }
+    return out
+
+
+def baro_arrays(baro: dict[str, list]) -> dict[str, dict]:
+    """Source -> the :class:`BaroSeries` fields as arrays, from lists of :class:`BaroSample`."""
+    return {s: {"t": np.array([x.t for x in v]),
+                **{k: np.array([getattr(x, k) for x in v], dtype=float)
+                   for k in ("pressure", "temperature", "alt")},
+                "instance": v[0].instance} for s, v in baro.items()}
+
+
+def _series(cls, arrays: dict[str, dict], start, end) -> dict:
+    """Time-sorted, de-duplicated, windowed series of ``cls`` from :func:`gnss_arrays` /
+    :func:`baro_arrays`-style dicts."""
+    out = {}
+    for s, d in arrays.items():
+        names = [k for k in d if k not in ("t", "instance")]
+        t, *cols = _sort_dedup(d["t"], *(d[k] for k in names))
+        k = _window(t, start, end)
+        out[s] = cls(t=t[k], **{n: c[k] for n, c in zip(names, cols, strict=True)},
+                     source=s, instance=int(d["instance"]))
+    return out
 
 
 def read_log(
@@ -249,9 +297,10 @@ def read_log(
         stats = IngestStats()
         d = ULogData(p, stats)
         imu_d, mag_d, ref_d, pos_d, params = d.imu, d.mag, d.refs, d.pos, d.params
+        gnss_d, baro_d = d.gnss, d.baro
     else:
         src = MavlinkSource(p, fmt)
-        imu_d, mag_d, ref_d, pos_d = _collect_stream(src)
+        imu_d, mag_d, ref_d, pos_d, gnss_d, baro_d = _collect_stream(src)
         stats, params = src.stats, src.params
 
     counts = {s: int(v[0].shape[0]) for s, v in imu_d.items()}
@@ -304,6 +353,8 @@ def read_log(
         stats=stats,
         imu_sources=counts,
         mag_sources=mag_counts,
+        gnss=_series(GnssSeries, gnss_d, start, end),
+        baro=_series(BaroSeries, baro_d, start, end),
     )
 
 

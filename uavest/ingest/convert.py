@@ -7,6 +7,7 @@ the sources attach the time, check plausibility and build the dataclasses.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from dataclasses import dataclass
@@ -33,8 +34,10 @@ MAX_VEL = 1e3  # m/s, |v|
 class Raw:
     """A converted value waiting for a timestamp.
 
-    cat: "imu" | "mag" | "ref" | "pos".  values: tuple of arrays (imu: gyro,
-    accel; mag: field; ref: q; pos: ned, vel_ned, lat_lon_alt, each may be None).
+    cat: "imu" | "mag" | "ref" | "pos" | "gnss" | "baro" | "det" | "adsb".  values: tuple
+    of arrays (imu: gyro, accel; mag: field; ref: q; pos: ned, vel_ned, lat_lon_alt, each
+    may be None; gnss: lat_lon_alt, vel_ned (NaN where absent), :func:`gnss_acc` vector,
+    with ``meta["fix_type"]``; baro: ``[pressure Pa, temperature C, alt m]``).
     """
 
     cat: str
@@ -65,6 +68,10 @@ def normalize_quat(q) -> np.ndarray:
 
 def check(raw: Raw) -> str | None:
     """Return the bad-data kind for a converted item, or None if it is plausible."""
+    if raw.cat == "gnss":
+        return check_gnss(raw)
+    if raw.cat == "baro":
+        return check_baro(raw)
     vals = [v for v in raw.values if v is not None]
     for v in vals:
         if not np.all(np.isfinite(v)):
@@ -106,6 +113,47 @@ def check(raw: Raw) -> str | None:
                 return "out_of_range"
             if lla[0] == 0 and lla[1] == 0:
                 return "empty"
+    return None
+
+
+MIN_PRESSURE, MAX_PRESSURE = 1.0e3, 1.2e5  # Pa, plausible absolute pressure (~31 km..-1.5 km)
+MIN_FIX = 2  # GPS_FIX_TYPE below which a GNSS record carries no position (0 no GPS, 1 no fix)
+
+
+def check_gnss(raw: Raw) -> str | None:
+    """Bad-data kind of a GNSS item, or None: ``nan`` for a non-finite lat/lon/alt,
+    ``empty`` (counted ``no_fix``, or ``absent_sensor`` for an instance that never had a
+    fix) when fix_type < :data:`MIN_FIX` or lat = lon = 0, ``out_of_range`` for an
+    impossible position or a speed above :data:`MAX_VEL`. NaN velocity components and
+    accuracies are allowed (the message lacks them)."""
+    lla, vel, _acc = raw.values
+    meta = raw.meta or {}
+    if int(meta.get("fix_type", 0)) < MIN_FIX:
+        return "empty"
+    if not (np.all(np.isfinite(lla[:2])) and (math.isfinite(lla[2]) or meta.get("no_alt"))):
+        return "nan"
+    if lla[0] == 0 and lla[1] == 0:
+        return "empty"
+    if abs(lla[0]) > 90 or abs(lla[1]) > 180 or abs(lla[2]) > 1e5:
+        return "out_of_range"
+    v = vel[np.isfinite(vel)]
+    if v.size and np.linalg.norm(v) > MAX_VEL:
+        return "out_of_range"
+    return None
+
+
+def check_baro(raw: Raw) -> str | None:
+    """Bad-data kind of a barometer item ``(pressure Pa, temperature C, alt m)``, or None:
+    ``empty`` for a zero pressure (an unfitted sensor), ``nan``, ``out_of_range`` outside
+    [:data:`MIN_PRESSURE`, :data:`MAX_PRESSURE`]."""
+    (v,) = raw.values
+    p = float(v[0])
+    if p == 0.0:
+        return "empty"
+    if not math.isfinite(p):
+        return "nan"
+    if not MIN_PRESSURE <= p <= MAX_PRESSURE:
+        return "out_of_range"
     return None
 
 
@@ -237,11 +285,85 @@ def _local_pos(m, name: str) -> list[Raw]:
 
 
 def _gps_raw(m, name: str) -> list[Raw]:
+    # the raw fix as a GNSS measurement (primary) and, as before, a position (3-D fixes)
+    out = _gnss_raw_int(m, name)
     # GPS_RAW_INT carries no vertical velocity: vel_ned stays None (use GLOBAL_POSITION_INT)
     if int(m.fix_type) < 3:  # no 3D fix
-        return [Raw("pos", name, 0, (None, None, np.zeros(3)))]
+        out.append(Raw("pos", name, 0, (None, None, np.zeros(3)), primary=False))
+        return out
     lla = np.array([m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3])
-    return [Raw("pos", name, 0, (None, None, lla))]
+    out.append(Raw("pos", name, 0, (None, None, lla), primary=False))
+    return out
+
+
+_U16_UNKNOWN = 65535  # eph/epv/vel/cog "unknown"
+_SATS_UNKNOWN = 255
+
+
+def _opt(m, field: str, scale: float, unknown: float | None = None) -> float:
+    """Optional MAVLink field (an extension may be absent) times ``scale``; NaN when absent,
+    zero (MAVLink's "not reported" for h_acc/v_acc/vel_acc) or ``unknown``."""
+    v = getattr(m, field, None)
+    if v is None or v == 0 or (unknown is not None and v == unknown):
+        return math.nan
+    return float(v) * scale
+
+
+def gnss_acc(h_acc=math.nan, v_acc=math.nan, s_acc=math.nan, hdop=math.nan, vdop=math.nan,
+             sats=-1) -> np.ndarray:
+    """The accuracy vector of a GNSS item: [h_acc m, v_acc m, s_acc m/s, hdop, vdop, sats]."""
+    return np.array([h_acc, v_acc, s_acc, hdop, vdop, sats], dtype=float)
+
+
+def _gnss_raw_int(m, name: str) -> list[Raw]:
+    """GPS_RAW_INT / GPS2_RAW: lat/lon degE7, alt mm AMSL, vel cm/s and cog cdeg (ground
+    speed and course: NED north/east, vertical NaN), eph/epv HDOP/VDOP x100, h_acc/v_acc
+    mm, vel_acc mm/s (MAVLink 2 extensions; absent or 0 = unknown -> NaN)."""
+    inst = 1 if name == "GPS2_RAW" else 0
+    lla = np.array([m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3], dtype=float)
+    vel = np.full(3, np.nan)
+    if m.vel != _U16_UNKNOWN and m.cog != _U16_UNKNOWN:
+        spd, crs = m.vel * 1e-2, m.cog * 1e-2 * DEG
+        vel[:2] = spd * math.cos(crs), spd * math.sin(crs)
+    sats = int(m.satellites_visible)
+    acc = gnss_acc(_opt(m, "h_acc", 1e-3), _opt(m, "v_acc", 1e-3), _opt(m, "vel_acc", 1e-3),
+                   _opt(m, "eph", 1e-2, _U16_UNKNOWN), _opt(m, "epv", 1e-2, _U16_UNKNOWN),
+                   -1 if sats == _SATS_UNKNOWN else sats)
+    return [Raw("gnss", name, inst, (lla, vel, acc), meta={"fix_type": int(m.fix_type)})]
+
+
+# GPS_INPUT_IGNORE_FLAGS
+_GI_ALT, _GI_HDOP, _GI_VDOP, _GI_VH, _GI_VV, _GI_SACC, _GI_HACC, _GI_VACC = (
+    1, 2, 4, 8, 16, 32, 64, 128)
+
+
+def _gps_input(m, name: str) -> list[Raw]:
+    """GPS_INPUT (a companion computer's receiver): lat/lon degE7, alt m, vn/ve/vd m/s,
+    hdop/vdop, speed/horiz/vert accuracy m(/s); fields flagged in ignore_flags -> NaN."""
+    ign = int(m.ignore_flags)
+    inst = int(m.gps_id)
+
+    def f(v, flag):
+        return math.nan if ign & flag else float(v)
+
+    lla = np.array([m.lat * 1e-7, m.lon * 1e-7, f(m.alt, _GI_ALT)], dtype=float)
+    vel = np.array([f(m.vn, _GI_VH), f(m.ve, _GI_VH), f(m.vd, _GI_VV)])
+    sats = int(m.satellites_visible)
+    acc = gnss_acc(f(m.horiz_accuracy, _GI_HACC), f(m.vert_accuracy, _GI_VACC),
+                   f(m.speed_accuracy, _GI_SACC), f(m.hdop, _GI_HDOP), f(m.vdop, _GI_VDOP),
+                   -1 if sats == _SATS_UNKNOWN else sats)
+    src = name if inst == 0 else f"{name}[{inst}]"
+    meta = {"fix_type": int(m.fix_type), "no_alt": bool(ign & _GI_ALT)}
+    return [Raw("gnss", src, inst, (lla, vel, acc), meta=meta)]
+
+
+_PRESSURE_INST = {"SCALED_PRESSURE": 0, "SCALED_PRESSURE2": 1, "SCALED_PRESSURE3": 2}
+
+
+def _scaled_pressure(m, name: str) -> list[Raw]:
+    """SCALED_PRESSURE/2/3: press_abs hPa -> Pa, temperature cdegC -> degC; no altitude."""
+    v = np.array([float(m.press_abs) * 100.0, float(m.temperature) * 1e-2, math.nan])
+    return [Raw("baro", name, _PRESSURE_INST[name], (v,))]
 
 
 #: MAV_FRAME value -> frame name of a DetectionSample (others: ``unknown_frame``).
@@ -308,6 +430,11 @@ MAVLINK_CONVERTERS = {
     "GLOBAL_POSITION_INT": _global_pos,
     "LOCAL_POSITION_NED": _local_pos,
     "GPS_RAW_INT": _gps_raw,
+    "GPS2_RAW": _gnss_raw_int,
+    "GPS_INPUT": _gps_input,
+    "SCALED_PRESSURE": _scaled_pressure,
+    "SCALED_PRESSURE2": _scaled_pressure,
+    "SCALED_PRESSURE3": _scaled_pressure,
     "OBSTACLE_DISTANCE_3D": _obstacle_3d,
     "ADSB_VEHICLE": _adsb,
 }
@@ -388,6 +515,42 @@ def _df_gps(m, name: str) -> list[Raw]:
     return [Raw("pos", name, 0, (None, vel, lla))]
 
 
+def _df_gnss(m, name: str) -> list[Raw]:
+    """DataFlash GPS (Status = GPS_FIX_TYPE, Lat/Lng deg, Alt m AMSL, Spd m/s, GCrs deg,
+    VZ m/s down, HDop, NSats) with the accuracies of its GPA record when the reader found
+    it (``m._gpa``: VDop, HAcc m, VAcc m, SAcc m/s, VV = vertical velocity valid)."""
+    inst = _df_instance(m, name, "GPS")
+    lla = np.array([m.Lat, m.Lng, m.Alt], dtype=float)
+    spd, crs = float(m.Spd), float(m.GCrs) * DEG
+    vel = np.array([spd * math.cos(crs), spd * math.sin(crs), float(m.VZ)])
+    gpa = getattr(m, "_gpa", None)
+    h_acc = v_acc = s_acc = vdop = math.nan
+    if gpa is not None:
+        h_acc, v_acc = float(gpa.HAcc), float(gpa.VAcc)
+        s_acc, vdop = float(gpa.SAcc), float(gpa.VDop)
+        if not int(getattr(gpa, "VV", 1)):
+            vel[2] = math.nan
+    acc = gnss_acc(h_acc, v_acc, s_acc, float(m.HDop), vdop, int(m.NSats))
+    meta = {"fix_type": int(m.Status)}
+    return [Raw("gnss", f"GPS[{inst}]", inst, (lla, vel, acc), meta=meta)]
+
+
+def _df_gps_all(m, name: str) -> list[Raw]:
+    """A DataFlash GPS record: its GNSS measurement (primary) and, as before, the
+    position of the first receiver (``"GPS"``)."""
+    out = _df_gnss(m, name)
+    if out[0].instance == 0:
+        out += [dataclasses.replace(r, primary=False) for r in _df_gps(m, name)]
+    return out
+
+
+def _df_baro(m, name: str) -> list[Raw]:
+    """DataFlash BARO/BAR2/BAR3: Press Pa, Temp deg C, Alt m (relative to its ground zero)."""
+    inst = _df_instance(m, name, "BAR")
+    v = np.array([float(m.Press), float(m.Temp), float(m.Alt)])
+    return [Raw("baro", f"BARO[{inst}]", inst, (v,))]
+
+
 DATAFLASH_CONVERTERS = {
     "IMU": _df_imu,
     "IMU2": _df_imu,
@@ -399,7 +562,13 @@ DATAFLASH_CONVERTERS = {
     "AHR2": _df_ahr2,
     "SIM": _df_sim,
     "POS": _df_pos,
-    "GPS": _df_gps,
+    "GPS": _df_gps_all,
+    "GPS2": _df_gps_all,
+    "GPA": lambda m, name: [],  # merged into its GPS record by the reader (GPS._gpa)
+    "GPA2": lambda m, name: [],
+    "BARO": _df_baro,
+    "BAR2": _df_baro,
+    "BAR3": _df_baro,
 }
 
 

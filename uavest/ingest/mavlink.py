@@ -18,11 +18,13 @@ import numpy as np
 
 from .convert import Raw, check, convert_dataflash, convert_mavlink, stat_key
 from .skip import TLOG_DECODED, DataflashSkipper, Skipped, TlogFramer, _map
-from .timebase import RxFilter, StreamGate, VehicleClock
+from .timebase import UNIX_US_MIN, RxFilter, StreamGate, VehicleClock, retime_unix
 from .types import (
     AdsbSample,
     AttitudeRef,
+    BaroSample,
     DetectionSample,
+    GnssSample,
     ImuSample,
     IngestError,
     IngestStats,
@@ -32,7 +34,8 @@ from .types import (
     Sample,
 )
 
-_SENSOR_CATS = ("imu", "mag")  # categories whose all-zero records may mean "not fitted"
+# categories whose all-zero records may mean "not fitted"
+_SENSOR_CATS = ("imu", "mag", "baro", "gnss")
 
 # Messages without a time field: timed from receive time (see docs/ingest.md).
 _UNTIMED = {"SIMSTATE", "AHRS2", "ADSB_VEHICLE"}
@@ -121,7 +124,20 @@ def build(raw: Raw, t: float) -> Sample:
             t, m["icao"], v[0], v[1], m["altitude_type"], m["callsign"], m["flags"], m["tslc"],
             raw.source, m["squawk"], m["emitter_type"],
         )
+    if raw.cat == "gnss":
+        a = v[2]
+        return GnssSample(t, v[0], v[1], int(raw.meta["fix_type"]), float(a[0]), float(a[1]),
+                          float(a[2]), float(a[3]), float(a[4]), int(a[5]), raw.source,
+                          raw.instance)
+    if raw.cat == "baro":
+        b = v[0]
+        return BaroSample(t, float(b[0]), float(b[1]), float(b[2]), raw.source, raw.instance)
     return PositionSample(t, v[0], v[1], v[2], raw.source)
+
+
+def _all_zero_gnss(raw) -> bool:
+    """A GNSS record of a receiver that is not there: no GPS (fix 0) and lat = lon = 0."""
+    return int(raw.meta.get("fix_type", 0)) == 0 and not np.any(raw.values[0][:2])
 
 
 def gate_time(raw: Raw, t: float) -> float:
@@ -188,6 +204,47 @@ def _gps_geo(msg, params: LogParams, unix_offset: float | None) -> None:
         params.set_geo(msg.Lat, msg.Lng, getattr(msg, "Alt", 0.0), utc)
 
 
+GPA_LOOKAHEAD = 8  # DataFlash records after a GPS searched for its GPA (written next)
+
+
+def _gps_instance(msg) -> int:
+    i = getattr(msg, "I", None)
+    return int(i) if i is not None else (1 if msg.get_type().endswith("2") else 0)
+
+
+def merge_gpa(pairs):
+    """DataFlash ``(record, None)`` pairs with each GPS record given its GPA record (same
+    TimeUS and instance, ArduPilot writes it right after) as ``gps._gpa``: the receiver's
+    accuracies belong to the fix. A GPS is held until its GPA or :data:`GPA_LOOKAHEAD`
+    records later (then it goes on without); the records in between keep their order."""
+    held = None  # [gps message, records seen after it]
+    for msg, rx in pairs:
+        name = msg.get_type() if msg is not None else ""
+        if held is not None:
+            gps, after = held
+            if (name in ("GPA", "GPA2") and getattr(msg, "TimeUS", None) == gps.TimeUS
+                    and _gps_instance(msg) == _gps_instance(gps)):
+                gps._gpa = msg
+                held = None
+                yield gps, None
+                yield from after
+                yield msg, rx
+                continue
+            if name not in ("GPS", "GPS2") and len(after) < GPA_LOOKAHEAD:
+                after.append((msg, rx))
+                continue
+            held = None
+            yield gps, None
+            yield from after
+        if name in ("GPS", "GPS2") and hasattr(msg, "TimeUS"):
+            held = [msg, []]
+            continue
+        yield msg, rx
+    if held is not None:
+        yield held[0], None
+        yield from held[1]
+
+
 class MavlinkSource:
     """Iterable of measurements from a tlog or a DataFlash log (live links: ``LiveLink``).
 
@@ -248,7 +305,7 @@ class MavlinkSource:
         tlog receive times checked against their neighbours (:class:`RxFilter`)."""
         if self.format == "tlog":
             return RxFilter(self.stats).filter(self._read())
-        return self._read()
+        return merge_gpa(self._read())
 
     def _skipper(self, conn):
         """The skipper of unused DataFlash records for ``conn`` (None: decode every
@@ -528,12 +585,15 @@ class MavlinkSource:
                     good.append(r)
                     if r.cat in _SENSOR_CATS:
                         fitted.add(stat_key(r))
-                elif bad == "empty" and r.cat in _SENSOR_CATS and stat_key(r) not in fitted:
+                elif (bad == "empty" and r.cat in _SENSOR_CATS and stat_key(r) not in fitted
+                      and (r.cat != "gnss" or _all_zero_gnss(r))):
                     # all zeros from an instance that never sent anything else: a sensor
                     # that is not fitted, not bad data (one info line at the end)
                     st.absent_sensor += 1
                     st.absent[stat_key(r)] += 1
-                elif bad == "empty" and r.cat == "pos":
+                elif r.cat == "pos" and not r.primary:
+                    pass  # GPS_RAW_INT's position: counted once, as its GNSS item
+                elif bad == "empty" and r.cat in ("pos", "gnss"):
                     st.no_fix += 1  # no GNSS fix yet (lat/lon 0): not bad data
                 else:
                     st.bad(bad, stat_key(r))
@@ -542,6 +602,18 @@ class MavlinkSource:
             clock = clocks.get(sysid)
             if clock is None:
                 clock = clocks[sysid] = VehicleClock(st)
+            tu = getattr(msg, "time_usec", None)
+            if tu is not None and tu >= UNIX_US_MIN and name not in _UNTIMED:
+                # a receiver's UNIX time (ArduPilot's GPS_RAW_INT): onto the vehicle clock
+                # without moving it (timebase.retime_unix), never "late"
+                t = retime_unix(tu * 1e-6, rx, clock, systime.get(sysid), reorder.last_out)
+                if t is None:
+                    st.bad("no_time", stat_key(good[0]))
+                    continue
+                st.retimed += 1
+                finish([(t, (sysid, good))])
+                yield from reorder.pop_ready()
+                continue
             raw_t = self._vehicle_time(msg, clock, systime.get(sysid))
             if raw_t is None:
                 t = clock.map_rx(rx)

@@ -235,6 +235,41 @@ def _same(a: tuple, b: tuple) -> bool:
     return True
 
 
+UNIX_US_MIN = 1e15  # us, a time_usec at least this large is UNIX time (~2001), not boot time
+RETIME_TOL = 1.0  # s, largest |UNIX-mapped time - arrival time| that trusts the UNIX time
+
+
+def retime_unix(t_unix: float, rx: float | None, clock: VehicleClock,
+                unix_offset: float | None, floor: float = -float("inf")) -> float | None:
+    """Vehicle time (s) of a message stamped with a receiver's UNIX time ``t_unix`` (s),
+    such as ArduPilot's GPS_RAW_INT (``time_usec`` = GNSS epoch time), without moving
+    ``clock`` (a UNIX stamp never confirms a reboot or a jump).
+
+    * With the system's UNIX - boot offset (s, from SYSTEM_TIME) the UNIX time mapped
+      onto the boot clock, ``t_unix - unix_offset``, when it lies within
+      :data:`RETIME_TOL` of the arrival (else the receiver's and the autopilot's clocks
+      disagree, e.g. by the leap seconds, and the arrival is used);
+    * otherwise the arrival: ``clock.map_rx(rx)`` (newest vehicle time of the system +
+      receive time elapsed since it);
+    * never before ``floor`` (s: the newest time already released in order by the reader,
+      so a fix older than a live link's short reorder window is stamped at its edge
+      instead of being dropped as ``late``).
+
+    None when the system has no vehicle time yet and no offset.
+    """
+    t_arr = clock.map_rx(rx) if clock.last_out is not None else None
+    t = None
+    if unix_offset is not None:
+        t_fix = t_unix - unix_offset
+        if t_arr is None or abs(t_fix - t_arr) <= RETIME_TOL:
+            t = t_fix
+    if t is None:
+        t = t_arr
+    if t is None:
+        return None
+    return max(t, floor)
+
+
 RX_TOL = 1.0  # s, receive-time step beyond which a message's receive time is examined
 RX_LOOKAHEAD = 4  # messages after it that decide whether a receive-time step is real
 

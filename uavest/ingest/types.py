@@ -93,6 +93,8 @@ EVENT_KINDS = (
     "absent_sensor",  # all-zero IMU/magnetometer records of an instance that never sent a
     # non-zero one (ArduPilot sends SCALED_IMU3 zeros when there is no third IMU): ignored
     "no_fix",  # GNSS position records without a fix (lat/lon 0, before the lock): skipped
+    "retimed",  # records stamped with UNIX time (ArduPilot GPS_RAW_INT) mapped onto the
+    # vehicle clock (timebase.retime_unix): kept, not late
 )
 
 
@@ -414,6 +416,7 @@ class IngestStats:
     pre_heartbeat: int = 0  # live messages discarded before the vehicle heartbeat
     absent_sensor: int = 0  # all-zero records of a sensor instance that is not fitted
     no_fix: int = 0  # GNSS position records without a fix (lat/lon 0): skipped, not bad
+    retimed: int = 0  # UNIX-time stamped records mapped onto the vehicle clock (kept)
     #: the absent sensor instances (stat key, e.g. ``"imu:SCALED_IMU3"``) -> records ignored
     absent: Counter = field(default_factory=Counter)
     #: what the tlog reader stepped over between good records, by kind

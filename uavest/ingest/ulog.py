@@ -12,9 +12,21 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry.rotation import quat_canonical
-from .convert import MAX_ACCEL, MAX_GYRO, MAX_MAG, MAX_POS, MAX_VEL, QUAT_NORM_TOL
+from .convert import (
+    MAX_ACCEL,
+    MAX_GYRO,
+    MAX_MAG,
+    MAX_POS,
+    MAX_PRESSURE,
+    MAX_VEL,
+    MIN_FIX,
+    MIN_PRESSURE,
+    QUAT_NORM_TOL,
+)
 from .types import (
     AttitudeRef,
+    BaroSample,
+    GnssSample,
     ImuSample,
     IngestError,
     IngestStats,
@@ -33,7 +45,9 @@ _TOPICS = [
     "vehicle_attitude_groundtruth",
     "vehicle_local_position",
     "vehicle_global_position",
-    "vehicle_gps_position",  # only the first fix with its date (declination model)
+    "vehicle_gps_position",  # raw GNSS (the selected receiver) + the first dated fix
+    "sensor_gps",  # raw GNSS per receiver
+    "sensor_baro",  # barometers
 ]
 _REF_TOPICS = {"vehicle_attitude": "autopilot", "vehicle_attitude_groundtruth": "truth"}
 _INVALID_REL = 0x7FFFFFFF  # PX4 RELATIVE_TIMESTAMP_INVALID
@@ -106,6 +120,8 @@ class ULogData:
         self.mag: dict[str, tuple] = {}
         self.refs: dict[str, tuple] = {}
         self.pos: dict[str, tuple] = {}
+        self.gnss: dict[str, dict] = {}  # source -> GnssSeries fields (api.gnss_arrays)
+        self.baro: dict[str, dict] = {}  # source -> BaroSeries fields
         for d in ul.data_list:
             stats.messages[d.name] += len(d.data["timestamp"])
             try:
@@ -157,6 +173,64 @@ class ULogData:
             fix = _first_fix(data, dated=False)  # a fix without GNSS time: still a place
             if fix is not None:
                 self.params.set_fix(*fix[:3])
+
+    def _gnss(self, src: str, data: dict, inst: int) -> None:
+        """``vehicle_gps_position`` / ``sensor_gps`` rows -> GNSS arrays: lat/lon (degE7
+        ``lat``/``lon`` and mm ``alt`` in older PX4, ``latitude_deg``/``altitude_msl_m``
+        since v1.14), vel_n/e/d_m_s (NaN where ``vel_ned_valid`` is 0), eph/epv m as
+        h_acc/v_acc, s_variance_m_s (m/s: PX4's speed accuracy despite the name) as s_acc,
+        hdop/vdop (0 = not reported -> NaN), satellites_used. Rows without a fix
+        (fix_type < 2, lat = lon = 0) counted ``no_fix``."""
+        n = len(data["timestamp"])
+        t = self._time(data, src)
+        if "latitude_deg" in data:
+            lla = np.stack([np.asarray(data[c], dtype=float) for c in
+                            ("latitude_deg", "longitude_deg", "altitude_msl_m")], axis=1)
+        else:
+            lla = np.stack([np.asarray(data[c], dtype=float) for c in ("lat", "lon", "alt")],
+                           axis=1) * np.array([1e-7, 1e-7, 1e-3])
+        vel = np.stack([np.asarray(data[f"vel_{c}_m_s"], dtype=float) for c in "ned"], axis=1)
+        valid = np.asarray(data.get("vel_ned_valid", np.ones(n)), dtype=bool)
+        vel[~valid] = np.nan
+
+        def col(name: str, zero_unknown: bool = True) -> np.ndarray:
+            v = np.asarray(data.get(name, np.full(n, np.nan)), dtype=float)
+            return np.where(zero_unknown & (v == 0), np.nan, v)
+
+        fix = np.asarray(data["fix_type"], dtype=int)
+        nofix = (fix < MIN_FIX) | ((lla[:, 0] == 0) & (lla[:, 1] == 0))
+        self.stats.no_fix += int(nofix.sum())
+        k0 = ~nofix
+        oor = {"l": (np.abs(lla[k0, 0]) > 90) | (np.abs(lla[k0, 1]) > 180)
+               | (np.abs(lla[k0, 2]) > 1e5),
+               "v": np.linalg.norm(np.nan_to_num(vel[k0]), axis=1) > MAX_VEL}
+        k = np.flatnonzero(k0)[self._filter(src, t[k0], [lla[k0]], oor)]
+        sats = np.asarray(data.get("satellites_used", np.full(n, -1)), dtype=int)
+        self.gnss[src] = {
+            "t": t[k], "lat_lon_alt": lla[k], "vel_ned": vel[k], "fix_type": fix[k],
+            "h_acc": col("eph")[k], "v_acc": col("epv")[k], "s_acc": col("s_variance_m_s")[k],
+            "hdop": col("hdop")[k], "vdop": col("vdop")[k], "satellites": sats[k],
+            "instance": inst,
+        }
+
+    def _baro(self, src: str, data: dict, inst: int) -> None:
+        """``sensor_baro`` rows: pressure Pa, temperature deg C; no altitude (NaN). All-zero
+        pressure of an instance counted ``absent_sensor``, a zero among real ones
+        ``empty``."""
+        t = self._time(data, src)
+        p = np.asarray(data["pressure"], dtype=float)
+        temp = np.asarray(data.get("temperature", np.full(p.size, np.nan)), dtype=float)
+        zero = p == 0
+        if zero.all():
+            self.stats.absent_sensor += int(p.size)
+            self.stats.absent[src] += int(p.size)
+            return
+        self.stats.bad("empty", src, int(zero.sum()))
+        nz = ~zero
+        oor = {"p": (p[nz] < MIN_PRESSURE) | (p[nz] > MAX_PRESSURE)}
+        k = np.flatnonzero(nz)[self._filter(src, t[nz], [p[nz]], oor)]
+        self.baro[src] = {"t": t[k], "pressure": p[k], "temperature": temp[k],
+                          "alt": np.full(k.size, np.nan), "instance": inst}
 
     @staticmethod
     def _vec(data: dict, fmt: str, n: int = 3) -> np.ndarray:
@@ -237,8 +311,12 @@ class ULogData:
             }
             k = self._filter(src, t, [ned, vel], oor)
             self.pos[src] = (t[k], ned[k], vel[k], np.full((int(k.sum()), 3), np.nan))
-        elif name == "vehicle_gps_position":
-            self._gps(data)
+        elif name in ("vehicle_gps_position", "sensor_gps"):
+            if name == "vehicle_gps_position":
+                self._gps(data)
+            self._gnss(src, data, inst)
+        elif name == "sensor_baro":
+            self._baro(src, data, inst)
         elif name == "vehicle_global_position":
             t = self._time(data, src)
             lla = np.stack(
@@ -299,6 +377,10 @@ class ULogSource:
             gens.append(_ref_gen(s, t, q, kind))
         for s, (t, n, v, lla) in d.pos.items():
             gens.append(_pos_gen(s, t, n, v, lla))
+        for s, g in d.gnss.items():
+            gens.append(_gnss_gen(s, g))
+        for s, b in d.baro.items():
+            gens.append(_baro_gen(s, b))
         yield from heapq.merge(*gens, key=lambda m: m.t)
 
 
@@ -326,3 +408,17 @@ def _pos_gen(s, t, n, v, lla) -> Iterator[PositionSample]:
             None if np.isnan(ll[0]) else ll,
             s,
         )
+
+
+def _gnss_gen(s: str, g: dict) -> Iterator[GnssSample]:
+    for i, tt in enumerate(g["t"].tolist()):
+        yield GnssSample(tt, g["lat_lon_alt"][i], g["vel_ned"][i], int(g["fix_type"][i]),
+                         float(g["h_acc"][i]), float(g["v_acc"][i]), float(g["s_acc"][i]),
+                         float(g["hdop"][i]), float(g["vdop"][i]), int(g["satellites"][i]),
+                         s, g["instance"])
+
+
+def _baro_gen(s: str, b: dict) -> Iterator[BaroSample]:
+    for i, tt in enumerate(b["t"].tolist()):
+        yield BaroSample(tt, float(b["pressure"][i]), float(b["temperature"][i]),
+                         float(b["alt"][i]), s, b["instance"])
