@@ -19,7 +19,7 @@ force of its IMU samples), and the updates are raw aiding measurements:
   as the attitude path (option, then the log's parameters, taken later if they arrive).
 
 Each update is tagged with its sensor (``Step.info["sensors"]``) so that
-:class:`NavRunner` gates it per filter with :func:`innovation_gate` (chi-square 99.9 %)
+:class:`NavRunner` gates it per filter on its own innovation (chi-square 99.9 %)
 and counts the rejections per sensor; a rejected update is skipped, never a reset.
 
 **GNSS delay** ``gnss_delay`` (s): a fix stamped t measures the state at t - delay. The
@@ -71,7 +71,6 @@ from ..models.navigation import (
     ImuTransition,
     NavNoise,
     OnNav,
-    innovation_gate,
     nav_noise_for_source,
 )
 from .attitude import DEFAULT_MAX_RATE_HZ, GAP_MEDIANS, GAP_MIN_S, _Gap, _Raw, _StepBuilder
@@ -80,7 +79,8 @@ from .runner import WARMUP_STEPS, FilterRunner
 
 Array = np.ndarray
 
-__all__ = ["GATE_PROB", "NavOptions", "NavRunner", "NavStream", "baro_height"]
+__all__ = ["GATE_PROB", "NavNotStarted", "NavOptions", "NavRunner", "NavStream",
+           "baro_height"]
 
 #: Innovation gate of every aiding update: the chi-square quantile for its dimension.
 GATE_PROB = 0.999
@@ -89,6 +89,12 @@ GATE_PROB = 0.999
 REANCHOR_S = 10.0
 #: Pairs of (baro, GNSS) heights the baro offset averages over (then its memory).
 BARO_OFFSET_PAIRS = 200
+_CHI2: dict[int, float] = {}  # GATE_PROB quantile by dimension
+
+
+class NavNotStarted(NoSamplesError):
+    """The stream ended before the navigation model could start (no good GNSS fix, or
+    no magnetometer and never fast enough for the course)."""
 
 
 @dataclass(frozen=True)
@@ -292,7 +298,7 @@ class NavStream:
         out += self._release()
         self._finish_summary()
         if not self._started:
-            raise NoSamplesError(
+            raise NavNotStarted(
                 "the navigation model could not start: " + self._wait_why
                 + " (GNSS sources seen: " + (", ".join(sorted(self._gnss_srcs)) or "none")
                 + "; use --model attitude)")
@@ -659,8 +665,9 @@ class NavStream:
 
 class NavRunner(FilterRunner):
     """:class:`FilterRunner` that gates each aiding update of a navigation step
-    (``Step.info["sensors"]`` names them) with :func:`innovation_gate` at the
-    :data:`GATE_PROB` chi-square quantile against this filter's own prediction, and
+    (``Step.info["sensors"]`` names them): the update is dropped when its NIS (the
+    filter's own innovation, as :func:`~uavest.models.navigation.innovation_gate`
+    computes it) is above the :data:`GATE_PROB` chi-square quantile, and
     counts per sensor what was ``accepted``, ``rejected`` and ``reanchored`` (after
     :data:`REANCHOR_S` of consecutive rejections one update is taken with R scaled onto
     the gate, so a filter that drifted away from a sensor comes back without a reset).
@@ -675,29 +682,36 @@ class NavRunner(FilterRunner):
         super().start(st)
         self._rej_since.clear()
 
-    def _gate(self, s: Any, z: Array, m: Any, sensor: str, t: float) -> Any:
-        """The model to update with (``m``, or a re-anchoring copy) or None: rejected."""
-        g = self.filter.estimate(s)
-        hx, H = m.h_H(g.x)
-        nu = m.residual(z, hx)
-        S = H @ g.P @ H.T + m.R
-        chi2 = nis_gate(len(nu), GATE_PROB)
+    def _gated_update(self, s: Any, z: Array, m: Any, sensor: str, t: float
+                      ) -> tuple[Any, Any]:
+        """(state, innovation) after the update with ``(z, m)``, or (``s``, None) when
+        its NIS (the filter's own innovation and S) is above the gate: the update is
+        computed and dropped, so the gate costs nothing when it passes."""
+        f: Any = self.filter
+        s1, inn = f.update(s, z, m, self.rng)
         c = self.gates.setdefault(sensor, {"accepted": 0, "rejected": 0, "reanchored": 0})
-        if innovation_gate(nu, S, chi2):
+        if inn is None:
+            return s1, None
+        k = len(inn.nu)
+        chi2 = _CHI2.get(k)
+        if chi2 is None:
+            chi2 = _CHI2[k] = nis_gate(k, GATE_PROB)
+        d2 = float(inn.nis)
+        if np.isfinite(d2) and d2 <= chi2:
             self._rej_since.pop(sensor, None)
             c["accepted"] += 1
-            return m
+            return s1, inn
         t0 = self._rej_since.setdefault(sensor, t)
-        if t - t0 >= REANCHOR_S and np.isfinite(nu).all():
-            d2 = float(nu @ np.linalg.solve(S, nu))
-            if np.isfinite(d2):
-                m2 = copy.copy(m)
-                m2.R = m.R * (d2 / chi2) + H @ g.P @ H.T * (d2 / chi2 - 1.0)
-                self._rej_since.pop(sensor, None)
-                c["reanchored"] += 1
-                return m2
+        if t - t0 >= REANCHOR_S and np.isfinite(d2):
+            # R scaled so that S' = S d2 / chi2: the update lands on the gate
+            r = d2 / chi2
+            m2 = copy.copy(m)
+            m2.R = m.R * r + (np.asarray(inn.S) - m.R) * (r - 1.0)
+            self._rej_since.pop(sensor, None)
+            c["reanchored"] += 1
+            return f.update(s, z, m2, self.rng)  # type: ignore[no-any-return]
         c["rejected"] += 1
-        return None
+        return s, None
 
     def step(self, st: Step) -> StepRecord:
         sensors = st.info.get("sensors") if st.info else None
@@ -711,10 +725,7 @@ class NavRunner(FilterRunner):
         s: Any = f.predict(self.state, st.transition, st.t, st.dt, st.u, rng)
         ups = []
         for (z, m), sensor in zip(st.updates, sensors, strict=True):
-            mg = self._gate(s, z, m, sensor, st.t)
-            if mg is None:
-                continue
-            s, inn = f.update(s, z, mg, rng)
+            s, inn = self._gated_update(s, z, m, sensor, st.t)
             if inn is not None:
                 ups.append(Update(type(m).__name__, inn.nu, inn.S, float(inn.nis)))
         g: Any = f.estimate(s)

@@ -48,6 +48,11 @@ class NavNoise:
     accel_noise: accelerometer velocity random walk, m/s^2/sqrt(Hz).
     gyro_bias_walk: gyro bias random walk, rad/s^2/sqrt(Hz) (rad/s per sqrt(s)).
     accel_bias_walk: accelerometer bias random walk, m/s^3/sqrt(Hz).
+    rate_walk: unmodelled change of the true rate within a step, rad/s^1.5 (adds
+        rate_walk^2 dt^3 / 3 to the attitude variance: a coarsely sampled IMU, as the
+        attitude model's parameter of the same name).
+    accel_walk: unmodelled change of the true specific force within a step, m/s^2.5
+        (adds accel_walk^2 dt^3 / 3 to the velocity variance).
     gnss_pos_floor: lower bound on the GNSS horizontal position std, m (also used
         when the receiver reports no accuracy); gnss_vpos_floor: vertical, m.
     gnss_vel_floor: lower bound on the GNSS velocity std per axis, m/s.
@@ -67,6 +72,8 @@ class NavNoise:
     accel_noise: float = 0.05
     gyro_bias_walk: float = 5e-5
     accel_bias_walk: float = 1e-3
+    rate_walk: float = 0.0
+    accel_walk: float = 0.0
     gnss_pos_floor: float = 0.5
     gnss_vpos_floor: float = 1.0
     gnss_vel_floor: float = 0.1
@@ -145,8 +152,8 @@ class ImuTransition(Transition):
 
     def Q(self, t: float, dt: float, u: Array | None = None) -> Array:
         n, dt = self.noise, abs(dt)
-        qa = n.gyro_noise**2 * dt + 1e-14
-        qv = n.accel_noise**2 * dt + 1e-14
+        qa = n.gyro_noise**2 * dt + n.rate_walk**2 * dt**3 / 3.0 + 1e-14
+        qv = n.accel_noise**2 * dt + n.accel_walk**2 * dt**3 / 3.0 + 1e-14
         qp = n.accel_noise**2 * dt**3 / 3.0 + 1e-14
         qbg = n.gyro_bias_walk**2 * dt + 1e-16
         qba = n.accel_bias_walk**2 * dt + 1e-16
