@@ -16,7 +16,8 @@ force of its IMU samples), and the updates are raw aiding measurements:
 * barometric height (:class:`BaroHeight`, the offset to the GNSS height taken once, at
   the first baro sample after the start, and held);
 * the magnetometer through :class:`OnNav` (3-D field direction, or heading), declination
-  as the attitude path (option, then the log's parameters, taken later if they arrive).
+  as the attitude path (option, then the log's parameters, taken later if they arrive),
+  at most at the attitude path's reference rate (:data:`MAG_MIN_INTERVAL_S`).
 
 Each update is tagged with its sensor (``Step.info["sensors"]``) so that
 :class:`NavRunner` gates it per filter on its own innovation (chi-square 99.9 %)
@@ -90,6 +91,10 @@ REANCHOR_S = 10.0
 #: Pairs of (baro, GNSS) heights the baro offset averages over (then its memory).
 BARO_OFFSET_PAIRS = 200
 _CHI2: dict[int, float] = {}  # GATE_PROB quantile by dimension
+#: Magnetometer updates at most this often (s): the attitude path's reference rate
+#: (``mag_noise`` describes one update per reference step; a 200 Hz magnetometer at
+#: ``--rate 0`` would otherwise carry 8 times the information and pull the tilt).
+MAG_MIN_INTERVAL_S = 1.0 / DEFAULT_MAX_RATE_HZ - 1e-6
 
 
 class NavNotStarted(NoSamplesError):
@@ -242,6 +247,7 @@ class NavStream:
         self._mref: Array | None = None
         self._baro_offset: float | None = None
         self._off_n = 0  # (baro, GNSS) height pairs seen
+        self._t_mag = -np.inf  # time of the last magnetometer update
         self._h_fix: tuple[float, float] | None = None  # last GNSS (t s, height up m)
         self._decl_pending = False
         self._decl_seen: tuple[int, bool] | None = None
@@ -560,7 +566,9 @@ class NavStream:
                             BaroHeight(np.array([[n.baro_noise**2]]), self._baro_offset)))
                 sensors.append("baro")
                 self._count("baro", "used")
-        if r.mag is not None and np.isfinite(r.mag).all() and np.any(r.mag):
+        if (r.mag is not None and np.isfinite(r.mag).all() and np.any(r.mag)
+                and r.t - self._t_mag >= MAG_MIN_INTERVAL_S):
+            self._t_mag = r.t
             f = np.asarray(r.mag, float)
             if self._mref is not None:
                 ups.append((f / np.linalg.norm(f),
