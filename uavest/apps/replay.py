@@ -80,6 +80,7 @@ class ReplayConfig:
     mag_delay: float = 0.0
     model: str = "auto"
     gnss_delay: float | None = None  # s; None -> NavNoise.gnss_delay
+    model_why: str | None = None  # why a fixed ``model`` (None: "option --model")
 
     def attitude_options(self) -> AttitudeOptions:
         names = {f.name for f in fields(AttitudeOptions)}
@@ -95,7 +96,8 @@ def _good_fix(s) -> bool:
             and bool(np.isfinite(s.lat_lon_alt[:2]).all()))
 
 
-def choose_model(samples: Iterable, model: str = "auto") -> tuple[Iterator, dict]:
+def choose_model(samples: Iterable, model: str = "auto", why: str | None = None
+                 ) -> tuple[Iterator, dict]:
     """(the same samples, the model decision): ``model`` "nav" / "attitude" as given;
     "auto" looks at the first :data:`MODEL_PEEK_S` s of IMU data for a raw GNSS fix
     stream (:data:`MIN_FIXES` 3-D fixes with a finite position of one receiver):
@@ -106,7 +108,8 @@ def choose_model(samples: Iterable, model: str = "auto") -> tuple[Iterator, dict
         raise InputError(f"--model must be one of {', '.join(MODELS)}, not {model!r}")
     it = iter(samples)
     if model != "auto":
-        return it, {"what": "model", "value": model, "t": None, "why": "option --model"}
+        return it, {"what": "model", "value": model, "t": None,
+                    "why": why or "option --model"}
     import itertools
 
     held: list = []
@@ -262,7 +265,7 @@ def replay_samples(
     opts = cfg.attitude_options()
     windowed = (samples if opts.start is None and opts.end is None
                 else _windowed(samples, opts.in_window))
-    windowed, decision = choose_model(windowed, cfg.model)
+    windowed, decision = choose_model(windowed, cfg.model, cfg.model_why)
     nav = decision["value"] == "nav"
     if nav and cfg.smooth:
         raise InputError("--smooth is not built for the navigation model yet "

@@ -256,6 +256,16 @@ def cmd_replay(args: argparse.Namespace) -> int:
         raise InputError(f"--update-rate must be >= 0 Hz (0 = every step), got "
                          f"{args.update_rate}")
     reject_linear_only(args.filter_specs, "replay", "nonlinear attitude models")
+    model, model_why = args.model, None
+    if any(getattr(args, k, None) for k in ("mcap", "report", "foxglove")):
+        # the recording's channels and the report are the attitude model's (the
+        # navigation model's position/velocity channels are not built yet)
+        if model == "nav":
+            raise InputError("--model nav: recording (--mcap/--report/--foxglove) is built "
+                             "for the attitude model only (use --model attitude)")
+        if model == "auto":
+            model, model_why = "attitude", ("recording (--mcap/--report/--foxglove) is "
+                                            "built for the attitude model only")
     cfg = ReplayConfig(
         filters=tuple(args.filter_specs), start=args.start, end=args.end, smooth=args.smooth,
         seed=args.seed, rate_hz=args.rate, update_hz=args.update_rate,
@@ -263,7 +273,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         declination=None if args.declination is None else math.radians(args.declination),
         noise=_parse_noise(args.noise), imu=args.imu, use_mag=not args.no_mag,
         accel_comp=args.accel_comp, mag_mode=args.mag_mode, mag_delay=args.mag_delay,
-        model=args.model, gnss_delay=args.gnss_delay,
+        model=model, gnss_delay=args.gnss_delay, model_why=model_why,
     )
     bar = _Progress(False if args.no_progress else None, args.log)
     sinks = [bar, ResetLog(), *recording_sinks(args)]
