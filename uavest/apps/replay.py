@@ -23,12 +23,23 @@ from ..core.spec import FilterSpec
 from ..engine.attitude import AttitudeOptions, AttitudeStream
 from ..engine.build import build_filters
 from ..engine.loop import Lane, run_lanes
+from ..engine.navigation import NavNotStarted, NavOptions, NavRunner, NavStream
 from ..engine.records import RunInfo, StepRecord, package_versions
 from ..engine.runner import FilterRunner
 from ..engine.smooth import smooth_records
+from ..errors import InputError
 from ..eval.attitude import AttitudeScorer, choose_reference, nees_attitude, rmse_deg
+from ..eval.navigation import NavScorer
 from ..geometry.rotation import quat_slerp_interp
-from ..ingest.types import AttitudeRef, ImuSample, IngestError, MagSample, NoSamplesError
+from ..ingest.types import (
+    AttitudeRef,
+    GnssSample,
+    ImuSample,
+    IngestError,
+    MagSample,
+    NoSamplesError,
+    PositionSample,
+)
 from ..presets import resolve_list, spec_labels
 from ..seeding import filter_stream, rng
 from ..sinks.base import Collector, Sink
@@ -41,6 +52,11 @@ __all__ = [
 ]
 
 DEFAULT_FILTERS = ("ekf", "ukf", "hybrid")
+#: ``--model auto`` looks this far into the IMU data (s) for a GNSS fix stream.
+MODEL_PEEK_S = 60.0
+MODELS = ("auto", "nav", "attitude")
+#: ... and wants this many 3-D fixes of one receiver (a fix stream, not a few fixes).
+MIN_FIXES = 10
 
 
 @dataclass
@@ -64,10 +80,66 @@ class ReplayConfig:
     accel_comp: str = "auto"
     mag_mode: str = "field"
     mag_delay: float = 0.0
+    model: str = "auto"
+    gnss_delay: float | None = None  # s; None -> NavNoise.gnss_delay
+    model_why: str | None = None  # why a fixed ``model`` (None: "option --model")
 
     def attitude_options(self) -> AttitudeOptions:
         names = {f.name for f in fields(AttitudeOptions)}
         return AttitudeOptions(**{k: v for k, v in vars(self).items() if k in names})
+
+    def nav_options(self) -> NavOptions:
+        names = {f.name for f in fields(NavOptions)}
+        return NavOptions(**{k: v for k, v in vars(self).items() if k in names})
+
+
+def _good_fix(s) -> bool:
+    return (isinstance(s, GnssSample) and s.fix_type >= 3
+            and bool(np.isfinite(s.lat_lon_alt[:2]).all()))
+
+
+def choose_model(samples: Iterable, model: str = "auto", why: str | None = None
+                 ) -> tuple[Iterator, dict]:
+    """(the same samples, the model decision): ``model`` "nav" / "attitude" as given;
+    "auto" looks at the first :data:`MODEL_PEEK_S` s of IMU data for a raw GNSS fix
+    stream (:data:`MIN_FIXES` 3-D fixes with a finite position of one receiver):
+    navigation if there is one, attitude-only otherwise. The samples looked at are held
+    and handed back in front of the rest. The decision is a dict of ``what``, ``value``
+    ("nav" | "attitude"), ``t`` (s, None for an option) and ``why``."""
+    if model not in MODELS:
+        raise InputError(f"--model must be one of {', '.join(MODELS)}, not {model!r}")
+    it = iter(samples)
+    if model != "auto":
+        return it, {"what": "model", "value": model, "t": None,
+                    "why": why or "option --model"}
+    import itertools
+
+    held: list = []
+    t_imu0 = None
+    fixes: dict[str, int] = {}
+    for s in it:
+        held.append(s)
+        if _good_fix(s):
+            n = fixes[s.source] = fixes.get(s.source, 0) + 1
+            if n >= MIN_FIXES:
+                return itertools.chain(held, it), {
+                    "what": "model", "value": "nav", "t": s.t,
+                    "why": f"the log carries a raw GNSS fix stream ({s.source}: "
+                           f"{MIN_FIXES} 3-D fixes by t={s.t:.1f} s)"}
+        if isinstance(s, ImuSample):
+            t_imu0 = s.t if t_imu0 is None else t_imu0
+            if s.t - t_imu0 > MODEL_PEEK_S:
+                break
+    t = next((s.t for s in held if isinstance(s, ImuSample)), held[0].t if held else None)
+    seen = sorted({s.source for s in held if isinstance(s, GnssSample)})
+    if fixes:
+        why = (f"no GNSS fix stream: {max(fixes.values())} 3-D fixes in the first "
+               f"{MODEL_PEEK_S:g} s of IMU data (a stream needs {MIN_FIXES})")
+    else:
+        why = (f"no 3-D GNSS fix in the first {MODEL_PEEK_S:g} s of IMU data"
+               + (f" ({', '.join(seen)} without one)" if seen else " (no raw GNSS stream)"))
+    return itertools.chain(held, it), {"what": "model", "value": "attitude", "t": t,
+                                        "why": why}
 
 
 class _Score(Sink):
@@ -83,6 +155,23 @@ class _Score(Sink):
     def record(self, rec: StepRecord) -> None:
         if isinstance(rec, StepRecord):  # attitude records (trackers make ScanRecords)
             self.scorer.add_estimate(rec.t, rec.estimator, rec.x[:4], rec.P)
+
+
+class _NavScore(Sink):
+    """Feeds the navigation scorer: attitude and position references, estimates."""
+
+    def __init__(self, scorer: NavScorer) -> None:
+        self.scorer = scorer
+
+    def sample(self, s) -> None:
+        if isinstance(s, AttitudeRef):
+            self.scorer.add_attitude(s.source, s.t, s.q)
+        elif isinstance(s, PositionSample):
+            self.scorer.add_position(s.source, s.t, s.ned, s.vel_ned, s.lat_lon_alt)
+
+    def record(self, rec: StepRecord) -> None:
+        if isinstance(rec, StepRecord):
+            self.scorer.add_estimate(rec.estimator, rec.t, rec.x, rec.P)
 
 
 class _Refs(Sink):
@@ -171,31 +260,51 @@ def replay_samples(
     info: RunInfo | None = None,
     rng_for: Callable[[str], np.random.Generator] | None = None,
 ) -> tuple[dict, AttitudeStream, list[FilterRunner], AttitudeScorer, Collector | None]:
-    """Run ``cfg.filters`` over a sample stream. Returns the per-filter result rows (and
-    the stream, runners, scorer and collector for callers that report more)."""
+    """Run ``cfg.filters`` over a sample stream with the model :func:`choose_model`
+    picks (``cfg.model``). Returns the per-filter result rows (with ``model``, the
+    decision, and ``nav``, the :class:`NavScorer`), and the stream, runners, scorer and
+    collector for callers that report more."""
     opts = cfg.attitude_options()
-    specs = build_filters(resolve_list(cfg.filters, "attitude", dim=6))
+    windowed = (samples if opts.start is None and opts.end is None
+                else _windowed(samples, opts.in_window))
+    windowed, decision = choose_model(windowed, cfg.model, cfg.model_why)
+    nav = decision["value"] == "nav"
+    if nav and cfg.smooth:
+        raise InputError("--smooth is not built for the navigation model yet "
+                         "(use --model attitude --smooth)")
+    if not nav:
+        from ..models.attitude import AttitudeNoise
+
+        bad = sorted(set(cfg.noise) - set(AttitudeNoise.__dataclass_fields__))
+        if bad:
+            raise InputError(f"--noise {bad[0]}: a parameter of the navigation model, not "
+                             "of the attitude-only model that runs here")
+    specs = build_filters(resolve_list(cfg.filters, "attitude", dim=15 if nav else 6))
     rng_for = rng_for or (lambda label: rng(cfg.seed, 0, filter_stream(label)))
+    runner_cls = NavRunner if nav else FilterRunner
     runners = [
-        FilterRunner(sp.label, flt, rng_for(sp.label), smooth=cfg.smooth) for sp, flt in specs
+        runner_cls(sp.label, flt, rng_for(sp.label), smooth=cfg.smooth) for sp, flt in specs
     ]
     scorer = AttitudeScorer()
     score = _Score(scorer)
+    nav_scorer = NavScorer()
     gaps = _ImuGaps()
     coll = Collector() if cfg.smooth else None
     refs = _Refs() if cfg.smooth else None
-    stream = AttitudeStream(opts=opts, params=params)
+    stream: AttitudeStream | NavStream = (
+        NavStream(opts=cfg.nav_options(), params=params) if nav
+        else AttitudeStream(opts=opts, params=params))
     info = info or RunInfo("", "", cfg.seed)
     info.filters = {sp.label: sp.as_dict() for sp, _ in specs}
-    all_sinks = [score, gaps] + ([refs] if refs else []) + ([coll] if coll else []) + list(sinks)
+    all_sinks = ([score, _NavScore(nav_scorer), gaps] + ([refs] if refs else [])
+                 + ([coll] if coll else []) + list(sinks))
     wall0 = time.perf_counter()
-    windowed = (samples if opts.start is None and opts.end is None
-                else _windowed(samples, opts.in_window))
     run_lanes(windowed, [Lane(stream, runners)], all_sinks, info)
     wall = time.perf_counter() - wall0 - sum(r.smooth_seconds for r in runners)
     scorer.finish()
     stream.summary["imu_gap_fraction"] = gaps.fraction(stream.summary.get("imu_source"))
-    return {"wall_s": wall, "refs": refs}, stream, runners, scorer, coll
+    return ({"wall_s": wall, "refs": refs, "model": decision, "nav": nav_scorer},
+            stream, runners, scorer, coll)
 
 
 def _score_smoothed(coll: Collector, refs: _Refs, label: str, ref: str, truth: bool,
@@ -274,6 +383,8 @@ def replay(
     try:
         out, stream, runners, scorer, coll = replay_samples(
             src, cfg, params=src.params, sinks=sinks, info=info, rng_for=rng_for)
+    except NavNotStarted as e:
+        raise IngestError(f"{path}: {e}") from None
     except NoSamplesError:
         st = src.stats.as_dict()
         dmg = ", ".join(f"{k} {st[k]}" for k in st
@@ -321,9 +432,26 @@ def replay(
         "noise": {k: float(getattr(stream.noise, k)) for k in stream.noise.__dataclass_fields__},
         "filters": {},
     }
+    nav = out["model"]["value"] == "nav"
+    doc["model"] = out["model"]
+    nsc: NavScorer = out["nav"]
+    pref = nsc.position_ref()
+    if pref is not None:
+        doc["position_reference"] = pref
+        doc["position_reference_kind"] = position_ref_kind(pref, src.params)
+    if nav:
+        doc.update({k: sm.get(k) for k in ("gnss_source", "gnss_sources", "baro_source",
+                                           "gnss_delay_s", "baro_offset_m", "origin",
+                                           "aiding")})
+    frame = getattr(stream, "frame", None)
     steps = max(int(sm.get("steps") or 0), 1)
     for r in runners:
         row: dict = scorer.scores(r.label, ref_name, truth) if ref_name else {}
+        extra = nsc.scores(r.label, ref_name if truth else None, frame)
+        extra.pop("position_reference", None)
+        row.update({k: v for k, v in extra.items() if v or k == "airborne"})
+        if nav:
+            row["gates"] = dict(getattr(r, "gates", {}))
         row["us_per_step"] = r.us_per_step  # without the one-time warm-up
         row["resets"] = r.resets
         if cfg.smooth and coll is not None:
@@ -348,6 +476,19 @@ def replay(
     dur = float(sm.get("duration_s") or 0.0)
     doc["realtime_factor"] = dur / wall if wall > 0 else None
     return doc
+
+
+def position_ref_kind(name: str, params: dict) -> str:
+    """"truth" for a simulator's position, else "autopilot" (its fused estimate), with
+    the note that an ArduPilot SITL run with ``AHRS_EKF_TYPE=10`` reports the
+    simulator's own state as its estimate."""
+    from ..eval.attitude import TRUTH_SOURCES
+
+    if name in TRUTH_SOURCES:
+        return "truth"
+    if params.get("AHRS_EKF_TYPE") == 10:
+        return "autopilot (AHRS_EKF_TYPE=10: the simulator's state)"
+    return "autopilot"
 
 
 #: Fraction of the log's records that may be bad before a result is flagged unreliable

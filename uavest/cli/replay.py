@@ -14,6 +14,7 @@ from ..core.spec import FilterSpec
 from ..engine.attitude import DEFAULT_MAX_RATE_HZ
 from ..errors import InputError
 from ..models.attitude import AttitudeNoise
+from ..models.navigation import NavNoise
 from ..sinks.base import ResetLog, Sink
 from ..sinks.jsonout import write_json
 from ..sinks.table import table
@@ -39,7 +40,8 @@ def reject_linear_only(specs, command: str, models: str) -> None:
 
 
 def _parse_noise(items: list[str]) -> dict:
-    known = set(AttitudeNoise.__dataclass_fields__)
+    # the attitude and the navigation model's parameters (each model checks its own)
+    known = set(AttitudeNoise.__dataclass_fields__) | set(NavNoise.__dataclass_fields__)
     out = {}
     for it in items:
         if "=" not in it:
@@ -102,6 +104,48 @@ def decision_lines(doc: dict) -> list[str]:
     return lines
 
 
+#: Navigation columns of the replay table (``_flat`` of a filter's row).
+NAV_COLS = ["vel_rmse_ms", "hpos_rmse_m", "vpos_rmse_m", "nees_att_in95", "nees_vel_in95",
+            "nees_pos_in95"]
+
+
+def _flat(row: dict) -> dict:
+    """A result row with its NEES blocks as columns (share of steps in the 95 % band) and
+    the aiding updates every gate rejected."""
+    out = dict(row)
+    for blk, short in (("attitude", "att"), ("velocity", "vel"), ("position", "pos")):
+        b = (row.get("nees") or {}).get(blk) or {}
+        out[f"nees_{short}_in95"] = b.get("in_band95")
+    gates = row.get("gates")
+    if gates is not None:
+        out["rejected"] = sum(g.get("rejected", 0) for g in gates.values())
+    return out
+
+
+def model_lines(doc: dict) -> list[str]:
+    """The model decision (navigation or attitude-only, and why) and, for navigation,
+    the GNSS / baro sources and the position reference."""
+    m = doc.get("model")
+    if not m:
+        return []
+    name = {"nav": "navigation (attitude, velocity, position, gyro and accel biases)",
+            "attitude": "attitude-only (attitude, gyro bias)"}[m["value"]]
+    when = f" from t={m['t']:.1f} s" if m.get("t") is not None else ""
+    lines = [f"decision: model: {name}{when} ({m['why']})"]
+    if m["value"] == "nav":
+        aid = doc.get("aiding") or {}
+        cnt = "; ".join(f"{k}: " + ", ".join(f"{a} {n}" for a, n in sorted(v.items()))
+                        for k, v in sorted(aid.items()))
+        lines.append(f"aiding: GNSS {doc.get('gnss_source')} (delay "
+                     f"{doc.get('gnss_delay_s') or 0:g} s), baro {doc.get('baro_source')}, "
+                     f"magnetometer {doc.get('mag_source')}" + (f"; {cnt}" if cnt else ""))
+    if doc.get("position_reference"):
+        lines.append(f"position reference: {doc['position_reference']} "
+                     f"({doc.get('position_reference_kind')}); velocity RMSE m/s, position "
+                     "RMSE m, NEES: share of steps in the 95 % chi-square band")
+    return lines
+
+
 def format_doc(doc: dict) -> str:
     """The human-readable result of a replay: what was read, the table, bad data."""
     then = "".join(f" then {w['to']} from t={w['t']:.1f} s" for w in doc.get("imu_switches") or [])
@@ -124,6 +168,7 @@ def format_doc(doc: dict) -> str:
     if doc.get("declination_source"):
         lines.append(f"declination: {math.degrees(doc['declination_rad'] or 0.0):.2f} deg "
                      f"({doc['declination_source']})")
+    lines += model_lines(doc)
     lines += decision_lines(doc)
     if doc.get("imu_gaps"):
         (g0, _), = [max(doc["imu_gap_list"], key=lambda g: g[1] - g[0])]
@@ -138,7 +183,20 @@ def format_doc(doc: dict) -> str:
             rows[f"  {name} smoothed"] = row["smoothed"]
     cols = ["roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg", "nees_mean", "resets",
             "us_per_step"]
+    nav = (doc.get("model") or {}).get("value") == "nav"
+    if nav:
+        rows = {k: _flat(r) for k, r in rows.items()}
+        cols = cols[:4] + NAV_COLS + ["rejected"] + cols[4:]
     lines.append(table(rows, cols))
+    air = {k: _flat(r["airborne"]) for k, r in doc["filters"].items() if r.get("airborne")}
+    if air:
+        a0 = next(iter(doc["filters"].values())).get("airborne") or {}
+        t = a0.get("t") or [math.nan, math.nan]
+        lines.append(f"airborne (t={t[0]:.1f}-{t[1]:.1f} s, {doc.get('position_reference')} "
+                     f"more than {a0.get('height_above_lowest_m', 2.0):g} m above its "
+                     "lowest):")
+        acols = ["roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg"]
+        lines.append(table(air, acols + (NAV_COLS if nav else ["nees_att_in95"])))
     bad = doc["bad_data"]
     parts = [f"{k} {bad[k]}" for k in bad
              if isinstance(bad[k], int) and bad[k]
@@ -188,6 +246,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
             raise InputError(f"--{name} must be a finite time in s, got {v}")
     if args.start is not None and args.end is not None and args.end <= args.start:
         raise InputError(f"--end ({args.end}) must be after --start ({args.start})")
+    if args.gnss_delay is not None and not (math.isfinite(args.gnss_delay)
+                                            and 0.0 <= args.gnss_delay <= 2.0):
+        raise InputError(f"--gnss-delay must be from 0 to 2 s, got {args.gnss_delay}")
     if args.mag_delay > 10.0:
         raise InputError(f"--mag-delay must be at most 10 s, got {args.mag_delay}")
     if args.mag_delay < 0 or not math.isfinite(args.mag_delay):
@@ -200,6 +261,16 @@ def cmd_replay(args: argparse.Namespace) -> int:
         raise InputError(f"--update-rate must be >= 0 Hz (0 = every step), got "
                          f"{args.update_rate}")
     reject_linear_only(args.filter_specs, "replay", "nonlinear attitude models")
+    model, model_why = args.model, None
+    if any(getattr(args, k, None) for k in ("mcap", "report", "foxglove")):
+        # the recording's channels and the report are the attitude model's (the
+        # navigation model's position/velocity channels are not built yet)
+        if model == "nav":
+            raise InputError("--model nav: recording (--mcap/--report/--foxglove) is built "
+                             "for the attitude model only (use --model attitude)")
+        if model == "auto":
+            model, model_why = "attitude", ("recording (--mcap/--report/--foxglove) is "
+                                            "built for the attitude model only")
     cfg = ReplayConfig(
         filters=tuple(args.filter_specs), start=args.start, end=args.end, smooth=args.smooth,
         seed=args.seed, rate_hz=args.rate, update_hz=args.update_rate,
@@ -207,6 +278,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         declination=None if args.declination is None else math.radians(args.declination),
         noise=_parse_noise(args.noise), imu=args.imu, use_mag=not args.no_mag,
         accel_comp=args.accel_comp, mag_mode=args.mag_mode, mag_delay=args.mag_delay,
+        model=model, gnss_delay=args.gnss_delay, model_why=model_why,
     )
     bar = _Progress(False if args.no_progress else None, args.log)
     sinks = [bar, ResetLog(), *recording_sinks(args)]
@@ -273,6 +345,13 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--mag-delay", type=float, default=0.0,
                    help="magnetometer sample age in s, compensated with the gyro (default 0)")
     p.add_argument("--no-mag", action="store_true", help="do not use the magnetometer")
+    p.add_argument("--model", default="auto", choices=("auto", "nav", "attitude"),
+                   help="estimation model (default auto: navigation - attitude, velocity, "
+                   "position, IMU biases, aided by raw GNSS, baro and magnetometer - when "
+                   "the log carries a GNSS fix stream, attitude-only otherwise; "
+                   "docs/navigation.md)")
+    p.add_argument("--gnss-delay", type=float, default=None, metavar="S",
+                   help="navigation model: GNSS measurement delay in s (default 0)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_recording_options(p)
     p.add_argument("--speed", type=float, default=1.0,

@@ -137,7 +137,9 @@ def plan_logs(paths: list[Path], filters: tuple[str, ...] | list[str] | None = N
     from ..presets import resolve_list
 
     filters = tuple(filters or DEFAULT_FILTERS)
-    rcfg = ReplayConfig(filters=filters, **(replay or {}))
+    # the attitude model: the navigation model is not built for evaluate yet (its
+    # records and tables are replay's; docs/navigation.md)
+    rcfg = ReplayConfig(filters=filters, **{"model": "attitude", **(replay or {})})
     specs = resolve_list(list(filters), "attitude", dim=6)
     opts = {k: v for k, v in asdict(rcfg).items() if k != "filters"}
     config = {"kind": "log", "filters": [s.as_dict() for s in specs], "replay": opts,

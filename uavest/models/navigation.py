@@ -48,6 +48,11 @@ class NavNoise:
     accel_noise: accelerometer velocity random walk, m/s^2/sqrt(Hz).
     gyro_bias_walk: gyro bias random walk, rad/s^2/sqrt(Hz) (rad/s per sqrt(s)).
     accel_bias_walk: accelerometer bias random walk, m/s^3/sqrt(Hz).
+    rate_walk: unmodelled change of the true rate within a step, rad/s^1.5 (adds
+        rate_walk^2 dt^3 / 3 to the attitude variance: a coarsely sampled IMU, as the
+        attitude model's parameter of the same name).
+    accel_walk: unmodelled change of the true specific force within a step, m/s^2.5
+        (adds accel_walk^2 dt^3 / 3 to the velocity variance).
     gnss_pos_floor: lower bound on the GNSS horizontal position std, m (also used
         when the receiver reports no accuracy); gnss_vpos_floor: vertical, m.
     gnss_vel_floor: lower bound on the GNSS velocity std per axis, m/s.
@@ -57,8 +62,9 @@ class NavNoise:
     mag_noise: heading / field-direction std, rad.
     gate_chi2: innovation gate, chi-square value per measurement dimension group
         (applied as the 99.9 % quantile for the dimension when None).
-    init_tilt, init_yaw: prior std of roll/pitch and yaw, rad (init_yaw is large when
-        no magnetometer is available: yaw comes from the GNSS course once moving).
+    init_tilt, init_yaw: prior std of roll/pitch and yaw, rad (yaw from the
+        magnetometer); init_yaw_course: prior std of a yaw taken from the GNSS course
+        once moving (no magnetometer), rad: the crab/sideslip it leaves.
     init_vel: m/s; init_pos: m; init_gyro_bias: rad/s; init_accel_bias: m/s^2.
     """
 
@@ -66,6 +72,8 @@ class NavNoise:
     accel_noise: float = 0.05
     gyro_bias_walk: float = 5e-5
     accel_bias_walk: float = 1e-3
+    rate_walk: float = 0.0
+    accel_walk: float = 0.0
     gnss_pos_floor: float = 0.5
     gnss_vpos_floor: float = 1.0
     gnss_vel_floor: float = 0.1
@@ -74,6 +82,7 @@ class NavNoise:
     mag_noise: float = 0.08
     init_tilt: float = np.deg2rad(5.0)
     init_yaw: float = np.deg2rad(15.0)
+    init_yaw_course: float = np.deg2rad(20.0)
     init_vel: float = 1.0
     init_pos: float = 5.0
     init_gyro_bias: float = np.deg2rad(0.5)
@@ -84,10 +93,18 @@ class NavNoise:
         return replace(self, **kw)
 
 
-#: Defaults by IMU source (as :data:`uavest.models.attitude.SENSOR_DEFAULTS`); not tuned
-#: on logs yet.
+#: Streamed MAVLink IMUs (RAW_IMU, SCALED_IMU*, HIGHRES_IMU): instantaneous samples at a
+#: few Hz in telemetry (vtol.tlog: 3.8 Hz): the rate and the specific force change within
+#: a step (``rate_walk``, ``accel_walk``, whose terms vanish as dt^3 at high rates), and
+#: GPS_RAW_INT reports no accuracy, so the floors are the receiver's std. Fitted on the
+#: airborne part of vtol.tlog (docs/navigation.md: optimistic for that log).
+MAVLINK_PROFILE = NavNoise(gyro_noise=0.01, accel_noise=0.2, rate_walk=0.5, accel_walk=3.0,
+                           mag_noise=0.12, gnss_pos_floor=1.0, gnss_vel_floor=0.3)
+
+#: Defaults by IMU source (as :data:`uavest.models.attitude.SENSOR_DEFAULTS`); only
+#: ``mavlink_stream`` fitted to a log (the only real log with a GNSS stream here).
 SENSOR_DEFAULTS: dict[str, NavNoise] = {
-    "mavlink_stream": NavNoise(gyro_noise=0.01, accel_noise=0.2, mag_noise=0.12),
+    "mavlink_stream": MAVLINK_PROFILE,
     "dataflash": NavNoise(),
     "px4": NavNoise(gyro_noise=0.004),
 }
@@ -143,8 +160,8 @@ class ImuTransition(Transition):
 
     def Q(self, t: float, dt: float, u: Array | None = None) -> Array:
         n, dt = self.noise, abs(dt)
-        qa = n.gyro_noise**2 * dt + 1e-14
-        qv = n.accel_noise**2 * dt + 1e-14
+        qa = n.gyro_noise**2 * dt + n.rate_walk**2 * dt**3 / 3.0 + 1e-14
+        qv = n.accel_noise**2 * dt + n.accel_walk**2 * dt**3 / 3.0 + 1e-14
         qp = n.accel_noise**2 * dt**3 / 3.0 + 1e-14
         qbg = n.gyro_bias_walk**2 * dt + 1e-16
         qba = n.accel_bias_walk**2 * dt + 1e-16

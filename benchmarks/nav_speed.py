@@ -1,0 +1,53 @@
+"""Speed of the navigation model in replay: us per step of each filter (without the
+warm-up steps) and the real-time factor of a replay with that filter alone (log duration
+/ wall time, reading the log included), on a 200 Hz log at the default filter rate, and
+the hybrid's step against the UKF's.
+
+The log: ``logs/sim_200hz.tlog`` (the project's simulator, RAW_IMU at 200 Hz, GPS_RAW_INT
+at 5 Hz; see logs/README.md). Each filter is replayed twice in this process and the
+second run is reported (numba compilation and first-use caches land in the first). The
+machine may be shared: the load average is printed before and after.
+
+    PYTHONPATH=. python benchmarks/nav_speed.py [--log PATH] [--rate HZ] [--filters ekf,ukf,hybrid]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+from uavest.apps.replay import ReplayConfig, replay  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--log", default=str(ROOT / "logs" / "sim_200hz.tlog"))
+    ap.add_argument("--rate", type=float, default=None,
+                    help="filter rate cap, Hz (0: every sample)")
+    ap.add_argument("--filters", default="ekf,ukf,hybrid")
+    ap.add_argument("--model", default="nav", choices=("nav", "attitude"))
+    a = ap.parse_args()
+    print(f"load average before: {os.getloadavg()[0]:.2f}")
+    rows = {}
+    for f in a.filters.split(","):
+        for _ in range(2):
+            doc = replay(a.log, ReplayConfig(filters=(f,), rate_hz=a.rate, model=a.model))
+        r = doc["filters"][f]
+        rows[f] = (r["us_per_step"], doc["realtime_factor"], doc["filter_rate_hz"],
+                   doc["imu_rate_hz"])
+    print(f"{'filter':8s} {'us/step':>9s} {'x real time':>11s}  (filter Hz, IMU Hz)")
+    for f, (us, rt, fr, ir) in rows.items():
+        print(f"{f:8s} {us:9.0f} {rt:11.1f}  ({fr:.1f}, {ir:.1f})")
+    if "hybrid" in rows and "ukf" in rows:
+        print(f"hybrid / ukf step: {rows['hybrid'][0] / rows['ukf'][0]:.2f}")
+    print(f"load average after: {os.getloadavg()[0]:.2f}")
+
+
+if __name__ == "__main__":
+    main()

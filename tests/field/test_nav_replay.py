@@ -1,0 +1,90 @@
+"""``uavest replay`` chooses the model from what the log carries (navigation with a raw
+GNSS fix stream, attitude-only otherwise), says which ran and why, ``--model`` overrides;
+the JSON of a navigation run has velocity/position RMSE and NEES per block. Real
+subprocesses on the shared logs (skipped when they are absent)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+from conftest import shared_log
+
+CODE = "import sys;from uavest.cli import main;sys.exit(main(sys.argv[1:]))"
+
+
+def _replay(*argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", CODE, "replay", *argv, "--no-progress"],
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_vtol_runs_the_navigation_model_and_says_why(tmp_path):
+    out = tmp_path / "nav.json"
+    r = _replay(str(shared_log("vtol.tlog")), "--filters", "ekf", "--end", "700",
+                "--json", str(out))
+    assert r.returncode == 0, r.stderr
+    line = next(ln for ln in r.stdout.splitlines() if ln.startswith("decision: model:"))
+    assert "navigation" in line and "GPS_RAW_INT" in line and "fix stream" in line
+    assert "aiding: GNSS GPS_RAW_INT" in r.stdout and "vel_rmse_ms" in r.stdout
+    doc = json.loads(out.read_text())
+    assert doc["model"]["value"] == "nav" and doc["gnss_source"] == "GPS_RAW_INT"
+    assert doc["position_reference"] == "GLOBAL_POSITION_INT"
+    row = doc["filters"]["ekf"]
+    for k in ("vel_rmse_ms", "hpos_rmse_m", "vpos_rmse_m", "roll_rmse_deg"):
+        assert row[k] is not None and row[k] >= 0
+    assert set(row["nees"]) == {"attitude", "velocity", "position"}
+    for blk in row["nees"].values():
+        assert 0.0 <= blk["in_band95"] <= 1.0 and blk["n"] > 100
+    assert row["airborne"]["t"][0] > 630.0  # it took off at 635 s
+    assert set(row["gates"]) >= {"gnss_pos", "gnss_vel", "baro", "mag"}
+    assert row["resets"] == 0
+    assert row["hpos_rmse_m"] < 5.0 and row["vel_rmse_ms"] < 1.5  # not diverged
+
+
+def test_model_attitude_overrides_and_matches_the_attitude_table(tmp_path):
+    out = tmp_path / "att.json"
+    r = _replay(str(shared_log("vtol.tlog")), "--filters", "ekf", "--end", "700",
+                "--model", "attitude", "--json", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "decision: model: attitude-only (attitude, gyro bias) (option --model)" in r.stdout
+    head = next(ln for ln in r.stdout.splitlines() if ln.startswith("filter"))
+    assert "vel_rmse_ms" not in head
+    doc = json.loads(out.read_text())
+    assert doc["model"]["value"] == "attitude"
+    row = doc["filters"]["ekf"]
+    assert "vel_rmse_ms" not in row and "gates" not in row
+    assert "roll_rmse_deg" in row["airborne"]  # the airborne part is scored for it too
+
+
+def test_bad_model_value_exits_2():
+    r = _replay(str(shared_log("vtol.tlog")), "--model", "kalman")
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "--model" in r.stderr
+
+
+def test_a_log_without_gnss_runs_attitude_only_and_nav_is_refused():
+    log = str(shared_log("sample.ulg"))
+    r = _replay(log, "--filters", "ekf")
+    assert r.returncode == 0, r.stderr
+    line = next(ln for ln in r.stdout.splitlines() if ln.startswith("decision: model:"))
+    assert "attitude-only" in line and "no raw GNSS stream" in line
+    r = _replay(log, "--filters", "ekf", "--model", "nav")
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "navigation model could not start" in r.stderr and r.stderr.count("\n") == 1
+
+
+def test_a_few_fixes_are_not_a_fix_stream():
+    r = _replay(str(shared_log("test.BIN")), "--filters", "ekf")
+    assert r.returncode == 0, r.stderr
+    line = next(ln for ln in r.stdout.splitlines() if ln.startswith("decision: model:"))
+    assert "attitude-only" in line and "a stream needs 10" in line
+
+
+@pytest.mark.parametrize("argv", [["--gnss-delay", "-1"], ["--smooth"],
+                                  ["--noise", "accel_deweight=1"]])
+def test_nav_option_errors_are_one_line(argv):
+    r = _replay(str(shared_log("vtol.tlog")), "--filters", "ekf", *argv)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert r.stderr.count("\n") == 1

@@ -1,0 +1,176 @@
+"""The navigation stream (uavest/engine/navigation.py) on seeded synthetic flights:
+IMU, GNSS, baro and magnetometer samples in, every registry filter through the engine,
+bad aiding data gated and counted."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from uavest.engine.build import build_filters
+from uavest.engine.loop import Lane, run_lanes
+from uavest.engine.navigation import NavOptions, NavRunner, NavStream
+from uavest.errors import InputError
+from uavest.geometry.geodesy import LocalFrame
+from uavest.geometry.navigation import NavSpace
+from uavest.geometry.rotation import euler_to_quat, quat_rotate_inv
+from uavest.ingest.types import BaroSample, GnssSample, ImuSample, MagSample, NoSamplesError
+from uavest.models.attitude import mag_reference
+from uavest.models.navigation import ImuTransition, NavNoise
+from uavest.sinks.base import Collector
+
+SP = NavSpace()
+ORIGIN = (47.4, 8.5, 430.0)
+DT = 0.01  # 100 Hz IMU
+
+
+def flight(seed: int, T: float = 40.0, mag: bool = True, gnss_every: int = 20,
+           delay: float = 0.0, v0: float = 6.0, vd: float = 0.0):
+    """(samples, truth t (K,), truth states (K, 16)): 10 s straight, then a turn (down
+    speed ``vd`` m/s throughout), with
+    IMU (interval means, 'sensor_combined'), GNSS 5 Hz (stamped ``delay`` s after the
+    state it measures), baro 10 Hz, magnetometer 10 Hz. Biases bg, ba constant."""
+    rng = np.random.default_rng(seed)
+    fr = LocalFrame(*ORIGIN)
+    tr = ImuTransition(NavNoise(), lat=np.deg2rad(ORIGIN[0]), h=ORIGIN[2])
+    bg, ba = np.array([0.01, -0.005, 0.003]), np.array([0.1, -0.05, 0.08])
+    x = np.concatenate([euler_to_quat(0.0, 0.0, 0.3), [v0 * np.cos(0.3), v0 * np.sin(0.3), vd],
+                        np.zeros(3), bg, ba])
+    mref = mag_reference(np.deg2rad(2.0), np.deg2rad(63.0)) * 0.48
+    t0 = 100.0
+    out, ts, xs = [], [], []
+    n = int(T / DT)
+    for k in range(n):
+        t = t0 + k * DT
+        wz = 0.0 if k * DT < 10 else 0.15
+        w = np.array([0.02 * np.sin(0.5 * k * DT), 0.01 * np.cos(0.3 * k * DT), wz])
+        v_b = quat_rotate_inv(x[:4], x[4:7])
+        f = np.cross(w, v_b) - quat_rotate_inv(x[:4], np.array([0, 0, tr.g]))
+        if 1 <= k:
+            x = tr.f(x[None], t, DT, np.concatenate([w, f]))[0]
+        ts.append(t)
+        xs.append(x.copy())
+        g = w + bg + rng.normal(size=3) * 0.003 / np.sqrt(DT)
+        a = f + ba + rng.normal(size=3) * 0.05 / np.sqrt(DT)
+        out.append(ImuSample(t, g, a, "sensor_combined"))
+        if mag and k % 10 == 0:
+            fb = quat_rotate_inv(x[:4], mref) + rng.normal(size=3) * 0.005
+            out.append(MagSample(t, fb, "sensor_combined"))
+        if k % 10 == 5:
+            out.append(BaroSample(t, np.nan, 20.0, -x[9] + 50.0 + rng.normal() * 0.3,
+                                  "sensor_baro"))
+        if k % gnss_every == 0 and k * DT >= 1.5:
+            p = x[7:10] + rng.normal(size=3) * [0.4, 0.4, 0.8]
+            lat, lon, h = fr.ned_to_geodetic(p)
+            v = x[4:7] + rng.normal(size=3) * 0.08
+            out.append(GnssSample(t + delay, np.array([float(lat), float(lon), float(h)]), v,
+                                  3, 0.5, 1.0, 0.1, 0.8, 1.2, 12, "vehicle_gps_position"))
+    out.sort(key=lambda s: s.t)
+    return out, np.array(ts), np.array(xs)
+
+
+def run_nav(samples, specs=("ekf",), opts=None, seed=0):
+    stream = NavStream(opts=opts or NavOptions(integration="hold"))
+    runners = [NavRunner(sp.label, flt, np.random.default_rng(seed))
+               for sp, flt in build_filters(list(specs), "attitude", dim=15)]
+    coll = Collector()
+    run_lanes(iter(samples), [Lane(stream, runners)], [coll])
+    return stream, runners, coll
+
+
+def errors(stream, coll, label, ts, xs, t_from):
+    """Tangent errors (estimate -> truth) from ``t_from`` s and the covariances; truth
+    positions moved into the stream's frame (its origin is the first fix)."""
+    a = coll.arrays(label)
+    t, x, P = a["t"], a["x"], a["P"]
+    keep = t >= t_from
+    xt = xs[np.searchsorted(ts, t[keep])].copy()
+    lat, lon, h = LocalFrame(*ORIGIN).ned_to_geodetic(xt[:, 7:10])
+    xt[:, 7:10] = stream.frame.geodetic_to_ned(lat, lon, h)
+    return SP.local(x[keep], xt), P[keep]
+
+
+def rms(e):
+    return float(np.sqrt(np.mean(e**2)))
+
+
+@pytest.mark.parametrize("spec", ["ekf", "ukf", "hybrid"])
+def test_every_filter_converges_on_a_synthetic_flight(spec):
+    samples, ts, xs = flight(1)
+    stream, runners, coll = run_nav(samples, [spec])
+    e, P = errors(stream, coll, runners[0].label, ts, xs, 110.0)
+    assert rms(e[:, 3:6]) < 0.3  # velocity m/s
+    assert rms(e[:, 6:8]) < 1.0  # horizontal position m
+    assert np.degrees(rms(e[:, :2])) < 1.0  # tilt deg
+    assert np.degrees(rms(e[:, 2])) < 3.0  # yaw deg
+    nees = np.einsum("ki,ki->k", e[:, :9], np.linalg.solve(P[:, :9, :9], e[:, :9, None])[..., 0])
+    assert np.mean(nees < 21.67) > 0.8  # 9-dof NEES below its 99 % bound
+    assert runners[0].resets == 0
+    s = stream.summary
+    assert s["gnss_source"] == "vehicle_gps_position" and s["baro_source"] == "sensor_baro"
+    assert any(d["what"] == "alignment" and "magnetometer" in d["why"] for d in s["decisions"])
+
+
+def test_without_magnetometer_yaw_comes_from_the_gnss_course():
+    samples, ts, xs = flight(2, mag=False)
+    stream, runners, coll = run_nav(samples)
+    al = [d for d in stream.summary["decisions"] if d["what"] == "alignment"]
+    assert al and "GNSS course" in al[0]["why"]
+    e, _ = errors(stream, coll, runners[0].label, ts, xs, 115.0)
+    assert np.degrees(rms(e[:, 2])) < 3.0  # yaw resolved by GNSS velocity in the turn
+    assert rms(e[:, 3:6]) < 0.3
+
+
+def test_no_course_while_slow_and_no_magnetometer_means_no_start():
+    samples, _, _ = flight(2, T=6.0, mag=False, v0=0.5)
+    with pytest.raises(NoSamplesError, match="course"):
+        run_nav(samples)
+
+
+def test_gnss_delay_compensated():
+    samples, ts, xs = flight(3, delay=0.2)
+    s0, r0, c0 = run_nav(samples)
+    s1, r1, c1 = run_nav(samples, opts=NavOptions(integration="hold", gnss_delay=0.2))
+    e0, _ = errors(s0, c0, r0[0].label, ts, xs, 110.0)
+    e1, _ = errors(s1, c1, r1[0].label, ts, xs, 110.0)
+    assert rms(e1[:, 6:8]) < 0.6 * rms(e0[:, 6:8])  # a 0.2 s lag at 6 m/s is 1.2 m
+
+
+def test_bad_aiding_is_gated_and_counted_never_a_reset_storm():
+    samples, ts, xs = flight(4, vd=-1.0)  # climbing at 1 m/s
+    stuck = None
+    fr = LocalFrame(*ORIGIN)
+    bad = []
+    for s in samples:
+        if isinstance(s, GnssSample) and 120.0 <= s.t < 124.0:  # a 100 m jump north
+            p = np.array(fr.geodetic_to_ned(*s.lat_lon_alt)) + [100.0, 0.0, 0.0]
+            s = GnssSample(s.t, np.array([float(c) for c in fr.ned_to_geodetic(p)]),
+                           s.vel_ned, 3, 0.5, 1.0, 0.1, 0.8, 1.2, 12, s.source)
+        elif isinstance(s, GnssSample) and 126.0 <= s.t < 128.0:  # NaN fields
+            s = GnssSample(s.t, np.array([np.nan, np.nan, np.nan]), s.vel_ned * np.nan, 3,
+                           np.nan, np.nan, np.nan, np.nan, np.nan, 12, s.source)
+        elif isinstance(s, GnssSample) and 130.0 <= s.t < 133.0:  # the fix drops to 2-D
+            s = GnssSample(s.t, s.lat_lon_alt, s.vel_ned, 2, 5.0, 10.0, 0.5, 3.0, 5.0, 4,
+                           s.source)
+        elif isinstance(s, BaroSample) and s.t >= 115.0:  # the baro sticks in the climb
+            stuck = s.alt if stuck is None else stuck
+            s = BaroSample(s.t, np.nan, 20.0, stuck, s.source)
+        bad.append(s)
+    stream, runners, coll = run_nav(bad, ["ekf", "ukf"])
+    aid = stream.summary["aiding"]
+    assert aid["gnss"]["nan"] == 10 and aid["gnss"]["fix_2d"] == 15
+    for r in runners:
+        assert r.resets == 0
+        assert r.gates["gnss_pos"]["rejected"] >= 18  # the 20 jumped fixes, <= 2 taken
+        # the stuck baro: 25 s x 10 Hz, rejected once its error outgrows the gate, and
+        # re-anchored at most once per REANCHOR_S
+        assert r.gates["baro"]["rejected"] >= 150 and r.gates["baro"]["reanchored"] <= 3
+        e, _ = errors(stream, coll, r.label, ts, xs, 110.0)
+        assert rms(e[:, 6:8]) < 2.0 and rms(e[:, 3:6]) < 0.5
+
+
+def test_bad_noise_option_is_one_line():
+    with pytest.raises(InputError, match="not a parameter"):
+        NavOptions(noise={"accel_deweight": 1.0})
+    with pytest.raises(InputError, match="gnss-delay"):
+        NavOptions(gnss_delay=-1.0)

@@ -1,0 +1,751 @@
+"""GNSS-aided navigation from a sample stream: typed samples in, navigation steps out.
+
+:class:`NavStream` is the navigation counterpart of
+:class:`~uavest.engine.attitude.AttitudeStream`: the same streaming pre-integration
+(:class:`~uavest.engine.attitude._StepBuilder`, hold or trapezoid, ``rate_hz`` cap), but
+the state is :class:`~uavest.geometry.navigation.NavSpace` (q, v NED, p NED, gyro bias,
+accel bias), the transition :class:`~uavest.models.navigation.ImuTransition` with
+``u = [gyro (rad/s), specific force (m/s^2)]`` of the step (the mean rate and mean specific
+force of its IMU samples), and the updates are raw aiding measurements:
+
+* GNSS position (:meth:`GnssPosition.from_fix` with the receiver's h_acc / v_acc: fix
+  type < 2 no update, 2-D horizontal only) and velocity (:class:`GnssVelocity`, std
+  max(s_acc, floor); horizontal only when the message has no vertical speed), applied to
+  the step whose interval holds the fix's time minus ``gnss_delay``; the position is
+  carried from that time to the step's end with the fix's own velocity;
+* barometric height (:class:`BaroHeight`, the offset to the GNSS height taken once, at
+  the first baro sample after the start, and held);
+* the magnetometer through :class:`OnNav` (3-D field direction, or heading), declination
+  as the attitude path (option, then the log's parameters, taken later if they arrive),
+  at most at the attitude path's reference rate (:data:`MAG_MIN_INTERVAL_S`).
+
+Each update is tagged with its sensor (``Step.info["sensors"]``) so that
+:class:`NavRunner` gates it per filter on its own innovation (chi-square 99.9 %)
+and counts the rejections per sensor; a rejected update is skipped, never a reset.
+
+**GNSS delay** ``gnss_delay`` (s): a fix stamped t measures the state at t - delay. The
+stream holds closed steps until the newest sample is ``delay`` past their end, so every
+fix finds the step it belongs to (the filters then run ``delay`` behind the stream).
+
+**Alignment.** The first ``2 align_s`` of IMU data are held to choose the IMU source,
+rate and integration as the attitude path does (then replayed). Steps are dropped until a
+good fix (3-D, finite position and horizontal velocity) arrives; the first step holding
+one is the start: roll/pitch from the mean accelerometer of the last ``align_s``
+(``init_tilt``), yaw from the magnetometer (tilt-compensated, declination; ``init_yaw``)
+or, without one, from the GNSS course once the ground speed is at least ``yaw_speed``
+(``init_yaw_course``: the crab/sideslip that leaves), velocity and position from the fix
+with its accuracies (position origin: that fix), biases zero (``init_gyro_bias``,
+``init_accel_bias``). An IMU gap (as the attitude path defines it) re-aligns the same way
+at the next good fix, keeping the filters' biases.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections import deque
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import numpy as np
+
+from ..core.gaussian import Gaussian
+from ..core.guard import nis_gate
+from ..errors import InputError
+from ..geometry.geodesy import LocalFrame
+from ..geometry.navigation import NavSpace
+from ..geometry.rotation import euler_to_quat, quat_rotate, wrap_pi
+from ..ingest.api import choose_source
+from ..ingest.semantics import default_integration
+from ..ingest.types import BaroSample, GnssSample, ImuSample, MagSample, NoSamplesError
+from ..models.attitude import (
+    MagField,
+    MagHeading,
+    declination_and_source,
+    inclination_from_samples,
+    mag_reference,
+)
+from ..models.navigation import (
+    BaroHeight,
+    GnssPosition,
+    GnssVelocity,
+    ImuTransition,
+    NavNoise,
+    OnNav,
+    nav_noise_for_source,
+)
+from .attitude import DEFAULT_MAX_RATE_HZ, GAP_MEDIANS, GAP_MIN_S, _Gap, _Raw, _StepBuilder
+from .records import Start, Step, StepRecord, Update
+from .runner import WARMUP_STEPS, FilterRunner
+
+Array = np.ndarray
+
+__all__ = ["GATE_PROB", "NavNotStarted", "NavOptions", "NavRunner", "NavStream",
+           "baro_height"]
+
+#: Innovation gate of every aiding update: the chi-square quantile for its dimension.
+GATE_PROB = 0.999
+#: Consecutive rejections of one sensor for this long (s) and its next update is taken
+#: with R scaled to put it on the gate (one re-anchoring, counted; not a reset).
+REANCHOR_S = 10.0
+#: Pairs of (baro, GNSS) heights the baro offset averages over (then its memory).
+BARO_OFFSET_PAIRS = 200
+_CHI2: dict[int, float] = {}  # GATE_PROB quantile by dimension
+#: Magnetometer updates at most this often (s): the attitude path's reference rate
+#: (``mag_noise`` describes one update per reference step; a 200 Hz magnetometer at
+#: ``--rate 0`` would otherwise carry 8 times the information and pull the tilt).
+MAG_MIN_INTERVAL_S = 1.0 / DEFAULT_MAX_RATE_HZ - 1e-6
+
+
+class NavNotStarted(NoSamplesError):
+    """The stream ended before the navigation model could start (no good GNSS fix, or
+    no magnetometer and never fast enough for the course)."""
+
+
+@dataclass(frozen=True)
+class NavOptions:
+    """How samples become navigation steps (module docstring; ``uavest replay --help``).
+
+    ``start``/``end`` s clip the stream; ``rate_hz`` None -> the
+    :data:`~uavest.engine.attitude.DEFAULT_MAX_RATE_HZ` cap, 0 -> every IMU sample;
+    ``integration`` auto/hold/trapezoid; ``declination`` rad east positive (None: the
+    log's parameters, else 0); ``noise`` overrides of
+    :class:`~uavest.models.navigation.NavNoise`; ``imu``/``gnss``/``baro`` source names
+    or None (the stream's choice); ``use_mag``, ``use_baro``; ``mag_mode`` field or
+    heading; ``gnss_delay`` s (None: ``NavNoise.gnss_delay``); ``align_s`` s;
+    ``yaw_speed`` m/s, the ground speed from which the GNSS course gives the start yaw
+    without a magnetometer."""
+
+    start: float | None = None
+    end: float | None = None
+    rate_hz: float | None = None
+    integration: str = "auto"
+    declination: float | None = None
+    noise: dict[str, float] = field(default_factory=dict)
+    imu: str | None = None
+    gnss: str | None = None
+    baro: str | None = None
+    use_mag: bool = True
+    use_baro: bool = True
+    mag_mode: str = "field"
+    gnss_delay: float | None = None
+    align_s: float = 1.0
+    yaw_speed: float = 3.0
+
+    def in_window(self, t: float) -> bool:
+        """True if ``t`` (s) lies in [start, end]."""
+        return (self.start is None or t >= self.start) and (self.end is None or t <= self.end)
+
+    def __post_init__(self) -> None:
+        if self.integration not in ("auto", "hold", "trapezoid"):
+            raise InputError(
+                f"integration must be auto, hold or trapezoid, not {self.integration!r}")
+        if self.mag_mode not in ("field", "heading"):
+            raise InputError(f"mag_mode must be field or heading, not {self.mag_mode!r}")
+        known = {f.name for f in fields(NavNoise)}
+        bad = sorted(set(self.noise) - known)
+        if bad:
+            raise InputError(f"--noise {bad[0]}: not a parameter of the navigation model; "
+                             f"known: {', '.join(sorted(known))}")
+        d = self.gnss_delay
+        if d is not None and not (np.isfinite(d) and 0.0 <= d <= 2.0):
+            raise InputError(f"--gnss-delay must be from 0 to 2 s, got {d}")
+
+
+def baro_height(s: BaroSample) -> float:
+    """Height up (m) of a barometer sample: the logged pressure altitude when there is
+    one, else the ISA barometric formula from the pressure (Pa); NaN if neither is
+    usable. Only differences matter (the offset to the GNSS height is estimated)."""
+    if np.isfinite(s.alt):
+        return float(s.alt)
+    p = float(s.pressure)
+    if not (np.isfinite(p) and 1.0e3 < p < 2.0e5):
+        return float("nan")
+    return float(44330.77 * (1.0 - (p / 101325.0) ** 0.190263))
+
+
+@dataclass
+class _Aid:
+    """One validated aiding sample waiting for its step: effective time ``t`` (s, the
+    stamp minus the delay), ``sensor`` name and its payload."""
+
+    t: float
+    sensor: str
+    gnss: GnssSample | None = None
+    ned: Array | None = None
+    height: float = float("nan")
+
+
+class _NavBuilder(_StepBuilder):
+    """The attitude path's step builder with the specific force of every step (the
+    time-weighted trapezoid mean for snapshot IMUs, the plain mean for integrated ones)."""
+
+    def __init__(self, integration: str, factor: int) -> None:
+        super().__init__(integration, factor, False, 1, 1)
+        self.a_edge: Array | None = None
+
+    def push_nav(self, s: ImuSample | MagSample) -> list[_Raw | _Gap]:
+        """:meth:`_StepBuilder.push` for the stream's own IMU / magnetometer samples."""
+        out: list[_Raw | _Gap] = list(self.push(s))
+        if isinstance(s, ImuSample) and self.t_edge == s.t:
+            self.a_edge = s.accel
+        return out
+
+    def _close(self) -> _Raw:
+        b, t0, a0 = self.block, self.t_edge, self.a_edge
+        a: Array | None = None
+        if self.integration == "trapezoid" and a0 is not None and t0 is not None:
+            ts = np.array([t0] + [s.t for s in b])
+            acc = np.array([a0] + [s.accel for s in b])
+            dt = np.diff(ts)
+            if dt.sum() > 0:
+                a = (0.5 * (acc[1:] + acc[:-1]) * dt[:, None]).sum(axis=0) / dt.sum()
+        r: _Raw = super()._close()
+        if a is not None:
+            r.a = a
+        self.a_edge = b[-1].accel
+        return r
+
+
+class NavStream:
+    """One :class:`Start` then navigation :class:`Step` s from a sample stream (module
+    docstring). :meth:`push` / :meth:`flush` return the items they completed; iterating
+    runs over ``samples``. :attr:`summary` has the keys of the attitude stream's summary
+    (sources, rates, integration, steps, decisions...) plus ``gnss_source``,
+    ``baro_source``, ``origin`` and ``aiding`` (per sensor: used and skipped counts)."""
+
+    def __init__(self, samples: Iterable[Any] = (), opts: NavOptions | None = None,
+                 params: dict[str, Any] | None = None) -> None:
+        self.samples = samples
+        self.opts = opts or NavOptions()
+        self.params: dict[str, Any] = {} if params is None else params
+        self.space = NavSpace()
+        self.noise: NavNoise = NavNoise().with_(**self.opts.noise)
+        self.summary: dict[str, Any] = {}
+        self.decisions: list[dict[str, Any]] = []
+        self.declination = 0.0
+        self.delay = 0.0
+        self.frame: LocalFrame | None = None
+        self._held: list[Any] | None = []
+        self._imu_t0: float | None = None
+        self._builder: _NavBuilder | None = None
+        self._imu: str | None = None
+        self._mag: str | None = None
+        self._gnss: str | None = self.opts.gnss
+        self._baro: str | None = self.opts.baro
+        self._model: ImuTransition | None = None
+        self._queue: deque[_Raw] = deque()
+        self._aid: dict[str, deque[_Aid]] = {"gnss": deque(), "baro": deque()}
+        self._recent: deque[_Raw] = deque()  # raws of the last align_s while waiting
+        self._waiting = True
+        self._started = False
+        self._wait_why = "no good GNSS fix yet"
+        self._t_out: float | None = None  # end of the last released step
+        self._now = -np.inf
+        self._k = 0
+        self._imu_n = [0, 0.0, 0.0]
+        self._mref: Array | None = None
+        self._baro_offset: float | None = None
+        self._off_n = 0  # (baro, GNSS) height pairs seen
+        self._t_mag = -np.inf  # time of the last magnetometer update
+        self._h_fix: tuple[float, float] | None = None  # last GNSS (t s, height up m)
+        self._decl_pending = False
+        self._decl_seen: tuple[int, bool] | None = None
+        self._gnss_srcs: dict[str, int] = {}
+        self._baro_srcs: dict[str, int] = {}
+        self.aiding: dict[str, dict[str, int]] = {}
+
+    # ------------------------------------------------------------------ bookkeeping
+    def _decide(self, what: str, value: Any, t: float, why: str) -> None:
+        """Record a decision ``what`` = ``value`` from ``t`` (s) because ``why``."""
+        self.decisions.append({"what": what, "value": value, "t": float(t), "why": why})
+        self.summary["decisions"] = self.decisions
+
+    def _count(self, sensor: str, what: str) -> None:
+        d = self.aiding.setdefault(sensor, {})
+        d[what] = d.get(what, 0) + 1
+
+    def __iter__(self) -> Iterator[Start | Step]:
+        for s in self.samples:
+            yield from self.push(s)
+        yield from self.flush()
+
+    # ------------------------------------------------------------------ pushing
+    def push(self, s: Any) -> list[Start | Step]:
+        """Feed one sample; returns the items (start, steps) it completed."""
+        o = self.opts
+        if not o.in_window(s.t):
+            return []
+        if isinstance(s, GnssSample):
+            self._gnss_srcs[s.source] = self._gnss_srcs.get(s.source, 0) + 1
+        elif isinstance(s, BaroSample):
+            self._baro_srcs[s.source] = self._baro_srcs.get(s.source, 0) + 1
+        if self._held is not None:
+            self._held.append(s)
+            if isinstance(s, ImuSample):
+                if self._imu_t0 is None:
+                    self._imu_t0 = s.t
+                elif s.t > self._imu_t0 + 2.0 * o.align_s:
+                    return self._setup()
+            return []
+        return self._feed(s)
+
+    def flush(self) -> list[Start | Step]:
+        """End of the stream: close and release the last steps."""
+        out: list[Start | Step] = []
+        if self._held is not None:
+            if not self._held:
+                raise NoSamplesError("no samples in the stream (or in the chosen window)")
+            out += self._setup()
+        assert self._builder is not None
+        for r in self._builder.flush():
+            self._queue.append(r)
+        self._now = np.inf
+        out += self._release()
+        self._finish_summary()
+        if not self._started:
+            raise NavNotStarted(
+                "the navigation model could not start: " + self._wait_why
+                + " (GNSS sources seen: " + (", ".join(sorted(self._gnss_srcs)) or "none")
+                + "; use --model attitude)")
+        return out
+
+    def _feed(self, s: Any) -> list[Start | Step]:
+        b = self._builder
+        assert b is not None
+        raws: list[_Raw | _Gap] = []
+        if isinstance(s, ImuSample):
+            if s.source != self._imu:
+                return []
+            if not (np.isfinite(s.gyro).all() and np.isfinite(s.accel).all()):
+                self._count("imu", "nan")
+                return []
+            self._imu_n[0] += 1
+            self._imu_n[2] = s.t
+            raws = b.push_nav(s)
+        elif isinstance(s, MagSample):
+            if s.source != self._mag:
+                return []
+            raws = b.push_nav(s)
+        elif isinstance(s, GnssSample):
+            self._gnss_sample(s)
+        elif isinstance(s, BaroSample):
+            self._baro_sample(s)
+        else:
+            return []
+        self._now = max(self._now, s.t)
+        out: list[Start | Step] = []
+        for r in raws:
+            if isinstance(r, _Gap):
+                out += self._release(upto=r.t0)
+                self._queue.clear()
+                self._go_wait(f"re-alignment after an IMU gap of {r.t1 - r.t0:.1f} s",
+                              r.t1)
+            else:
+                self._queue.append(r)
+        return out + self._release()
+
+    def _go_wait(self, why: str, t: float) -> None:
+        self._waiting = True
+        self._recent.clear()
+        self._wait_why = why
+        self._decide("navigation", "waiting for a good GNSS fix", t, why)
+
+    # ------------------------------------------------------------------ aiding input
+    def _gnss_sample(self, s: GnssSample) -> None:
+        if self._gnss is None:
+            if s.fix_type < 3:
+                return
+            self._gnss = s.source
+            self._decide("GNSS", s.source, s.t, "option --gnss" if self.opts.gnss else
+                         "first receiver with a 3-D fix (raw, not the autopilot's fused "
+                         "position)")
+        if s.source != self._gnss:
+            return
+        if s.fix_type < 2:
+            self._count("gnss", "no_fix")
+            return
+        lla = np.asarray(s.lat_lon_alt, float)
+        if not np.isfinite(lla[:2]).all() or abs(lla[0]) > 90 or abs(lla[1]) > 180:
+            self._count("gnss", "nan")
+            return
+        if s.fix_type == 2:
+            self._count("gnss", "fix_2d")
+        if self.frame is None:
+            if s.fix_type < 3 or not np.isfinite(lla[2]):
+                return
+            self.frame = LocalFrame(lla[0], lla[1], lla[2])
+            self.summary["origin"] = {"lat": float(lla[0]), "lon": float(lla[1]),
+                                      "alt": float(lla[2])}
+            lat = np.deg2rad(lla[0])
+            self._model = ImuTransition(self.noise, lat=lat, h=float(lla[2]))
+        alt = lla[2] if np.isfinite(lla[2]) else self.frame.h0
+        ned = np.asarray(self.frame.geodetic_to_ned(np.array(lla[0]), np.array(lla[1]),
+                                                     np.array(alt)), dtype=float)
+        if s.fix_type == 2 or not np.isfinite(lla[2]):
+            ned[2] = np.nan
+        self._aid["gnss"].append(_Aid(s.t - self.delay, "gnss", gnss=s, ned=ned))
+
+    def _baro_sample(self, s: BaroSample) -> None:
+        if not self.opts.use_baro:
+            return
+        if self._baro is None:
+            self._baro = s.source
+            self._decide("baro", s.source, s.t, "option --baro" if self.opts.baro else
+                         "first barometer in the stream")
+        if s.source != self._baro:
+            return
+        h = baro_height(s)
+        if not np.isfinite(h):
+            self._count("baro", "nan")
+            return
+        self._aid["baro"].append(_Aid(s.t, "baro", height=h))
+
+    # ------------------------------------------------------------------ releasing steps
+    def _release(self, upto: float | None = None) -> list[Start | Step]:
+        out: list[Start | Step] = []
+        lim = self._now - self.delay if upto is None else upto
+        while self._queue and (self._queue[0].t < lim or (upto is not None
+                                                            and self._queue[0].t <= lim)):
+            r = self._queue.popleft()
+            aids = []
+            for q in self._aid.values():  # each sensor's aids are in time order
+                while q and q[0].t <= r.t:
+                    a = q.popleft()
+                    if self._t_out is not None and a.t <= self._t_out:
+                        self._count(a.sensor, "late")
+                        continue
+                    aids.append(a)
+            self._t_out = r.t
+            if self._waiting:
+                out += self._try_start(r, aids)
+            else:
+                out.append(self._step(r, aids))
+        return out
+
+    def _good_fix(self, aids: list[_Aid]) -> _Aid | None:
+        for a in reversed(aids):
+            g = a.gnss
+            if (g is not None and a.ned is not None and g.fix_type >= 3
+                    and np.isfinite(a.ned).all() and np.isfinite(g.vel_ned[:2]).all()):
+                return a
+        return None
+
+    def _try_start(self, r: _Raw, aids: list[_Aid]) -> list[Start | Step]:
+        o, n = self.opts, self.noise
+        if r.a is not None:
+            self._recent.append(r)
+            while self._recent and self._recent[0].t < r.t - o.align_s:
+                self._recent.popleft()
+        fix = self._good_fix(aids)
+        if fix is None or fix.gnss is None or fix.ned is None or not self._recent:
+            return []
+        g = fix.gnss
+        mags = [x.mag for x in self._recent if x.mag is not None and np.any(x.mag)]
+        use_mag = self._mag is not None and bool(mags)
+        vh = np.asarray(g.vel_ned[:2], float)
+        speed = float(np.hypot(vh[0], vh[1]))
+        if not use_mag and speed < o.yaw_speed:
+            self._wait_why = (f"no magnetometer: waiting for a GNSS ground speed of "
+                              f"{o.yaw_speed:g} m/s for the course (fastest so far "
+                              f"{max(speed, self.summary.get('_vmax', 0.0)):.1f} m/s)")
+            self.summary["_vmax"] = max(speed, self.summary.get("_vmax", 0.0))
+            return []
+        first = not self._started
+        if first:
+            self._first_start(r)
+        acc = np.mean([x.a for x in self._recent if x.a is not None], axis=0)
+        a = -acc
+        roll = float(np.arctan2(a[1], a[2]))
+        pitch = float(np.arctan2(-a[0], np.hypot(a[1], a[2])))
+        if use_mag:
+            q0 = euler_to_quat(np.array(roll), np.array(pitch), np.array(0.0))
+            m = quat_rotate(q0, np.asarray(mags[-1], float))
+            yaw = float(wrap_pi(self.declination - np.arctan2(m[1], m[0])))
+            syaw, ywhy = n.init_yaw, "the magnetometer"
+        else:
+            yaw = float(np.arctan2(vh[1], vh[0]))
+            syaw, ywhy = n.init_yaw_course, f"the GNSS course at {speed:.1f} m/s"
+        q = euler_to_quat(np.array(roll), np.array(pitch), np.array(yaw))
+        dt = r.t - fix.t
+        v = np.asarray(g.vel_ned, float).copy()
+        vz_ok = bool(np.isfinite(v[2]))
+        if not vz_ok:
+            v[2] = 0.0
+        p = fix.ned + v * dt
+        sh = max(n.gnss_pos_floor, g.h_acc if np.isfinite(g.h_acc) else 0.0)
+        sv = max(n.gnss_vpos_floor, g.v_acc if np.isfinite(g.v_acc) else 0.0)
+        svel = max(n.gnss_vel_floor, g.s_acc if np.isfinite(g.s_acc) else 0.0)
+        x = np.concatenate([q, v, p, np.zeros(6)])
+        P = np.diag([n.init_tilt**2] * 2 + [syaw**2] + [svel**2] * 2
+                    + [(svel if vz_ok else n.init_vel) ** 2] + [sh**2] * 2 + [sv**2]
+                    + [n.init_gyro_bias**2] * 3 + [n.init_accel_bias**2] * 3)
+        self._waiting = False
+        self._started = True
+        self._recent.clear()
+        why = (f"roll/pitch from the accelerometer, yaw from {ywhy}, velocity and "
+               f"position from the {self._gnss} fix at t={g.t:.1f} s")
+        self._decide("alignment", "done" if first else "re-aligned", r.t, why)
+        return [Start(r.t, Gaussian(x, P), self.space, reason="start" if first else "gap",
+                      keep_tail=0 if first else 6)]
+
+    def _first_start(self, r: _Raw) -> None:
+        """Declination and the magnetic reference, at the first start."""
+        o = self.opts
+        decl, src = o.declination, "option"
+        if decl is None:
+            d, src = declination_and_source(self.params)
+            decl = d or 0.0
+        self.declination = float(decl)
+        self._decl_pending = o.declination is None and src.startswith("none")
+        self.summary.update(declination_rad=self.declination, declination_source=src)
+        self._decide("declination", f"{np.degrees(self.declination):.2f} deg", r.t,
+                     src + (" (taken later if the log gives one)" if self._decl_pending
+                            else ""))
+        if self._mag is not None and o.mag_mode == "field":
+            pairs = [(x.a, x.mag) for x in self._recent if x.mag is not None and x.a is not None]
+            if pairs:
+                inc = inclination_from_samples(np.array([p[0] for p in pairs]),
+                                               np.array([p[1] for p in pairs]))
+                self._mref = mag_reference(self.declination, inc)
+                self.summary["inclination_rad"] = float(inc)
+
+    def _check_declination(self, t: float) -> None:
+        key = (len(self.params), bool(getattr(self.params, "geo", None)))
+        if key == self._decl_seen:
+            return
+        self._decl_seen = key
+        decl, src = declination_and_source(self.params)
+        if decl is None:
+            return
+        self._decl_pending = False
+        self.declination = float(decl)
+        if self._mref is not None:
+            self._mref = mag_reference(self.declination, float(np.arcsin(self._mref[2])))
+        self.summary.update(declination_rad=self.declination, declination_source=src,
+                            declination_from_t=float(t))
+        self._decide("declination", f"{np.degrees(self.declination):.2f} deg", t, src)
+
+    # ------------------------------------------------------------------ steps
+    def _step(self, r: _Raw, aids: list[_Aid]) -> Step:
+        if self._decl_pending:
+            self._check_declination(r.t)
+        n = self.noise
+        assert self._model is not None and r.a is not None
+        ups: list[tuple[Array, Any]] = []
+        sensors: list[str] = []
+        fix = next((a for a in reversed(aids) if a.sensor == "gnss"), None)
+        if fix is not None and fix.gnss is not None and fix.ned is not None:
+            g = fix.gnss
+            v = np.asarray(g.vel_ned, float)
+            dt = r.t - fix.t
+            if np.isfinite(v[:2]).all():
+                sv = max(n.gnss_vel_floor, g.s_acc if np.isfinite(g.s_acc) else 0.0)
+                rows = (0, 1, 2) if np.isfinite(v[2]) else (0, 1)
+                ups.append((v[list(rows)], GnssVelocity(np.eye(len(rows)) * sv * sv, rows)))
+                sensors.append("gnss_vel")
+                vx = np.where(np.isfinite(v), v, 0.0)
+            else:
+                self._count("gnss", "vel_nan")
+                vx = np.zeros(3)
+            ned = fix.ned + vx * dt
+            if np.isfinite(fix.ned[2]):  # the GNSS height (up, m) for the baro offset
+                self._h_fix = (fix.t, -float(fix.ned[2]))
+            pf = GnssPosition.from_fix(ned, 3 if np.isfinite(ned[2]) else 2,
+                                       g.h_acc, g.v_acc, n)
+            if pf is not None:
+                ups.append(pf)
+                sensors.append("gnss_pos")
+            self._count("gnss", "used")
+        baro = next((a for a in reversed(aids) if a.sensor == "baro"), None)
+        if baro is not None:
+            if self._h_fix is not None and baro.t - self._h_fix[0] <= 0.5:
+                self._offset_pair(baro.height - self._h_fix[1], r.t)
+            if self._baro_offset is not None:
+                ups.append((np.array([baro.height]),
+                            BaroHeight(np.array([[n.baro_noise**2]]), self._baro_offset)))
+                sensors.append("baro")
+                self._count("baro", "used")
+        if (r.mag is not None and np.isfinite(r.mag).all() and np.any(r.mag)
+                and r.t - self._t_mag >= MAG_MIN_INTERVAL_S):
+            self._t_mag = r.t
+            f = np.asarray(r.mag, float)
+            if self._mref is not None:
+                ups.append((f / np.linalg.norm(f),
+                            OnNav(MagField(self._mref, np.eye(3) * n.mag_noise**2))))
+            else:
+                ups.append((np.array([self.declination]),
+                            OnNav(MagHeading(f, np.array([[n.mag_noise**2]])))))
+            sensors.append("mag")
+        self._k += 1
+        u = np.concatenate([r.w, r.a])
+        return Step(self._k, r.t, r.t - r.t0, self._model, tuple(ups), u,
+                    {"sensors": tuple(sensors)} if sensors else None)
+
+    def _offset_pair(self, d: float, t: float) -> None:
+        """One (baro height - GNSS height) pair (m): the offset is their running mean
+        over the first :data:`BARO_OFFSET_PAIRS` pairs, then an exponential mean with
+        that many pairs' memory (slow baro drift follows the GNSS height)."""
+        self._off_n += 1
+        if self._baro_offset is None:
+            self._baro_offset = d
+            self._decide("baro offset", f"{d:.2f} m", t,
+                         "baro height minus the GNSS height, running mean from here")
+        else:
+            a = 1.0 / min(self._off_n, BARO_OFFSET_PAIRS)
+            self._baro_offset += a * (d - self._baro_offset)
+        self.summary["baro_offset_m"] = self._baro_offset
+
+    # ------------------------------------------------------------------ setup
+    def _setup(self) -> list[Start | Step]:
+        """Choose the sources, rate and integration from the held window; replay it."""
+        o, held = self.opts, self._held
+        assert held is not None
+        self._held = None
+        imu_counts: dict[str, int] = {}
+        mag_counts: dict[str, int] = {}
+        for s in held:
+            if isinstance(s, ImuSample):
+                imu_counts[s.source] = imu_counts.get(s.source, 0) + 1
+            elif isinstance(s, MagSample):
+                mag_counts[s.source] = mag_counts.get(s.source, 0) + 1
+        imu = o.imu if o.imu is not None else choose_source(imu_counts, slack=1)
+        if imu is None or imu not in imu_counts:
+            have = ", ".join(sorted(imu_counts)) or "none"
+            if not imu:
+                raise NoSamplesError(f"no IMU samples (IMU sources seen: {have})")
+            raise InputError(f"IMU source {imu!r} not in the stream (IMU sources seen: {have})")
+        mag = None
+        if o.use_mag and mag_counts:
+            mag = imu if imu in mag_counts else choose_source(mag_counts, slack=1)
+        ti = [s.t for s in held if isinstance(s, ImuSample) and s.source == imu]
+        rate = (len(ti) - 1) / max(ti[-1] - ti[0], 1e-9) if len(ti) > 1 else 0.0
+        integ, why = o.integration, "option"
+        if integ == "auto":
+            integ, why = default_integration(imu, rate)
+        cap = DEFAULT_MAX_RATE_HZ if o.rate_hz is None else float(o.rate_hz)
+        factor = 1 if cap <= 0 else max(1, round(rate / cap))
+        self.noise = nav_noise_for_source(imu).with_(**o.noise)
+        self.delay = float(self.noise.gnss_delay if o.gnss_delay is None else o.gnss_delay)
+        self._imu, self._mag = imu, mag
+        self.summary.update(
+            imu_source=imu, imu_sources=imu_counts, mag_source=mag, accel_compensation=None,
+            integration=integ, integration_why=why, preintegrated_samples_per_step=factor,
+            align_rate_hz=rate, steps_per_update=1, gnss_delay_s=self.delay,
+        )
+        t_first = ti[0]
+        self._decide("IMU", imu, t_first,
+                     "option --imu" if o.imu is not None else
+                     f"most samples in the first {2 * o.align_s:g} s ("
+                     + ", ".join(f"{k} {v}" for k, v in sorted(imu_counts.items())) + ")")
+        self._decide("integration", integ, t_first, "option" if o.integration != "auto" else why)
+        self._decide("GNSS delay", f"{self.delay:g} s", t_first,
+                     "option --gnss-delay" if o.gnss_delay is not None else "default")
+        self._builder = _NavBuilder(integ, factor)
+        med = float(np.median(np.diff(ti))) if len(ti) > 1 else 0.0
+        self._builder.gap_s = max(GAP_MIN_S, GAP_MEDIANS * med)
+        self.summary["imu_gap_threshold_s"] = self._builder.gap_s
+        self._imu_n = [0, t_first, t_first]
+        self._go_wait("no good GNSS fix yet", t_first)
+        self.decisions.pop()  # the first wait is the start, not a decision
+        out: list[Start | Step] = []
+        for s in held:
+            out += self._feed(s)
+        return out
+
+    def _finish_summary(self) -> None:
+        n, t0, t1 = self._imu_n
+        span = t1 - t0
+        gaps = self._builder.gaps if self._builder else []
+        self.summary.pop("_vmax", None)
+        self.summary.update(
+            steps=self._k, imu_samples=n, t_first=t0, t_last=t1,
+            imu_dropped=self._builder.dropped if self._builder else 0,
+            imu_gaps=len(gaps), imu_gap_longest_s=max((b - a for a, b in gaps), default=0.0),
+            imu_gap_list=[[a, b] for a, b in gaps], duration_s=span,
+            imu_rate_hz=(n - 1) / span if span > 0 else 0.0,
+            filter_rate_hz=self._k / span if span > 0 else 0.0,
+            gnss_source=self._gnss, gnss_sources=dict(self._gnss_srcs),
+            baro_source=self._baro if self.opts.use_baro else None,
+            aiding={k: dict(v) for k, v in self.aiding.items()},
+        )
+
+
+class NavRunner(FilterRunner):
+    """:class:`FilterRunner` that gates each aiding update of a navigation step
+    (``Step.info["sensors"]`` names them): the update is dropped when its NIS (the
+    filter's own innovation, as :func:`~uavest.models.navigation.innovation_gate`
+    computes it) is above the :data:`GATE_PROB` chi-square quantile, and
+    counts per sensor what was ``accepted``, ``rejected`` and ``reanchored`` (after
+    :data:`REANCHOR_S` of consecutive rejections one update is taken with R scaled onto
+    the gate, so a filter that drifted away from a sensor comes back without a reset).
+    Steps without sensors run as in :class:`FilterRunner`."""
+
+    def __init__(self, *args: Any, **kw: Any) -> None:
+        super().__init__(*args, **kw)
+        self.gates: dict[str, dict[str, int]] = {}
+        self._rej_since: dict[str, float] = {}
+
+    def start(self, st: Start) -> None:
+        super().start(st)
+        self._rej_since.clear()
+
+    def _gated_update(self, s: Any, z: Array, m: Any, sensor: str, t: float
+                      ) -> tuple[Any, Any]:
+        """(state, innovation) after the update with ``(z, m)``, or (``s``, None) when
+        its NIS (the filter's own innovation and S) is above the gate: the update is
+        computed and dropped, so the gate costs nothing when it passes."""
+        f: Any = self.filter
+        s1, inn = f.update(s, z, m, self.rng)
+        c = self.gates.setdefault(sensor, {"accepted": 0, "rejected": 0, "reanchored": 0})
+        if inn is None:
+            return s1, None
+        k = len(inn.nu)
+        chi2 = _CHI2.get(k)
+        if chi2 is None:
+            chi2 = _CHI2[k] = nis_gate(k, GATE_PROB)
+        d2 = float(inn.nis)
+        if np.isfinite(d2) and d2 <= chi2:
+            self._rej_since.pop(sensor, None)
+            c["accepted"] += 1
+            return s1, inn
+        t0 = self._rej_since.setdefault(sensor, t)
+        if t - t0 >= REANCHOR_S and np.isfinite(d2):
+            # R scaled so that S' = S d2 / chi2: the update lands on the gate
+            r = d2 / chi2
+            m2 = copy.copy(m)
+            m2.R = m.R * r + (np.asarray(inn.S) - m.R) * (r - 1.0)
+            self._rej_since.pop(sensor, None)
+            c["reanchored"] += 1
+            return f.update(s, z, m2, self.rng)  # type: ignore[no-any-return]
+        c["rejected"] += 1
+        return s, None
+
+    def step(self, st: Step) -> StepRecord:
+        sensors = st.info.get("sensors") if st.info else None
+        if not sensors:
+            return super().step(st)
+        import time
+
+        f: Any = self.filter
+        rng = self.rng
+        c0 = time.perf_counter()
+        s: Any = f.predict(self.state, st.transition, st.t, st.dt, st.u, rng)
+        ups = []
+        for (z, m), sensor in zip(st.updates, sensors, strict=True):
+            s, inn = self._gated_update(s, z, m, sensor, st.t)
+            if inn is not None:
+                ups.append(Update(type(m).__name__, inn.nu, inn.S, float(inn.nis)))
+        g: Any = f.estimate(s)
+        self.state = s
+        self._last = g
+        wall = time.perf_counter() - c0
+        self.seconds += wall
+        self.steps += 1
+        if self.steps > WARMUP_STEPS:
+            self.timed_seconds += wall
+            self.timed_steps += 1
+        return StepRecord(
+            self.label, st.k, st.t, g.x, g.P, tuple(ups), bool(getattr(s, "reset", False)),
+            getattr(s, "reason", ""), int(getattr(s, "resets", 0)), wall,
+        )
