@@ -51,7 +51,7 @@ NUMERICAL_ERRORS = (np.linalg.LinAlgError, FloatingPointError)
 def nis_gate(m: int, prob: float) -> float:
     """The ``prob`` quantile of chi-square with ``m`` degrees of freedom
     (chi2.ppf(prob, m) == chdtri(m, 1 - prob), without importing scipy.stats)."""
-    from scipy.special import chdtri  # type: ignore[import-untyped] # at the first gate, not at import (start-up)
+    from scipy.special import chdtri  # at the first gate, not at import (start-up)
 
     return float(chdtri(m, 1.0 - prob))
 

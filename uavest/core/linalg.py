@@ -23,7 +23,7 @@ def _lapack(name: str) -> Callable[..., Any]:
     to LAPACK with no per-call overhead."""
 
     def stub(*args: Any, **kwargs: Any) -> Any:
-        from scipy.linalg import lapack  # type: ignore[import-untyped]
+        from scipy.linalg import lapack
 
         fn = getattr(lapack, name)
         globals()[name] = fn

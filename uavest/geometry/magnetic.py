@@ -38,7 +38,7 @@ def decimal_year(when: datetime | date | float) -> float:
 
 @lru_cache(maxsize=1)
 def _model() -> Any:
-    from pygeomag import GeoMag  # type: ignore[import-untyped]
+    from pygeomag import GeoMag
 
     return GeoMag(base_year=2025)  # WMM-2025, valid 2025.0 .. 2030.0
 

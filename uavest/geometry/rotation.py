@@ -164,7 +164,7 @@ def quat_to_dcm(q: Array) -> Array:
 
 def dcm_to_quat(R: Array) -> Array:
     """Unit quaternion(s) (scalar-first, w >= 0) of rotation matrices ``(..., 3, 3)``."""
-    from scipy.spatial.transform import Rotation  # type: ignore[import-untyped]
+    from scipy.spatial.transform import Rotation
 
     shape = R.shape[:-2]
     q = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat()[:, [3, 0, 1, 2]]
