@@ -44,7 +44,8 @@ def drop_after(src, dst, msgid: int, at: float) -> int:
 def test_the_imu_choice_is_re_decided_when_the_chosen_imu_stops(tmp_path, capsys):
     f = tmp_path / "raw_imu_stops.tlog"
     assert drop_after(shared_log("vtol.tlog"), f, RAW_IMU, 100.0) > 300
-    doc, err, times = _errors(f)
+    # the failover is the attitude stream's (the navigation stream has none yet)
+    doc, err, times = _errors(f, model="attitude")
     sw = doc["imu_switches"]
     assert [(s["from"], s["to"]) for s in sw] == [("RAW_IMU", "SCALED_IMU2")]
     t_sw = sw[0]["t"]
@@ -59,7 +60,8 @@ def test_the_imu_choice_is_re_decided_when_the_chosen_imu_stops(tmp_path, capsys
         rms_b, rms_a = np.sqrt(np.mean(before**2)), np.sqrt(np.mean(after**2))
         assert np.isfinite(rms_a) and rms_a < max(2.0 * rms_b, 3.0), (name, rms_b, rms_a)
     capsys.readouterr()
-    assert main(["replay", str(f), "--filters", "ekf", "--no-progress"]) == 0
+    assert main(["replay", str(f), "--filters", "ekf", "--model", "attitude",
+                 "--no-progress"]) == 0
     out = capsys.readouterr().out
     assert "decision: IMU: SCALED_IMU2 from t=" in out and "RAW_IMU silent since" in out
 
@@ -69,7 +71,7 @@ def test_an_imu_given_with_the_option_is_never_switched(tmp_path, capsys):
     drop_after(shared_log("vtol.tlog"), f, RAW_IMU, 100.0)
     j = tmp_path / "r.json"
     assert main(["replay", str(f), "--filters", "ekf", "--imu", "RAW_IMU", "--no-progress",
-                 "--json", str(j)]) == 0
+                 "--model", "attitude", "--json", str(j)]) == 0
     out = capsys.readouterr().out
     assert "decision: IMU: RAW_IMU" in out and "SCALED_IMU2 from t=" not in out
     assert json.loads(j.read_text())["imu_switches"] == []

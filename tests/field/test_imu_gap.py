@@ -55,9 +55,9 @@ class _Truth(Sink):
             self.q.append(s.q)
 
 
-def _errors(path) -> tuple[dict, dict, dict]:
+def _errors(path, model: str = "attitude") -> tuple[dict, dict, dict]:
     coll, truth = Collector(), _Truth()
-    doc = replay(path, ReplayConfig(filters=FILTERS), sinks=[coll, truth])
+    doc = replay(path, ReplayConfig(filters=FILTERS, model=model), sinks=[coll, truth])
     err = {}
     for f in FILTERS:
         a = coll.arrays(f)
@@ -83,7 +83,7 @@ def test_imu_gap_is_reported_and_every_filter_holds(tmp_path, capsys):
         assert rms_a < 2 * rms_b, (name, rms_a, rms_b)
         assert e[t > g1][0] < 20.0, (name, e[t > g1][:3])  # the first step after it
         assert doc["guard_resets"][name] == 0, name
-    assert main(["replay", str(f), "--filters", "ekf", "--no-progress"]) == 0
+    assert main(["replay", str(f), "--filters", "ekf", "--model", "attitude", "--no-progress"]) == 0
     text = capsys.readouterr().out
     assert "IMU gaps: 1 longer than" in text and "re-alignment: after an IMU gap" in text
 

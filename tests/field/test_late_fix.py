@@ -57,7 +57,7 @@ def delay_fix(src, dst, n: int = 130) -> float:
 
 
 def _run(path, js, capsys) -> tuple[dict, str]:
-    assert main(["replay", str(path), "--filters", "ekf", "--no-progress",
+    assert main(["replay", str(path), "--filters", "ekf", "--model", "attitude", "--no-progress",
                  "--json", str(js)]) == 0
     out = capsys.readouterr().out
     return json.loads(js.read_text()), out
@@ -91,7 +91,7 @@ def test_acceleration_compensation_switches_on_at_the_fix(tmp_path, capsys):
 def test_compensation_off_by_option_stays_off(tmp_path, capsys):
     f = tmp_path / "late_fix.tlog"
     delay_fix(shared_log("vtol.tlog"), f)
-    assert main(["replay", str(f), "--filters", "ekf", "--no-progress",
+    assert main(["replay", str(f), "--filters", "ekf", "--model", "attitude", "--no-progress",
                  "--accel-comp", "none", "--json", str(tmp_path / "c.json")]) == 0
     doc = json.loads((tmp_path / "c.json").read_text())
     assert doc["accel_compensation"] is None
