@@ -17,6 +17,7 @@ from uavest.geometry.rotation import euler_to_quat, quat_rotate_inv
 from uavest.ingest.types import BaroSample, GnssSample, ImuSample, MagSample, NoSamplesError
 from uavest.models.attitude import mag_reference
 from uavest.models.navigation import ImuTransition, NavNoise
+from uavest.presets import resolve_list
 from uavest.sinks.base import Collector
 
 SP = NavSpace()
@@ -72,7 +73,7 @@ def flight(seed: int, T: float = 40.0, mag: bool = True, gnss_every: int = 20,
 def run_nav(samples, specs=("ekf",), opts=None, seed=0):
     stream = NavStream(opts=opts or NavOptions(integration="hold"))
     runners = [NavRunner(sp.label, flt, np.random.default_rng(seed))
-               for sp, flt in build_filters(list(specs), "attitude", dim=15)]
+               for sp, flt in build_filters(resolve_list(list(specs), "attitude", dim=15))]
     coll = Collector()
     run_lanes(iter(samples), [Lane(stream, runners)], [coll])
     return stream, runners, coll

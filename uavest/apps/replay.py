@@ -80,7 +80,9 @@ class ReplayConfig:
     accel_comp: str = "auto"
     mag_mode: str = "field"
     mag_delay: float = 0.0
-    model: str = "auto"
+    #: the library default stays the attitude model (what every recorder, smoother and
+    #: gap/failover path is built for); ``uavest replay`` defaults to "auto"
+    model: str = "attitude"
     gnss_delay: float | None = None  # s; None -> NavNoise.gnss_delay
     model_why: str | None = None  # why a fixed ``model`` (None: "option --model")
 

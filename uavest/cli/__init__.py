@@ -160,15 +160,15 @@ def _preset_for(args) -> tuple[str, int | None]:
     if not scenario:
         return preset, None
     from ..errors import InputError
-    from ..scenarios import load_scenario
+    from ..scenarios import load_typed
 
     sets = getattr(args, "sets", None) or getattr(args, "set", None) or ()
     try:
-        sc = load_scenario(scenario, sets)
-        if sc.get("kind") == "radar":
-            from ..tracking.scenario import build_models
+        sc = load_typed(scenario, sets)
+        if sc.kind == "radar":
+            from ..tracking.scenario import state_dim
 
-            return "radar", build_models(sc)[0].space.dim
+            return "radar", state_dim(sc.ndim, sc.motion)
         if preset == "bench":
             from ..experiments.systems import build_system
 
