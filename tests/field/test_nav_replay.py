@@ -82,9 +82,16 @@ def test_a_few_fixes_are_not_a_fix_stream():
     assert "attitude-only" in line and "a stream needs 10" in line
 
 
-@pytest.mark.parametrize("argv", [["--gnss-delay", "-1"], ["--smooth"],
+@pytest.mark.parametrize("argv", [["--gnss-delay", "-1"], ["--smooth", "--model", "nav"],
                                   ["--noise", "accel_deweight=1"]])
 def test_nav_option_errors_are_one_line(argv):
     r = _replay(str(shared_log("vtol.tlog")), "--filters", "ekf", *argv)
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert r.stderr.count("\n") == 1
+
+
+def test_smooth_under_auto_runs_the_attitude_model_and_says_so():
+    r = _replay(str(shared_log("vtol.tlog")), "--filters", "ekf", "--smooth")
+    assert r.returncode == 0, r.stderr
+    line = next(ln for ln in r.stdout.splitlines() if ln.startswith("decision: model:"))
+    assert "attitude" in line and "--smooth" in line
