@@ -67,6 +67,7 @@ __all__ = [
     "declination_from_params",
     "initial_attitude",
     "noise_for_source",
+    "sensor_family",
 ]
 
 SPACE = AttitudeSpace()
@@ -124,16 +125,26 @@ SENSOR_DEFAULTS: dict[str, AttitudeNoise] = {
 }
 
 
-def noise_for_source(source: str) -> AttitudeNoise:
-    """Default :class:`AttitudeNoise` for an IMU source name (see :data:`SENSOR_DEFAULTS`)."""
+def sensor_family(source: str) -> str | None:
+    """The :data:`SENSOR_DEFAULTS` key for an IMU source name, or None when unknown.
+
+    MAVLink IMU messages (``RAW_IMU``, ``SCALED_IMU*``, ``HIGHRES_IMU``) are
+    ``mavlink_stream``, DataFlash ``IMU``/``IMT`` ``dataflash``, ULog ``sensor_*`` ``px4``.
+    """
     s = source.upper()
     if s.startswith(("RAW_IMU", "SCALED_IMU", "HIGHRES_IMU")):
-        return SENSOR_DEFAULTS["mavlink_stream"]
+        return "mavlink_stream"
     if s.startswith("IMU"):
-        return SENSOR_DEFAULTS["dataflash"]
+        return "dataflash"
     if "SENSOR" in s:
-        return SENSOR_DEFAULTS["px4"]
-    return AttitudeNoise()
+        return "px4"
+    return None
+
+
+def noise_for_source(source: str) -> AttitudeNoise:
+    """Default :class:`AttitudeNoise` for an IMU source name (see :data:`SENSOR_DEFAULTS`)."""
+    family = sensor_family(source)
+    return SENSOR_DEFAULTS[family] if family else AttitudeNoise()
 
 
 def declination_from_params(params: dict[str, float]) -> float | None:

@@ -33,7 +33,7 @@ from uavest.core.model import Measurement, Transition
 from uavest.geometry.geodesy import EARTH_RATE, gravity
 from uavest.geometry.navigation import NavSpace
 from uavest.geometry.rotation import quat_rotate, quat_rotate_inv, quat_to_dcm, skew
-from uavest.models.attitude import GyroTransition
+from uavest.models.attitude import GyroTransition, sensor_family
 
 Array = np.ndarray
 
@@ -111,15 +111,9 @@ SENSOR_DEFAULTS: dict[str, NavNoise] = {
 
 
 def nav_noise_for_source(source: str) -> NavNoise:
-    """Default :class:`NavNoise` for an IMU source name."""
-    s = source.upper()
-    if s.startswith(("RAW_IMU", "SCALED_IMU", "HIGHRES_IMU")):
-        return SENSOR_DEFAULTS["mavlink_stream"]
-    if s.startswith("IMU"):
-        return SENSOR_DEFAULTS["dataflash"]
-    if "SENSOR" in s:
-        return SENSOR_DEFAULTS["px4"]
-    return NavNoise()
+    """Default :class:`NavNoise` for an IMU source name (families as ``sensor_family``)."""
+    family = sensor_family(source)
+    return SENSOR_DEFAULTS[family] if family else NavNoise()
 
 
 class ImuTransition(Transition):
