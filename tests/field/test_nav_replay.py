@@ -10,7 +10,7 @@ import subprocess
 import sys
 
 import pytest
-from conftest import shared_log
+from conftest import REPO_ROOT, shared_log
 
 CODE = "import sys;from uavest.cli import main;sys.exit(main(sys.argv[1:]))"
 
@@ -82,16 +82,23 @@ def test_a_few_fixes_are_not_a_fix_stream():
     assert "attitude-only" in line and "a stream needs 10" in line
 
 
-@pytest.mark.parametrize("argv", [["--gnss-delay", "-1"], ["--smooth", "--model", "nav"],
-                                  ["--noise", "accel_deweight=1"]])
+@pytest.mark.parametrize("argv", [["--gnss-delay", "-1"], ["--noise", "accel_deweight=1"]])
 def test_nav_option_errors_are_one_line(argv):
     r = _replay(str(shared_log("vtol.tlog")), "--filters", "ekf", *argv)
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert r.stderr.count("\n") == 1
 
 
-def test_smooth_under_auto_runs_the_attitude_model_and_says_so():
-    r = _replay(str(shared_log("vtol.tlog")), "--filters", "ekf", "--smooth")
+def test_the_navigation_model_smooths(tmp_path):
+    """--smooth runs the RTS smoother on the navigation state (15 error dimensions) and
+    the smoothed attitude beats the filtered one against the simulator's truth."""
+    path = tmp_path / "smooth.json"
+    r = _replay(str(REPO_ROOT / "logs" / "sim_200hz.tlog"), "--filters", "ekf", "--smooth",
+                "--json", str(path))
     assert r.returncode == 0, r.stderr
-    line = next(ln for ln in r.stdout.splitlines() if ln.startswith("decision: model:"))
-    assert "attitude" in line and "--smooth" in line
+    out = json.loads(path.read_text())
+    assert out["model"]["value"] == "nav"
+    row = out["filters"]["ekf"]
+    sm = row["smoothed"]
+    for axis in ("roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg"):
+        assert sm[axis] < row[axis], (axis, sm[axis], row[axis])

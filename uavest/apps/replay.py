@@ -271,9 +271,6 @@ def replay_samples(
                 else _windowed(samples, opts.in_window))
     windowed, decision = choose_model(windowed, cfg.model, cfg.model_why)
     nav = decision["value"] == "nav"
-    if nav and cfg.smooth:
-        raise InputError("--smooth is not built for the navigation model yet "
-                         "(use --model attitude --smooth)")
     if not nav:
         from ..models.attitude import AttitudeNoise
 

@@ -271,8 +271,6 @@ def cmd_replay(args: argparse.Namespace) -> int:
         if model == "auto":
             model, model_why = "attitude", ("recording (--mcap/--report/--foxglove) is "
                                             "built for the attitude model only")
-    if args.smooth and model == "auto":
-        model, model_why = "attitude", "--smooth is built for the attitude model only"
     cfg = ReplayConfig(
         filters=tuple(args.filter_specs), start=args.start, end=args.end, smooth=args.smooth,
         seed=args.seed, rate_hz=args.rate, update_hz=args.update_rate,

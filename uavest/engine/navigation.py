@@ -75,8 +75,8 @@ from ..models.navigation import (
     nav_noise_for_source,
 )
 from .attitude import DEFAULT_MAX_RATE_HZ, GAP_MEDIANS, GAP_MIN_S, _Gap, _Raw, _StepBuilder
-from .records import Start, Step, StepRecord, Update
-from .runner import WARMUP_STEPS, FilterRunner
+from .records import Start, Step
+from .runner import FilterRunner
 
 Array = np.ndarray
 
@@ -721,31 +721,9 @@ class NavRunner(FilterRunner):
         c["rejected"] += 1
         return s, None
 
-    def step(self, st: Step) -> StepRecord:
+    def update(self, s: Any, z: Array, m: Any, st: Step, i: int) -> tuple[Any, Any]:
+        """The ``i``-th update of ``st``, gated when the step names its sensors."""
         sensors = st.info.get("sensors") if st.info else None
         if not sensors:
-            return super().step(st)
-        import time
-
-        f: Any = self.filter
-        rng = self.rng
-        c0 = time.perf_counter()
-        s: Any = f.predict(self.state, st.transition, st.t, st.dt, st.u, rng)
-        ups = []
-        for (z, m), sensor in zip(st.updates, sensors, strict=True):
-            s, inn = self._gated_update(s, z, m, sensor, st.t)
-            if inn is not None:
-                ups.append(Update(type(m).__name__, inn.nu, inn.S, float(inn.nis)))
-        g: Any = f.estimate(s)
-        self.state = s
-        self._last = g
-        wall = time.perf_counter() - c0
-        self.seconds += wall
-        self.steps += 1
-        if self.steps > WARMUP_STEPS:
-            self.timed_seconds += wall
-            self.timed_steps += 1
-        return StepRecord(
-            self.label, st.k, st.t, g.x, g.P, tuple(ups), bool(getattr(s, "reset", False)),
-            getattr(s, "reason", ""), int(getattr(s, "resets", 0)), wall,
-        )
+            return super().update(s, z, m, st, i)
+        return self._gated_update(s, z, m, sensors[i], st.t)

@@ -100,8 +100,8 @@ class FilterRunner:
             self.smooth_seconds += dt_s
             c0 += dt_s
         ups: list[Update] = []
-        for z, m in st.updates:
-            s, inn = f.update(s, z, m, rng)
+        for i, (z, m) in enumerate(st.updates):
+            s, inn = self.update(s, z, m, st, i)
             if inn is not None:
                 ups.append(Update(type(m).__name__, inn.nu, inn.S, float(inn.nis)))
         g = f.estimate(s)
@@ -117,6 +117,11 @@ class FilterRunner:
             self.label, st.k, st.t, g.x, g.P, tuple(ups), bool(getattr(s, "reset", False)),
             getattr(s, "reason", ""), int(getattr(s, "resets", 0)), wall, x_pred, P_pred, C,
         )
+
+    def update(self, s: Any, z: Array, m: Any, st: Step, i: int) -> tuple[Any, Any]:
+        """(state, innovation or None) after the ``i``-th update ``(z, m)`` of step
+        ``st``; subclasses gate or count it here (:class:`~uavest.engine.navigation.NavRunner`)."""
+        return self.filter.update(s, z, m, self.rng)
 
     @property
     def resets(self) -> int:
