@@ -262,15 +262,15 @@ def cmd_replay(args: argparse.Namespace) -> int:
                          f"{args.update_rate}")
     reject_linear_only(args.filter_specs, "replay", "nonlinear attitude models")
     model, model_why = args.model, None
-    if any(getattr(args, k, None) for k in ("mcap", "report", "foxglove")):
-        # the recording's channels and the report are the attitude model's (the
-        # navigation model's position/velocity channels are not built yet)
+    if any(getattr(args, k, None) for k in ("report", "foxglove")):
+        # the report's pages and the live view's layout are the attitude model's (MCAP
+        # records the navigation model's velocity and position too)
         if model == "nav":
-            raise InputError("--model nav: recording (--mcap/--report/--foxglove) is built "
-                             "for the attitude model only (use --model attitude)")
+            raise InputError("--model nav: --report/--foxglove are built for the attitude "
+                             "model only (use --model attitude, or --mcap)")
         if model == "auto":
-            model, model_why = "attitude", ("recording (--mcap/--report/--foxglove) is "
-                                            "built for the attitude model only")
+            model, model_why = "attitude", ("--report/--foxglove are built for the attitude "
+                                            "model only")
     cfg = ReplayConfig(
         filters=tuple(args.filter_specs), start=args.start, end=args.end, smooth=args.smooth,
         seed=args.seed, rate_hz=args.rate, update_hz=args.update_rate,

@@ -37,7 +37,8 @@ _TYPES = {"double": _DOUBLE, "bool": _BOOL, "string": _STRING, "sfixed64": _SFIX
 #: double; another message name (``"RPY"``, ``"Update"``) a nested message; ``"Update[]"``
 #: a repeated nested message. Units in the names or the field docs of docs/recording.md:
 #: t s (source clock), angles deg (ZYX Euler, roll / pitch / yaw), q [w, x, y, z] body FRD
-#: -> NED, gyro rad/s, accel m/s^2, field gauss, covariances rad^2 and (rad/s)^2.
+#: -> NED, gyro rad/s, accel m/s^2, field gauss, covariances rad^2 and (rad/s)^2;
+#: navigation velocity m/s and position m in the local NED frame of the first GNSS fix.
 MESSAGES: dict[str, tuple[tuple[str, int, str], ...]] = {
     "RPY": (("roll", 1, "double"), ("pitch", 2, "double"), ("yaw", 3, "double")),
     "Update": (("kind", 1, "string"), ("nis", 2, "double"), ("dof", 3, "sfixed64")),
@@ -50,6 +51,12 @@ MESSAGES: dict[str, tuple[tuple[str, int, str], ...]] = {
     "AttitudeEstimate": (("t", 1, "double"), ("k", 2, "sfixed64"), ("q", 3, "double[]"),
                          ("bias_rad_s", 4, "double[]"), ("rpy_deg", 5, "RPY"),
                          ("sigma3_deg", 6, "RPY"), ("P_triu", 7, "double[]")),
+    "NavigationEstimate": (("t", 1, "double"), ("k", 2, "sfixed64"),
+                           ("velocity_ned_m_s", 3, "double[]"),
+                           ("position_ned_m", 4, "double[]"),
+                           ("sigma3_velocity_m_s", 5, "double[]"),
+                           ("sigma3_position_m", 6, "double[]"),
+                           ("accel_bias_m_s2", 7, "double[]")),
     "AttitudeError": (("t", 1, "double"), ("k", 2, "sfixed64"), ("reference", 3, "string"),
                       ("kind", 4, "string"), ("err_deg", 5, "RPY"), ("sigma3_deg", 6, "RPY"),
                       ("neg_sigma3_deg", 7, "RPY"), ("nees", 8, "double")),

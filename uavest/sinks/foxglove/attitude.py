@@ -14,6 +14,7 @@ from bisect import bisect_right
 import numpy as np
 
 from ...engine.records import StepRecord
+from ...geometry.navigation import SIZE as NAV_SIZE
 from ...geometry.rotation import quat_conj, quat_log, quat_mul, quat_slerp_interp
 from .. import protobuf as pb
 from .channels import ChannelSet, Scene
@@ -163,15 +164,17 @@ def _ref_rank(source: str, kind: str) -> tuple:
 class _Lane:
     """One attitude estimator's channels (made once; the record hot path)."""
 
-    __slots__ = ("label", "t_est", "t_health", "t_err", "est", "health", "err", "frame",
-                 "offset", "key", "last_frame", "buf", "pend", "enc", "enc_dims")
+    __slots__ = ("label", "t_est", "t_health", "t_err", "t_nav", "est", "health", "err",
+                 "nav", "frame", "offset", "key", "last_frame", "buf", "pend", "enc",
+                 "enc_dims")
 
     def __init__(self, label: str, offset: float) -> None:
         self.label = label
         self.t_est = f"/attitude/{label}/estimate"
         self.t_health = f"/attitude/{label}/health"
         self.t_err = f"/attitude/{label}/error"
-        self.est = self.health = self.err = None
+        self.t_nav = f"/navigation/{label}/estimate"
+        self.est = self.health = self.err = self.nav = None
         self.frame = f"body_{label}"
         self.offset = offset
         self.key = "lab:" + label
@@ -316,6 +319,10 @@ class AttitudeChannels:
                 "est": pb.FixedEncoder("AttitudeEstimate", lengths={
                     "q": 4, "bias_rad_s": 3, "P_triu": nP * (nP + 1) // 2}),
                 "health": pb.FixedEncoder("FilterHealth")}
+            if nx == NAV_SIZE:
+                ln.enc["nav"] = pb.FixedEncoder("NavigationEstimate", lengths={
+                    "velocity_ned_m_s": 3, "position_ned_m": 3, "sigma3_velocity_m_s": 3,
+                    "sigma3_position_m": 3, "accel_bias_m_s2": 3})
         return ln.enc
 
     def flush_lane(self, ln: _Lane) -> None:
@@ -339,7 +346,11 @@ class AttitudeChannels:
         nx, nP = X.shape[1], P.shape[1]
         enc = self._encoders(ln, nx, nP)
         Q = X[:, :4]
-        B = X[:, 4:7] if nx >= 7 else np.full((n, 3), math.nan)
+        nav = nx == NAV_SIZE
+        if nav:  # the navigation state [q, v, p, bg, ba]: the gyro bias is 10:13
+            B = X[:, 10:13]
+        else:
+            B = X[:, 4:7] if nx >= 7 else np.full((n, 3), math.nan)
         rpy = _rpy_rows(Q)
         P3 = P[:, :3, :3]
         s3 = _sigma3_rows(rpy, P3)
@@ -350,6 +361,8 @@ class AttitudeChannels:
             self.chans.log_many(ln.est, ln.t_est, enc["est"].encode(n, {
                 "t": T, "k": K, "q": Q, "bias_rad_s": B, "rpy_deg": rpy, "sigma3_deg": s3,
                 "P_triu": P[:, i, j]}), ns)
+        if nav:
+            self._flush_nav(ln, enc["nav"], T, K, X, P, ns)
         if not osub or ln.health.has_sinks():
             nis = np.full(n, math.nan)
             dof = np.zeros(n, np.int64)
@@ -380,6 +393,22 @@ class AttitudeChannels:
         if self.refs:
             ln.pend.append({"t": T, "ns": np.asarray(ns, np.int64), "k": K, "q": Q,
                             "P3": P3, "s3": s3, "rpy": rpy})
+
+    def _flush_nav(self, ln: _Lane, enc: pb.FixedEncoder, T: Array, K: Array, X: Array,
+                   P: Array, ns: Array) -> None:
+        """``/navigation/<label>/estimate``: velocity (m/s) and position (m), NED in the
+        local frame of the first GNSS fix, their 3-sigma bounds and the accelerometer bias
+        (m/s^2, body FRD), of a batch of navigation records (tangent order
+        ``[dtheta, dv, dp, dbg, dba]``)."""
+        if ln.nav is None:
+            ln.nav = self.chans.channel(ln.t_nav, "pb:NavigationEstimate")
+        if self.chans.only_subscribed and not ln.nav.has_sinks():
+            return
+        d = np.sqrt(np.clip(np.diagonal(P, axis1=1, axis2=2), 0.0, None))
+        self.chans.log_many(ln.nav, ln.t_nav, enc.encode(len(T), {
+            "t": T, "k": K, "velocity_ned_m_s": X[:, 4:7], "position_ned_m": X[:, 7:10],
+            "sigma3_velocity_m_s": 3.0 * d[:, 3:6], "sigma3_position_m": 3.0 * d[:, 6:9],
+            "accel_bias_m_s2": X[:, 13:16]}), ns)
 
     def _health_fast(self, ln: _Lane, rec: StepRecord, ns: int) -> None:
         ups, dof, nis = [], 0, 0.0
