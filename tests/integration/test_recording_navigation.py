@@ -5,6 +5,8 @@ and the attitude channels carry the gyro bias of the navigation state, not its v
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from conftest import REPO_ROOT
@@ -60,3 +62,24 @@ def test_navigation_channels_equal_the_run(tmp_path):
     # the simulator flies: the recorded position moves by more than its 3-sigma
     p = X[:, 7:10]
     assert np.linalg.norm(p[-1] - p[0]) > 3 * sd[-1, 6:9].max()
+
+
+def test_report_of_a_navigation_recording_reproduces_the_replay_scores(tmp_path):
+    """``uavest report`` on the navigation recording: velocity/position RMSE and the NEES
+    band shares equal the replay's (the same scorer over the recorded states), and the page
+    has the velocity/position error figure."""
+    from uavest.report import write_report
+
+    path = tmp_path / "nav.mcap"
+    doc = replay(LOG, ReplayConfig(filters=("ekf", "ukf"), model="nav"),
+                 sinks=[McapSink(path)], command="test")
+    out = write_report(path, tmp_path / "rep")
+    metrics = json.loads(out["metrics"].read_text())
+    for lab in ("ekf", "ukf"):
+        mine, theirs = metrics["filters"][lab], doc["filters"][lab]
+        for key in ("vel_rmse_ms", "hpos_rmse_m", "vpos_rmse_m"):
+            assert mine[key] == pytest.approx(theirs[key], rel=1e-6), (lab, key)
+        assert mine["nees_vel_in95"] == pytest.approx(theirs["nees"]["velocity"]["in_band95"])
+        assert mine["nees_pos_in95"] == pytest.approx(theirs["nees"]["position"]["in_band95"])
+    html = out["html"].read_text()
+    assert 'id="fig-navigation"' in html or "fig-navigation" in html

@@ -87,13 +87,16 @@ def attitude_data(rec: Recording) -> dict:
         hl = rec.json.get(f"/attitude/{lab}/health", [])
         n = min(len(est), len(hl))
         est, hl = est[:n], hl[:n]
-        P = triu_to_full(np.array([_triu_of(m) for m in est], float).reshape(n, 21), 6)
+        tri = np.array([_triu_of(m) for m in est], float).reshape(n, -1)
+        d = int(round((math.sqrt(8 * tri.shape[1] + 1) - 1) / 2)) if n else 6
+        P = triu_to_full(tri, d)  # 6x6 attitude, 15x15 navigation (tangent order)
         out["filters"][lab] = {
             "t": _stack(est, "t"), "k": _stack(est, "k"), "q": _stack(est, "q", 4),
             "P": P, "nis": _stack(hl, "nis"), "nis_dof": _stack(hl, "nis_dof"),
             "reset": np.array([bool(m.get("reset")) for m in hl]),
             "resets": _stack(hl, "resets"), "wall_us": _stack(hl, "wall_us"),
         }
+    out["nav"] = navigation_data(rec)
     for topic in rec.topics("/reference/"):
         msgs = rec.json.get(topic, [])
         if msgs:
@@ -120,6 +123,128 @@ def attitude_data(rec: Recording) -> dict:
             t, lla = fixes[src]
             out["positions"][src + " (lat/lon/alt)"] = (t, lla_to_local_ned(lla, origin))
     return out
+
+
+#: Velocity/position references for the navigation page, best first: the simulator's or
+#: autopilot's fused solution (a reference, never a measurement of the filter).
+_NAV_REFS = ("GLOBAL_POSITION_INT", "vehicle_global_position", "POS")
+#: The raw GNSS sources, whose first fix is the navigation model's local origin.
+_RAW_GNSS = ("GPS_RAW_INT", "GPS2_RAW", "GPS_INPUT", "GPS", "vehicle_gps_position",
+             "sensor_gps")
+
+
+def navigation_data(rec: Recording) -> dict:
+    """The navigation model's channels (``/navigation/<label>/estimate``): per label ``t``
+    (K,) s, ``v``, ``p`` (K, 3) NED m/s and m, ``s3v``, ``s3p`` (K, 3) their 3-sigma; and
+    ``ref``: (source, t, v (K, 3) m/s, p (K, 3) m or None) from the first of
+    :data:`_NAV_REFS` in the recording, its position in the local NED frame at the first
+    raw GNSS fix (the model's origin). Empty without navigation channels."""
+    out: dict = {"filters": {}, "ref": None}
+    for topic in rec.topics("/navigation/"):
+        msgs = rec.json.get(topic, [])
+        if not msgs or not topic.endswith("/estimate"):
+            continue
+        out["filters"][topic.split("/")[2]] = {
+            "t": _stack(msgs, "t"), "v": _stack(msgs, "velocity_ned_m_s", 3),
+            "p": _stack(msgs, "position_ned_m", 3),
+            "s3v": _stack(msgs, "sigma3_velocity_m_s", 3),
+            "s3p": _stack(msgs, "sigma3_position_m", 3)}
+    if not out["filters"]:
+        return out
+    origin = None
+    for src in _RAW_GNSS:
+        fix = [m for m in rec.json.get(f"/position/{src}", []) if m.get("lat_lon_alt")
+               and None not in m["lat_lon_alt"]]
+        if fix:
+            origin = np.array(fix[0]["lat_lon_alt"], float)
+            break
+    for src in _NAV_REFS:
+        msgs = [m for m in rec.json.get(f"/position/{src}", []) if m.get("vel_ned_m_s")
+                and None not in m["vel_ned_m_s"]]
+        if msgs:
+            lla = [m.get("lat_lon_alt") for m in msgs]
+            p = (lla_to_local_ned(np.array(lla, float), origin)
+                 if origin is not None and all(x and None not in x for x in lla) else None)
+            out["ref"] = (src, _stack(msgs, "t"), _stack(msgs, "vel_ned_m_s", 3), p)
+            out["ref_lla"] = np.array(lla, float) if p is not None else None
+            break
+    out["origin"] = origin
+    return out
+
+
+def navigation_metrics(nav: dict, att: dict) -> dict:
+    """Per label the velocity and position errors against ``nav["ref"]`` (interpolated to
+    the step times, inside its time span only) for the figure: ``ev``, ``ep`` (K, 3) and
+    the mask; and the replay's own scores (:class:`uavest.eval.navigation.NavScorer` over
+    the recorded states, ``att`` the attitude filters of :func:`attitude_data` for ``q``
+    and the full P): ``vel_rmse_ms``, ``hpos_rmse_m``, ``vpos_rmse_m`` and the share of
+    steps in the 95 % NEES band per block (``nees_vel_in95``, ``nees_pos_in95``)."""
+    from ..eval.navigation import NavScorer
+    from ..geometry.geodesy import LocalFrame
+
+    out: dict = {}
+    if nav["ref"] is None:
+        return out
+    src, tr, vr, pr = nav["ref"]
+    origin = nav.get("origin")
+    for lab, f in nav["filters"].items():
+        t = f["t"]
+        mask = (t >= tr[0]) & (t <= tr[-1]) if len(tr) > 1 else np.zeros(len(t), bool)
+        m: dict = {"t": t, "mask": mask,
+                   "ev": f["v"] - np.column_stack([np.interp(t, tr, vr[:, i])
+                                                   for i in range(3)])}
+        if pr is not None:
+            m["ep"] = f["p"] - np.column_stack([np.interp(t, tr, pr[:, i]) for i in range(3)])
+        a = att.get(lab)
+        if a is not None and len(a["t"]) == len(t) and a["P"].shape[1] == 15:
+            sc = NavScorer()
+            x = np.zeros(16)
+            for k in range(len(t)):
+                x[:4], x[4:7], x[7:10] = a["q"][k], f["v"][k], f["p"][k]
+                sc.add_estimate(lab, float(t[k]), x, a["P"][k])
+            for k in range(len(tr)):
+                sc.add_position(src, float(tr[k]), None, vr[k], nav["ref_lla"][k]
+                                if nav.get("ref_lla") is not None else None)
+            r = sc.scores(lab, None, LocalFrame(*origin) if origin is not None else None)
+            for key in ("vel_rmse_ms", "hpos_rmse_m", "vpos_rmse_m"):
+                if r.get(key) is not None:
+                    m[key] = r[key]
+            for blk, key in (("velocity", "nees_vel_in95"), ("position", "nees_pos_in95")):
+                b = r.get("nees", {}).get(blk)
+                if b and b.get("in_band95") is not None:
+                    m[key] = b["in_band95"]
+        out[lab] = m
+    return out
+
+
+def _navigation_fig(nav: dict, nm: dict) -> tuple:
+    """Velocity and position errors (N, E, D) of every navigation filter against the
+    reference, with each filter's own +-3 sigma (dashed)."""
+    plt = _plt()
+    src = nav["ref"][0]
+    fig, axs = plt.subplots(3, 2, figsize=(14, 8.5), sharex=True)
+    for lab, m in nm.items():
+        f = nav["filters"][lab]
+        for j, (key, s3, unit) in enumerate((("ev", "s3v", "m/s"), ("ep", "s3p", "m"))):
+            if key not in m:
+                continue
+            for i in range(3):
+                ax = axs[i, j]
+                e = np.where(m["mask"], m[key][:, i], np.nan)
+                ax.plot(m["t"], e, color=colour(lab), lw=0.9, label=lab if i == 0 else None)
+                ax.plot(m["t"], f[s3][:, i], color=colour(lab), lw=0.7, ls="--")
+                ax.plot(m["t"], -f[s3][:, i], color=colour(lab), lw=0.7, ls="--")
+                ax.set_ylabel(f"{'NED'[i]} {'velocity' if j == 0 else 'position'} "
+                              f"error ({unit})")
+                ax.grid(alpha=0.3)
+    axs[0, 0].legend(loc="upper right", fontsize=8)
+    axs[-1, 0].set_xlabel("time t (s)")
+    axs[-1, 1].set_xlabel("time t (s)")
+    fig.suptitle(f"Navigation errors vs {src} with each filter's own +-3 sigma (dashed)")
+    return ("fig-navigation", "Velocity and position errors", _fig_png(fig),
+            f"Velocity (left) and position (right) error of each filter against {src} "
+            "(interpolated to the step time; position in the local NED frame at the first "
+            "raw GNSS fix, the model's origin) and the filter's own +-3 sigma.")
 
 
 #: Preference among lat/lon/alt sources for the origin of the trajectory (the fused
@@ -188,8 +313,13 @@ def attitude_metrics(data: dict) -> tuple[dict, dict]:
         row["us_per_step"] = float(np.nanmean(f["wall_us"])) if len(f["wall_us"]) else math.nan
         rows[lab] = row
         series[lab] = s
+    navm = navigation_metrics(data["nav"], data["filters"]) if data.get("nav") else {}
+    for lab, nm in navm.items():
+        if lab in rows:
+            rows[lab].update({k: nm[k] for k in ("vel_rmse_ms", "hpos_rmse_m", "vpos_rmse_m",
+                                                 "nees_vel_in95", "nees_pos_in95") if k in nm})
     return rows, {"series": series, "reference": ref,
-                  "reference_kind": refs[ref][0] if ref else None}
+                  "reference_kind": refs[ref][0] if ref else None, "navigation": navm}
 
 
 def _moving_mean(x: Array, w: int) -> Array:
@@ -597,6 +727,8 @@ def _attitude_figures(data: dict, rows: dict, m: dict, events: list) -> list[tup
                      "position when there is one), the same origin for every source"
                      if from_lla
                      else "") + "."))
+    if m.get("navigation"):
+        figs.append(_navigation_fig(data["nav"], m["navigation"]))
     figs.append(_timing_fig({lab: (f["t"], f["wall_us"]) for lab, f in data["filters"].items()},
                             "filter step"))
     figs.append(_resets_fig({lab: (f["t"], f["resets"]) for lab, f in data["filters"].items()},
@@ -807,6 +939,9 @@ def write_report(mcap_path: str | Path, out_dir: str | Path | None = None,
             kf = _attitude_figures(data, rows, m, events)
             cols = ["roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg", "n", "nees_mean",
                     "frac_in_3sigma", "nis_mean", "nis_dof_mean", "resets", "us_per_step"]
+            if m["navigation"]:
+                cols[5:5] = ["vel_rmse_ms", "hpos_rmse_m", "vpos_rmse_m", "nees_vel_in95",
+                             "nees_pos_in95"]
             extra.update(reference=m["reference"], reference_kind=m["reference_kind"])
         elif kd == "state":
             data = state_data(rec)
