@@ -134,6 +134,37 @@ def test_sim_to_live_estimator_matches_truth_and_its_tlog_replays_the_same(tmp_p
 
 
 @pytest.mark.slow
+def test_live_navigation_model_against_the_simulator_and_its_tlog_replays_the_same(tmp_path):
+    """``--model nav`` live: the simulator's raw GNSS stream aids the navigation filters
+    (velocity and position scored against the simulator), and the session tlog replayed
+    gives the same estimates step by step."""
+    port = _port()
+    tlog = tmp_path / "live_nav.tlog"
+    coll = Collector()
+    with _Sim(port):
+        doc = run_live(_cfg(port, tlog=str(tlog), model="nav", filters=("ekf", "hybrid"),
+                            trackers=(), duration=12.0), sinks=[coll], status=False)
+    assert doc["model"] == "nav" and doc["reference_kind"] == "truth"
+    assert any(d["what"] == "alignment" for d in doc["decisions"])
+    for label in ("ekf", "hybrid"):
+        row = doc["attitude"][label]
+        assert row["n"] > 50 and row["resets"] == 0, row
+        assert row["vel_rmse_ms"] is not None and row["vel_rmse_ms"] < 0.5, row
+        assert row["hpos_rmse_m"] is not None and row["hpos_rmse_m"] < 3.0, row
+        assert coll.arrays(label)["x"].shape[1] == 16
+    src = open_source(tlog, sysid=doc["link"]["vehicle_sysid"], reorder_window=0.05)
+    again = Collector()
+    run_samples(src, _cfg(port, trackers=(), model="nav", filters=("ekf", "hybrid")),
+                params=src.params, sinks=[again], status=False)
+    for label in ("ekf", "hybrid"):
+        a, b = coll.arrays(label), again.arrays(label)
+        n = len(a["t"]) - 1
+        assert n > 50 and len(b["t"]) >= n
+        np.testing.assert_array_equal(a["t"][:n], b["t"][:n])
+        np.testing.assert_allclose(a["x"][:n], b["x"][:n], rtol=0, atol=1e-9, err_msg=label)
+
+
+@pytest.mark.slow
 def test_link_cut_is_reported_and_the_run_resumes():
     port = _port()
     relay = _Relay(port)
@@ -196,6 +227,9 @@ def test_sigint_leaves_complete_output_files(tmp_path):
     (["run", "--connect", "udpin:127.0.0.1:9", "--filters", "ukf(alpha=0)"], "alpha"),
     (["run", "--connect", "udpin:127.0.0.1:9", "--pd", "7"], "--pd"),
     (["demo", "--speed", "0"], "--speed"),
+    (["run", "--connect", "udpin:127.0.0.1:9", "--model", "nav", "--gnss-delay", "-1"],
+     "--gnss-delay"),
+    (["run", "--connect", "udpin:127.0.0.1:9", "--model", "auto"], "--model"),
 ])
 def test_live_commands_refuse_bad_input_with_one_line(argv, says):
     env = dict(os.environ, PYTHONPATH=str(ROOT))

@@ -40,6 +40,7 @@ from ..core.spec import FilterSpec
 from ..engine.attitude import AttitudeOptions, AttitudeStream
 from ..engine.build import build_filters
 from ..engine.loop import Lane, run_lanes
+from ..engine.navigation import NavOptions, NavRunner, NavStream
 from ..engine.records import (
     RadarScanSample,
     RunInfo,
@@ -53,6 +54,7 @@ from ..engine.runner import FilterRunner, TrackerRunner
 from ..errors import InputError
 from ..eval.attitude import AttitudeScorer, select_reference
 from ..eval.metrics import nees
+from ..eval.navigation import NavScorer
 from ..eval.tracking import track_quality
 from ..ingest.adsb_radar import AdsbRadar, RadarConfig, geodetic_to_ned
 from ..ingest.types import (
@@ -70,7 +72,7 @@ from ..presets import resolve_list, spec_labels
 from ..seeding import filter_stream, rng
 from ..sinks.base import Sink
 from ..tracking.tracker import Tracker, TrackerConfig
-from .replay import _Score
+from .replay import _NavScore, _Score
 
 Array = np.ndarray
 
@@ -122,6 +124,11 @@ class LiveConfig:
     bridge_s: float = 2.0
     rate_window_s: float = 5.0  # s after the start when the achieved stream rates are said
     streams: dict = field(default_factory=lambda: dict(LIVE_STREAMS))
+    #: "attitude" (attitude + gyro bias) or "nav" (GNSS-aided navigation: attitude,
+    #: velocity, position, both IMU biases; :mod:`uavest.engine.navigation`). A live run
+    #: cannot look ahead for a fix stream, so the model is an option, not a decision.
+    model: str = "attitude"
+    gnss_delay: float | None = None  # s; None: the navigation model's default
 
 
 # ----------------------------------------------------------------------- tracking lane
@@ -445,7 +452,8 @@ class _GapAware:
     """The attitude builder, restarted (a new alignment and Start) after a link gap longer
     than ``bridge_s``; shorter gaps are bridged by the next step's prediction."""
 
-    def __init__(self, make: Callable[[], AttitudeStream], bridge_s: float) -> None:
+    def __init__(self, make: Callable[[], AttitudeStream | NavStream], bridge_s: float
+                 ) -> None:
         self.make = make
         self.bridge_s = bridge_s
         self.stream = make()
@@ -603,19 +611,28 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
     lanes, scorers, ``sinks``. Returns the result document. A sink that raises is
     stopped alone (:class:`_Guarded`); its :class:`SinkFailure` is appended to
     ``failures`` and described in the document's ``sink_failures``."""
-    specs = build_filters(resolve_list(cfg.filters, "attitude", dim=6)) if cfg.filters else []
+    if cfg.model not in ("attitude", "nav"):
+        raise InputError(f"--model must be attitude or nav for a live run, not {cfg.model!r}")
+    nav = cfg.model == "nav"
+    specs = (build_filters(resolve_list(cfg.filters, "attitude", dim=15 if nav else 6))
+             if cfg.filters else [])
     tspecs = (build_filters(resolve_list(cfg.trackers, "radar", dim=TRACKER_DIM))
               if cfg.trackers else [])
 
-    def make_stream() -> AttitudeStream:
+    def make_stream() -> AttitudeStream | NavStream:
         d = declination() if declination is not None else None
+        if nav:
+            return NavStream(opts=NavOptions(rate_hz=cfg.rate_hz, declination=d,
+                                             gnss_delay=cfg.gnss_delay), params=params)
         return AttitudeStream(opts=AttitudeOptions(rate_hz=cfg.rate_hz, update_hz=cfg.update_hz,
                                                      declination=d),
                               params=params)
 
     att = _GapAware(make_stream, cfg.bridge_s)
-    runners = [FilterRunner(sp.label, f, rng(cfg.seed, 0, filter_stream(sp.label)))
+    runner_cls = NavRunner if nav else FilterRunner
+    runners = [runner_cls(sp.label, f, rng(cfg.seed, 0, filter_stream(sp.label)))
                for sp, f in specs]
+    nav_scorer = NavScorer()
     lane = TrackLane(cfg, cfg.seed)
     tcfg = TrackerConfig(pd=cfg.radar.pd, clutter_density=max(cfg.radar.clutter_density, 1e-12))
     trackers = [  # labelled "track:<spec>": an attitude ekf and a tracking ekf are two
@@ -634,7 +651,8 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
     sinks = [_Guarded(s.bind(lane) if isinstance(s, _LazyPublish) else s, failures)
              for s in sinks]
     wall0 = time.perf_counter()
-    steps = run_lanes(samples, lanes, [_Score(scorer), tscore, st, *sinks], info)
+    steps = run_lanes(samples, lanes, [_Score(scorer), *([_NavScore(nav_scorer)] if nav else []),
+                                       tscore, st, *sinks], info)
     wall = time.perf_counter() - wall0
     scorer.finish()
     refs = scorer.refs
@@ -643,7 +661,11 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
     doc = {
         "run": info.as_dict(), "steps": steps, "wall_s": wall, "reference": ref,
         "reference_kind": None if ref is None else refs[ref].kind,
+        "model": cfg.model,
         "attitude": {r.label: {**(scorer.scores(r.label, ref, truth) if ref else {}),
+                               **(nav_scorer.scores(r.label, ref if truth else None,
+                                                    getattr(att.stream, "frame", None))
+                                  if nav else {}),
                                "resets": r.resets,
                                "us_per_step": r.us_per_step}
                      for r in runners},

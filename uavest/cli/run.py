@@ -62,6 +62,13 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--reorder-window", type=float, default=0.05,
                    help="s of vehicle time held to order messages (default 0.05)")
     p.add_argument("--no-status", action="store_true", help="no live status line")
+    p.add_argument("--model", default="attitude", choices=("attitude", "nav"),
+                   help="attitude: attitude + gyro bias (default); nav: the GNSS-aided "
+                   "navigation model (attitude, velocity, position, gyro and accelerometer "
+                   "biases) from the raw GNSS stream (docs/navigation.md)")
+    p.add_argument("--gnss-delay", type=float, default=None, metavar="S",
+                   help="with --model nav: the GNSS measurement delay, s (default: the "
+                   "model's)")
 
 
 def add_run_parser(sub) -> argparse.ArgumentParser:
@@ -96,6 +103,10 @@ def _cfg(args, connect: str) -> LiveConfig:
     from ..core.spec import split_filter_list
     from ..presets import resolve_list
 
+    if args.gnss_delay is not None and not (math.isfinite(args.gnss_delay)
+                                             and args.gnss_delay >= 0):
+        raise InputError(f"--gnss-delay must be a finite number of seconds >= 0, got "
+                         f"{args.gnss_delay}")
     if args.duration is not None and not args.duration > 0:
         raise InputError(f"--duration must be > 0 s, got {args.duration}")
     for name, v in (("rate", args.rate), ("update-rate", getattr(args, "update_rate", None))):
@@ -109,7 +120,8 @@ def _cfg(args, connect: str) -> LiveConfig:
         heartbeat_timeout=getattr(args, "heartbeat_timeout", 30.0),
         reorder_window=args.reorder_window, duration=args.duration, rate_hz=args.rate,
         update_hz=getattr(args, "update_rate", None),
-        radar_source=args.radar_source, radar=_radar(args))
+        radar_source=args.radar_source, radar=_radar(args), model=args.model,
+        gnss_delay=args.gnss_delay)
 
 
 def format_live(doc: dict) -> str:
@@ -118,9 +130,14 @@ def format_live(doc: dict) -> str:
     what = "none" if ref is None else (f"{ref} (truth)" if kind == "truth"
                                        else f"{ref} ({kind} estimate, not truth)")
     lines = decision_lines(doc)
-    lines += [f"attitude against {what}; RMSE in degrees", table(doc["attitude"], [
-        "roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg", "nees_mean", "resets",
-        "us_per_step"])]
+    cols = ["roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg", "nees_mean", "resets",
+            "us_per_step"]
+    title = f"attitude against {what}; RMSE in degrees"
+    if doc.get("model") == "nav":
+        cols[4:4] = ["vel_rmse_ms", "hpos_rmse_m", "vpos_rmse_m"]
+        title = (f"navigation model; attitude against {what}, RMSE in degrees; velocity "
+                 "(m/s) and position (m) against the position reference")
+    lines += [title, table(doc["attitude"], cols)]
     if doc["tracks"]:
         lines += ["", f"tracks against ADS-B truth ({doc['targets_seen']} aircraft seen, "
                   f"{doc['scans']} scans); GOSPA and position RMSE in m",
