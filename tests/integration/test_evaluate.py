@@ -240,3 +240,23 @@ def test_cli_on_a_local_dask_cluster_prints_the_dashboard(tmp_path):
     assert "dask dashboard: http://127.0.0.1:" in r.stdout
     assert "ungm: 4 of 4 trials" in r.stdout
     assert (tmp_path / "report.html").is_file() and (tmp_path / "aggregate.csv").is_file()
+
+
+def test_logs_run_the_model_replay_chooses_and_score_velocity_and_position(tmp_path, windows):
+    """Under the default (auto) a log with a GNSS fix stream runs the navigation model, as
+    ``uavest replay`` does, and its rows and aggregate carry velocity and position RMSE;
+    ``--model attitude`` gives the attitude-only rows without them."""
+    for model, nav in (("auto", True), ("attitude", False)):
+        out = tmp_path / model
+        r = run_cli([str(windows[0]), "--workers", "0", "--filters", "ekf", "--out", str(out),
+                     "--no-progress", "--model", model])
+        assert r.returncode == 0, r.stderr
+        logs = json.loads((out / "summary.json").read_text())["groups"]["logs"]
+        row = logs["rows"][0]
+        assert row["model"] == ("nav" if nav else "attitude")
+        f = row["filters"]["ekf"]
+        assert (f["vel_rmse_ms"] is not None) is nav and (f["hpos_rmse_m"] is not None) is nav
+        agg = logs["aggregate"]["ekf"]
+        assert (agg["vel_rmse_ms_mean"] is not None) is nav
+        if nav:
+            assert 0 < f["vel_rmse_ms"] < 1.0, f  # the simulator's window, not diverged

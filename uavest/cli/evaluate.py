@@ -28,7 +28,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if args.end is not None and not math.isfinite(args.end):
         raise InputError("--end must be a finite number of seconds")
     replay = {k: v for k, v in (("start", args.start), ("end", args.end),
-                                ("rate_hz", args.rate)) if v is not None}
+                                ("rate_hz", args.rate), ("model", args.model))
+              if v is not None}
     filters = None
     if args.filters:
         from ..core.spec import split_filter_list
@@ -104,6 +105,10 @@ def add_evaluate_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--end", type=float, help="logs: end time (s, vehicle clock)")
     p.add_argument("--rate", type=float, help="logs: max filter rate in Hz (replay's "
                    "default; 0 = every IMU sample)")
+    p.add_argument("--model", default="auto", choices=("auto", "nav", "attitude"),
+                   help="logs: the estimator's model as in uavest replay (default auto: "
+                   "navigation for a log with a raw GNSS fix stream, attitude-only "
+                   "otherwise)")
     p.add_argument("--recompute", action="store_true",
                    help="ignore stored results and compute everything again")
     p.add_argument("--retry-failed", action="store_true",

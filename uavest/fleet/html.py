@@ -113,12 +113,13 @@ _LOG_AGG = ["logs", "scored", "att_rmse_mean", "att_rmse_median", "att_rmse_wors
             "roll_rmse_mean", "roll_rmse_median", "roll_rmse_worst", "pitch_rmse_mean",
             "pitch_rmse_median", "pitch_rmse_worst", "yaw_rmse_mean", "yaw_rmse_median",
             "yaw_rmse_worst", "nees_mean_mean", "nees_mean_median", "nees_mean_worst",
+            "vel_rmse_ms_mean", "vel_rmse_ms_worst", "hpos_rmse_m_mean", "hpos_rmse_m_worst",
             "resets", "us_per_step_mean", "wins"]
 _MC_AGG = ["trials", "rmse_mean", "rmse_median", "rmse_worst", "approx_error", "est_error",
            "nees_mean", "nees_median", "nees_band", "diverged_fraction", "resets",
            "us_per_step", "wins"]
 _LOG_FILTER = ["roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg", "att_rmse_deg",
-               "nees_mean", "resets", "us_per_step"]
+               "nees_mean", "vel_rmse_ms", "hpos_rmse_m", "resets", "us_per_step"]
 _MC_FILTER = ["rmse_mean", "rmse_median", "nees_mean", "diverged_fraction", "resets",
               "us_per_step"]
 

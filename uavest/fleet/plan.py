@@ -137,9 +137,8 @@ def plan_logs(paths: list[Path], filters: tuple[str, ...] | list[str] | None = N
     from ..presets import resolve_list
 
     filters = tuple(filters or DEFAULT_FILTERS)
-    # the attitude model: the navigation model is not built for evaluate yet (its
-    # records and tables are replay's; docs/navigation.md)
-    rcfg = ReplayConfig(filters=filters, **{"model": "attitude", **(replay or {})})
+    # the model as uavest replay chooses it (per log: navigation with a GNSS fix stream)
+    rcfg = ReplayConfig(filters=filters, **{"model": "auto", **(replay or {})})
     specs = resolve_list(list(filters), "attitude", dim=6)
     opts = {k: v for k, v in asdict(rcfg).items() if k != "filters"}
     config = {"kind": "log", "filters": [s.as_dict() for s in specs], "replay": opts,

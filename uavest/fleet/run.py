@@ -151,7 +151,7 @@ def write_outputs(summary: dict, out: str | Path) -> dict[str, Path]:
 
 LOG_COLUMNS = ["logs", "att_rmse_mean", "att_rmse_median", "att_rmse_worst",
                "roll_rmse_mean", "pitch_rmse_mean", "yaw_rmse_mean", "nees_mean_mean",
-               "resets", "wins"]
+               "vel_rmse_ms_mean", "hpos_rmse_m_mean", "resets", "wins"]
 MC_COLUMNS = ["trials", "rmse_mean", "rmse_median", "rmse_worst", "nees_mean",
               "diverged_fraction", "resets", "wins"]
 

@@ -19,7 +19,8 @@ import numpy as np
 
 __all__ = ["LOG_METRICS", "group_summary", "log_row", "rows_csv", "aggregate_csv"]
 
-LOG_METRICS = ("roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg", "att_rmse_deg", "nees_mean")
+LOG_METRICS = ("roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg", "att_rmse_deg", "nees_mean",
+               "vel_rmse_ms", "hpos_rmse_m")
 
 
 def _num(v):
@@ -55,6 +56,7 @@ def log_row(inp, doc: dict | None, labels: list[str]) -> dict:
         "steps": r.get("steps"), "bad_total": bad.get("bad_total"),
         "bad_data": {k: v for k, v in bad.items() if isinstance(v, int) and v},
         "realtime_factor": r.get("realtime_factor"), "wall_s": r.get("wall_s"),
+        "model": (r.get("model") or {}).get("value"),
     })
     for lab in labels:
         f = (r.get("filters") or {}).get(lab)
@@ -65,6 +67,8 @@ def log_row(inp, doc: dict | None, labels: list[str]) -> dict:
             "pitch_rmse_deg": _num(f.get("pitch_rmse_deg")),
             "yaw_rmse_deg": _num(f.get("yaw_rmse_deg")),
             "att_rmse_deg": _att(f), "nees_mean": _num(f.get("nees_mean")),
+            # navigation model only (None for attitude-only logs)
+            "vel_rmse_ms": _num(f.get("vel_rmse_ms")), "hpos_rmse_m": _num(f.get("hpos_rmse_m")),
             "resets": f.get("resets"), "us_per_step": _num(f.get("us_per_step")),
         }
     scored = [(v["att_rmse_deg"], lab) for lab, v in row["filters"].items()
