@@ -100,5 +100,7 @@ def test_the_navigation_model_smooths(tmp_path):
     assert out["model"]["value"] == "nav"
     row = out["filters"]["ekf"]
     sm = row["smoothed"]
-    for axis in ("roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg"):
+    for axis in ("roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg", "vel_rmse_ms"):
         assert sm[axis] < row[axis], (axis, sm[axis], row[axis])
+    assert set(sm["nees"]) == {"attitude", "velocity", "position"}
+    assert sm["hpos_rmse_m"] is not None

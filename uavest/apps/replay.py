@@ -316,6 +316,22 @@ def _score_smoothed(coll: Collector, refs: _Refs, label: str, ref: str, truth: b
     return row
 
 
+def _score_smoothed_nav(coll: Collector, nsc: NavScorer, label: str, att_ref: str | None,
+                        frame, space) -> dict:
+    """Velocity/position RMSE and the NEES blocks (as the filtered row's ``nees``) of the
+    smoothed navigation run of ``label``:
+    the run's own :class:`NavScorer` references, the smoothed states as its estimates."""
+    t, xs, Ps = smooth_records(coll, label, space)
+    sm = NavScorer()
+    sm.att, sm.pos = nsc.att, nsc.pos
+    for k in range(len(t)):
+        sm.add_estimate(label, float(t[k]), xs[k], Ps[k])
+    got = sm.scores(label, att_ref, frame)
+    out = {k: got[k] for k in ("vel_rmse_ms", "hpos_rmse_m", "vpos_rmse_m", "nees")
+           if got.get(k)}
+    return out
+
+
 @dataclass
 class ArrayRun:
     """Filters run over IMU arrays: step end times ``t`` (K,), and per label the
@@ -456,6 +472,9 @@ def replay(
         if cfg.smooth and coll is not None:
             srow = (_score_smoothed(coll, out["refs"], r.label, ref_name, truth, stream.space)
                     if ref_name else {})
+            if nav:
+                srow.update(_score_smoothed_nav(coll, nsc, r.label, ref_name if truth
+                                                else None, frame, stream.space))
             srow["us_per_step"] = 1e6 * r.smooth_seconds / steps
             row["smoothed"] = srow
         doc["filters"][r.label] = row
