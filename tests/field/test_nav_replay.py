@@ -89,6 +89,7 @@ def test_nav_option_errors_are_one_line(argv):
     assert r.stderr.count("\n") == 1
 
 
+@pytest.mark.slow
 def test_the_navigation_model_smooths(tmp_path):
     """--smooth runs the RTS smoother on the navigation state (15 error dimensions) and
     the smoothed attitude beats the filtered one against the simulator's truth."""

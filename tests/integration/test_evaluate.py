@@ -242,6 +242,7 @@ def test_cli_on_a_local_dask_cluster_prints_the_dashboard(tmp_path):
     assert (tmp_path / "report.html").is_file() and (tmp_path / "aggregate.csv").is_file()
 
 
+@pytest.mark.slow
 def test_logs_run_the_model_replay_chooses_and_score_velocity_and_position(tmp_path, windows):
     """Under the default (auto) a log with a GNSS fix stream runs the navigation model, as
     ``uavest replay`` does, and its rows and aggregate carry velocity and position RMSE;

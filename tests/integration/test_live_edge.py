@@ -38,6 +38,7 @@ def _no_traceback(r: subprocess.CompletedProcess) -> None:
     assert "Traceback" not in r.stderr and "Traceback" not in r.stdout, r.stderr[-3000:]
 
 
+@pytest.mark.slow
 def test_every_requested_stream_said_once_with_its_achieved_rate(tmp_path):
     port = free_port()
     out = tmp_path / "run.json"
@@ -68,6 +69,7 @@ def test_every_requested_stream_said_once_with_its_achieved_rate(tmp_path):
     assert "streams missing (none received): " in r.stdout
 
 
+@pytest.mark.slow
 def test_a_vehicle_without_any_imu_runs_and_says_so(tmp_path):
     port = free_port()
     out = tmp_path / "run.json"
@@ -82,6 +84,7 @@ def test_a_vehicle_without_any_imu_runs_and_says_so(tmp_path):
     assert doc["scans"] > 0  # the tracking lane ran all the same (ownship from GPS)
 
 
+@pytest.mark.slow
 def test_empty_scans_are_recorded_to_mcap(tmp_path):
     from mcap.reader import make_reader
 
@@ -151,6 +154,7 @@ class _ClosedFile(Sink):
         self.f.write(f"{rec.estimator} {rec.t}\n")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind,rc,says", [
     ("disk_full", 2, "uavest run: error: No space left on device"),
     ("closed_file", 1, "uavest run: internal error: ValueError: I/O operation on closed file"),

@@ -10,6 +10,7 @@ import threading
 import time
 
 import numpy as np
+import pytest
 
 from uavest.ingest import open_live, open_source
 from uavest.ingest.types import BaroSample, GnssSample, ImuSample, LinkEvent
@@ -31,6 +32,7 @@ def _same(a, b) -> bool:
     return a == b
 
 
+@pytest.mark.slow
 def test_unix_stamped_gps_raw_int_is_retimed_not_late_and_replays_the_same(tmp_path):
     port = _port()
     tl = tmp_path / "live.tlog"

@@ -64,6 +64,7 @@ def test_navigation_channels_equal_the_run(tmp_path):
     assert np.linalg.norm(p[-1] - p[0]) > 3 * sd[-1, 6:9].max()
 
 
+@pytest.mark.slow
 def test_report_of_a_navigation_recording_reproduces_the_replay_scores(tmp_path):
     """``uavest report`` on the navigation recording: velocity/position RMSE and the NEES
     band shares equal the replay's (the same scorer over the recorded states), and the page
