@@ -1,35 +1,20 @@
-"""The live MAVLink link: a vehicle (autopilot or SITL) as a streaming sample source.
-
-:class:`LiveLink` (made by :func:`open_live`, or by :func:`uavest.ingest.open_source` for a
-connection string) owns a reader thread that reads raw bytes from UDP, TCP or a serial port
-(the shared :mod:`uavest.link` transport), parses them with its own MAVLink 2 parser
-(signing checked there, :mod:`uavest.link.signing`), filters one vehicle,
-records the accepted frames to a tlog and puts them in a bounded queue.  Iterating the link
-runs the *same* conversion / timing / ordering code as a file (:class:`MavlinkSource`), with
-each message timed by its vehicle time field or, for untimed messages, by the receive time
-that is also written to the tlog, so replaying the tlog gives the same samples.
-
-See ``docs/live.md``.
-"""
+"""The live link itself: :class:`LiveLink` (reader thread, vehicle filter, lifecycle,
+status) and :func:`open_live`; see :mod:`uavest.ingest.live`."""
 
 from __future__ import annotations
 
 import contextlib
 import logging
-import math
 import queue
 import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from ..errors import InputError
-from ..link import (  # (sets MAVLINK20 before any pymavlink.mavutil import: signing)
+from ...link import (  # (sets MAVLINK20 before any pymavlink.mavutil import: signing)
     Disconnected,
     TlogWriter,
     Transport,
@@ -43,46 +28,17 @@ from ..link import (  # (sets MAVLINK20 before any pymavlink.mavutil import: sig
     split_conn,
     unregister_vehicle_endpoint,
 )
-from .mavlink import MavlinkSource
-from .types import IngestError, LinkEvent
+from ..mavlink import MavlinkSource
+from ..types import IngestError, LinkEvent
+from .declination import Declination
+from .gaps import GapWatch
+from .replies import Replies
+from .streams import DEFAULT_STREAMS, RateMeter, StreamStatus, rate_warnings, request_streams
 
-__all__ = ["LiveLink", "open_live", "DEFAULT_STREAMS", "LinkTimeout"]
+__all__ = ["LiveLink", "open_live", "LinkTimeout"]
 
 log = logging.getLogger("uavest.live")
 
-#: Messages requested by default (name -> Hz).  ArduPilot serves HIGHRES_IMU and
-#: ATTITUDE_QUATERNION only through SET_MESSAGE_INTERVAL.
-DEFAULT_STREAMS: dict[str, float] = {
-    "HIGHRES_IMU": 100.0,
-    "RAW_IMU": 50.0,
-    "ATTITUDE_QUATERNION": 50.0,
-    "ATTITUDE": 10.0,
-    "GLOBAL_POSITION_INT": 10.0,
-    "GPS_RAW_INT": 5.0,  # raw GNSS fixes (time_usec UNIX on ArduPilot: ingest retimes it)
-    "SCALED_PRESSURE": 10.0,  # barometer (navigation height aiding)
-    "SYSTEM_TIME": 1.0,
-}
-
-#: REQUEST_DATA_STREAM fallback: message -> ArduPilot data stream that carries it (or a
-#: substitute: HIGHRES_IMU -> RAW_SENSORS gives RAW_IMU; ATTITUDE_QUATERNION -> EXTRA1 gives
-#: ATTITUDE).  ArduPilot caps data streams at 50 Hz.
-_DATA_STREAM = {
-    "HIGHRES_IMU": mavlink.MAV_DATA_STREAM_RAW_SENSORS,
-    "RAW_IMU": mavlink.MAV_DATA_STREAM_RAW_SENSORS,
-    "SCALED_IMU": mavlink.MAV_DATA_STREAM_RAW_SENSORS,
-    "SCALED_IMU2": mavlink.MAV_DATA_STREAM_RAW_SENSORS,
-    "SCALED_IMU3": mavlink.MAV_DATA_STREAM_RAW_SENSORS,
-    "GPS_RAW_INT": mavlink.MAV_DATA_STREAM_EXTENDED_STATUS,
-    "SCALED_PRESSURE": mavlink.MAV_DATA_STREAM_RAW_SENSORS,
-    "GLOBAL_POSITION_INT": mavlink.MAV_DATA_STREAM_POSITION,
-    "LOCAL_POSITION_NED": mavlink.MAV_DATA_STREAM_POSITION,
-    "ATTITUDE": mavlink.MAV_DATA_STREAM_EXTRA1,
-    "ATTITUDE_QUATERNION": mavlink.MAV_DATA_STREAM_EXTRA1,
-    "SIMSTATE": mavlink.MAV_DATA_STREAM_EXTRA1,
-    "AHRS2": mavlink.MAV_DATA_STREAM_EXTRA1,
-    "SYSTEM_TIME": mavlink.MAV_DATA_STREAM_EXTRA3,
-}
-_DATA_STREAM_MAX_HZ = 50
 TCP_SILENCE = 3.0  # s, min silence before a TCP link is reconnected (SITL heartbeat: 1 Hz)
 
 _NOT_VEHICLE_TYPES = {
@@ -93,159 +49,6 @@ _NOT_VEHICLE_TYPES = {
 
 class LinkTimeout(IngestError):
     """No vehicle heartbeat within the timeout (a one-line message)."""
-
-
-# ------------------------------------------------------------------ helpers
-
-
-class _RateMeter:
-    """Arrival rate per message name over the last ``window`` s (bounded memory)."""
-
-    def __init__(self, window: float = 5.0, maxlen: int = 4096) -> None:
-        self.window = window
-        self.times: dict[str, deque] = {}
-        self.first: dict[str, float] = {}
-        self.maxlen = maxlen
-        self.lock = threading.Lock()
-
-    def add(self, name: str, t: float) -> None:
-        with self.lock:
-            d = self.times.get(name)
-            if d is None:
-                if len(self.times) > 512:  # made-up names from a flood: don't grow
-                    return
-                d = self.times[name] = deque(maxlen=self.maxlen)
-                self.first[name] = t
-            d.append(t)
-
-    def rates(self, now: float) -> dict[str, float]:
-        out = {}
-        with self.lock:
-            for name, d in self.times.items():
-                ts = [t for t in d if t >= now - self.window]
-                if len(d) == d.maxlen and ts and len(ts) == len(d):  # saturated: span rate
-                    span = ts[-1] - ts[0]
-                    out[name] = (len(ts) - 1) / span if span > 0 else 0.0
-                else:  # over the window, or since the stream started if that is shorter
-                    span = min(self.window, now - self.first[name])
-                    out[name] = len(ts) / span if span > 0.2 else 0.0
-        return out
-
-
-class _Replies:
-    """COMMAND_ACKs and PARAM_VALUEs put by the reader thread, awaited by the setup steps."""
-
-    def __init__(self) -> None:
-        self.cond = threading.Condition()
-        self.acks: deque = deque(maxlen=64)  # (command, result, monotonic time)
-        self.params: dict[str, float] = {}
-
-    def ack(self, command: int, result: int) -> None:
-        with self.cond:
-            self.acks.append((command, result, time.monotonic()))
-            self.cond.notify_all()
-
-    def param(self, name: str, value: float) -> None:
-        with self.cond:
-            self.params[name] = value
-            self.cond.notify_all()
-
-    def forget(self, name: str) -> None:
-        """Drop an earlier answer for ``name`` (before asking again)."""
-        with self.cond:
-            self.params.pop(name, None)
-
-    def wait_ack(self, command: int, since: float, timeout: float) -> int | None:
-        """The result of the first ACK of ``command`` received since ``since`` (monotonic
-        s), None after ``timeout`` s."""
-        end = time.monotonic() + timeout
-        with self.cond:
-            while True:
-                for c, r, t in self.acks:
-                    if c == command and t >= since:
-                        self.acks.remove((c, r, t))
-                        return r
-                left = end - time.monotonic()
-                if left <= 0:
-                    return None
-                self.cond.wait(left)
-
-    def wait_param(self, name: str, timeout: float) -> float | None:
-        """The value of parameter ``name``, None after ``timeout`` s."""
-        end = time.monotonic() + timeout
-        with self.cond:
-            while name not in self.params:
-                left = end - time.monotonic()
-                if left <= 0:
-                    return None
-                self.cond.wait(left)
-            return self.params[name]
-
-
-class _Declination:
-    """The declination the link reports: COMPASS_DEC when the autopilot has one (0 with
-    auto-declination on means unknown until GPS lock, and is asked again then), else the
-    WMM at the first 3-D GPS fix (the host's date)."""
-
-    def __init__(self, conn: str) -> None:
-        self.conn = conn
-        self.value: float | None = None  # rad
-        self.source = "unknown"
-        self.pending = False  # waiting for a GPS fix
-        self.autodec: float | None = None  # COMPASS_AUTODEC as read
-        self.gps_fix: tuple[float, float, float] | None = None
-
-    def from_params(self, dec: float | None, auto: float | None) -> None:
-        """COMPASS_DEC / COMPASS_AUTODEC as read at start (None: no answer)."""
-        self.autodec = auto
-        if dec is not None and (dec != 0.0 or not auto):
-            self.value, self.source = float(dec), "param:COMPASS_DEC"
-        else:
-            # auto-declination with 0 = unknown until GPS lock; no param: WMM once we have GPS
-            self.pending = True
-            self.source = "unknown (waiting for GPS)"
-
-    def on_gps(self, lat: float, lon: float, alt: float) -> bool:
-        """A GPS fix (deg, deg, m): the WMM's declination if we were waiting for one. True
-        if COMPASS_DEC should be asked again (auto-declination: computed after lock)."""
-        if not self.pending:
-            return False
-        self.pending = False
-        self.gps_fix = (lat, lon, alt)
-        try:  # the host's date: a day's error changes the declination by < 0.001 deg
-            from ..geometry.magnetic import declination
-
-            self.value = declination(lat, lon, alt, datetime.now(UTC))
-            self.source = "wmm2025"
-        except ImportError:
-            self.source = "unknown (pygeomag not installed for the WMM)"
-            log.warning("%s: no declination: COMPASS_DEC unknown and pygeomag missing",
-                        self.conn)
-        except ValueError as e:
-            log.warning("%s: %s", self.conn, e)
-        return bool(self.autodec)
-
-    def on_param(self, pid: str, v: float) -> None:
-        """A PARAM_VALUE flowing by: a usable COMPASS_DEC replaces what we have."""
-        if pid == "COMPASS_DEC" and math.isfinite(v) and (v != 0.0 or not self.autodec):
-            self.value, self.source = v, "param:COMPASS_DEC"
-            self.pending = False
-
-
-@dataclass
-class StreamStatus:
-    """One requested stream: requested Hz, how (``SET_MESSAGE_INTERVAL`` | ``REQUEST_DATA_STREAM``
-    | ``none``), the COMMAND_ACK result (MAV_RESULT, None if no ACK) and the measured Hz."""
-
-    name: str
-    requested_hz: float
-    method: str = "none"
-    ack: int | None = None
-    measured_hz: float = 0.0
-
-    @property
-    def ok(self) -> bool:
-        return self.measured_hz >= 0.8 * self.requested_hz
 
 
 # ------------------------------------------------------------------ the link
@@ -334,8 +137,8 @@ class LiveLink(MavlinkSource):
         self._q: queue.Queue = queue.Queue(maxsize=queue_size)
         self._stop = threading.Event()
         self._hb = threading.Event()
-        self._replies = _Replies()
-        self._rates = _RateMeter()
+        self._replies = Replies()
+        self._rates = RateMeter()
         self._events: deque = deque(maxlen=256)  # LinkEvents from the reader thread
         self._thread: threading.Thread | None = None
         self._tlog: TlogWriter | None = None
@@ -356,7 +159,7 @@ class LiveLink(MavlinkSource):
         self.autopilot: int | None = None
         self.stream_status: dict[str, StreamStatus] = {}
         self.events: list[LinkEvent] = []
-        self._dec = _Declination(self.conn)
+        self._dec = Declination(self.conn)
         self._rates_checked = False
         self._requested_at: float | None = None
         self._need_request = False
@@ -460,21 +263,7 @@ class LiveLink(MavlinkSource):
 
     def check_rates(self, min_fraction: float = 0.8) -> list[str]:
         """Warnings (also logged) for requested streams arriving below ``min_fraction``."""
-        r = self.rates()
-        out = []
-        for name, st in self.stream_status.items():
-            st.measured_hz = r.get(name, 0.0)
-            if st.measured_hz <= 0.0:  # never arrived: said as missing, by name
-                msg = (f"missing: {name} (requested {st.requested_hz:g} Hz, none received; "
-                       f"{st.method})")
-                log.warning(msg)
-                out.append(msg)
-            elif st.measured_hz < min_fraction * st.requested_hz:
-                msg = (f"{name}: {st.measured_hz:.1f} Hz arriving, {st.requested_hz:g} Hz "
-                       f"requested ({st.method})")
-                log.warning(msg)
-                out.append(msg)
-        return out
+        return rate_warnings(self.stream_status, self.rates(), min_fraction)
 
     # ------------------------------------------------------------ reader thread
     def _reader(self) -> None:
@@ -625,37 +414,8 @@ class LiveLink(MavlinkSource):
     def request_streams(self, wait: bool = True) -> dict[str, StreamStatus]:
         """Ask for :attr:`streams`: SET_MESSAGE_INTERVAL each (ACK awaited if ``wait``),
         REQUEST_DATA_STREAM for those refused or unanswered.  Returns :attr:`stream_status`."""
-        ts, tc = self._target()
-        fallback: dict[int, float] = {}
-        answered = False
-        for i, (name, hz) in enumerate(self.streams.items()):
-            st = self.stream_status.setdefault(name, StreamStatus(name, float(hz)))
-            msgid = getattr(mavlink, f"MAVLINK_MSG_ID_{name}", None)
-            if msgid is None:
-                raise InputError(f"unknown MAVLink message {name!r} in streams")
-            since = time.monotonic()
-            self._mav.command_long_send(ts, tc, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
-                                        float(msgid), float(1e6 / hz), 0, 0, 0, 0, 0)
-            res = None
-            if wait and (answered or i == 0):  # no ACK to the first: the vehicle gives none
-                res = self._replies.wait_ack(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, since,
-                                             self.ack_timeout)
-                answered = answered or res is not None
-            st.ack = res
-            if res == mavlink.MAV_RESULT_ACCEPTED:
-                st.method = "SET_MESSAGE_INTERVAL"
-            else:
-                ds = _DATA_STREAM.get(name)
-                if ds is not None:
-                    fallback[ds] = max(fallback.get(ds, 0.0), float(hz))
-                    st.method = "REQUEST_DATA_STREAM"
-                else:
-                    st.method = "none"
-                    log.warning("%s: %s refused (result %s) and has no data stream fallback",
-                                self.conn, name, res)
-        for ds, hz in fallback.items():
-            rate = int(min(max(1, round(hz)), _DATA_STREAM_MAX_HZ))
-            self._mav.request_data_stream_send(ts, tc, ds, rate, 1)
+        request_streams(self._mav, self._target(), self.streams, self.stream_status,
+                        self._replies, self.ack_timeout, wait, self.conn)
         self._requested_at = time.monotonic()
         self._rates_checked = False
         return self.stream_status
@@ -671,12 +431,6 @@ class LiveLink(MavlinkSource):
         auto = self._read_param("COMPASS_AUTODEC", self.param_timeout) if dec is not None \
             else None
         self._dec.from_params(dec, auto)
-
-    def _on_gps(self, lat: float, lon: float, alt: float) -> None:
-        if self._dec.on_gps(lat, lon, alt):  # the autopilot computes it after lock: ask again
-            ts, tc = self._target()
-            self._replies.forget("COMPASS_DEC")
-            self._mav.param_request_read_send(ts, tc, b"COMPASS_DEC", -1)
 
     @property
     def declination(self) -> float | None:
@@ -702,67 +456,55 @@ class LiveLink(MavlinkSource):
 
     def _messages(self) -> Iterator[tuple[object, object]]:
         """(message, receive time) from the queue; (None, LinkEvent) for link events."""
-        gaps = 0
-        in_gap = False
-        prev_rx: float | None = None
+        gaps = GapWatch(self.gap_timeout, self.conn)
         st = self.stats
         while not (self._closed and self._q.empty()):
             while self._events:
                 ev = self._events.popleft()
                 self.events.append(ev)
                 yield None, ev
-            if self._need_request and self._hb.is_set() and self.streams:
-                self._need_request = False
-                self.request_streams(wait=False)
-            if (not self._rates_checked and self._requested_at is not None
-                    and time.monotonic() - self._requested_at > 3.0):
-                self._rates_checked = True
-                self.check_rates()
+            self._upkeep()
             try:
                 m, rx = self._q.get(timeout=0.05)
             except queue.Empty:
-                if not in_gap and time.monotonic() - self._last_rx_mono > self.gap_timeout:
-                    in_gap = True
-                    gaps += 1
-                    st.link_gap += 1
-                    ev = LinkEvent(0.0, "link_lost", start=prev_rx, count=gaps,
-                                   detail=f"no message for {self.gap_timeout:g} s",
-                                   source=self.conn)
-                    self.events.append(ev)
-                    yield None, ev
+                ev = gaps.idle(time.monotonic() - self._last_rx_mono)
+                if ev is not None:
+                    yield None, self._gap_event(ev)
                 continue
-            if prev_rx is not None and not in_gap and rx - prev_rx > self.gap_timeout:
-                in_gap = True  # a gap the consumer was too busy to see while it lasted
-                gaps += 1
-                st.link_gap += 1
-                ev = LinkEvent(0.0, "link_lost", start=prev_rx, count=gaps, source=self.conn)
-                self.events.append(ev)
-                yield None, ev
-            if in_gap:
-                in_gap = False
-                ev = LinkEvent(0.0, "link_restored", start=prev_rx, end=rx, count=gaps,
-                               detail=f"gap of {rx - (prev_rx or rx):.2f} s", source=self.conn)
-                self.events.append(ev)
-                yield None, ev
-                if self.streams:
-                    self._need_request = True
-            prev_rx = rx
+            for ev in gaps.message(rx):
+                yield None, self._gap_event(ev)
             self._last_rx_unix = rx
             name = m.get_type()
             st.messages[name] += 1
             self._watch(m, name)
             yield m, rx
 
+    def _upkeep(self) -> None:
+        """Between messages: re-request the streams when asked to (reconnect, gap end),
+        check the achieved rates once 3 s after a request."""
+        if self._need_request and self._hb.is_set() and self.streams:
+            self._need_request = False
+            self.request_streams(wait=False)
+        if (not self._rates_checked and self._requested_at is not None
+                and time.monotonic() - self._requested_at > 3.0):
+            self._rates_checked = True
+            self.check_rates()
+
+    def _gap_event(self, ev: LinkEvent) -> LinkEvent:
+        """Record a gap event (counted in the stats; streams asked again at its end)."""
+        if ev.kind == "link_lost":
+            self.stats.link_gap += 1
+        elif self.streams:
+            self._need_request = True
+        self.events.append(ev)
+        return ev
+
     def _watch(self, m, name: str) -> None:
         """Declination bookkeeping from the messages flowing by."""
-        if name == "GPS_RAW_INT" and m.fix_type >= 3 and (m.lat or m.lon):
-            self._on_gps(m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3)
-        elif name == "GLOBAL_POSITION_INT" and (m.lat or m.lon):
-            self._on_gps(m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3)
-        elif name == "PARAM_VALUE":
-            pid = m.param_id.decode() if isinstance(m.param_id, bytes) else str(m.param_id)
-            pid = pid.rstrip("\x00")
-            self._dec.on_param(pid, float(m.param_value))
+        if self._dec.watch(m, name):  # the autopilot computes it after lock: ask again
+            ts, tc = self._target()
+            self._replies.forget("COMPASS_DEC")
+            self._mav.param_request_read_send(ts, tc, b"COMPASS_DEC", -1)
 
 
 def open_live(conn: str, **kwargs) -> LiveLink:
