@@ -8,22 +8,18 @@ import logging
 import queue
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from ...link import (  # (sets MAVLINK20 before any pymavlink.mavutil import: signing)
-    Disconnected,
     TlogWriter,
     Transport,
     Writer,
-    bad_data_kind,
     enable_signing,
     endpoint_key,
     register_vehicle_endpoint,
-    reset_parser,
     signing_key_bytes,
     split_conn,
     unregister_vehicle_endpoint,
@@ -32,20 +28,12 @@ from ..mavlink import MavlinkSource
 from ..types import IngestError, LinkEvent
 from .declination import Declination
 from .gaps import GapWatch
-from .replies import Replies
-from .streams import DEFAULT_STREAMS, RateMeter, StreamStatus, rate_warnings, request_streams
+from .reader import Reader
+from .streams import DEFAULT_STREAMS, StreamStatus, rate_warnings, request_streams
 
 __all__ = ["LiveLink", "open_live", "LinkTimeout"]
 
 log = logging.getLogger("uavest.live")
-
-TCP_SILENCE = 3.0  # s, min silence before a TCP link is reconnected (SITL heartbeat: 1 Hz)
-
-_NOT_VEHICLE_TYPES = {
-    mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_GIMBAL, mavlink.MAV_TYPE_ADSB,
-    mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_TYPE_CAMERA,
-}
-
 
 class LinkTimeout(IngestError):
     """No vehicle heartbeat within the timeout (a one-line message)."""
@@ -132,25 +120,27 @@ class LiveLink(MavlinkSource):
             enable_signing(self._mav, self._key, verify=True)
 
     def _init_reader(self, queue_size: int) -> None:
-        """The reader thread's state: the queue to the consumer, the replies it hands to
-        the setup steps, the tlog buffer, the connection and the link times."""
-        self._q: queue.Queue = queue.Queue(maxsize=queue_size)
-        self._stop = threading.Event()
-        self._hb = threading.Event()
-        self._replies = Replies()
-        self._rates = RateMeter()
-        self._events: deque = deque(maxlen=256)  # LinkEvents from the reader thread
+        """The reader thread (:class:`~uavest.ingest.live.reader.Reader`: the queue to
+        the consumer, the replies it hands to the setup steps, the tlog, the connection
+        and the link times) and the consumer side's lifecycle flags."""
+        self._rx = Reader(self.conn, self.baud, self._writer, self._mav, self._key,
+                          lambda: self.stats, self.gap_timeout, queue_size, self.sysid,
+                          self._on_vehicle)
+        self._q = self._rx.q
+        self._hb = self._rx.hb
+        self._replies = self._rx.replies
         self._thread: threading.Thread | None = None
-        self._tlog: TlogWriter | None = None
-        self._last_rx_mono = time.monotonic()
         self._last_rx_unix: float | None = None
         self._started = False
         self._closed = False
         self._registered = False
         self._gen: Iterator | None = None
-        self._connected_once = False
-        self._connected_at = time.monotonic()
-        self._connect_error: str | None = None  # why the last connection attempt failed
+
+    def _on_vehicle(self, sysid: int, compid: int, vtype: int, autopilot: int) -> None:
+        """A vehicle heartbeat (reader thread): its identity."""
+        self.sysid = sysid
+        self.vehicle_compid = compid
+        self.vehicle_type, self.autopilot = vtype, autopilot
 
     def _init_vehicle(self) -> None:
         """What we learn of the vehicle: identity, streams, events, declination."""
@@ -162,7 +152,6 @@ class LiveLink(MavlinkSource):
         self._dec = Declination(self.conn)
         self._rates_checked = False
         self._requested_at: float | None = None
-        self._need_request = False
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> LiveLink:
@@ -172,22 +161,22 @@ class LiveLink(MavlinkSource):
         self._started = True
         if self.tlog_path is not None:
             self.tlog_path.parent.mkdir(parents=True, exist_ok=True)
-            self._tlog = TlogWriter(self.tlog_path, self.flush_s)
+            self._rx.tlog = TlogWriter(self.tlog_path, self.flush_s)
         try:
             self._writer.transport = Transport(self.conn, self.baud)
-            self._connected_once = True
+            self._rx.connected_once = True
         except OSError as e:
             if split_conn(self.conn)[0] != "tcp":
-                self._close_tlog()
+                self._rx.close_tlog()
                 raise IngestError(f"{self.conn}: cannot open ({e})") from None
             # a SITL not up yet: the reader keeps trying until the heartbeat timeout
             log.info("%s: %s; retrying", self.conn, e)
         except ValueError as e:
-            self._close_tlog()
+            self._rx.close_tlog()
             raise IngestError(f"{self.conn}: cannot open ({e})") from None
         register_vehicle_endpoint(self.conn)
         self._registered = True
-        self._thread = threading.Thread(target=self._reader, name="uavest-live-reader",
+        self._thread = threading.Thread(target=self._rx.run, name="uavest-live-reader",
                                         daemon=True)
         self._thread.start()
         try:
@@ -207,14 +196,14 @@ class LiveLink(MavlinkSource):
         if self._closed:
             return
         self._closed = True
-        self._stop.set()
+        self._rx.stop.set()
         if self._thread is not None:
             self._thread.join(timeout=5.0)
         with self._writer.lock:
             if self._writer.transport is not None:
                 self._writer.transport.close()
-        self._reset_parser(count=True)
-        self._close_tlog()
+        self._rx.reset_parser(count=True)
+        self._rx.close_tlog()
         if self._registered:
             unregister_vehicle_endpoint(self.conn)
             self._registered = False
@@ -228,15 +217,6 @@ class LiveLink(MavlinkSource):
     def __del__(self) -> None:
         with contextlib.suppress(Exception):
             self.close()
-
-    def _close_tlog(self) -> None:
-        if self._tlog is not None:
-            self._tlog.close()
-            self._tlog = None
-
-    def _flush_tlog(self) -> None:
-        if self._tlog is not None:
-            self._tlog.flush()
 
     # ------------------------------------------------------------ status
     @property
@@ -259,127 +239,11 @@ class LiveLink(MavlinkSource):
 
     def rates(self) -> dict[str, float]:
         """Measured arrival rate (Hz) per message name of the vehicle, over the last 5 s."""
-        return self._rates.rates(time.time())
+        return self._rx.rates.rates(time.time())
 
     def check_rates(self, min_fraction: float = 0.8) -> list[str]:
         """Warnings (also logged) for requested streams arriving below ``min_fraction``."""
         return rate_warnings(self.stream_status, self.rates(), min_fraction)
-
-    # ------------------------------------------------------------ reader thread
-    def _reader(self) -> None:
-        backoff = 0.1
-        while not self._stop.is_set():
-            tr = self._writer.transport
-            if tr is None:
-                try:
-                    tr = Transport(self.conn, self.baud)
-                except OSError as e:  # e.g. a refused TCP connection: said while waiting
-                    self._connect_error = e.strerror or str(e) or type(e).__name__
-                    self._stop.wait(backoff)
-                    backoff = min(2 * backoff, 2.0)
-                    continue
-                backoff = 0.1
-                self._connect_error = None
-                self._connected_at = time.monotonic()
-                with self._writer.lock:
-                    self._writer.transport = tr
-                self._reset_parser(count=True)
-                if self._connected_once:
-                    self.stats.reconnect += 1
-                    self._events.append(LinkEvent(0.0, "reconnect", count=self.stats.reconnect,
-                                                  detail="TCP reconnected", source=self.conn))
-                    self._need_request = True
-                self._connected_once = True
-            try:
-                data = tr.recv(0.05)
-            except Disconnected:
-                self._drop_transport(tr)
-                continue
-            except OSError:
-                self._drop_transport(tr)
-                continue
-            if not data:
-                quiet = time.monotonic() - max(self._last_rx_mono, self._connected_at)
-                if tr.kind == "tcp" and quiet > max(self.gap_timeout, TCP_SILENCE):
-                    self._drop_transport(tr)  # silent TCP peer: reconnect
-                self._flush_tlog()
-                continue
-            if tr.kind.startswith("udp"):
-                self._reset_parser(count=True)  # a datagram is a unit: no frame spans two
-            rx_us = int(time.time() * 1e6) & ~3  # as MAVProxy: low bits are the link id
-            rx = rx_us * 1.0e-6  # exactly what mavlogfile computes from the tlog
-            try:
-                msgs = self._mav.parse_buffer(data) or []
-            except Exception:  # noqa: BLE001 - garbage must never stop the reader
-                self.stats.corrupt += 1
-                self._reset_parser()
-                msgs = []
-            for m in msgs:
-                self._handle(m, rx_us, rx)
-            self._flush_tlog()
-
-    def _reset_parser(self, count: bool = False) -> None:
-        """Forget buffered bytes; with ``count``, count them (truncated frame / junk)."""
-        kind = reset_parser(self._mav)
-        if count and kind is not None:
-            setattr(self.stats, kind, getattr(self.stats, kind) + 1)
-
-    def _drop_transport(self, tr: Transport) -> None:
-        """After a read error: TCP and serial are closed and reopened with backoff; a UDP
-        socket stays (an ICMP 'port unreachable' for udpout is not a broken socket)."""
-        if tr.kind.startswith("udp"):
-            self._stop.wait(0.05)
-            return
-        with self._writer.lock:
-            tr.close()
-            self._writer.transport = None
-
-    def _handle(self, m, rx_us: int, rx: float) -> None:
-        st = self.stats
-        name = m.get_type()
-        if name == "BAD_DATA":
-            kind = bad_data_kind(m)
-            setattr(st, kind, getattr(st, kind) + 1)
-            return
-        if name.startswith("UNKNOWN"):
-            st.unknown_message += 1
-            return
-        if self._key is not None and not getattr(m, "_signed", False):
-            st.unsigned += 1  # belt and braces: the parser should have refused it
-            return
-        sysid = m.get_srcSystem()
-        if name == "HEARTBEAT" and self.sysid in (None, sysid) and self._is_vehicle(m):
-            if self.sysid is None:
-                self.sysid = sysid
-            self.vehicle_compid = m.get_srcComponent()
-            self.vehicle_type, self.autopilot = int(m.type), int(m.autopilot)
-            self._hb.set()
-        if self.sysid is None:
-            st.pre_heartbeat += 1
-            return
-        if sysid != self.sysid:
-            st.wrong_sysid += 1
-            return
-        self._last_rx_mono = time.monotonic()
-        self._rates.add(name, rx)
-        if name == "COMMAND_ACK":
-            self._replies.ack(int(m.command), int(m.result))
-        elif name == "PARAM_VALUE":
-            pid = m.param_id
-            if isinstance(pid, bytes):
-                pid = pid.decode("ascii", "replace")
-            self._replies.param(str(pid).rstrip("\x00"), float(m.param_value))
-        if self._tlog is not None:
-            self._tlog.add(rx_us, bytes(m.get_msgbuf()))
-        try:
-            self._q.put_nowait((m, rx))
-        except queue.Full:
-            st.queue_overflow += 1
-
-    @staticmethod
-    def _is_vehicle(m) -> bool:
-        return (int(m.type) not in _NOT_VEHICLE_TYPES
-                and int(m.autopilot) != mavlink.MAV_AUTOPILOT_INVALID)
 
     # ------------------------------------------------------------ setup steps
     def _wait_heartbeat(self) -> None:
@@ -388,7 +252,7 @@ class LiveLink(MavlinkSource):
         who = f"system {self.sysid}" if self.sysid is not None else "a vehicle"
         while not self._hb.wait(0.05):
             now = time.monotonic()
-            refused = self._connect_error if self._writer.transport is None else None
+            refused = self._rx.connect_error if self._writer.transport is None else None
             if now - t0 > self.heartbeat_timeout:
                 if refused:
                     raise LinkTimeout(
@@ -459,15 +323,15 @@ class LiveLink(MavlinkSource):
         gaps = GapWatch(self.gap_timeout, self.conn)
         st = self.stats
         while not (self._closed and self._q.empty()):
-            while self._events:
-                ev = self._events.popleft()
+            while self._rx.events:
+                ev = self._rx.events.popleft()
                 self.events.append(ev)
                 yield None, ev
             self._upkeep()
             try:
                 m, rx = self._q.get(timeout=0.05)
             except queue.Empty:
-                ev = gaps.idle(time.monotonic() - self._last_rx_mono)
+                ev = gaps.idle(time.monotonic() - self._rx.last_rx_mono)
                 if ev is not None:
                     yield None, self._gap_event(ev)
                 continue
@@ -482,8 +346,8 @@ class LiveLink(MavlinkSource):
     def _upkeep(self) -> None:
         """Between messages: re-request the streams when asked to (reconnect, gap end),
         check the achieved rates once 3 s after a request."""
-        if self._need_request and self._hb.is_set() and self.streams:
-            self._need_request = False
+        if self._rx.need_request and self._hb.is_set() and self.streams:
+            self._rx.need_request = False
             self.request_streams(wait=False)
         if (not self._rates_checked and self._requested_at is not None
                 and time.monotonic() - self._requested_at > 3.0):
@@ -495,7 +359,7 @@ class LiveLink(MavlinkSource):
         if ev.kind == "link_lost":
             self.stats.link_gap += 1
         elif self.streams:
-            self._need_request = True
+            self._rx.need_request = True
         self.events.append(ev)
         return ev
 
