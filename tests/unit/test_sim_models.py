@@ -137,3 +137,12 @@ def test_truth_at_interpolates_history():
     with pytest.raises(ValueError):
         sim.truth_at(10.0)
     assert a.target_pos.shape == (4, 3) and a.target_ids == [1, 2, 3, 4]
+
+
+def test_simulator_takes_the_typed_scenario():
+    from uavest.scenarios import load_scenario
+
+    with pytest.raises(TypeError, match="load_typed"):
+        Simulator(load_scenario("sim_default"))
+    sc = load_typed("sim_default", ["imu.rate_hz=200"])
+    assert Simulator(sc).imu_rate == 200.0  # the typed table's value, not a default

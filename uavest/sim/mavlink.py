@@ -99,6 +99,9 @@ class Simulator:
         rates: dict[str, float] | None = None,
         history_s: float | None = 3600.0,
     ) -> None:
+        if isinstance(scenario, dict):
+            raise TypeError("Simulator takes the typed scenario "
+                            "(uavest.scenarios.load_typed), not its TOML dict")
         self.sc = scenario
         self.seed = int(seed)
         self.imu_rate = float(imu_rate or scenario.imu.rate_hz)
