@@ -14,7 +14,7 @@ import pytest
 
 from uavest.ingest import open_live, open_source
 from uavest.ingest.types import BaroSample, GnssSample, ImuSample, LinkEvent
-from uavest.scenarios import load_scenario
+from uavest.scenarios import load_typed
 from uavest.sim import Simulator
 
 
@@ -36,7 +36,7 @@ def _same(a, b) -> bool:
 def test_unix_stamped_gps_raw_int_is_retimed_not_late_and_replays_the_same(tmp_path):
     port = _port()
     tl = tmp_path / "live.tlog"
-    sim = Simulator(load_scenario("sim_default"), seed=3, imu_rate=100.0)
+    sim = Simulator(load_typed("sim_default"), seed=3, imu_rate=100.0)
     stop = threading.Event()
     th = threading.Thread(target=sim.run, daemon=True, kwargs=dict(
         conn=f"udpout:127.0.0.1:{port}", speed=4.0, stop_event=stop, wait_gcs=True))

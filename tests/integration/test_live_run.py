@@ -22,7 +22,7 @@ import pytest
 
 from uavest.apps.live import LiveConfig, run_live, run_samples
 from uavest.ingest import open_source
-from uavest.scenarios import load_scenario
+from uavest.scenarios import load_typed
 from uavest.sim import Simulator
 from uavest.sinks.base import Collector
 
@@ -40,7 +40,7 @@ class _Sim:
     """The simulator in a thread, sending to ``port`` (faster than real time)."""
 
     def __init__(self, port: int, seed: int = 0, speed: float = SPEED) -> None:
-        self.sim = Simulator(load_scenario("sim_default"), seed=seed, imu_rate=100.0)
+        self.sim = Simulator(load_typed("sim_default"), seed=seed, imu_rate=100.0)
         self.stop = threading.Event()
         self.th = threading.Thread(target=self.sim.run, daemon=True, kwargs=dict(
             conn=f"udpout:127.0.0.1:{port}", speed=speed, stop_event=self.stop,

@@ -22,7 +22,7 @@ from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mav2  # noqa: E402
 
 from uavest.geometry.rotation import G0, euler_to_quat, quat_exp, quat_log, quat_mul  # noqa: E402
-from uavest.scenarios import load_scenario  # noqa: E402
+from uavest.scenarios import load_typed  # noqa: E402
 from uavest.sim import CLUTTER_ID, Simulator  # noqa: E402
 from uavest.sim.radar import Radar  # noqa: E402
 
@@ -43,7 +43,7 @@ class Live:
 
     def __init__(self, sc_sets=(), duration=60.0, speed=20.0, imu_rate=500.0, seed=0,
                  proto="udp", **kw):
-        self.sc = load_scenario("sim_default", list(sc_sets))
+        self.sc = load_typed("sim_default", list(sc_sets))
         self.sim = Simulator(self.sc, seed=seed, imu_rate=imu_rate, **kw)
         self.stop = threading.Event()
         if proto == "udp":
@@ -247,7 +247,7 @@ def test_tcpin_like_sitl(live):
 def test_udpin_server_answers_whoever_calls():
     """``--out udpin:...``: the sim is the UDP server; it replies to the client's address."""
     port = free_port()
-    sim = Simulator(load_scenario("sim_default"), imu_rate=200.0)
+    sim = Simulator(load_typed("sim_default"), imu_rate=200.0)
     stop = threading.Event()
     th = threading.Thread(target=sim.run, kwargs=dict(
         conn=f"udpin:127.0.0.1:{port}", duration=60.0, speed=20.0, stop_event=stop,
@@ -365,7 +365,7 @@ def read_tlog(path):
 
 
 def make_log(tmp_path, name="a", seed=0, sets=(), rates=None, duration=20.0, imu_rate=200.0):
-    sc = load_scenario("sim_default", list(sets))
+    sc = load_typed("sim_default", list(sets))
     sim = Simulator(sc, seed=seed, imu_rate=imu_rate,
                     rates=rates or {"RAW_IMU": imu_rate, "SIMSTATE": imu_rate, "ATTITUDE": 50,
                                     "GPS_RAW_INT": 5, "GLOBAL_POSITION_INT": 10})
@@ -431,7 +431,7 @@ def test_simstate_consistent_with_imu(tmp_path):
 def test_adsb_matches_targets(tmp_path):
     pm = pytest.importorskip("pymap3d")
     sim, path = make_log(tmp_path, duration=30.0, imu_rate=100.0, rates={"RAW_IMU": 1})
-    o = sim.sc["origin"]
+    o = sim.sc.origin
     recs = [(ts - sim.epoch, m) for ts, m in read_tlog(path) if m.get_type() == "ADSB_VEHICLE"]
     assert len(recs) == pytest.approx(90, abs=3)
     errs = []
@@ -439,7 +439,7 @@ def test_adsb_matches_targets(tmp_path):
         tr = sim.truth_at(t)
         j = tr.target_icao.index(m.ICAO_address)
         n, e, d = pm.geodetic2ned(m.lat * 1e-7, m.lon * 1e-7, m.altitude * 1e-3,
-                                  o["lat_deg"], o["lon_deg"], o["alt_m"])
+                                  o.lat_deg, o.lon_deg, o.alt_m)
         errs.append(np.array([n, e, d]) - tr.target_pos[j])
         v = tr.target_vel[j]
         assert m.hor_velocity * 1e-2 == pytest.approx(np.hypot(v[0], v[1]), abs=1.5)
@@ -498,7 +498,7 @@ def test_subprocess_signal_leaves_whole_tlog(tmp_path, sig):
 
 
 def test_targets_repeat_with_period():
-    sim = Simulator(load_scenario("sim_default"))
+    sim = Simulator(load_typed("sim_default"))
     P, _ = sim.targets.state_at(np.array([10.0, 130.0, 250.0]))
     assert np.allclose(P[1, 0], P[1, 1]) and np.allclose(P[1, 0], P[1, 2])  # CROSS2
     assert not np.allclose(P[0, 0], P[0, 1])  # ORBIT1 has no period
@@ -555,7 +555,7 @@ def test_truth_csv(tmp_path):
     tgt = [r for r in rows if r["kind"] == "target"]
     det = [r for r in rows if r["kind"] == "det"]
     assert len(veh) == 51 and len(tgt) == 4 * 51
-    sim = Simulator(load_scenario("sim_default"))
+    sim = Simulator(load_typed("sim_default"))
     for r in tgt[::17]:
         P, _ = sim.targets.state_at(float(r["t"]))
         assert np.allclose([float(r[k]) for k in "ned"], P[int(r["origin"])], atol=1e-3)

@@ -7,7 +7,8 @@ import pytest
 
 from uavest.geometry.geodesy import LocalFrame
 from uavest.geometry.rotation import G0, quat_exp, quat_log, quat_mul, quat_to_dcm
-from uavest.scenarios import load_scenario
+from uavest.scenarios import load_typed
+from uavest.scenarios.schema import Imu, Mag, Manoeuvre, SimRadar, SimTarget, Vehicle
 from uavest.sim import Simulator
 from uavest.sim.radar import Radar, Targets
 from uavest.sim.sensors import ImuModel
@@ -15,8 +16,8 @@ from uavest.sim.vehicle import Manoeuvres, VehicleModel, stream_rng
 
 
 def _vehicle(man, jitter=0.0, period=None):
-    return VehicleModel({"manoeuvres": man, "jitter_deg": jitter, "period_s": period},
-                        stream_rng(0, "motion"))
+    return VehicleModel(Vehicle(manoeuvres=tuple(Manoeuvre(**m) for m in man),
+                                jitter_deg=jitter, period_s=period), stream_rng(0, "motion"))
 
 
 def test_level_still_reads_minus_g():
@@ -27,8 +28,8 @@ def test_level_still_reads_minus_g():
 
 
 def test_body_rates_integrate_to_attitude():
-    sc = load_scenario("sim_default")
-    v = VehicleModel(sc["vehicle"], stream_rng(0, "motion"))
+    sc = load_typed("sim_default")
+    v = VehicleModel(sc.vehicle, stream_rng(0, "motion"))
     rate = 500.0
     t = np.arange(0, 30 * rate) / rate
     tr = v.chunk(t)
@@ -41,10 +42,10 @@ def test_body_rates_integrate_to_attitude():
 
 
 def test_translation_consistent_and_chunk_invariant():
-    sc = load_scenario("sim_default")
+    sc = load_typed("sim_default")
     t = np.arange(0, 40 * 200) / 200.0
-    one = VehicleModel(sc["vehicle"], stream_rng(0, "motion")).chunk(t)
-    v2 = VehicleModel(sc["vehicle"], stream_rng(0, "motion"))
+    one = VehicleModel(sc.vehicle, stream_rng(0, "motion")).chunk(t)
+    v2 = VehicleModel(sc.vehicle, stream_rng(0, "motion"))
     parts = [v2.chunk(t[i:i + 137]) for i in range(0, t.size, 137)]
     pos = np.concatenate([p.pos for p in parts])
     assert np.allclose(pos, one.pos, atol=1e-9)
@@ -61,10 +62,10 @@ def test_translation_consistent_and_chunk_invariant():
 
 def test_manoeuvre_validation():
     with pytest.raises(ValueError, match="channel"):
-        Manoeuvres([{"channel": "thrust", "start": 0, "duration": 1}])
+        Manoeuvres([Manoeuvre(channel="thrust", start=0, duration=1)])
     with pytest.raises(ValueError, match="period"):
-        Manoeuvres([{"channel": "roll", "start": 5, "duration": 10}], period=10)
-    m = Manoeuvres([{"channel": "yaw", "kind": "ramp", "start": 1, "duration": 2, "value": 90}],
+        Manoeuvres([Manoeuvre(channel="roll", start=5, duration=10)], period=10)
+    m = Manoeuvres([Manoeuvre(channel="yaw", kind="ramp", start=1, duration=2, value=90)],
                    period=10)
     val, _ = m.eval(np.array([0.0, 5.0, 15.0, 25.0]))
     assert np.allclose(np.rad2deg(val[:, 2]), [0, 90, 180, 270])
@@ -72,9 +73,9 @@ def test_manoeuvre_validation():
 
 def test_imu_noise_scales_with_density():
     tr = _vehicle([]).chunk(np.arange(20000) / 400.0)
-    imu = ImuModel({"gyro_bias": [0, 0, 0], "accel_bias": [0, 0, 0], "gyro_bias_walk": 0,
-                    "accel_bias_walk": 0, "vibration_accel": 0, "vibration_gyro": 0,
-                    "gyro_noise_density": 1e-3}, {}, 400.0, seed=1).chunk(tr)
+    imu = ImuModel(Imu(gyro_bias=(0, 0, 0), accel_bias=(0, 0, 0), gyro_bias_walk=0,
+                       accel_bias_walk=0, vibration_accel=(0,), vibration_gyro=(0,),
+                       gyro_noise_density=1e-3), Mag(), 400.0, seed=1).chunk(tr)
     assert imu.gyro.std(0) == pytest.approx(np.full(3, 1e-3 * np.sqrt(400)), rel=0.05)
     assert np.abs(imu.gyro.mean(0)).max() < 1e-3
     # magnetometer: held between 50 Hz updates
@@ -82,8 +83,8 @@ def test_imu_noise_scales_with_density():
 
 
 def test_targets_turns_are_continuous():
-    tg = Targets([{"position_ned": [0, 0, -100], "velocity_ned": [30, 0, -1],
-                   "turns": [[5, 15, 9.0], [20, float("inf"), -3.0]]}])
+    tg = Targets([SimTarget(position_ned=(0, 0, -100), velocity_ned=(30, 0, -1),
+                            turns=((5, 15, 9.0), (20, float("inf"), -3.0)))])
     t = np.arange(0, 40, 0.01)
     P, V = tg.state_at(t)
     P, V = P[0], V[0]
@@ -101,8 +102,8 @@ def test_radar_spherical_roundtrip_and_fov():
     assert np.allclose(Radar.to_cartesian(Radar.to_spherical(d)), d)
     rae = Radar.to_spherical(np.array([[100.0, 100.0, -100.0]]))[0]  # right and up
     assert rae[1] == pytest.approx(np.pi / 4) and rae[2] > 0
-    r = Radar({"fov_az_deg": 90, "fov_el_deg": 20, "r_min": 10, "r_max": 1000,
-               "pd": 1.0, "clutter_rate": 0}, rng)
+    r = Radar(SimRadar(fov_az_deg=90, fov_el_deg=20, r_min=10, r_max=1000, pd=1.0,
+                       clutter_rate=0), rng)
     ok = r.in_view(Radar.to_spherical(np.array(
         [[500, 0, 0], [500, 600, 0], [500, 0, -200], [5, 0, 0], [2000, 0, 0]], float)))
     assert ok.tolist() == [True, False, False, False, False]
@@ -123,7 +124,7 @@ def test_local_frame_against_pymap3d():
 
 
 def test_truth_at_interpolates_history():
-    sim = Simulator(load_scenario("sim_default"), seed=0, imu_rate=100.0)
+    sim = Simulator(load_typed("sim_default"), seed=0, imu_rate=100.0)
     sim.run(None, duration=3.0, speed=0)
     pos = np.concatenate([c.truth.pos for c in sim._chunks])
     R = np.concatenate([c.truth.R for c in sim._chunks])
@@ -136,3 +137,12 @@ def test_truth_at_interpolates_history():
     with pytest.raises(ValueError):
         sim.truth_at(10.0)
     assert a.target_pos.shape == (4, 3) and a.target_ids == [1, 2, 3, 4]
+
+
+def test_simulator_takes_the_typed_scenario():
+    from uavest.scenarios import load_scenario
+
+    with pytest.raises(TypeError, match="load_typed"):
+        Simulator(load_scenario("sim_default"))
+    sc = load_typed("sim_default", ["imu.rate_hz=200"])
+    assert Simulator(sc).imu_rate == 200.0  # the typed table's value, not a default

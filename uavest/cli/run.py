@@ -237,13 +237,13 @@ def _free_udp_port() -> int:
 
 def demo(args) -> dict:
     """Run the simulator and the live estimator side by side; returns the result doc."""
-    from ..scenarios import load_scenario
+    from ..scenarios import load_typed
     from ..sim import Simulator
 
     if not args.speed > 0:
         raise InputError(f"--speed must be > 0 for a live demo, got {args.speed}")
     port = _free_udp_port()
-    sc = load_scenario(args.scenario, [])
+    sc = load_typed(args.scenario, [])
     sim = Simulator(sc, seed=args.seed, imu_rate=args.imu_rate)
     stop = threading.Event()
     errors: list = []

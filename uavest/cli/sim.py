@@ -80,17 +80,16 @@ def _fill(p: argparse.ArgumentParser) -> None:
 def cmd_sim(args) -> int:
     """Run the simulator from parsed arguments; returns the exit status."""
     from ..errors import InputError
-    from ..scenarios import ScenarioError, load_scenario, typed
+    from ..scenarios import ScenarioError, load_typed
     from ..sim import Simulator
 
     try:
-        sc = load_scenario(args.scenario, args.sets)  # the simulator reads the dict
-        scn = typed(sc)
+        scn = load_typed(args.scenario, args.sets)
         if scn.kind != "sim":
             raise ScenarioError(f"scenario {scn.name!r} is kind {scn.kind!r}, "
                                 "expected 'sim'")
         rates = _parse_rates(args.rate)
-        sim = Simulator(sc, seed=args.seed, imu_rate=args.imu_rate, sysid=args.sysid,
+        sim = Simulator(scn, seed=args.seed, imu_rate=args.imu_rate, sysid=args.sysid,
                         rates=rates)
     # bad values are InputErrors; a KeyError is a required key missing from a scenario
     # table (e.g. a target without position_ned)

@@ -28,6 +28,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mav2
@@ -74,7 +75,9 @@ class Simulator:
     link, stepped at the IMU rate by :meth:`run`.
 
     Args:
-      scenario: a ``kind = "sim"`` scenario dict (:func:`uavest.scenarios.load_scenario`).
+      scenario: a typed ``kind = "sim"`` scenario (``SimScenario`` of
+        :mod:`uavest.scenarios.schema`, from :func:`uavest.scenarios.load_typed`); its
+        fields declare the units and ranges.
       seed: master seed; every random stream is ``default_rng([seed, crc32(name)])``.
       imu_rate: IMU sample rate = simulation step rate (Hz); default the scenario's
         ``imu.rate_hz`` (400).
@@ -89,31 +92,34 @@ class Simulator:
 
     def __init__(
         self,
-        scenario: dict,
+        scenario: Any,
         seed: int = 0,
         imu_rate: float | None = None,
         sysid: int = 1,
         rates: dict[str, float] | None = None,
         history_s: float | None = 3600.0,
     ) -> None:
+        if isinstance(scenario, dict):
+            raise TypeError("Simulator takes the typed scenario "
+                            "(uavest.scenarios.load_typed), not its TOML dict")
         self.sc = scenario
         self.seed = int(seed)
-        imu_cfg = scenario.get("imu", {})
-        self.imu_rate = float(imu_rate or imu_cfg.get("rate_hz", 400.0))
+        self.imu_rate = float(imu_rate or scenario.imu.rate_hz)
         if not 1.0 <= self.imu_rate <= 2000.0:
             raise InputError("imu rate must be within 1-2000 Hz")
         self.sysid = int(sysid)
         self.history_s = history_s
-        o = scenario.get("origin", {})
-        self.frame = LocalFrame(o.get("lat_deg", 0.0), o.get("lon_deg", 0.0), o.get("alt_m", 0.0))
-        self.epoch = float(scenario.get("time", {}).get("epoch", DEFAULT_EPOCH))
+        o = scenario.origin
+        self.frame = LocalFrame(o.lat_deg, o.lon_deg, o.alt_m)
+        epoch = scenario.time.epoch
+        self.epoch = float(DEFAULT_EPOCH if epoch is None else epoch)
         # the parts
-        self.vehicle = VehicleModel(scenario.get("vehicle", {}), stream_rng(seed, "motion"))
-        self.imu = ImuModel(imu_cfg, scenario.get("mag", {}), self.imu_rate, seed)
-        self.targets = Targets(scenario.get("targets", []))
-        self.radar = Radar(scenario.get("radar", {}), stream_rng(seed, "radar"))
+        self.vehicle = VehicleModel(scenario.vehicle, stream_rng(seed, "motion"))
+        self.imu = ImuModel(scenario.imu, scenario.mag, self.imu_rate, seed)
+        self.targets = Targets(scenario.targets)
+        self.radar = Radar(scenario.radar, stream_rng(seed, "radar"))
         self.nav = NavSensors(scenario, self.imu_rate, seed, self.frame)
-        self.adsb = AdsbReports(scenario.get("adsb", {}), len(self.targets), seed)
+        self.adsb = AdsbReports(scenario.adsb, len(self.targets), seed)
         self.history = TruthHistory(self.vehicle, self.targets, self.frame, history_s)
         self._enc = FrameEncoder(self.sysid, 1)
         self.k = 0  # next IMU step
@@ -123,7 +129,7 @@ class Simulator:
             radar_active=len(self.targets) + self.radar.clutter_rate > 0,
             radar_rate=self.radar.rate, adsb_enabled=self.adsb.enabled,
             adsb_interval_us=self.adsb.interval_us)
-        merged = dict(scenario.get("mavlink", {}).get("rates", {}))
+        merged = dict(scenario.mavlink.rates or {})
         merged.update(rates or {})
         for name, hz in merged.items():
             self.set_rate(name, float(hz))

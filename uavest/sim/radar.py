@@ -20,7 +20,9 @@ as :func:`uavest.tracking.scenario.clutter_box`).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -67,24 +69,32 @@ def _ct(p: Array, v: Array, w: float, tau: Array) -> tuple[Array, Array]:
     return pos, vel
 
 
-class Targets:
-    """The scenario's ``[[targets]]`` (see the scenario TOML for keys and units)."""
+def _position(p: Sequence[float], i: int) -> Array:
+    """A target's initial NED position (m); a missing one is a one-line input error."""
+    if len(p) != 3:
+        raise InputError(f"targets[{i}].position_ned: needs [north, east, down] (m)")
+    return np.asarray(p, float)
 
-    def __init__(self, tables: list[dict]) -> None:
+
+class Targets:
+    """The scenario's ``[[targets]]`` (typed ``SimTarget`` tables of
+    :mod:`uavest.scenarios.schema`, which declare the keys' units)."""
+
+    def __init__(self, tables: Sequence[Any]) -> None:
         self.targets: list[Target] = []
         for i, d in enumerate(tables):
-            em = d.get("emitter", "light")
+            em = d.emitter
             self.targets.append(Target(
-                name=str(d.get("name", f"TGT{i + 1}"))[:8],
-                ident=int(d.get("id", i + 1)),
-                icao=int(d.get("icao", 0xA00000 + i + 1)) & 0xFFFFFF,
+                name=str(d.name if d.name is not None else f"TGT{i + 1}")[:8],
+                ident=int(d.id if d.id is not None else i + 1),
+                icao=int(d.icao if d.icao is not None else 0xA00000 + i + 1) & 0xFFFFFF,
                 emitter=EMITTERS[em] if isinstance(em, str) else int(em),
-                adsb=bool(d.get("adsb", True)),
-                p0=np.asarray(d["position_ned"], float),
-                v0=np.asarray(d.get("velocity_ned", [0.0, 0.0, 0.0]), float),
+                adsb=bool(d.adsb),
+                p0=_position(d.position_ned, i),
+                v0=np.asarray(d.velocity_ned, float),
                 turns=sorted([float(a), float(b), np.deg2rad(float(w))]
-                             for a, b, w in d.get("turns", [])),
-                period=float(d["period_s"]) if d.get("period_s") else None,
+                             for a, b, w in d.turns),
+                period=float(d.period_s) if d.period_s else None,
             ))
             if self.targets[-1].ident == CLUTTER_ID:
                 raise InputError(f"target id {CLUTTER_ID} is reserved for clutter")
@@ -159,21 +169,21 @@ class Radar:
       rng: the ``radar`` stream.
     """
 
-    def __init__(self, cfg: dict, rng: np.random.Generator) -> None:
-        self.enabled = bool(cfg.get("enabled", True))
-        self.rate = float(cfg.get("rate_hz", 2.0))
-        self.r_min = float(cfg.get("r_min", 50.0))
-        self.r_max = float(cfg.get("r_max", 5000.0))
-        self.half_az = np.deg2rad(float(cfg.get("fov_az_deg", 360.0))) / 2
-        self.half_el = np.deg2rad(float(cfg.get("fov_el_deg", 90.0))) / 2
-        self.pd = float(cfg.get("pd", 0.9))
-        self.clutter_rate = float(cfg.get("clutter_rate", 2.0))
+    def __init__(self, cfg: Any, rng: np.random.Generator) -> None:
+        self.enabled = bool(cfg.enabled)
+        self.rate = float(cfg.rate_hz)
+        self.r_min = float(cfg.r_min)
+        self.r_max = float(cfg.r_max)
+        self.half_az = np.deg2rad(float(cfg.fov_az_deg)) / 2
+        self.half_el = np.deg2rad(float(cfg.fov_el_deg)) / 2
+        self.pd = float(cfg.pd)
+        self.clutter_rate = float(cfg.clutter_rate)
         self.sigma = np.array([
-            float(cfg.get("sigma_range", 5.0)),
-            np.deg2rad(float(cfg.get("sigma_az_deg", 1.0))),
-            np.deg2rad(float(cfg.get("sigma_el_deg", 1.0))),
+            float(cfg.sigma_range),
+            np.deg2rad(float(cfg.sigma_az_deg)),
+            np.deg2rad(float(cfg.sigma_el_deg)),
         ])
-        self.report_ids = bool(cfg.get("report_ids", True))
+        self.report_ids = bool(cfg.report_ids)
         self.rng = rng
 
     @staticmethod

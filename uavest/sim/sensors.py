@@ -21,6 +21,7 @@ Every process draws from its own named stream (:func:`.vehicle.stream_rng`).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.signal import lfilter
@@ -70,34 +71,34 @@ class ImuModel:
         ``mag``).
     """
 
-    def __init__(self, cfg: dict, mag_cfg: dict, rate: float, seed: int) -> None:
+    def __init__(self, cfg: Any, mag_cfg: Any, rate: float, seed: int) -> None:
         self.rate = float(rate)
         self.dt = 1.0 / self.rate
         r_bias = stream_rng(seed, "imu.bias")
         self.rg, self.ra = stream_rng(seed, "imu.gyro"), stream_rng(seed, "imu.accel")
         self.rbw = stream_rng(seed, "imu.bias_walk")
         self.rmag = stream_rng(seed, "mag")
-        self.gyro_nd = float(cfg.get("gyro_noise_density", 1.5e-4))
-        self.accel_nd = float(cfg.get("accel_noise_density", 2.0e-3))
-        self.gyro_rw = float(cfg.get("gyro_bias_walk", 2.0e-5))
-        self.accel_rw = float(cfg.get("accel_bias_walk", 1.0e-4))
-        bg, ba = cfg.get("gyro_bias"), cfg.get("accel_bias")
+        self.gyro_nd = float(cfg.gyro_noise_density)
+        self.accel_nd = float(cfg.accel_noise_density)
+        self.gyro_rw = float(cfg.gyro_bias_walk)
+        self.accel_rw = float(cfg.accel_bias_walk)
+        bg, ba = cfg.gyro_bias, cfg.accel_bias
         self.bg = (_vec3(bg, 0.0) if bg is not None else
-                   r_bias.normal(0, float(cfg.get("gyro_bias_std", 0.01)), 3))
+                   r_bias.normal(0, float(cfg.gyro_bias_std), 3))
         self.ba = (_vec3(ba, 0.0) if ba is not None else
-                   r_bias.normal(0, float(cfg.get("accel_bias_std", 0.05)), 3))
+                   r_bias.normal(0, float(cfg.accel_bias_std), 3))
         rv = stream_rng(seed, "imu.vib")
-        self.vib_f = float(cfg.get("vibration_hz", 137.0))
-        self.vib_a = _vec3(cfg.get("vibration_accel"), [0.6, 0.6, 1.5])
-        self.vib_g = _vec3(cfg.get("vibration_gyro"), [0.01, 0.01, 0.005])
+        self.vib_f = float(cfg.vibration_hz)
+        self.vib_a = _vec3(cfg.vibration_accel, [0.6, 0.6, 1.5])
+        self.vib_g = _vec3(cfg.vibration_gyro, [0.01, 0.01, 0.005])
         self.vib_ph = rv.uniform(0, 2 * np.pi, (4, 3))
-        decl = np.deg2rad(float(mag_cfg.get("declination_deg", 0.0)))
-        incl = np.deg2rad(float(mag_cfg.get("inclination_deg", 60.0)))
+        decl = np.deg2rad(float(mag_cfg.declination_deg))
+        incl = np.deg2rad(float(mag_cfg.inclination_deg))
         self.declination = decl
-        self.b_ned = earth_field_ned(decl, incl, float(mag_cfg.get("intensity_gauss", 0.5)))
-        self.mag_off = _vec3(mag_cfg.get("offsets_gauss"), 0.0)
-        self.mag_noise = float(mag_cfg.get("noise_gauss", 0.003))
-        self.mag_rate = float(mag_cfg.get("rate_hz", 50.0))
+        self.b_ned = earth_field_ned(decl, incl, float(mag_cfg.intensity_gauss))
+        self.mag_off = _vec3(mag_cfg.offsets_gauss, 0.0)
+        self.mag_noise = float(mag_cfg.noise_gauss)
+        self.mag_rate = float(mag_cfg.rate_hz)
         self._mag_last = None
         self._mag_k = -1
 
@@ -159,26 +160,25 @@ class NavSensors:
     m, ``vel`` NED m/s) from the truth.
     """
 
-    def __init__(self, scenario: dict, imu_rate: float, seed: int, frame: LocalFrame) -> None:
+    def __init__(self, scenario: Any, imu_rate: float, seed: int, frame: LocalFrame) -> None:
         self.frame = frame
-        g = scenario.get("gps", {})
-        self.gps_rate = float(g.get("rate_hz", 5.0))
+        g = scenario.gps
+        self.gps_rate = float(g.rate_hz)
         dt_gps = 1.0 / self.gps_rate
-        self.gps_err = GaussMarkov([g.get("sigma_h", 0.8)] * 2 + [g.get("sigma_v", 1.5)],
-                                   float(g.get("tau_s", 60.0)), dt_gps, stream_rng(seed, "gps"))
-        self.gps_vel_sigma = float(g.get("sigma_vel", 0.1))
+        self.gps_err = GaussMarkov([g.sigma_h] * 2 + [g.sigma_v],
+                                   float(g.tau_s), dt_gps, stream_rng(seed, "gps"))
+        self.gps_vel_sigma = float(g.sigma_vel)
         self.gps_rng = stream_rng(seed, "gps.vel")
-        ah = scenario.get("ahrs", {})
+        ah = scenario.ahrs
         dt = 1.0 / imu_rate
         self.att_err = GaussMarkov(
-            np.deg2rad([ah.get("roll_err_deg", 1.0), ah.get("pitch_err_deg", 1.0),
-                        ah.get("yaw_err_deg", 2.0)]),
-            float(ah.get("tau_s", 30.0)), dt, stream_rng(seed, "ahrs"))
-        self.nav_err = GaussMarkov([ah.get("pos_err_m", 0.3)] * 3, float(ah.get("tau_s", 30.0)),
+            np.deg2rad([ah.roll_err_deg, ah.pitch_err_deg, ah.yaw_err_deg]),
+            float(ah.tau_s), dt, stream_rng(seed, "ahrs"))
+        self.nav_err = GaussMarkov([ah.pos_err_m] * 3, float(ah.tau_s),
                                    dt, stream_rng(seed, "nav"))
-        self.vel_err = GaussMarkov([ah.get("vel_err", 0.05)] * 3, 2.0, dt,
+        self.vel_err = GaussMarkov([ah.vel_err] * 3, 2.0, dt,
                                    stream_rng(seed, "nav.vel"))
-        self.baro_err = GaussMarkov([scenario.get("baro", {}).get("sigma_m", 0.5)], 20.0, dt,
+        self.baro_err = GaussMarkov([scenario.baro.sigma_m], 20.0, dt,
                                     stream_rng(seed, "baro"))
         self.fix: dict | None = None
 
@@ -203,11 +203,11 @@ class AdsbReports:
     true NED position (``sigma_h``, ``sigma_v`` m) and velocity (``sigma_vel`` m/s), one
     report per target every ``1 / rate_hz`` s."""
 
-    def __init__(self, cfg: dict, n_targets: int, seed: int) -> None:
-        self.enabled = bool(cfg.get("enabled", True)) and n_targets > 0
-        self.interval_us = int(1e6 / float(cfg.get("rate_hz", 1.0)))
-        self.sigma = (float(cfg.get("sigma_h", 3.0)), float(cfg.get("sigma_v", 5.0)),
-                      float(cfg.get("sigma_vel", 0.3)))
+    def __init__(self, cfg: Any, n_targets: int, seed: int) -> None:
+        self.enabled = bool(cfg.enabled) and n_targets > 0
+        self.interval_us = int(1e6 / float(cfg.rate_hz))
+        self.sigma = (float(cfg.sigma_h), float(cfg.sigma_v),
+                      float(cfg.sigma_vel))
         self.rng = stream_rng(seed, "adsb")
 
     def report(self, pos: Array, vel: Array) -> tuple[Array, Array]:

@@ -27,7 +27,9 @@ Sensors: :mod:`.sensors`.
 from __future__ import annotations
 
 import zlib
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.signal import lfilter
@@ -109,7 +111,7 @@ class Manoeuvres:
 
     def __init__(
         self,
-        segments: list[dict],
+        segments: Sequence[Any],
         period: float | None = None,
         yaw0: float = 0.0,
         jitter: float = 0.0,
@@ -119,14 +121,14 @@ class Manoeuvres:
         self.yaw0 = float(yaw0)
         self.segments: list[Segment] = []
         for d in segments:
-            ch = d.get("channel")
+            ch = d.channel
             if ch not in CHANNELS:
                 raise InputError(f"manoeuvre channel {ch!r}: expected one of {CHANNELS}")
             k = 1.0 if ch == "climb" else np.pi / 180.0
             seg = Segment(
-                ch, d.get("kind", "hold"), float(d["start"]), float(d["duration"]),
-                float(d.get("value", d.get("amplitude", 0.0))) * k,
-                float(d.get("freq_hz", 0.0)), float(d.get("ramp", 0.0)),
+                ch, d.kind, float(d.start), float(d.duration),
+                float(d.amplitude if d.amplitude is not None and not d.value else d.value) * k,
+                float(d.freq_hz), float(d.ramp),
             )
             if seg.duration <= 0:
                 raise InputError("manoeuvre duration must be > 0")
@@ -204,17 +206,17 @@ class VehicleModel:
       rng: the ``motion`` stream (jitter phases).
     """
 
-    def __init__(self, cfg: dict, rng: np.random.Generator) -> None:
+    def __init__(self, cfg: Any, rng: np.random.Generator) -> None:
         self.man = Manoeuvres(
-            cfg.get("manoeuvres", []),
-            cfg.get("period_s"),
-            np.deg2rad(float(cfg.get("yaw_deg", 0.0))),
-            np.deg2rad(float(cfg.get("jitter_deg", 0.0))),
+            cfg.manoeuvres,
+            cfg.period_s,
+            np.deg2rad(float(cfg.yaw_deg)),
+            np.deg2rad(float(cfg.jitter_deg)),
             rng,
         )
-        self.k_drag = float(cfg.get("drag_per_s", 0.3))
-        self.pos = np.asarray(cfg.get("position_ned", [0.0, 0.0, 0.0]), float).copy()
-        self._vh = np.asarray(cfg.get("velocity_ne", [0.0, 0.0]), float).copy()
+        self.k_drag = float(cfg.drag_per_s)
+        self.pos = np.asarray(cfg.position_ned, float).copy()
+        self._vh = np.asarray(cfg.velocity_ne, float).copy()
         self._uh: Array | None = None  # horizontal thrust accel at the previous step
         self._vz: float | None = None
 
