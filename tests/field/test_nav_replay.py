@@ -20,6 +20,7 @@ def _replay(*argv: str) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, timeout=120)
 
 
+@pytest.mark.slow
 def test_vtol_runs_the_navigation_model_and_says_why(tmp_path):
     out = tmp_path / "nav.json"
     r = _replay(str(shared_log("vtol.tlog")), "--filters", "ekf", "--end", "700",
@@ -43,6 +44,7 @@ def test_vtol_runs_the_navigation_model_and_says_why(tmp_path):
     assert row["hpos_rmse_m"] < 5.0 and row["vel_rmse_ms"] < 1.5  # not diverged
 
 
+@pytest.mark.slow
 def test_model_attitude_overrides_and_matches_the_attitude_table(tmp_path):
     out = tmp_path / "att.json"
     r = _replay(str(shared_log("vtol.tlog")), "--filters", "ekf", "--end", "700",
@@ -64,6 +66,7 @@ def test_bad_model_value_exits_2():
     assert "--model" in r.stderr
 
 
+@pytest.mark.slow
 def test_a_log_without_gnss_runs_attitude_only_and_nav_is_refused():
     log = str(shared_log("sample.ulg"))
     r = _replay(log, "--filters", "ekf")
@@ -75,6 +78,7 @@ def test_a_log_without_gnss_runs_attitude_only_and_nav_is_refused():
     assert "navigation model could not start" in r.stderr and r.stderr.count("\n") == 1
 
 
+@pytest.mark.slow
 def test_a_few_fixes_are_not_a_fix_stream():
     r = _replay(str(shared_log("test.BIN")), "--filters", "ekf")
     assert r.returncode == 0, r.stderr
