@@ -12,6 +12,7 @@ import json
 import struct
 
 import numpy as np
+import pytest
 from conftest import shared_log
 
 from tests.field.test_imu_gap import _errors
@@ -41,6 +42,7 @@ def drop_after(src, dst, msgid: int, at: float) -> int:
     return n
 
 
+@pytest.mark.slow
 def test_the_imu_choice_is_re_decided_when_the_chosen_imu_stops(tmp_path, capsys):
     f = tmp_path / "raw_imu_stops.tlog"
     assert drop_after(shared_log("vtol.tlog"), f, RAW_IMU, 100.0) > 300

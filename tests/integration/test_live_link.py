@@ -91,6 +91,7 @@ def sent_rate(fv: FakeVehicle, name: str, window: float = 5.0) -> float:
     return len(recent) / span if span > 0 else 0.0
 
 
+@pytest.mark.slow
 def test_streams_requested_acked_and_rates_measured():
     port = free_port()
     with FakeVehicle(port, params={"COMPASS_DEC": 0.21, "COMPASS_AUTODEC": 0}) as fv:
@@ -159,6 +160,7 @@ def _send(port: int, data: bytes, sock=None) -> None:
     s.sendto(data, ("127.0.0.1", port))
 
 
+@pytest.mark.slow
 def test_obstacle_distance_3d_and_adsb_over_the_link():
     port = free_port()
     with FakeVehicle(port, auto_streams={"ATTITUDE": 20.0}) as fv:
@@ -365,6 +367,7 @@ def test_tcp_reconnect_after_server_restart_and_reboot():
     assert st.time_reset == 1
 
 
+@pytest.mark.slow
 def test_tlog_replays_to_the_same_samples(tmp_path):
     port = free_port()
     tl = tmp_path / "live.tlog"
