@@ -120,3 +120,21 @@ def test_filters_converge_and_are_consistent_on_a_synthetic_flight(spec):
     assert np.degrees(np.sqrt(np.mean(errs[:, :2] ** 2))) < 1.0  # tilt, deg
     # 9-dof NEES within its 99 % band most of the time
     assert np.mean(np.array(nees) < 21.67) > 0.8
+
+
+def test_noise_profile_follows_the_imu_rate() -> None:
+    """A telemetry-rate MAVLink IMU gets the fitted MAVLink profile, a 200 Hz one (or a
+    DataFlash IMU) the plain defaults; an unknown rate keeps the profile."""
+    from uavest.models.navigation import (
+        FAST_STREAM_HZ,
+        MAVLINK_PROFILE,
+        NavNoise,
+        nav_noise_for_source,
+    )
+
+    assert nav_noise_for_source("RAW_IMU", 3.8) == MAVLINK_PROFILE
+    assert nav_noise_for_source("RAW_IMU") == MAVLINK_PROFILE
+    assert nav_noise_for_source("RAW_IMU", 200.0) == NavNoise()
+    assert nav_noise_for_source("SCALED_IMU2", FAST_STREAM_HZ) == NavNoise()
+    assert nav_noise_for_source("IMU[0]", 3.8) == NavNoise()
+    assert MAVLINK_PROFILE.gyro_noise > NavNoise().gyro_noise

@@ -625,7 +625,7 @@ class NavStream:
             integ, why = default_integration(imu, rate)
         cap = DEFAULT_MAX_RATE_HZ if o.rate_hz is None else float(o.rate_hz)
         factor = 1 if cap <= 0 else max(1, round(rate / cap))
-        self.noise = nav_noise_for_source(imu).with_(**o.noise)
+        self.noise = nav_noise_for_source(imu, rate).with_(**o.noise)
         self.delay = float(self.noise.gnss_delay if o.gnss_delay is None else o.gnss_delay)
         self._imu, self._mag = imu, mag
         self.summary.update(
