@@ -57,10 +57,10 @@ def main() -> None:
     import uavest.core._compiled_local as nb
     from uavest.compiled import bitgen_pointers
     from uavest.core import hybrid, make_filter
-    from uavest.core.base import Ensemble
     from uavest.core.gaussian import Gaussian
+    from uavest.core.interfaces import Measurement
     from uavest.core.linalg import chol
-    from uavest.core.model import Measurement
+    from uavest.core.states import Ensemble
     from uavest.experiments.radar import data_rng
     from uavest.models import radar as radar_mod
     from uavest.presets import build

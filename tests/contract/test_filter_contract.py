@@ -28,7 +28,7 @@ from uavest.core import (
     fd_jacobian,
     make_filter,
 )
-from uavest.core.model import Measurement, Transition, fd_jacobians
+from uavest.core.interfaces import Measurement, Transition, fd_jacobians
 from uavest.core.registry import REGISTRY
 from uavest.geometry.navigation import NavSpace
 from uavest.geometry.rotation import AttitudeSpace, euler_to_quat, quat_exp, quat_mul
@@ -568,7 +568,7 @@ def test_nis_gate_is_the_chi_square_quantile():
 def old_record_cross(f, s0, s1, gf, model, t, dt, u):
     """Frozen copy of the smoothing terms of ``pipeline/replay.py::_Run._record_cross``
     before the contract (isinstance chains), for the regression test below."""
-    from uavest.core import EKF, ETKF, KF, EnKF, Hybrid, HybridLocal
+    from uavest.core import EKF, ETKF, KF, EnKF, HybridLocal, HybridShift
     from uavest.core.contract import ensemble_cross
 
     def unwrap(f, s):
@@ -577,7 +577,7 @@ def old_record_cross(f, s0, s1, gf, model, t, dt, u):
         return f, s
 
     def keeps(f, E):  # only the hybrid knew; EnKF/ETKF always; anything else never
-        if isinstance(f, (Hybrid, HybridLocal)):
+        if isinstance(f, (HybridShift, HybridLocal)):
             return bool(f.keeps_members(E))
         return isinstance(f, (EnKF, ETKF))
 

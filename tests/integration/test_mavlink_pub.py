@@ -13,7 +13,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from uavest.geometry.rotation import euler_to_quat
 from uavest.ingest import open_live
-from uavest.sinks.mavlink_pub import Publisher, icao_address
+from uavest.sinks.mavlink_pub import MavlinkPublisher, icao_address
 
 
 def listen(sock: socket.socket, seconds: float) -> list:
@@ -36,7 +36,7 @@ def test_publisher_sends_own_identity_and_simulated_tracks():
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.bind(("127.0.0.1", port))
     q = euler_to_quat(0.1, -0.2, 0.3)
-    with Publisher(f"udpout:127.0.0.1:{port}", rate_hz=5.0) as pub:
+    with MavlinkPublisher(f"udpout:127.0.0.1:{port}", rate_hz=5.0) as pub:
         assert pub.attitude("ukf", 12.5, q, rates=[0.01, 0.02, 0.03])
         assert not pub.attitude("ukf", 12.6, q)  # rate-limited
         pub.attitude("ekf", 12.5, q)
@@ -74,12 +74,12 @@ def test_publisher_sends_own_identity_and_simulated_tracks():
 def test_publisher_refuses_the_vehicle_link():
     port = free_port()
     with pytest.raises(ValueError, match="vehicle's link"):
-        Publisher(f"udpout:localhost:{port}", vehicle_conn=f"udpin:0.0.0.0:{port}")
+        MavlinkPublisher(f"udpout:localhost:{port}", vehicle_conn=f"udpin:0.0.0.0:{port}")
     with FakeVehicle(port), open_live(f"udpin:127.0.0.1:{port}", streams={},
                                       read_declination=False):
         with pytest.raises(ValueError, match="vehicle's link"):
-            Publisher(f"udpout:127.0.0.1:{port}")
-        Publisher(f"udpout:127.0.0.1:{port}", allow_vehicle_link=True).close()
+            MavlinkPublisher(f"udpout:127.0.0.1:{port}")
+        MavlinkPublisher(f"udpout:127.0.0.1:{port}", allow_vehicle_link=True).close()
     other = free_port()
-    Publisher(f"udpout:127.0.0.1:{other}").close()
+    MavlinkPublisher(f"udpout:127.0.0.1:{other}").close()
     assert np.isfinite(other)

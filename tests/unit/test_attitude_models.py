@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from uavest.apps.replay import replay_arrays
-from uavest.core.model import fd_jacobian
+from uavest.core.interfaces import fd_jacobian
 from uavest.eval.attitude import euler_errors_deg, rmse_deg
 from uavest.geometry.rotation import (
     AttitudeSpace,

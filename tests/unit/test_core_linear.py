@@ -12,9 +12,9 @@ from uavest.core import (
     UKF,
     EnKF,
     Gaussian,
-    Hybrid,
     HybridLiteral,
     HybridLocal,
+    HybridShift,
     LinearMeasurement,
     LinearTransition,
 )
@@ -94,7 +94,7 @@ def test_sigma_point_filters_equal_kf_on_linear_model(cv_case, flt, tol_x, tol_P
         # small fraction of the KF's own posterior std
         (EnKF(members=2000), 0.15),
         pytest.param(ETKF(members=500), 0.15, marks=pytest.mark.slow),  # 2 s of CPU
-        (Hybrid(n_cloud=400), 0.15),
+        (HybridShift(n_cloud=400), 0.15),
         (HybridLocal(n_cloud=400), 0.15),
         # the literal cloud has covariance (2 g^2/(2n+1) + s^2 N/(N+1)) P (spec, point 3):
         # with n=2, s=0.5, N=400 it equals P only for g^2 = (1 - 0.25*400/401) * 5/2

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from uavest.core import Gaussian, Guarded, Hybrid, make_filter
+from uavest.core import Gaussian, Guarded, HybridShift, make_filter
 from uavest.core.hybrid import confidence_weights, tempered_weights
-from uavest.core.model import Measurement, Transition, fd_jacobian
+from uavest.core.interfaces import Measurement, Transition, fd_jacobian
 from uavest.geometry.spaces import VectorSpace
 from uavest.models.benchmarks import (
     Nonlinear2DMeasurement,
@@ -42,7 +42,7 @@ def test_tempered_weights_keep_ess_floor_and_sum_to_one():
 
 def test_default_hybrid_weights_stay_positive_normalised_over_ungm_run():
     tr, me = UNGMTransition(), UNGMMeasurement()
-    f = Hybrid()
+    f = HybridShift()
     rng = np.random.default_rng(2)
     s = f.init(Gaussian.of(0.0, 1.0), tr.space, rng)
     x = 0.1

@@ -11,8 +11,8 @@ from conftest import compiled_kernels
 
 from uavest.core import make_filter
 from uavest.core.gaussian import Gaussian
+from uavest.core.interfaces import Measurement
 from uavest.core.linalg import NotPositiveDefinite
-from uavest.core.model import Measurement
 from uavest.core.unscented import UKF
 from uavest.experiments.systems import build_system, simulate
 from uavest.models.benchmarks import UNGMMeasurement, UNGMTransition
@@ -156,7 +156,7 @@ def _close(a, b, tol=1e-12):
     ("ungm", "hybrid(tau=0.05, min_ess=0.5)"), ("nonlinear2d", "hybrid(n_cloud=8)")])
 def test_hybrid_compiled_steps_equal_the_numpy_path(name, spec):
     """From the same ensemble and the same seeded generator, the compiled predict and
-    update equal the numpy path (``_HybridBase.predict``, ``Hybrid._update_numpy``) to
+    update equal the numpy path (``_HybridBase.predict``, ``HybridShift._update_numpy``) to
     1e-12: members, weights, the estimate, the innovation; and they leave the generator
     in the same state (the same draws in the same order)."""
     hybrid, nb = _shift_kernels()
@@ -224,7 +224,7 @@ def test_tempered_kernel_equals_tempered_weights():
     likelihood spreads 1e-2 to 1e4): the same phi, weights to 1e-12."""
     hybrid, nb = _shift_kernels()
     from uavest.core import _compiled_shift as cs
-    from uavest.core.base import equal_weights
+    from uavest.core.states import equal_weights
 
     rng = np.random.default_rng(0)
     grid = 0
@@ -259,8 +259,8 @@ def test_hybrid_compiled_failures_take_the_numpy_path():
 
 def _hybrid_failures(f, tr, me, E, z, t):
     from uavest.core import Guarded
-    from uavest.core.base import Ensemble
     from uavest.core.linalg import NumericalError
+    from uavest.core.states import Ensemble
 
     for bad in (np.array([np.nan]), np.array([np.inf])):
         ra, rb = np.random.default_rng(1), np.random.default_rng(1)

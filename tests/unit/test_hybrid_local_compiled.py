@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from uavest.core import hybrid
-from uavest.core.base import Ensemble, ensemble_estimate, equal_weights
 from uavest.core.gaussian import Gaussian
 from uavest.core.hybrid import HybridLocal
+from uavest.core.interfaces import LinearMeasurement
 from uavest.core.linalg import NumericalError
-from uavest.core.model import LinearMeasurement
+from uavest.core.states import Ensemble, ensemble_estimate, equal_weights
 
 nb = pytest.importorskip("uavest.core._compiled_local", exc_type=ImportError)
 

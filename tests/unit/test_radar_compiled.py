@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from conftest import compiled_kernels
 
-from uavest.core.model import Measurement
+from uavest.core.interfaces import Measurement
 from uavest.models import radar as radar_mod
 from uavest.models.radar import _EPS, RadarMeasurement, SensorPose, rot_z
 

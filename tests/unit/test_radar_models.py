@@ -206,7 +206,7 @@ def test_batched_fd_jacobians_match_analytic_radar_jacobian_across_pi():
     """Measurement.H_rows (batched central differences, residual-wrapped) equals the
     analytic radar Jacobian row by row, including targets just either side of the
     azimuth branch cut at +-pi (a plain difference there would be ~2 pi / eps)."""
-    from uavest.core.model import Measurement
+    from uavest.core.interfaces import Measurement
 
     m = RadarMeasurement(ndim=3, sigma_rr=1.0)
     rng = np.random.default_rng(4)

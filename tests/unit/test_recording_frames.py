@@ -127,11 +127,11 @@ def test_publisher_survives_a_diverged_filter(tmp_path):
 
     from uavest.engine.records import StepRecord
     from uavest.report import read_recording
-    from uavest.sinks.foxglove import Publisher
+    from uavest.sinks.foxglove import FoxglovePublisher
 
     ctx = foxglove.Context()
     w = foxglove.open_mcap(str(tmp_path / "nan.mcap"), context=ctx)
-    pub = Publisher(ctx)
+    pub = FoxglovePublisher(ctx)
     q90 = euler_to_quat(0.0, np.pi / 2, 0.0)
     pub.record(StepRecord("ekf", 1, 1.0, np.r_[q90, 0, 0, 0], np.eye(6) * 1e-4))
     pub.record(StepRecord("ekf", 2, 2.0, np.r_[1.0, 0, 0, 0, 0, 0, 0], np.full((6, 6), np.nan)))

@@ -16,8 +16,8 @@ from uavest.core import (
     EnKF,
     FilterSpec,
     Gaussian,
-    Hybrid,
     HybridLocal,
+    HybridShift,
     SageHusa,
     SpecError,
     build,
@@ -92,7 +92,7 @@ def test_parsed_spec_holds_every_parameter_and_the_label_as_written():
     with pytest.raises(TypeError):
         s.params["tau"] = 0.1  # frozen
     f = build(s)
-    assert isinstance(f, Hybrid) and (f.n_cloud, f.tau) == (20, 0.5)
+    assert isinstance(f, HybridShift) and (f.n_cloud, f.tau) == (20, 0.5)
     # an integer-valued float is accepted as an integer, and 1 as a float
     assert parse_spec("hybrid(n_cloud=20.0)").params["n_cloud"] == 20
     assert parse_spec("ukf(alpha=1)").params["alpha"] == 1.0
@@ -118,7 +118,7 @@ def test_every_registered_class_declares_its_parameters_next_to_it():
 def test_sh_specs_wrap_and_split_parameters():
     f = build(parse_spec("hybrid_sh(b=0.97, n_cloud=4, adapt=RQ)"))
     assert isinstance(f, SageHusa) and (f.b, f.adapt) == (0.97, "RQ")
-    assert isinstance(f.filter, Hybrid) and f.filter.n_cloud == 4
+    assert isinstance(f.filter, HybridShift) and f.filter.n_cloud == 4
     assert f.name == "hybrid_sh"
     assert isinstance(build("ckf"), CKF) and isinstance(build("ckf"), UKF)
 
@@ -189,10 +189,10 @@ def test_user_parameters_win_over_presets():
 def test_bench_enkf_members_match_the_hybrid_of_the_same_run():
     n = 2
     alone = presets.resolve("enkf", "bench", dim=n)
-    assert alone.params["members"] == Hybrid().members(n)  # the preset's own hybrid
+    assert alone.params["members"] == HybridShift().members(n)  # the preset's own hybrid
     specs = presets.resolve_list("ekf,enkf,etkf(members=7),hybrid(n_cloud=4)", "bench", dim=n)
     by = {s.label: s for s in specs}
-    assert by["enkf"].params["members"] == Hybrid(n_cloud=4).members(n) == 25
+    assert by["enkf"].params["members"] == HybridShift(n_cloud=4).members(n) == 25
     assert by["etkf(members=7)"].params["members"] == 7  # written by the user: wins
     assert isinstance(presets.build(by["enkf"]), EnKF) and presets.build(by["enkf"]).members == 25
     with pytest.raises(SpecError, match="dimension"):
@@ -260,7 +260,7 @@ def test_split_hybrid_gives_the_numbers_of_the_flat_parameter_set(spec):
     from uavest.models.benchmarks import UNGMMeasurement, UNGMTransition
 
     s = parse_spec(spec)
-    cls = HybridLocal if s.params["update_mode"] == "local" else Hybrid
+    cls = HybridLocal if s.params["update_mode"] == "local" else HybridShift
     direct = cls(**{k: v for k, v in s.params.items() if k != "update_mode"})
     tr, me = UNGMTransition(), UNGMMeasurement()
     resolved = presets.build(presets.resolve(spec, "bench", dim=1))  # gamma resolved to sqrt(3)
@@ -303,6 +303,6 @@ def test_the_cli_resolves_filters_once_for_the_commands_state():
     assert specs("bench", "no_such_scenario", "--filters", "ekf") == ["ekf"]  # reported later
     with pytest.raises(SpecError):
         specs("bench", "ungm", "--filters", "hybrid(bogus=1)")
-    assert [type(f).__name__ for _, f in build_filters(bench)] == ["EnKF", "Hybrid"]
+    assert [type(f).__name__ for _, f in build_filters(bench)] == ["EnKF", "HybridShift"]
     with pytest.raises(TypeError, match="resolved FilterSpecs"):
         build_filters(["ekf"])  # the engine does not resolve spec text

@@ -508,7 +508,7 @@ class _NoEvents:
 
 class PublishSink(Sink):
     """Publishes every estimate on a ground-station-side link under the estimator's own
-    identity (:class:`uavest.sinks.mavlink_pub.Publisher`): attitude per filter as
+    identity (:class:`uavest.sinks.mavlink_pub.MavlinkPublisher`): attitude per filter as
     ATTITUDE plus named values, NIS and resets as NAMED_VALUE_FLOAT, confirmed tracks as
     ADSB_VEHICLE with the SIMULATED flag (their positions from the lane's ENU frame)."""
 
@@ -719,9 +719,9 @@ def run_live(cfg: LiveConfig, *, sinks=(), stop: threading.Event | None = None,
                        versions=package_versions())
         sinks = list(sinks)
         if publish:
-            from ..sinks.mavlink_pub import Publisher
+            from ..sinks.mavlink_pub import MavlinkPublisher
 
-            pub = Publisher(publish, sysid=publish_sysid, vehicle_conn=cfg.connect,
+            pub = MavlinkPublisher(publish, sysid=publish_sysid, vehicle_conn=cfg.connect,
                             allow_vehicle_link=allow_vehicle_link)
             sinks.append(_LazyPublish(pub))
         check = _StreamCheck(link, cfg.rate_window_s, on_note)

@@ -19,15 +19,14 @@ draws only through the ``numpy.random.Generator`` passed in.
 
 from ..geometry.spaces import Space, VectorSpace, manifold_mean
 from .adaptive import SageHusa
-from .base import Ensemble, Innovation, ensemble_estimate
 from .contract import EnsembleFilter, Filter, FilterBase, ensemble_cross
 from .ensemble import ETKF, EnKF
 from .gaussian import Gaussian
 from .guard import Guarded, GuardState
-from .hybrid import Hybrid, HybridLiteral, HybridLocal
+from .hybrid import HybridLiteral, HybridLocal, HybridShift
+from .interfaces import LinearMeasurement, LinearTransition, Measurement, Transition, fd_jacobian
 from .kalman import EKF, KF
 from .linalg import NotPositiveDefinite, NumericalError
-from .model import LinearMeasurement, LinearTransition, Measurement, Transition, fd_jacobian
 from .particle import PF
 from .registry import (
     FILTER_NAMES,
@@ -40,11 +39,12 @@ from .registry import (
     split_filter_list,
 )
 from .spec import FilterSpec, SpecError
+from .states import Ensemble, Innovation, ensemble_estimate
 from .unscented import CKF, SRUKF, UKF, SqrtGaussian
 
 __all__ = [
     "CKF", "EKF", "ETKF", "EnKF", "Ensemble", "EnsembleFilter", "FILTER_NAMES", "Filter",
-    "FilterBase", "FilterSpec", "Gaussian", "GuardState", "Guarded", "Hybrid",
+    "FilterBase", "FilterSpec", "Gaussian", "GuardState", "Guarded", "HybridShift",
     "HybridLiteral", "HybridLocal", "Innovation", "KF", "LinearMeasurement",
     "LinearTransition", "Measurement", "NotPositiveDefinite", "NumericalError", "PF",
     "SRUKF", "SageHusa", "Space", "SpecError", "SqrtGaussian", "Transition", "UKF",

@@ -8,7 +8,7 @@ stage is one loop over the members. The formulas are those of the numpy path in
 :mod:`uavest.core.hybrid` (``_innovation_stack`` and ``HybridLocal.update``): S_j's
 inverse and log-determinant in closed form for m <= 2, the local gains, the
 log-likelihood weights, the posterior draw, the predict's process noise, and the
-ensemble moments of ``ensemble_moments`` (:mod:`uavest.core.base`). The kernels draw
+ensemble moments of ``ensemble_moments`` (:mod:`uavest.core.states`). The kernels draw
 their normals and uniforms from the caller's ``numpy.random.Generator`` itself, through
 numba's implementation of numpy's algorithms: the numpy path's values in its order,
 about 3.5x faster per normal than numpy's own call here (docs/speed.md). Equal to the
@@ -60,7 +60,7 @@ def moments(X: Array, w: Array, tag: tuple[float, ...]
             ) -> tuple[Array, Array, Array]:  # pragma: no cover - compiled
     """Weighted mean ``x`` (n,), deviations ``dX`` = X - x (M, n) and covariance
     ``P`` = sum_j w_j dX_j dX_j^T / max(1 - sum_j w_j^2, 1e-12) (n, n), symmetric by
-    construction (:func:`uavest.core.base.ensemble_moments` on a vector space). ``tag``:
+    construction (:func:`uavest.core.states.ensemble_moments` on a vector space). ``tag``:
     any tuple of n floats (see :func:`tag`). The sum of outer products is one BLAS
     product (w dX)^T dX, as the numpy path forms it: half the time of the loop here."""
     n = len(tag)

@@ -1,4 +1,4 @@
-"""Compiled (numba) kernels of the default hybrid (:class:`uavest.core.hybrid.Hybrid`,
+"""Compiled (numba) kernels of the default hybrid (:class:`uavest.core.hybrid.HybridShift`,
 shift update) on a vector state space: the optional fast path (``pip install
 "uavest[fast]"``), dispatched through :data:`uavest.core.hybrid.SHIFT_KERNELS`.
 
@@ -10,7 +10,7 @@ path in :mod:`uavest.core.hybrid` (which stays the reference and the fallback):
 * :func:`regenerate`: the ensemble's moments, systematic selection with the uniform ``u``,
   the shrink kernel with the normals ``Z`` (``_HybridBase._regenerate``);
 * :func:`shift_update`: the innovation record, the tempered confidence weights, the EnKF
-  shift with the normals ``V`` and the moments of the result (``Hybrid.update`` with one
+  shift with the normals ``V`` and the moments of the result (``HybridShift.update`` with one
   stage and one shift, and ``ensemble_estimate`` of its result).
 
 The random numbers are drawn by the caller in numpy, in the order and shapes the numpy path
@@ -314,7 +314,7 @@ def _tempered_direct(logw0: Array, ll: Array, phi_max: float, floor: float, W: A
 def shift_update(X: Array, Y: Array, z: Array, w: Array, R: Array, V: Array, tau: float,
                  min_ess: float, confidence: bool, Xn: Array, W: Array, nu: Array, S: Array,
                  x: Array, P: Array) -> tuple[int, float]:  # pragma: no cover - compiled
-    """(status, nis): one ``Hybrid.update`` with ``stages`` = 1 and ``shifts`` = 1 on a
+    """(status, nis): one ``HybridShift.update`` with ``stages`` = 1 and ``shifts`` = 1 on a
     vector space with a plain measurement model, into the caller's arrays.
 
     ``X`` (M, n) members, ``Y`` = h(X) (M, m), ``z`` (m,), ``w`` (M,) their weights, ``R``

@@ -23,12 +23,12 @@ from typing import Any, cast
 import numpy as np
 
 from ..geometry.spaces import Space
-from .base import Innovation
 from .contract import Filter, FilterBase
 from .gaussian import Gaussian
+from .interfaces import Measurement, Transition
 from .linalg import nearest_pd
-from .model import Measurement, Transition
 from .spec import param
+from .states import Innovation
 
 Array = np.ndarray
 Rng = np.random.Generator

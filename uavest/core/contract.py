@@ -55,11 +55,11 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from ..geometry.spaces import Space
-from .base import Ensemble, Innovation
 from .gaussian import Gaussian
-from .model import Measurement, Transition
+from .interfaces import Measurement, Transition
 from .resample import systematic_resample
 from .sigma import unscented_cross
+from .states import Ensemble, Innovation
 
 Array = np.ndarray
 Rng = np.random.Generator

@@ -21,12 +21,12 @@ from typing import Any
 import numpy as np
 
 from ..geometry.spaces import Space
-from .base import Ensemble, Innovation, ensemble_estimate, innovation, sample_gaussian
 from .contract import EnsembleFilter
 from .gaussian import Gaussian
+from .interfaces import Measurement, Transition
 from .linalg import chol, gain, symmetrize
-from .model import Measurement, Transition
 from .spec import param
+from .states import Ensemble, Innovation, ensemble_estimate, innovation, sample_gaussian
 
 Array = np.ndarray
 

@@ -35,10 +35,10 @@ import numpy as np
 
 from ..geometry.spaces import Space
 from . import linalg as _linalg
-from .base import Innovation
 from .contract import Filter, FilterBase
 from .gaussian import Gaussian
-from .model import Measurement, Transition
+from .interfaces import Measurement, Transition
+from .states import Innovation
 
 Array = np.ndarray
 Rng = np.random.Generator

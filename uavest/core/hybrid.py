@@ -11,7 +11,7 @@ Implementations sharing the sampling code:
     and for measuring the paper's claims; on the UNGM it loses to a plain EnKF
     (docs/filters.md).
 
-:class:`Hybrid` (``hybrid``, ``update_mode=shift``, the default) and :class:`HybridLocal`
+:class:`HybridShift` (``hybrid``, ``update_mode=shift``, the default) and :class:`HybridLocal`
 (``hybrid(update_mode=local)``)
     Keep the paper's two ideas while staying consistent:
     *expanded sampling*: the ensemble is built from the 2n+1 sigma points each expanded
@@ -47,7 +47,15 @@ import numpy as np
 
 from ..compiled import bitgen_pointers, register
 from ..geometry.spaces import Space, VectorSpace
-from .base import (
+from .contract import EnsembleFilter, FilterBase
+from .ensemble import propagate_members
+from .gaussian import Gaussian
+from .interfaces import Measurement, Transition
+from .linalg import NotPositiveDefinite, NumericalError, chol, gain, is_pd, symmetrize
+from .particle import ess, log_likelihood
+from .resample import systematic_resample
+from .spec import Param, param
+from .states import (
     Ensemble,
     Innovation,
     ensemble_estimate,
@@ -56,14 +64,6 @@ from .base import (
     innovation,
     mean_start,
 )
-from .contract import EnsembleFilter, FilterBase
-from .ensemble import propagate_members
-from .gaussian import Gaussian
-from .linalg import NotPositiveDefinite, NumericalError, chol, gain, is_pd, symmetrize
-from .model import Measurement, Transition
-from .particle import ess, log_likelihood
-from .resample import systematic_resample
-from .spec import Param, param
 from .unscented import plain_measurement  # mean / residual plain: residuals centred
 
 Array = np.ndarray
@@ -376,7 +376,7 @@ def _shift_cases(nb: ModuleType) -> Iterator[tuple[str, Any, Any]]:
             Y: Array = X * X
             return Y
 
-    f = Hybrid(n_cloud=2)
+    f = HybridShift(n_cloud=2)
     for n in (2, 1):
         rng = np.random.default_rng(n)
         X = rng.standard_normal((15, n))
@@ -404,7 +404,7 @@ def _shift_cases(nb: ModuleType) -> Iterator[tuple[str, Any, Any]]:
             yield f"n={n} {label}", q, p
 
 
-#: The compiled kernels of :class:`Hybrid` on vector spaces
+#: The compiled kernels of :class:`HybridShift` on vector spaces
 #: (:mod:`uavest.core._compiled_shift`)
 SHIFT_KERNELS = register("shift", "uavest.core._compiled_shift", "numba shift kernels",
                          _shift_cases, rtol=1e-12, atol=1e-12)
@@ -422,7 +422,7 @@ def _float_vector(z: object, m: int) -> bool:
 
 
 class _HybridBase(EnsembleFilter):
-    """Sampling, regeneration and prediction shared by :class:`Hybrid` and
+    """Sampling, regeneration and prediction shared by :class:`HybridShift` and
     :class:`HybridLocal` (fields declared by the subclasses)."""
 
     sampling: str
@@ -485,7 +485,7 @@ class _HybridBase(EnsembleFilter):
 
 
 @dataclass(frozen=True)
-class Hybrid(_HybridBase):
+class HybridShift(_HybridBase):
     """Consistent hybrid filter with the tempered-weights + EnKF-shift update (the
     default ``hybrid``, ``update_mode=shift``). See the module docstring.
 
@@ -707,7 +707,7 @@ class HybridLocal(_HybridBase):
     1999, with the hybrid's sampling and confidence weights).
 
     Parameters: ``sampling``, ``weights``, ``gamma``, ``n_cloud``, ``spread`` as
-    :class:`Hybrid`; ``regen_ess``: resample the mixture components when the ESS of the
+    :class:`HybridShift`; ``regen_ess``: resample the mixture components when the ESS of the
     updated weights is < regen_ess * M (0.5; confidence weights only); ``bandwidth``: the
     kernel bandwidth h as a fraction of the ensemble spread (None: Silverman's rule).
     The update leaves either equal weights or weights with ESS >= regen_ess * M, so the
@@ -880,7 +880,7 @@ class HybridLocal(_HybridBase):
 
 
 def _innovation2(nu: Array, S: Array) -> Innovation:
-    """:func:`~uavest.core.base.innovation` with the NIS of a 2 x 2 ``S`` in closed form
+    """:func:`~uavest.core.states.innovation` with the NIS of a 2 x 2 ``S`` in closed form
     on floats (equal to the Cholesky solve to rounding); other sizes, and an ``S`` that
     is not positive definite or not finite (the Cholesky then raises), through it."""
     if S.shape[0] == 2:
@@ -897,7 +897,7 @@ def _local_cases(nb: ModuleType) -> Iterator[tuple[str, Any, Any]]:
     against :meth:`HybridLocal._update_numpy` (members, weights, innovation) on small
     linear cases: m = 2 and 1, a weighted and an equally weighted ensemble, one that
     resamples and one that does not."""
-    from .model import LinearMeasurement
+    from .interfaces import LinearMeasurement
 
     g = np.random.default_rng(7)
     X = g.standard_normal((15, 3)) * [1.0, 2.0, 0.5]

@@ -23,11 +23,11 @@ import numpy as np
 
 from ..geometry.spaces import Space
 from . import linalg as _linalg
-from .base import Innovation
 from .contract import FilterBase, sigma_point_terms
 from .gaussian import Gaussian
+from .interfaces import Measurement, Transition
 from .linalg import chol
-from .model import Measurement, Transition
+from .states import Innovation
 
 Array = np.ndarray
 Rng = np.random.Generator
@@ -67,7 +67,7 @@ def _gain_nis(PHt: Array, S: Array, nu: Array) -> tuple[Array, float]:
 @dataclass(frozen=True)
 class EKF(FilterBase):
     """Extended Kalman filter. Uses the model's analytic ``F``/``H`` when it has them,
-    else central finite differences (see :func:`uavest.core.model.fd_jacobian`).
+    else central finite differences (see :func:`uavest.core.interfaces.fd_jacobian`).
     No parameters."""
 
     name: str = "ekf"

@@ -17,14 +17,14 @@ import numpy as np
 
 from ..geometry.spaces import Space
 from . import linalg as _linalg
-from .base import Ensemble, Innovation, ensemble_estimate, innovation, sample_gaussian
 from .contract import EnsembleFilter
 from .ensemble import propagate_members
 from .gaussian import Gaussian
+from .interfaces import Measurement, Transition
 from .linalg import chol, symmetrize
-from .model import Measurement, Transition
 from .resample import systematic_resample
 from .spec import param
+from .states import Ensemble, Innovation, ensemble_estimate, innovation, sample_gaussian
 
 Array = np.ndarray
 

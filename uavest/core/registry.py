@@ -28,7 +28,7 @@ from typing import Any
 from .adaptive import SageHusa
 from .contract import Filter
 from .ensemble import ETKF, EnKF
-from .hybrid import Hybrid, HybridLiteral, HybridLocal
+from .hybrid import HybridLiteral, HybridLocal, HybridShift
 from .kalman import EKF, KF
 from .particle import PF
 from .spec import (
@@ -65,7 +65,7 @@ REGISTRY: dict[str, type | Modes] = {
     "srukf": SRUKF,
     "enkf": EnKF,
     "etkf": ETKF,
-    "hybrid": Modes("update_mode", {"shift": Hybrid, "local": HybridLocal}),
+    "hybrid": Modes("update_mode", {"shift": HybridShift, "local": HybridLocal}),
     "hybrid_literal": HybridLiteral,
     "pf": PF,
 }

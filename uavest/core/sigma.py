@@ -13,8 +13,8 @@ from functools import lru_cache
 import numpy as np
 
 from .gaussian import Gaussian
+from .interfaces import Transition
 from .linalg import chol
-from .model import Transition
 from .spec import SpecError
 
 Array = np.ndarray

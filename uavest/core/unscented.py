@@ -28,13 +28,13 @@ import numpy as np
 
 from ..compiled import register
 from ..geometry.spaces import Space, VectorSpace
-from .base import Innovation, innovation
 from .contract import FilterBase
 from .gaussian import Gaussian
+from .interfaces import Measurement, Transition
 from .linalg import chol, gain_factor, nis_from_factor
-from .model import Measurement, Transition
 from .sigma import sigma_weights, unscented_predict
 from .spec import param
+from .states import Innovation, innovation
 
 Array = np.ndarray
 Rng = np.random.Generator

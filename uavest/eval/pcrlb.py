@@ -20,7 +20,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..core.model import Measurement, Transition
+from ..core.interfaces import Measurement, Transition
 
 Array = np.ndarray
 

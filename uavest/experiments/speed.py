@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 from ..core.guard import Guarded
-from ..core.hybrid import Hybrid
+from ..core.hybrid import HybridShift
 from ..core.unscented import UKF
 from ..engine import FilterRunner, run
 from .montecarlo import trial_steps
@@ -67,7 +67,7 @@ def speed(sysm: System, runs: int = 20, seed: int = 0, repeats: int = 5) -> dict
     """Per-step times (microseconds) and the ratios the core issue asks for."""
     _, Z = simulate(sysm, runs, np.random.default_rng([seed, 0]))
     ukf = UKF()
-    hyb = Hybrid()
+    hyb = HybridShift()
     res = {"ours_ukf": [], "ours_ukf_guarded": [], "ours_hybrid": [], "filterpy_ukf": []}
     try:
         import filterpy  # noqa: F401

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from ..core.gaussian import Gaussian
-from ..core.model import LinearMeasurement, Measurement, Transition
+from ..core.interfaces import LinearMeasurement, Measurement, Transition
 from ..models.benchmarks import (
     Nonlinear2DMeasurement,
     Nonlinear2DTransition,

@@ -2,7 +2,7 @@
 for the 2-D range / azimuth radar (no range rate): the optional fast path (``pip install
 "uavest[fast]"``), dispatched through :data:`uavest.models.radar.RADAR_KERNELS`.
 
-The composed default (:meth:`uavest.core.model.Measurement.linearise_rows`: ``h_H_rows``,
+The composed default (:meth:`uavest.core.interfaces.Measurement.linearise_rows`: ``h_H_rows``,
 one circular ``mean``, three ``residual`` calls) costs ~15 numpy calls on (M, 2) and
 (M, 2, n) stacks of M = 585 members (the ``radar`` preset), each paying numpy's per-call
 floor; here the same formulas (``_los``, ``h_H_rows``, ``_H2_rows``, ``residual``,

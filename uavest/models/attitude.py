@@ -31,7 +31,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..core.model import Measurement, Transition
+from ..core.interfaces import Measurement, Transition
 from ..errors import InputError
 from ..geometry.rotation import (
     G0,

@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from ..core.model import Measurement, Transition
+from ..core.interfaces import Measurement, Transition
 from ..geometry.spaces import VectorSpace
 
 

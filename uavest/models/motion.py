@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.model import Transition
+from ..core.interfaces import Transition
 from ..geometry.spaces import VectorSpace
 
 

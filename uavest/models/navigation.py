@@ -29,7 +29,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from uavest.core.model import Measurement, Transition
+from uavest.core.interfaces import Measurement, Transition
 from uavest.geometry.geodesy import EARTH_RATE, gravity
 from uavest.geometry.navigation import NavSpace
 from uavest.geometry.rotation import quat_rotate, quat_rotate_inv, quat_to_dcm, skew

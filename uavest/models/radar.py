@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..compiled import register
-from ..core.model import Measurement
+from ..core.interfaces import Measurement
 from ..errors import InputError
 from ..geometry.spaces import VectorSpace
 

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.model import Transition
+from ..core.interfaces import Transition
 from ..errors import InputError
 from ..geometry.spaces import VectorSpace
 from .motion import ncv_matrices

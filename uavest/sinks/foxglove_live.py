@@ -13,7 +13,7 @@ import time
 
 from ..engine.records import RunInfo, ScanRecord, StepRecord
 from .base import Sink
-from .foxglove import DEFAULT_FRAME_RATE_HZ, Publisher
+from .foxglove import DEFAULT_FRAME_RATE_HZ, FoxglovePublisher
 
 __all__ = ["FoxgloveLiveSink"]
 
@@ -41,7 +41,7 @@ class FoxgloveLiveSink(Sink):
         self.ctx = foxglove.Context()
         self.server = foxglove.start_server(name=name, host=host, port=port, context=self.ctx)
         self.host = host
-        self.pub = Publisher(self.ctx, spacing_m=spacing_m, frame_rate_hz=frame_rate_hz,
+        self.pub = FoxglovePublisher(self.ctx, spacing_m=spacing_m, frame_rate_hz=frame_rate_hz,
                              only_subscribed=True)
         self.wait_for_client = wait_for_client
         self.linger_s = linger_s

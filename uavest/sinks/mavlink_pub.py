@@ -23,7 +23,7 @@ Messages:
 
 ``t`` is the vehicle clock (s); ``time_boot_ms`` = ``round(t * 1000) mod 2**32``.
 Every (kind, name) is rate-limited to ``rate_hz``; the excess is dropped and counted in
-:attr:`Publisher.dropped`.
+:attr:`MavlinkPublisher.dropped`.
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ from ..link import (  # noqa: E402
     signing_key_bytes,
 )
 
-__all__ = ["Publisher", "DEFAULT_SYSID", "icao_address"]
+__all__ = ["MavlinkPublisher", "DEFAULT_SYSID", "icao_address"]
 
 DEFAULT_SYSID = 250
 _EXTRA_COMPIDS = (192, 193, 194)  # MAV_COMP_ID_ONBOARD_COMPUTER2..4
@@ -71,7 +71,7 @@ def _ms(t: float) -> int:
     return int(round(t * 1000.0)) % (1 << 32)
 
 
-class Publisher:
+class MavlinkPublisher:
     """MAVLink publisher of estimates (see module docstring).
 
     conn: connection string of the ground-station side (``udpout:127.0.0.1:14551`` to a
@@ -248,7 +248,7 @@ class Publisher:
                 self._writer.transport.close()
                 self._writer.transport = None
 
-    def __enter__(self) -> Publisher:
+    def __enter__(self) -> MavlinkPublisher:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -26,7 +26,7 @@ from pathlib import Path
 
 from ..engine.records import RunInfo
 from .base import Sink
-from .foxglove import DEFAULT_FRAME_RATE_HZ, Publisher
+from .foxglove import DEFAULT_FRAME_RATE_HZ, FoxglovePublisher
 from .foxglove.encode import _jsonable
 
 __all__ = ["CHANNEL_SET_VERSION", "McapSink"]
@@ -84,7 +84,7 @@ class McapSink(Sink):
         self.batch = int(batch)
         self.compression_threads = int(compression_threads)
         self.writer = None
-        self.pub: Publisher | None = None
+        self.pub: FoxglovePublisher | None = None
         self._last_flush = 0.0
         self.closed = False
         self.flushes = 0
@@ -94,7 +94,7 @@ class McapSink(Sink):
         """``<dir>/<stem>.layout.json`` beside the recording."""
         return self.path.with_name(self.path.stem + ".layout.json")
 
-    def _ensure(self) -> Publisher:
+    def _ensure(self) -> FoxglovePublisher:
         if self.pub is None:
             import foxglove
             from foxglove.mcap import MCAPCompression, MCAPWriteOptions
@@ -109,7 +109,7 @@ class McapSink(Sink):
                     compression=comp, chunk_size=self.chunk_size, profile="",
                     compression_level=self.compression_level,
                     compression_threads=self.compression_threads))
-            self.pub = Publisher(ctx, spacing_m=self.spacing_m,
+            self.pub = FoxglovePublisher(ctx, spacing_m=self.spacing_m,
                                  frame_rate_hz=self.frame_rate_hz, batch=self.batch)
             self._last_flush = time.monotonic()
         return self.pub

@@ -1,5 +1,5 @@
 """The channels uavest publishes to Foxglove (MCAP recordings, the live WebSocket view),
-per domain, composed by one :class:`Publisher` (see :mod:`.publisher` and
+per domain, composed by one :class:`FoxglovePublisher` (see :mod:`.publisher` and
 ``docs/recording.md`` for the channel list):
 
 * :mod:`.schemas`: the JSON schemas of uavest's JSON channels;
@@ -14,10 +14,11 @@ per domain, composed by one :class:`Publisher` (see :mod:`.publisher` and
 from .attitude import euler_sigma_deg, quat_to_rpy_deg
 from .encode import b64_floats, triu_to_full
 from .frames import DEFAULT_FRAME_RATE_HZ, ned_frd_to_enu_flu
-from .publisher import Publisher
+from .publisher import FoxglovePublisher
 from .schemas import SCHEMAS
 
 __all__ = [
-    "DEFAULT_FRAME_RATE_HZ", "Publisher", "SCHEMAS", "euler_sigma_deg", "ned_frd_to_enu_flu",
+    "DEFAULT_FRAME_RATE_HZ", "FoxglovePublisher", "SCHEMAS", "euler_sigma_deg",
+    "ned_frd_to_enu_flu",
     "b64_floats", "quat_to_rpy_deg", "triu_to_full",
 ]

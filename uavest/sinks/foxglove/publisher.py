@@ -1,7 +1,7 @@
 """The channels uavest publishes to Foxglove (MCAP recordings and the live WebSocket view),
 and the one place that turns samples and records into their messages.
 
-:class:`Publisher` owns a ``foxglove.Context``; the MCAP sink opens a writer on it, the
+:class:`FoxglovePublisher` owns a ``foxglove.Context``; the MCAP sink opens a writer on it, the
 live sink a WebSocket server, so both carry exactly the same channels and messages. See
 ``docs/recording.md`` for the channel list.
 
@@ -33,10 +33,10 @@ from .frames import Frames
 from .radar import RadarChannels
 from .state import StateChannels
 
-__all__ = ["Publisher"]
+__all__ = ["FoxglovePublisher"]
 
 
-class Publisher:
+class FoxglovePublisher:
     """Turns samples and records into Foxglove messages on channels of one context.
 
     ``spacing_m``: the 3-D view puts filter i's body frame ``spacing_m * (i + 1)`` m east

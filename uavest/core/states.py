@@ -1,4 +1,5 @@
-"""Shared filter vocabulary: the innovation record and the ensemble state."""
+"""Shared filter vocabulary: the innovation record and the ensemble state (the states
+filters carry between predict and update)."""
 
 from __future__ import annotations
 
