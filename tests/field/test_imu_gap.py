@@ -3,7 +3,8 @@ sigma points, first step off by 167/10/84 deg, three guard resets) and the gaps 
 reported. Gaps longer than max(0.5 s, 20 median intervals) are now reported (count,
 longest) and not integrated across: the filters re-align after them (TRIAD from the
 accelerometer, the vehicle's acceleration and the magnetometer; gyro biases kept).
-Reproduced from the shared vtol.tlog by dropping every IMU record of a 17 s window."""
+Reproduced from the shared vtol.tlog by dropping every IMU record of a 17 s window; run
+with the attitude model and under the default (the navigation model for this log)."""
 
 from __future__ import annotations
 
@@ -69,10 +70,12 @@ def _errors(path, model: str = "attitude") -> tuple[dict, dict, dict]:
 
 
 @pytest.mark.slow
-def test_imu_gap_is_reported_and_every_filter_holds(tmp_path, capsys):
+@pytest.mark.parametrize("model", ["attitude", "auto"])  # auto: vtol.tlog runs nav
+def test_imu_gap_is_reported_and_every_filter_holds(tmp_path, capsys, model):
     f = tmp_path / "imu_gap.tlog"
     assert drop_imu(shared_log("vtol.tlog"), f) > 100
-    doc, err, _ = _errors(f)
+    doc, err, _ = _errors(f, model=model)
+    assert doc["model"]["value"] == ("attitude" if model == "attitude" else "nav")
     assert doc["imu_gaps"] == 1 and doc["imu_gap_longest_s"] > 17.0
     g0, g1 = doc["imu_gap_list"][0]
     for name in FILTERS:

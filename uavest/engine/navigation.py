@@ -54,7 +54,7 @@ from ..core.guard import nis_gate
 from ..errors import InputError
 from ..geometry.geodesy import LocalFrame
 from ..geometry.navigation import NavSpace
-from ..geometry.rotation import euler_to_quat, quat_rotate, wrap_pi
+from ..geometry.rotation import euler_to_quat, quat_rotate, quat_rotate_inv, wrap_pi
 from ..ingest.api import choose_source
 from ..ingest.semantics import default_integration
 from ..ingest.types import BaroSample, GnssSample, ImuSample, MagSample, NoSamplesError
@@ -237,6 +237,7 @@ class NavStream:
         self._queue: deque[_Raw] = deque()
         self._aid: dict[str, deque[_Aid]] = {"gnss": deque(), "baro": deque()}
         self._recent: deque[_Raw] = deque()  # raws of the last align_s while waiting
+        self._vfix: list[tuple[float, Array]] = []  # last two good GNSS (t, vel NED) waiting
         self._waiting = True
         self._started = False
         self._wait_why = "no good GNSS fix yet"
@@ -348,6 +349,7 @@ class NavStream:
     def _go_wait(self, why: str, t: float) -> None:
         self._waiting = True
         self._recent.clear()
+        self._vfix.clear()
         self._wait_why = why
         self._decide("navigation", "waiting for a good GNSS fix", t, why)
 
@@ -438,6 +440,10 @@ class NavStream:
             while self._recent and self._recent[0].t < r.t - o.align_s:
                 self._recent.popleft()
         fix = self._good_fix(aids)
+        if fix is not None and fix.gnss is not None:
+            self._vfix.append((fix.t, np.asarray(fix.gnss.vel_ned, float)))
+            while len(self._vfix) > 2:
+                self._vfix.pop(0)
         if fix is None or fix.gnss is None or fix.ned is None or not self._recent:
             return []
         g = fix.gnss
@@ -452,21 +458,37 @@ class NavStream:
             self.summary["_vmax"] = max(speed, self.summary.get("_vmax", 0.0))
             return []
         first = not self._started
+        if not first and speed >= o.yaw_speed and len(self._vfix) < 2:
+            self._wait_why = ("moving after an IMU gap: waiting for a second GNSS velocity "
+                              "(the acceleration to take out of the accelerometer)")
+            return []
         if first:
             self._first_start(r)
         acc = np.mean([x.a for x in self._recent if x.a is not None], axis=0)
-        a = -acc
-        roll = float(np.arctan2(a[1], a[2]))
-        pitch = float(np.arctan2(-a[0], np.hypot(a[1], a[2])))
-        if use_mag:
-            q0 = euler_to_quat(np.array(roll), np.array(pitch), np.array(0.0))
-            m = quat_rotate(q0, np.asarray(mags[-1], float))
-            yaw = float(wrap_pi(self.declination - np.arctan2(m[1], m[0])))
-            syaw, ywhy = n.init_yaw, "the magnetometer"
-        else:
-            yaw = float(np.arctan2(vh[1], vh[0]))
-            syaw, ywhy = n.init_yaw_course, f"the GNSS course at {speed:.1f} m/s"
-        q = euler_to_quat(np.array(roll), np.array(pitch), np.array(yaw))
+        # the vehicle's own acceleration (NED, m/s^2) from the last two GNSS velocities:
+        # in flight (a re-alignment after an IMU gap) the accelerometer is not gravity
+        a_ned = np.zeros(3)
+        if len(self._vfix) == 2:
+            (t1, v1), (t2, v2) = self._vfix
+            if 0.05 < t2 - t1 < 2.0:
+                a_ned = np.nan_to_num((v2 - v1) / (t2 - t1))
+        q = np.array([1.0, 0.0, 0.0, 0.0])
+        roll = pitch = yaw = 0.0
+        syaw, ywhy = n.init_yaw, "the magnetometer"
+        for _ in range(3 if np.any(a_ned) else 1):  # tilt <-> body acceleration, refined
+            a = quat_rotate_inv(q, a_ned) - acc  # gravity direction in the body
+            roll = float(np.arctan2(a[1], a[2]))
+            pitch = float(np.arctan2(-a[0], np.hypot(a[1], a[2])))
+            if use_mag:
+                q0 = euler_to_quat(np.array(roll), np.array(pitch), np.array(0.0))
+                m = quat_rotate(q0, np.asarray(mags[-1], float))
+                yaw = float(wrap_pi(self.declination - np.arctan2(m[1], m[0])))
+            else:
+                yaw = float(np.arctan2(vh[1], vh[0]))
+                syaw, ywhy = n.init_yaw_course, f"the GNSS course at {speed:.1f} m/s"
+            q = euler_to_quat(np.array(roll), np.array(pitch), np.array(yaw))
+        # moving, the compensation rests on a differenced GNSS velocity: a wider tilt prior
+        tilt = n.init_tilt if speed < o.yaw_speed else 3.0 * n.init_tilt
         dt = r.t - fix.t
         v = np.asarray(g.vel_ned, float).copy()
         vz_ok = bool(np.isfinite(v[2]))
@@ -477,13 +499,15 @@ class NavStream:
         sv = max(n.gnss_vpos_floor, g.v_acc if np.isfinite(g.v_acc) else 0.0)
         svel = max(n.gnss_vel_floor, g.s_acc if np.isfinite(g.s_acc) else 0.0)
         x = np.concatenate([q, v, p, np.zeros(6)])
-        P = np.diag([n.init_tilt**2] * 2 + [syaw**2] + [svel**2] * 2
+        P = np.diag([tilt**2] * 2 + [syaw**2] + [svel**2] * 2
                     + [(svel if vz_ok else n.init_vel) ** 2] + [sh**2] * 2 + [sv**2]
                     + [n.init_gyro_bias**2] * 3 + [n.init_accel_bias**2] * 3)
         self._waiting = False
         self._started = True
         self._recent.clear()
-        why = (f"roll/pitch from the accelerometer, yaw from {ywhy}, velocity and "
+        comp = (f" less the GNSS acceleration ({np.linalg.norm(a_ned):.1f} m/s^2)"
+                if np.any(a_ned) else "")
+        why = (f"roll/pitch from the accelerometer{comp}, yaw from {ywhy}, velocity and "
                f"position from the {self._gnss} fix at t={g.t:.1f} s")
         self._decide("alignment", "done" if first else "re-aligned", r.t, why)
         return [Start(r.t, Gaussian(x, P), self.space, reason="start" if first else "gap",
