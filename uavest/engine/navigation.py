@@ -74,7 +74,15 @@ from ..models.navigation import (
     OnNav,
     nav_noise_for_source,
 )
-from .attitude import DEFAULT_MAX_RATE_HZ, GAP_MEDIANS, GAP_MIN_S, _Gap, _Raw, _StepBuilder
+from .attitude import (
+    DEFAULT_MAX_RATE_HZ,
+    FAILOVER_SAMPLES,
+    GAP_MEDIANS,
+    GAP_MIN_S,
+    _Gap,
+    _Raw,
+    _StepBuilder,
+)
 from .records import Start, Step
 from .runner import FilterRunner
 
@@ -238,6 +246,8 @@ class NavStream:
         self._aid: dict[str, deque[_Aid]] = {"gnss": deque(), "baro": deque()}
         self._recent: deque[_Raw] = deque()  # raws of the last align_s while waiting
         self._vfix: list[tuple[float, Array]] = []  # last two good GNSS (t, vel NED) waiting
+        self._other_imu: dict[str, list[float]] = {}  # failover evidence per other IMU
+        self._switched = False  # the IMU changed: the next start keeps no biases
         self._waiting = True
         self._started = False
         self._wait_why = "no good GNSS fix yet"
@@ -317,7 +327,7 @@ class NavStream:
         raws: list[_Raw | _Gap] = []
         if isinstance(s, ImuSample):
             if s.source != self._imu:
-                return []
+                return self._failover(s) if self.opts.imu is None else []
             if not (np.isfinite(s.gyro).all() and np.isfinite(s.accel).all()):
                 self._count("imu", "nan")
                 return []
@@ -345,6 +355,54 @@ class NavStream:
             else:
                 self._queue.append(r)
         return out + self._release()
+
+    def _failover(self, s: ImuSample) -> list[Start | Step]:
+        """The IMU choice re-decided when the evidence arrives, as the attitude stream
+        does (:meth:`uavest.engine.attitude.AttitudeStream._failover`): the chosen IMU
+        silent for longer than the gap threshold while ``s.source`` delivered
+        :data:`FAILOVER_SAMPLES` samples since its last one. Then ``s.source`` is the IMU
+        from ``s.t`` (its own noise, rate and integration) and the filters re-align at
+        the next good fix (biases not kept: they belong to the other sensor)."""
+        b = self._builder
+        assert b is not None
+        if not np.isfinite(s.gyro).all() or not np.isfinite(s.accel).all():
+            return []
+        last = b.t_last if b.t_last is not None else s.t
+        ev = self._other_imu.setdefault(s.source, [0, s.t, s.t, 0])
+        ev[0] = ev[0] + 1 if ev[2] > last else 1  # delivered since the chosen one's last
+        ev[2], ev[3] = s.t, ev[3] + 1
+        if s.t - last <= b.gap_s or ev[0] < FAILOVER_SAMPLES:
+            return []
+        o, old = self.opts, self._imu
+        rate = (ev[3] - 1) / max(ev[2] - ev[1], 1e-9)
+        integ, why = o.integration, "option"
+        if integ == "auto":
+            integ, why = default_integration(s.source, rate)
+        cap = DEFAULT_MAX_RATE_HZ if o.rate_hz is None else float(o.rate_hz)
+        factor = 1 if cap <= 0 else max(1, round(rate / cap))
+        for r in b.flush():  # what the silent IMU left, before the switch
+            self._queue.append(r)
+        out = self._release(upto=last)
+        self._queue.clear()
+        nb = _NavBuilder(integ, factor)
+        nb.gaps, nb.dropped = b.gaps, b.dropped
+        nb.gap_s = max(GAP_MIN_S, GAP_MEDIANS / max(rate, 1e-9))
+        nb.gaps.append((last, s.t))
+        self._builder = nb
+        self._imu, self._switched = s.source, True
+        if self._mag == old:  # that sensor's magnetometer went with it
+            self._mag = s.source if self._mag is not None else None
+        self.noise = nav_noise_for_source(s.source, rate).with_(**o.noise)
+        if self.frame is not None:
+            self._model = ImuTransition(self.noise, lat=self.frame.lat0, h=self.frame.h0)
+        self._other_imu.pop(s.source)
+        self.summary.setdefault("imu_switches", []).append(
+            {"from": old, "to": s.source, "t": float(s.t)})
+        self._decide("IMU", s.source, s.t,
+                     f"{old} silent since t={last:.1f} s ({s.t - last:.1f} s), {s.source} "
+                     f"continued ({rate:.1f} Hz, {integ}: {why})")
+        self._go_wait(f"re-alignment after the switch to {s.source}", s.t)
+        return out + self._feed(s)
 
     def _go_wait(self, why: str, t: float) -> None:
         self._waiting = True
@@ -510,8 +568,10 @@ class NavStream:
         why = (f"roll/pitch from the accelerometer{comp}, yaw from {ywhy}, velocity and "
                f"position from the {self._gnss} fix at t={g.t:.1f} s")
         self._decide("alignment", "done" if first else "re-aligned", r.t, why)
+        keep = 0 if first or self._switched else 6
+        self._switched = False
         return [Start(r.t, Gaussian(x, P), self.space, reason="start" if first else "gap",
-                      keep_tail=0 if first else 6)]
+                      keep_tail=keep)]
 
     def _first_start(self, r: _Raw) -> None:
         """Declination and the magnetic reference, at the first start."""
