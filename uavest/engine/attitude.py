@@ -87,6 +87,33 @@ GAP_MEDIANS = 20.0
 FAILOVER_SAMPLES = 10
 
 
+def step_plan(source: str, rate: float, integration: str, rate_hz: float | None
+              ) -> tuple[str, str, int]:
+    """(integration, why, samples per step) for an IMU ``source`` at ``rate`` Hz: the
+    option ``integration`` or, for "auto", what the message is
+    (:func:`uavest.ingest.semantics.default_integration`); ``rate_hz`` the filter rate cap
+    (None: :data:`DEFAULT_MAX_RATE_HZ`, 0: every sample)."""
+    integ, why = integration, "option"
+    if integ == "auto":
+        integ, why = default_integration(source, rate)
+    cap = DEFAULT_MAX_RATE_HZ if rate_hz is None else float(rate_hz)
+    return integ, why, 1 if cap <= 0 else max(1, round(rate / cap))
+
+
+def failover_rate(other: dict[str, list[float]], s: ImuSample, last: float, gap_s: float
+                  ) -> float | None:
+    """The failover evidence of both streams: counts ``s`` for its source in ``other``
+    (per source: samples since the chosen IMU's ``last`` time, first and last time, total)
+    and returns its rate (Hz) once the chosen IMU has been silent longer than ``gap_s``
+    while ``s.source`` delivered :data:`FAILOVER_SAMPLES` samples; else None."""
+    ev = other.setdefault(s.source, [0, s.t, s.t, 0])
+    ev[0] = ev[0] + 1 if ev[2] > last else 1  # delivered since the chosen one's last
+    ev[2], ev[3] = s.t, ev[3] + 1
+    if s.t - last <= gap_s or ev[0] < FAILOVER_SAMPLES:
+        return None
+    return (ev[3] - 1) / max(ev[2] - ev[1], 1e-9)
+
+
 @dataclass(frozen=True)
 class AttitudeOptions:
     """How samples become steps (see the module docstring and ``uavest replay --help``).
@@ -482,18 +509,11 @@ class AttitudeStream:
         b = self._builder
         assert b is not None  # _feed calls this after the set-up only
         last = b.t_last if b.t_last is not None else s.t
-        ev = self._other_imu.setdefault(s.source, [0, s.t, s.t, 0])
-        ev[0] = ev[0] + 1 if ev[2] > last else 1  # delivered since the chosen one's last
-        ev[2], ev[3] = s.t, ev[3] + 1
-        if s.t - last <= b.gap_s or ev[0] < FAILOVER_SAMPLES:
+        rate = failover_rate(self._other_imu, s, last, b.gap_s)
+        if rate is None:
             return None
         o, old = self.opts, self._imu
-        rate = (ev[3] - 1) / max(ev[2] - ev[1], 1e-9)
-        integ, why = o.integration, "option"
-        if integ == "auto":
-            integ, why = default_integration(s.source, rate)
-        cap = DEFAULT_MAX_RATE_HZ if o.rate_hz is None else float(o.rate_hz)
-        factor = 1 if cap <= 0 else max(1, round(rate / cap))
+        integ, why, factor = step_plan(s.source, rate, o.integration, o.rate_hz)
         nb = _StepBuilder(integ, factor, b.use_pos, 1, 1)
         nb.mag_last, nb.vel, nb.gaps, nb.dropped = b.mag_last, b.vel, b.gaps, b.dropped
         nb.gap_s = max(GAP_MIN_S, GAP_MEDIANS / max(rate, 1e-9))
@@ -579,11 +599,7 @@ class AttitudeStream:
                     break
         ti = [s.t for s in held if isinstance(s, ImuSample) and s.source == imu]
         rate = (len(ti) - 1) / max(ti[-1] - ti[0], 1e-9) if len(ti) > 1 else 0.0
-        integ, why = o.integration, "option"
-        if integ == "auto":  # by what the message is (uavest/ingest/semantics.py)
-            integ, why = default_integration(imu, rate)
-        cap = DEFAULT_MAX_RATE_HZ if o.rate_hz is None else float(o.rate_hz)
-        factor = 1 if cap <= 0 else max(1, round(rate / cap))
+        integ, why, factor = step_plan(imu, rate, o.integration, o.rate_hz)
         ref = max(1, round(rate / DEFAULT_MAX_RATE_HZ))
         # faster than the reference rate: updates at most at ``update_hz`` (default the
         # reference rate), on the mean specific force of the samples since the last one

@@ -56,7 +56,6 @@ from ..geometry.geodesy import LocalFrame
 from ..geometry.navigation import NavSpace
 from ..geometry.rotation import euler_to_quat, quat_rotate, quat_rotate_inv, wrap_pi
 from ..ingest.api import choose_source
-from ..ingest.semantics import default_integration
 from ..ingest.types import BaroSample, GnssSample, ImuSample, MagSample, NoSamplesError
 from ..models.attitude import (
     MagField,
@@ -76,12 +75,13 @@ from ..models.navigation import (
 )
 from .attitude import (
     DEFAULT_MAX_RATE_HZ,
-    FAILOVER_SAMPLES,
     GAP_MEDIANS,
     GAP_MIN_S,
     _Gap,
     _Raw,
     _StepBuilder,
+    failover_rate,
+    step_plan,
 )
 from .records import Start, Step
 from .runner import FilterRunner
@@ -368,18 +368,11 @@ class NavStream:
         if not np.isfinite(s.gyro).all() or not np.isfinite(s.accel).all():
             return []
         last = b.t_last if b.t_last is not None else s.t
-        ev = self._other_imu.setdefault(s.source, [0, s.t, s.t, 0])
-        ev[0] = ev[0] + 1 if ev[2] > last else 1  # delivered since the chosen one's last
-        ev[2], ev[3] = s.t, ev[3] + 1
-        if s.t - last <= b.gap_s or ev[0] < FAILOVER_SAMPLES:
+        rate = failover_rate(self._other_imu, s, last, b.gap_s)
+        if rate is None:
             return []
         o, old = self.opts, self._imu
-        rate = (ev[3] - 1) / max(ev[2] - ev[1], 1e-9)
-        integ, why = o.integration, "option"
-        if integ == "auto":
-            integ, why = default_integration(s.source, rate)
-        cap = DEFAULT_MAX_RATE_HZ if o.rate_hz is None else float(o.rate_hz)
-        factor = 1 if cap <= 0 else max(1, round(rate / cap))
+        integ, why, factor = step_plan(s.source, rate, o.integration, o.rate_hz)
         for r in b.flush():  # what the silent IMU left, before the switch
             self._queue.append(r)
         out = self._release(upto=last)
@@ -704,11 +697,7 @@ class NavStream:
             mag = imu if imu in mag_counts else choose_source(mag_counts, slack=1)
         ti = [s.t for s in held if isinstance(s, ImuSample) and s.source == imu]
         rate = (len(ti) - 1) / max(ti[-1] - ti[0], 1e-9) if len(ti) > 1 else 0.0
-        integ, why = o.integration, "option"
-        if integ == "auto":
-            integ, why = default_integration(imu, rate)
-        cap = DEFAULT_MAX_RATE_HZ if o.rate_hz is None else float(o.rate_hz)
-        factor = 1 if cap <= 0 else max(1, round(rate / cap))
+        integ, why, factor = step_plan(imu, rate, o.integration, o.rate_hz)
         self.noise = nav_noise_for_source(imu, rate).with_(**o.noise)
         self.delay = float(self.noise.gnss_delay if o.gnss_delay is None else o.gnss_delay)
         self._imu, self._mag = imu, mag
