@@ -74,3 +74,30 @@ def _shared_logs_fixture():
 
 
 shared_logs = _shared_logs_fixture()
+
+
+def google_decoded(path) -> dict:
+    """uavest's own protobuf channels of the MCAP file ``path``, read with the ``mcap``
+    reader and decoded by Google's ``protobuf`` from the schema in the file (an
+    independent reader, not ours): topic -> list of messages. Skips without protobuf."""
+    import pytest
+
+    pytest.importorskip("google.protobuf")
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+    from mcap.reader import make_reader
+
+    classes: dict = {}
+    got: dict = {}
+    with open(path, "rb") as f:
+        for schema, channel, msg in make_reader(f).iter_messages(log_time_order=False):
+            if schema.encoding != "protobuf" or not schema.name.startswith("uavest."):
+                continue
+            cls = classes.get(schema.id)
+            if cls is None:
+                pool = descriptor_pool.DescriptorPool()
+                for fd in descriptor_pb2.FileDescriptorSet.FromString(schema.data).file:
+                    pool.Add(fd)
+                cls = classes[schema.id] = message_factory.GetMessageClass(
+                    pool.FindMessageTypeByName(schema.name))
+            got.setdefault(channel.topic, []).append(cls.FromString(msg.data))
+    return got

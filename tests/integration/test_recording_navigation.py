@@ -9,7 +9,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import REPO_ROOT
+from conftest import REPO_ROOT, google_decoded
 
 from uavest.apps.replay import ReplayConfig, replay
 from uavest.sinks.base import Collector
@@ -18,34 +18,13 @@ from uavest.sinks.mcap import McapSink
 LOG = REPO_ROOT / "logs" / "sim_200hz.tlog"
 
 
-def _decoded(path):
-    pytest.importorskip("google.protobuf")
-    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
-    from mcap.reader import make_reader
-
-    classes, got = {}, {}
-    with open(path, "rb") as f:
-        for schema, channel, msg in make_reader(f).iter_messages(log_time_order=False):
-            if schema.encoding != "protobuf" or not schema.name.startswith("uavest."):
-                continue
-            cls = classes.get(schema.id)
-            if cls is None:
-                pool = descriptor_pool.DescriptorPool()
-                for fd in descriptor_pb2.FileDescriptorSet.FromString(schema.data).file:
-                    pool.Add(fd)
-                cls = classes[schema.id] = message_factory.GetMessageClass(
-                    pool.FindMessageTypeByName(schema.name))
-            got.setdefault(channel.topic, []).append(cls.FromString(msg.data))
-    return got
-
-
 def test_navigation_channels_equal_the_run(tmp_path):
     path = tmp_path / "nav.mcap"
     coll = Collector()
     doc = replay(LOG, ReplayConfig(filters=("ekf",), model="nav", end=30.0),
                  sinks=[coll, McapSink(path, frame_rate_hz=None)], command="test")
     assert doc["model"]["value"] == "nav"
-    got = _decoded(path)
+    got = google_decoded(path)
     nav, att = got["/navigation/ekf/estimate"], got["/attitude/ekf/estimate"]
     recs = coll.records["ekf"]
     assert len(nav) == len(recs) == len(att) > 100

@@ -9,7 +9,7 @@ from collections import Counter
 
 import numpy as np
 import pytest
-from conftest import shared_logs_dir
+from conftest import google_decoded, shared_logs_dir
 
 from uavest.apps.replay import ReplayConfig, replay
 from uavest.ingest.types import AttitudeRef, ImuSample, MagSample
@@ -213,24 +213,8 @@ def test_own_protobuf_channels_decode_with_google_protobuf(vtol):
     """uavest's protobuf channels, read with the ``mcap`` reader and decoded by Google's
     ``protobuf`` from the schema in the file (not by our decoder), equal what the report's
     reader decoded, field by field (NaN there as None here)."""
-    pytest.importorskip("google.protobuf")
-    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
-    from mcap.reader import make_reader
-
     rec = vtol["rec"]
-    classes, got = {}, {}
-    with open(vtol["path"], "rb") as f:
-        for schema, channel, msg in make_reader(f).iter_messages(log_time_order=False):
-            if schema.encoding != "protobuf" or not schema.name.startswith("uavest."):
-                continue
-            cls = classes.get(schema.id)
-            if cls is None:
-                pool = descriptor_pool.DescriptorPool()
-                for fd in descriptor_pb2.FileDescriptorSet.FromString(schema.data).file:
-                    pool.Add(fd)
-                cls = classes[schema.id] = message_factory.GetMessageClass(
-                    pool.FindMessageTypeByName(schema.name))
-            got.setdefault(channel.topic, []).append(cls.FromString(msg.data))
+    got = google_decoded(vtol["path"])
     assert {"/attitude/ekf/estimate", "/attitude/ekf/health", "/attitude/ekf/error",
             "/reference/SIMSTATE"} <= set(got)
 
