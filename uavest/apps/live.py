@@ -449,8 +449,9 @@ def _live_samples(link, stop: threading.Event | None, duration: float | None,
 
 
 class _GapAware:
-    """The attitude builder, restarted (a new alignment and Start) after a link gap longer
-    than ``bridge_s``; shorter gaps are bridged by the next step's prediction."""
+    """The step builder (attitude or navigation stream), restarted (a new alignment and
+    Start) after a link gap longer than ``bridge_s``; shorter gaps are bridged by the next
+    step's prediction."""
 
     def __init__(self, make: Callable[[], AttitudeStream | NavStream], bridge_s: float
                  ) -> None:

@@ -80,8 +80,8 @@ class ReplayConfig:
     accel_comp: str = "auto"
     mag_mode: str = "field"
     mag_delay: float = 0.0
-    #: the library default stays the attitude model (what every recorder, smoother and
-    #: gap/failover path is built for); ``uavest replay`` defaults to "auto"
+    #: the library default stays the attitude model (the one whose results the golden
+    #: files and earlier tables hold); ``uavest replay`` defaults to "auto"
     model: str = "attitude"
     gnss_delay: float | None = None  # s; None -> NavNoise.gnss_delay
     model_why: str | None = None  # why a fixed ``model`` (None: "option --model")
@@ -319,17 +319,15 @@ def _score_smoothed(coll: Collector, refs: _Refs, label: str, ref: str, truth: b
 def _score_smoothed_nav(coll: Collector, nsc: NavScorer, label: str, att_ref: str | None,
                         frame, space) -> dict:
     """Velocity/position RMSE and the NEES blocks (as the filtered row's ``nees``) of the
-    smoothed navigation run of ``label``:
-    the run's own :class:`NavScorer` references, the smoothed states as its estimates."""
+    smoothed navigation run of ``label``, scored by the run's own :class:`NavScorer`
+    (its references) under the label ``"<label> smoothed"``."""
     t, xs, Ps = smooth_records(coll, label, space)
-    sm = NavScorer()
-    sm.att, sm.pos = nsc.att, nsc.pos
+    lab = f"{label} smoothed"
     for k in range(len(t)):
-        sm.add_estimate(label, float(t[k]), xs[k], Ps[k])
-    got = sm.scores(label, att_ref, frame)
-    out = {k: got[k] for k in ("vel_rmse_ms", "hpos_rmse_m", "vpos_rmse_m", "nees")
-           if got.get(k)}
-    return out
+        nsc.add_estimate(lab, float(t[k]), xs[k], Ps[k])
+    got = nsc.scores(lab, att_ref, frame)
+    return {k: got[k] for k in ("vel_rmse_ms", "hpos_rmse_m", "vpos_rmse_m", "nees")
+            if got.get(k)}
 
 
 @dataclass

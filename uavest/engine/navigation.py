@@ -245,7 +245,7 @@ class NavStream:
         self._queue: deque[_Raw] = deque()
         self._aid: dict[str, deque[_Aid]] = {"gnss": deque(), "baro": deque()}
         self._recent: deque[_Raw] = deque()  # raws of the last align_s while waiting
-        self._vfix: list[tuple[float, Array]] = []  # last two good GNSS (t, vel NED) waiting
+        self._vfix: deque[tuple[float, Array]] = deque(maxlen=2)  # last good GNSS (t, v NED)
         self._other_imu: dict[str, list[float]] = {}  # failover evidence per other IMU
         self._switched = False  # the IMU changed: the next start keeps no biases
         self._waiting = True
@@ -493,8 +493,6 @@ class NavStream:
         fix = self._good_fix(aids)
         if fix is not None and fix.gnss is not None:
             self._vfix.append((fix.t, np.asarray(fix.gnss.vel_ned, float)))
-            while len(self._vfix) > 2:
-                self._vfix.pop(0)
         if fix is None or fix.gnss is None or fix.ned is None or not self._recent:
             return []
         g = fix.gnss

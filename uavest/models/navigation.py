@@ -111,7 +111,8 @@ SENSOR_DEFAULTS: dict[str, NavNoise] = {
 
 
 #: A streamed MAVLink IMU at least this fast (Hz) is not a coarsely sampled telemetry
-#: IMU: it gets the plain defaults (the 200 Hz SITL RAW_IMU of logs/sitl_copter.tlog),
+#: IMU: it gets the plain defaults (the 200 Hz RAW_IMU of an ArduCopter SITL flight,
+#: docs/navigation.md),
 #: not :data:`MAVLINK_PROFILE`, whose noise densities were fitted at 3.8 Hz.
 FAST_STREAM_HZ = 50.0
 
