@@ -96,3 +96,33 @@ def test_compensation_off_by_option_stays_off(tmp_path, capsys):
     doc = json.loads((tmp_path / "c.json").read_text())
     assert doc["accel_compensation"] is None
     assert "acceleration compensation: off from t=" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_navigation_model_runs_before_the_fix_and_anchors_at_it(tmp_path, capsys):
+    """Under the navigation model the late-fix log gave 12-14 deg and 2 km (a first start
+    in flight from the accelerometer alone, then a reset storm of gated fixes). Now the
+    stream starts unaided 2 s into the IMU data, holds position until the fix, re-anchors
+    velocity and position there with the attitude and biases kept, and scores positions
+    from the fix only."""
+    base = shared_log("vtol.tlog")
+    f = tmp_path / "late_fix.tlog"
+    t_fix = delay_fix(base, f)
+    docs = []
+    for path, js in ((base, tmp_path / "a.json"), (f, tmp_path / "b.json")):
+        assert main(["replay", str(path), "--filters", "ekf", "--model", "nav",
+                     "--no-progress", "--json", str(js)]) == 0
+        docs.append(json.loads(js.read_text()))
+    text = capsys.readouterr().out
+    ref, late = docs[0]["filters"]["ekf"], docs[1]["filters"]["ekf"]
+    assert "alignment: done without a GNSS fix at t=" in text
+    m = re.search(r"alignment: velocity and position from the first fix at t=([0-9.]+) s", text)
+    assert m and t_fix - 1.0 < float(m.group(1)) < t_fix + 5.0, text
+    assert abs(docs[1]["fix_from_t"] - float(m.group(1))) < 0.05
+    assert docs[0].get("fix_from_t") is None
+    assert late["n"] > 0.95 * ref["n"]  # estimates from the start, not from the fix
+    for k in ("roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg", "vel_rmse_ms", "hpos_rmse_m"):
+        assert late[k] < 1.5 * ref[k], (k, late[k], ref[k])
+    assert late["resets"] == 0
+    # positions before the fix are in no frame: not scored
+    assert late["nees"]["position"]["n"] < late["n"] - 100

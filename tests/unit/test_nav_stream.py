@@ -26,10 +26,10 @@ DT = 0.01  # 100 Hz IMU
 
 
 def flight(seed: int, T: float = 40.0, mag: bool = True, gnss_every: int = 20,
-           delay: float = 0.0, v0: float = 6.0, vd: float = 0.0):
+           delay: float = 0.0, v0: float = 6.0, vd: float = 0.0, gnss_from: float = 1.5):
     """(samples, truth t (K,), truth states (K, 16)): 10 s straight, then a turn (down
     speed ``vd`` m/s throughout), with
-    IMU (interval means, 'sensor_combined'), GNSS 5 Hz (stamped ``delay`` s after the
+    IMU (interval means, 'sensor_combined'), GNSS 5 Hz from ``gnss_from`` s (stamped ``delay`` s after the
     state it measures), baro 10 Hz, magnetometer 10 Hz. Biases bg, ba constant."""
     rng = np.random.default_rng(seed)
     fr = LocalFrame(*ORIGIN)
@@ -60,7 +60,7 @@ def flight(seed: int, T: float = 40.0, mag: bool = True, gnss_every: int = 20,
         if k % 10 == 5:
             out.append(BaroSample(t, np.nan, 20.0, -x[9] + 50.0 + rng.normal() * 0.3,
                                   "sensor_baro"))
-        if k % gnss_every == 0 and k * DT >= 1.5:
+        if k % gnss_every == 0 and k * DT >= gnss_from:
             p = x[7:10] + rng.normal(size=3) * [0.4, 0.4, 0.8]
             lat, lon, h = fr.ned_to_geodetic(p)
             v = x[4:7] + rng.normal(size=3) * 0.08
@@ -110,6 +110,37 @@ def test_every_filter_converges_on_a_synthetic_flight(spec):
     s = stream.summary
     assert s["gnss_source"] == "vehicle_gps_position" and s["baro_source"] == "sensor_baro"
     assert any(d["what"] == "alignment" and "magnetometer" in d["why"] for d in s["decisions"])
+
+
+@pytest.mark.parametrize("spec", ["ekf", "ukf", "hybrid"])
+def test_before_the_first_fix_the_stream_runs_unaided_then_anchors(spec):
+    """A flight whose GNSS fix arrives 15 s after the IMU: estimates from 2 s in (attitude
+    from the accelerometer and magnetometer, a constant-position hold), velocity and
+    position re-anchored at the fix with the attitude and biases kept; positions before
+    the fix are not in the frame (``fix_from``). Without ``before_fix`` nothing comes
+    before the fix."""
+    samples, ts, xs = flight(4, v0=0.0, gnss_from=15.0)
+    stream, runners, coll = run_nav(samples, [spec])
+    t = coll.arrays(runners[0].label)["t"]
+    assert t[0] < 102.5
+    assert stream.fix_from is not None and 115.0 <= stream.fix_from < 115.5
+    whats = [(d["what"], d["value"]) for d in stream.summary["decisions"]]
+    assert ("alignment", "done without a GNSS fix") in whats
+    assert ("alignment", "velocity and position from the first fix") in whats
+    e0, _ = errors(stream, coll, runners[0].label, ts, xs, 103.0)
+    pre = t[t >= 103.0] < 115.0
+    # unaided (a 0.57 deg/s gyro bias, unobservable accel bias): bounded, not exact
+    assert np.degrees(rms(e0[pre, :2])) < 3.0  # tilt before the fix, deg
+    assert rms(e0[pre, 3:6]) < 1.5  # held near rest: velocity m/s
+    assert runners[0].resets == 0
+    late, lr, lc = run_nav(samples, [spec], NavOptions(integration="hold", before_fix=False))
+    # after the fix at least as good as a stream that starts there (what it learnt kept)
+    e, _ = errors(stream, coll, runners[0].label, ts, xs, 120.0)
+    el, _ = errors(late, lc, lr[0].label, ts, xs, 120.0)
+    assert rms(e[:, 3:6]) < 0.3 and rms(e[:, 6:8]) < 1.0
+    for sl in (slice(0, 2), slice(2, 3)):  # tilt, yaw
+        assert rms(e[:, sl]) < 1.1 * rms(el[:, sl]), (sl, rms(e[:, sl]), rms(el[:, sl]))
+    assert lc.arrays(lr[0].label)["t"][0] >= 115.0 and late.fix_from is None
 
 
 def test_without_magnetometer_yaw_comes_from_the_gnss_course():

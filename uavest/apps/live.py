@@ -656,6 +656,7 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
                                        tscore, st, *sinks], info)
     wall = time.perf_counter() - wall0
     scorer.finish()
+    nav_scorer.pos_from = getattr(att.stream, "fix_from", None)
     refs = scorer.refs
     ref, _ = select_reference(refs)
     truth = ref is not None and refs[ref].kind == "truth"

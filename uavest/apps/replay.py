@@ -455,8 +455,9 @@ def replay(
     if nav:
         doc.update({k: sm.get(k) for k in ("gnss_source", "gnss_sources", "baro_source",
                                            "gnss_delay_s", "baro_offset_m", "origin",
-                                           "aiding")})
+                                           "aiding", "fix_from_t")})
     frame = getattr(stream, "frame", None)
+    nsc.pos_from = getattr(stream, "fix_from", None)
     steps = max(int(sm.get("steps") or 0), 1)
     for r in runners:
         row: dict = scorer.scores(r.label, ref_name, truth) if ref_name else {}

@@ -103,6 +103,19 @@ _CHI2: dict[int, float] = {}  # GATE_PROB quantile by dimension
 #: (``mag_noise`` describes one update per reference step; a 200 Hz magnetometer at
 #: ``--rate 0`` would otherwise carry 8 times the information and pull the tilt).
 MAG_MIN_INTERVAL_S = 1.0 / DEFAULT_MAX_RATE_HZ - 1e-6
+#: Without a good GNSS fix this many alignment windows (``NavOptions.align_s``) into the
+#: IMU data, the stream starts unaided (``NavOptions.before_fix``).
+UNAIDED_WAIT_ALIGNS = 2.0
+#: The unaided constant-position measurement is applied at most this often (s): a
+#: GNSS-like rate, so its information does not grow with the IMU rate.
+HOLD_INTERVAL_S = 0.2
+#: Provisional latitude (rad) for gravity before the first fix gives the true one
+#: (normal gravity differs by at most 0.026 m/s^2 from its value here).
+UNAIDED_LAT = float(np.deg2rad(45.0))
+#: The navigation state's attitude and bias components: kept when the first fix
+#: re-anchors velocity and position (indices into x, and into the tangent P).
+KEEP_ATT_BIAS_X = (0, 1, 2, 3, *range(10, 16))
+KEEP_ATT_BIAS_P = (0, 1, 2, *range(9, 15))
 
 
 class NavNotStarted(NoSamplesError):
@@ -123,7 +136,12 @@ class NavOptions:
     heading; ``gnss_delay`` s (None: ``NavNoise.gnss_delay``); ``align_s`` s;
     ``yaw_speed`` m/s, the ground speed from which the GNSS course gives the start yaw
     without a magnetometer; ``imu_delay`` s, the lag of the IMU's samples behind the
-    motion (None: :func:`imu_filter_delay` from the log's parameters)."""
+    motion (None: :func:`imu_filter_delay` from the log's parameters); ``before_fix``:
+    with a magnetometer and no good GNSS fix :data:`UNAIDED_WAIT_ALIGNS` alignment
+    windows into the IMU data, start unaided (attitude from the accelerometer and
+    magnetometer, velocity and position held near the start by a constant-position
+    measurement, ``NavNoise.nofix_pos_noise``) and re-anchor velocity and position at
+    the first good fix, attitude and biases kept."""
 
     start: float | None = None
     end: float | None = None
@@ -141,6 +159,7 @@ class NavOptions:
     align_s: float = 1.0
     yaw_speed: float = 3.0
     imu_delay: float | None = None
+    before_fix: bool = True
 
     def in_window(self, t: float) -> bool:
         """True if ``t`` (s) lies in [start, end]."""
@@ -269,6 +288,11 @@ class NavStream:
         self._switched = False  # the IMU changed: the next start keeps no biases
         self._waiting = True
         self._started = False
+        self._unaided = False  # running before the first fix (NavOptions.before_fix)
+        self._t_hold = -np.inf
+        #: vehicle time (s) from which positions are in :attr:`frame` (the first-fix
+        #: re-anchoring); None when the stream started at a fix
+        self.fix_from: float | None = None
         self._wait_why = "no good GNSS fix yet"
         self._t_out: float | None = None  # end of the last released step
         self._now = -np.inf
@@ -491,6 +515,12 @@ class NavStream:
             self._t_out = r.t
             if self._waiting:
                 out += self._try_start(r, aids)
+            elif self._unaided:
+                fix = self._good_fix(aids)
+                if fix is not None:
+                    out += self._anchor(r, fix)
+                else:
+                    out.append(self._step(r, [a for a in aids if a.sensor != "gnss"]))
             else:
                 out.append(self._step(r, aids))
         return out
@@ -504,7 +534,7 @@ class NavStream:
         return None
 
     def _try_start(self, r: _Raw, aids: list[_Aid]) -> list[Start | Step]:
-        o, n = self.opts, self.noise
+        o = self.opts
         if r.a is not None:
             self._recent.append(r)
             while self._recent and self._recent[0].t < r.t - o.align_s:
@@ -512,11 +542,14 @@ class NavStream:
         fix = self._good_fix(aids)
         if fix is not None and fix.gnss is not None:
             self._vfix.append((fix.t, np.asarray(fix.gnss.vel_ned, float)))
+        mags = [x.mag for x in self._recent if x.mag is not None and np.any(x.mag)]
+        use_mag = self._mag is not None and bool(mags)
+        if fix is None and not self._started and self._recent and use_mag and o.before_fix \
+                and r.t - self._imu_n[1] >= UNAIDED_WAIT_ALIGNS * o.align_s:
+            return self._start_unaided(r, mags)
         if fix is None or fix.gnss is None or fix.ned is None or not self._recent:
             return []
         g = fix.gnss
-        mags = [x.mag for x in self._recent if x.mag is not None and np.any(x.mag)]
-        use_mag = self._mag is not None and bool(mags)
         vh = np.asarray(g.vel_ned[:2], float)
         speed = float(np.hypot(vh[0], vh[1]))
         if not use_mag and speed < o.yaw_speed:
@@ -526,13 +559,12 @@ class NavStream:
             self.summary["_vmax"] = max(speed, self.summary.get("_vmax", 0.0))
             return []
         first = not self._started
-        if not first and speed >= o.yaw_speed and len(self._vfix) < 2:
-            self._wait_why = ("moving after an IMU gap: waiting for a second GNSS velocity "
-                              "(the acceleration to take out of the accelerometer)")
+        if speed >= o.yaw_speed and len(self._vfix) < 2:  # moving: at a start or a gap
+            self._wait_why = ("moving: waiting for a second GNSS velocity (the "
+                              "acceleration to take out of the accelerometer)")
             return []
         if first:
             self._first_start(r)
-        acc = np.mean([x.a for x in self._recent if x.a is not None], axis=0)
         # the vehicle's own acceleration (NED, m/s^2) from the last two GNSS velocities:
         # in flight (a re-alignment after an IMU gap) the accelerometer is not gravity
         a_ned = np.zeros(3)
@@ -540,6 +572,37 @@ class NavStream:
             (t1, v1), (t2, v2) = self._vfix
             if 0.05 < t2 - t1 < 2.0:
                 a_ned = np.nan_to_num((v2 - v1) / (t2 - t1))
+        q, syaw, ywhy = self._level(a_ned, mags if use_mag else [], vh)
+        n = self.noise
+        # moving, the compensation rests on a differenced GNSS velocity: a wider tilt prior
+        tilt = n.init_tilt if speed < o.yaw_speed else 3.0 * n.init_tilt
+        v, p, pv = self._fix_prior(r, fix)
+        x = np.concatenate([q, v, p, np.zeros(6)])
+        P = np.diag([tilt**2] * 2 + [syaw**2] + pv
+                    + [n.init_gyro_bias**2] * 3 + [n.init_accel_bias**2] * 3)
+        self._waiting = False
+        self._started = True
+        self._recent.clear()
+        if self._unaided:
+            self._unaided = False
+            self.fix_from = self.summary["fix_from_t"] = r.t - self.imu_delay
+        comp = (f" less the GNSS acceleration ({np.linalg.norm(a_ned):.1f} m/s^2)"
+                if np.any(a_ned) else "")
+        why = (f"roll/pitch from the accelerometer{comp}, yaw from {ywhy}, velocity and "
+               f"position from the {self._gnss} fix at t={g.t:.1f} s")
+        self._decide("alignment", "done" if first else "re-aligned", r.t, why)
+        keep = 0 if first or self._switched else 6
+        self._switched = False
+        return [Start(r.t - self.imu_delay, Gaussian(x, P), self.space,
+                      reason="start" if first else "gap", keep_tail=keep)]
+
+    def _level(self, a_ned: Array, mags: list[Any], vh: Array) -> tuple[Array, float, str]:
+        """(quaternion, yaw prior std rad, where the yaw came from) from the accelerometer
+        mean of the alignment window less the vehicle's acceleration ``a_ned`` (NED,
+        m/s^2), and the last magnetometer sample of ``mags`` (none: the GNSS course of the
+        horizontal velocity ``vh``, m/s)."""
+        n = self.noise
+        acc = np.mean([x.a for x in self._recent if x.a is not None], axis=0)
         q = np.array([1.0, 0.0, 0.0, 0.0])
         roll = pitch = yaw = 0.0
         syaw, ywhy = n.init_yaw, "the magnetometer"
@@ -547,17 +610,23 @@ class NavStream:
             a = quat_rotate_inv(q, a_ned) - acc  # gravity direction in the body
             roll = float(np.arctan2(a[1], a[2]))
             pitch = float(np.arctan2(-a[0], np.hypot(a[1], a[2])))
-            if use_mag:
+            if mags:
                 q0 = euler_to_quat(np.array(roll), np.array(pitch), np.array(0.0))
                 m = quat_rotate(q0, np.asarray(mags[-1], float))
                 yaw = float(wrap_pi(self.declination - np.arctan2(m[1], m[0])))
             else:
                 yaw = float(np.arctan2(vh[1], vh[0]))
+                speed = float(np.hypot(vh[0], vh[1]))
                 syaw, ywhy = n.init_yaw_course, f"the GNSS course at {speed:.1f} m/s"
             q = euler_to_quat(np.array(roll), np.array(pitch), np.array(yaw))
-        # moving, the compensation rests on a differenced GNSS velocity: a wider tilt prior
-        tilt = n.init_tilt if speed < o.yaw_speed else 3.0 * n.init_tilt
-        dt = r.t - fix.t
+        return q, syaw, ywhy
+
+    def _fix_prior(self, r: _Raw, fix: _Aid) -> tuple[Array, Array, list[float]]:
+        """Velocity (NED m/s), position (NED m, moved to the step's time) and their six
+        prior variances from a good fix."""
+        n, g = self.noise, fix.gnss
+        assert g is not None and fix.ned is not None
+        dt = r.t - self.imu_delay - fix.t
         v = np.asarray(g.vel_ned, float).copy()
         vz_ok = bool(np.isfinite(v[2]))
         if not vz_ok:
@@ -566,22 +635,50 @@ class NavStream:
         sh = max(n.gnss_pos_floor, g.h_acc if np.isfinite(g.h_acc) else 0.0)
         sv = max(n.gnss_vpos_floor, g.v_acc if np.isfinite(g.v_acc) else 0.0)
         svel = max(n.gnss_vel_floor, g.s_acc if np.isfinite(g.s_acc) else 0.0)
-        x = np.concatenate([q, v, p, np.zeros(6)])
-        P = np.diag([tilt**2] * 2 + [syaw**2] + [svel**2] * 2
-                    + [(svel if vz_ok else n.init_vel) ** 2] + [sh**2] * 2 + [sv**2]
+        return v, p, ([svel**2] * 2 + [(svel if vz_ok else n.init_vel) ** 2]
+                      + [sh**2] * 2 + [sv**2])
+
+    def _start_unaided(self, r: _Raw, mags: list[Any]) -> list[Start | Step]:
+        """The first start without a GNSS fix (``NavOptions.before_fix``): level from the
+        accelerometer, yaw from the magnetometer, velocity 0 +- ``init_vel``, position at
+        the provisional origin; gravity at :data:`UNAIDED_LAT` until the fix."""
+        n = self.noise
+        self._first_start(r)
+        if self._model is None:
+            self._model = ImuTransition(self.noise, lat=UNAIDED_LAT, h=0.0)
+        q, syaw, ywhy = self._level(np.zeros(3), mags, np.zeros(2))
+        x = np.concatenate([q, np.zeros(12)])
+        P = np.diag([n.init_tilt**2] * 2 + [syaw**2] + [n.init_vel**2] * 3
+                    + [n.nofix_pos_noise**2] * 3
                     + [n.init_gyro_bias**2] * 3 + [n.init_accel_bias**2] * 3)
         self._waiting = False
-        self._started = True
+        self._started = self._unaided = True
         self._recent.clear()
-        comp = (f" less the GNSS acceleration ({np.linalg.norm(a_ned):.1f} m/s^2)"
-                if np.any(a_ned) else "")
-        why = (f"roll/pitch from the accelerometer{comp}, yaw from {ywhy}, velocity and "
-               f"position from the {self._gnss} fix at t={g.t:.1f} s")
-        self._decide("alignment", "done" if first else "re-aligned", r.t, why)
-        keep = 0 if first or self._switched else 6
-        self._switched = False
-        return [Start(r.t, Gaussian(x, P), self.space, reason="start" if first else "gap",
-                      keep_tail=keep)]
+        wait = UNAIDED_WAIT_ALIGNS * self.opts.align_s
+        self._decide("alignment", "done without a GNSS fix", r.t,
+                     f"no good GNSS fix {wait:g} s into the IMU data: roll/pitch from the "
+                     f"accelerometer, yaw from {ywhy}; velocity and position held near the "
+                     f"start ({n.nofix_pos_noise:g} m constant-position measurement) until "
+                     "the first fix")
+        return [Start(r.t - self.imu_delay, Gaussian(x, P), self.space, reason="start")]
+
+    def _anchor(self, r: _Raw, fix: _Aid) -> list[Start | Step]:
+        """The first good fix after an unaided start: velocity and position from it, the
+        running attitude and biases kept (:data:`KEEP_ATT_BIAS_X`)."""
+        n, g = self.noise, fix.gnss
+        assert g is not None
+        v, p, pv = self._fix_prior(r, fix)
+        x = np.concatenate([[1.0, 0.0, 0.0, 0.0], v, p, np.zeros(6)])
+        P = np.diag([n.init_tilt**2] * 3 + pv + [n.init_gyro_bias**2] * 3
+                    + [n.init_accel_bias**2] * 3)
+        self._unaided = False
+        self.fix_from = self.summary["fix_from_t"] = r.t - self.imu_delay
+        self._vfix.clear()
+        self._decide("alignment", "velocity and position from the first fix", r.t,
+                     f"the {self._gnss} fix at t={g.t:.1f} s; attitude and biases kept "
+                     "from the unaided start")
+        return [Start(r.t - self.imu_delay, Gaussian(x, P), self.space, reason="first fix",
+                      keep_x=KEEP_ATT_BIAS_X, keep_P=KEEP_ATT_BIAS_P)]
 
     def _first_start(self, r: _Raw) -> None:
         """Declination and the magnetic reference, at the first start."""
@@ -671,6 +768,10 @@ class NavStream:
                 ups.append((np.array([self.declination]),
                             OnNav(MagHeading(f, np.array([[n.mag_noise**2]])))))
             sensors.append("mag")
+        if self._unaided and r.t - self._t_hold >= HOLD_INTERVAL_S:
+            self._t_hold = r.t
+            ups.append((np.zeros(3), GnssPosition(np.eye(3) * n.nofix_pos_noise**2)))
+            sensors.append("hold")
         self._k += 1
         u = np.concatenate([r.w, r.a])
         return Step(self._k, r.t - self.imu_delay, r.t - r.t0, self._model, tuple(ups), u,

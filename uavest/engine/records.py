@@ -39,13 +39,19 @@ class Start:
     bridge. ``reason`` says why (``"start"``, ``"link gap 3.2 s"``...). ``keep_tail``:
     on a restart, the last ``keep_tail`` components of the running estimate (mean and
     their covariance block; the gyro biases of an attitude state) replace the prior's,
-    so a re-alignment after an IMU gap keeps what the filter learnt."""
+    so a re-alignment after an IMU gap keeps what the filter learnt. ``keep_x`` /
+    ``keep_P``: the same for any components, by index into the state vector and into
+    the tangent covariance (e.g. a navigation state's attitude and biases when the
+    first GNSS fix re-anchors velocity and position); their cross-covariance with the
+    others is zero."""
 
     t0: float
     prior: Any
     space: Any
     reason: str = "start"
     keep_tail: int = 0
+    keep_x: tuple[int, ...] = ()
+    keep_P: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)

@@ -69,12 +69,19 @@ class FilterRunner:
         prior, resets = st.prior, None
         if self.state is not None:  # a restart: the guard's reset count carries on
             resets = getattr(self.state, "resets", None)
-            n = st.keep_tail
-            if n:
+            kx, kp = st.keep_x, st.keep_P
+            if st.keep_tail:
+                n, nx, nP = st.keep_tail, len(prior.x), len(prior.P)
+                kx, kp = tuple(range(nx - n, nx)), tuple(range(nP - n, nP))
+            if kx:
                 old = self.filter.estimate(self.state)
                 x, P = np.array(prior.x, float), np.array(prior.P, float)
-                x[-n:], P[-n:, -n:] = old.x[-n:], old.P[-n:, -n:]
-                P[-n:, :-n] = P[:-n, -n:] = 0.0
+                ix, ip = np.array(kx), np.array(kp)
+                x[ix] = old.x[ix]
+                Pk = old.P[np.ix_(ip, ip)]
+                P[ip, :] = 0.0
+                P[:, ip] = 0.0
+                P[np.ix_(ip, ip)] = Pk
                 prior = type(prior)(x, P)
         self.state = self.filter.init(prior, st.space, self.rng)
         if resets:

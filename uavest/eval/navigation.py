@@ -96,6 +96,10 @@ class NavScorer:
         self.est: dict[str, list[tuple[float, Array, Array]]] = {}
         self.att: dict[str, tuple[list[float], list[Array]]] = {}
         self.pos: dict[str, list[tuple[float, Array, Array, Array]]] = {}
+        #: vehicle time (s) before which the estimates' positions are not in the run's
+        #: frame (a navigation stream that started unaided before its first GNSS fix:
+        #: ``NavStream.fix_from``); None: all are
+        self.pos_from: float | None = None
 
     def add_estimate(self, label: str, t: float, x: Array, P: Array) -> None:
         """One step of estimator ``label``: state ``x`` (attitude 7 or navigation 16)
@@ -128,8 +132,8 @@ class NavScorer:
         """Scores of ``label`` (module docstring) against the attitude truth ``att_ref``
         (None: no attitude block) and the position reference, its positions moved into
         ``frame`` (a :class:`~uavest.geometry.geodesy.LocalFrame`; None: no position
-        block). Keys: ``vel_rmse_ms``, ``hpos_rmse_m``, ``vpos_rmse_m``, ``nees``
-        {attitude, velocity, position: {mean, in_band95, n}}, ``airborne`` {t, n,
+        block; positions before :attr:`pos_from` are not scored). Keys: ``vel_rmse_ms``,
+        ``hpos_rmse_m``, ``vpos_rmse_m``, ``nees`` {attitude, velocity, position: {mean, in_band95, n}}, ``airborne`` {t, n,
         roll/pitch/yaw_rmse_deg, vel/hpos/vpos RMSE, nees}; only what can be scored."""
         rows = self.est.get(label)
         if not rows:
@@ -166,6 +170,8 @@ class NavScorer:
                                                        lla[good, 2]), float)
                 p_ref, okp = _interp(tr[good], ned, t)
                 air = okp & (-p_ref[:, 2] > np.nanmin(-ned[:, 2]) + AIRBORNE_M)
+                if self.pos_from is not None:
+                    okp = okp & (t >= self.pos_from)
                 if nav:
                     e = p_ref[okp] - x[okp, 7:10]
                     errs["pos"], masks["position"] = e, okp

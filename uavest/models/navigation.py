@@ -66,6 +66,9 @@ class NavNoise:
         magnetometer); init_yaw_course: prior std of a yaw taken from the GNSS course
         once moving (no magnetometer), rad: the crab/sideslip it leaves.
     init_vel: m/s; init_pos: m; init_gyro_bias: rad/s; init_accel_bias: m/s^2.
+    nofix_pos_noise: before the first GNSS fix, the std (m, each NED axis) of the
+        constant-position measurement that holds the unaided mechanisation near where
+        it started (ArduPilot EKF3's EK3_NOAID_M_NSE default, 10 m).
     """
 
     gyro_noise: float = 0.003
@@ -87,6 +90,7 @@ class NavNoise:
     init_pos: float = 5.0
     init_gyro_bias: float = np.deg2rad(0.5)
     init_accel_bias: float = 0.2
+    nofix_pos_noise: float = 10.0
 
     def with_(self, **kw: float) -> NavNoise:
         """Copy with fields replaced (unknown names raise TypeError)."""
