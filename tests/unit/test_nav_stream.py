@@ -29,7 +29,8 @@ def flight(seed: int, T: float = 40.0, mag: bool = True, gnss_every: int = 20,
            delay: float = 0.0, v0: float = 6.0, vd: float = 0.0, gnss_from: float = 1.5):
     """(samples, truth t (K,), truth states (K, 16)): 10 s straight, then a turn (down
     speed ``vd`` m/s throughout), with
-    IMU (interval means, 'sensor_combined'), GNSS 5 Hz from ``gnss_from`` s (stamped ``delay`` s after the
+    IMU (interval means, 'sensor_combined'), GNSS 5 Hz from ``gnss_from`` s (before it,
+    when later than 1.5 s, the receiver's no-fix messages; stamped ``delay`` s after the
     state it measures), baro 10 Hz, magnetometer 10 Hz. Biases bg, ba constant."""
     rng = np.random.default_rng(seed)
     fr = LocalFrame(*ORIGIN)
@@ -60,6 +61,9 @@ def flight(seed: int, T: float = 40.0, mag: bool = True, gnss_every: int = 20,
         if k % 10 == 5:
             out.append(BaroSample(t, np.nan, 20.0, -x[9] + 50.0 + rng.normal() * 0.3,
                                   "sensor_baro"))
+        if k % gnss_every == 0 and k * DT < gnss_from and gnss_from > 1.5:  # no fix yet
+            out.append(GnssSample(t, np.zeros(3), np.full(3, np.nan), 1, np.nan, np.nan,
+                                  np.nan, np.nan, np.nan, 0, "vehicle_gps_position"))
         if k % gnss_every == 0 and k * DT >= gnss_from:
             p = x[7:10] + rng.normal(size=3) * [0.4, 0.4, 0.8]
             lat, lon, h = fr.ned_to_geodetic(p)

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -107,13 +107,15 @@ def choose_model(samples: Iterable, model: str = "auto", why: str | None = None
     stream (:data:`MIN_FIXES` 3-D fixes with a finite position of one receiver):
     navigation if there is one, attitude-only otherwise. The samples looked at are held
     and handed back in front of the rest. The decision is a dict of ``what``, ``value``
-    ("nav" | "attitude"), ``t`` (s, None for an option) and ``why``."""
+    ("nav" | "attitude"), ``t`` (s, None for an option), ``why`` and ``fix_stream``
+    (a fix stream was found: a navigation run may start unaided before its first fix,
+    ``NavOptions.before_fix``; looked for under ``--model nav`` too)."""
     if model not in MODELS:
         raise InputError(f"--model must be one of {', '.join(MODELS)}, not {model!r}")
     it = iter(samples)
-    if model != "auto":
+    if model == "attitude":
         return it, {"what": "model", "value": model, "t": None,
-                    "why": why or "option --model"}
+                    "why": why or "option --model", "fix_stream": False}
     import itertools
 
     held: list = []
@@ -125,13 +127,18 @@ def choose_model(samples: Iterable, model: str = "auto", why: str | None = None
             n = fixes[s.source] = fixes.get(s.source, 0) + 1
             if n >= MIN_FIXES:
                 return itertools.chain(held, it), {
-                    "what": "model", "value": "nav", "t": s.t,
-                    "why": f"the log carries a raw GNSS fix stream ({s.source}: "
-                           f"{MIN_FIXES} 3-D fixes by t={s.t:.1f} s)"}
+                    "what": "model", "value": "nav", "t": None if model == "nav" else s.t,
+                    "why": why or "option --model" if model == "nav" else
+                    f"the log carries a raw GNSS fix stream ({s.source}: "
+                    f"{MIN_FIXES} 3-D fixes by t={s.t:.1f} s)", "fix_stream": True}
         if isinstance(s, ImuSample):
             t_imu0 = s.t if t_imu0 is None else t_imu0
             if s.t - t_imu0 > MODEL_PEEK_S:
                 break
+    if model == "nav":
+        return itertools.chain(held, it), {"what": "model", "value": "nav", "t": None,
+                                            "why": why or "option --model",
+                                            "fix_stream": False}
     t = next((s.t for s in held if isinstance(s, ImuSample)), held[0].t if held else None)
     seen = sorted({s.source for s in held if isinstance(s, GnssSample)})
     if fixes:
@@ -141,7 +148,7 @@ def choose_model(samples: Iterable, model: str = "auto", why: str | None = None
         why = (f"no 3-D GNSS fix in the first {MODEL_PEEK_S:g} s of IMU data"
                + (f" ({', '.join(seen)} without one)" if seen else " (no raw GNSS stream)"))
     return itertools.chain(held, it), {"what": "model", "value": "attitude", "t": t,
-                                        "why": why}
+                                        "why": why, "fix_stream": False}
 
 
 class _Score(Sink):
@@ -291,7 +298,8 @@ def replay_samples(
     coll = Collector() if cfg.smooth else None
     refs = _Refs() if cfg.smooth else None
     stream: AttitudeStream | NavStream = (
-        NavStream(opts=cfg.nav_options(), params=params) if nav
+        NavStream(opts=replace(cfg.nav_options(), before_fix=decision["fix_stream"]),
+                  params=params) if nav
         else AttitudeStream(opts=opts, params=params))
     info = info or RunInfo("", "", cfg.seed)
     info.filters = {sp.label: sp.as_dict() for sp, _ in specs}

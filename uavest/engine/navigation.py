@@ -559,9 +559,9 @@ class NavStream:
             self.summary["_vmax"] = max(speed, self.summary.get("_vmax", 0.0))
             return []
         first = not self._started
-        if speed >= o.yaw_speed and len(self._vfix) < 2:  # moving: at a start or a gap
-            self._wait_why = ("moving: waiting for a second GNSS velocity (the "
-                              "acceleration to take out of the accelerometer)")
+        if not first and speed >= o.yaw_speed and len(self._vfix) < 2:
+            self._wait_why = ("moving after an IMU gap: waiting for a second GNSS velocity "
+                              "(the acceleration to take out of the accelerometer)")
             return []
         if first:
             self._first_start(r)

@@ -133,7 +133,8 @@ class NavScorer:
         (None: no attitude block) and the position reference, its positions moved into
         ``frame`` (a :class:`~uavest.geometry.geodesy.LocalFrame`; None: no position
         block; positions before :attr:`pos_from` are not scored). Keys: ``vel_rmse_ms``,
-        ``hpos_rmse_m``, ``vpos_rmse_m``, ``nees`` {attitude, velocity, position: {mean, in_band95, n}}, ``airborne`` {t, n,
+        ``hpos_rmse_m``, ``vpos_rmse_m``, ``nees`` {attitude, velocity, position: {mean,
+        in_band95, n}}, ``airborne`` {t, n,
         roll/pitch/yaw_rmse_deg, vel/hpos/vpos RMSE, nees}; only what can be scored."""
         rows = self.est.get(label)
         if not rows:
