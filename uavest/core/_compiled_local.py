@@ -6,7 +6,9 @@ The numpy update costs a few dozen array operations per step on (M, m, n) stacks
 M = 585 members (the ``radar`` preset), each paying numpy's per-call floor; here each
 stage is one loop over the members. The formulas are those of the numpy path in
 :mod:`uavest.core.hybrid` (``_innovation_stack`` and ``HybridLocal.update``): S_j's
-inverse and log-determinant in closed form for m <= 2, the local gains, the
+inverse and log-determinant in closed form for m <= 2 (from a Cholesky factor for
+m >= 3, where the numpy path takes LAPACK's ``inv`` and ``slogdet``: the 3-D radar's
+range / azimuth / elevation), the local gains, the
 log-likelihood weights, the posterior draw, the predict's process noise, and the
 ensemble moments of ``ensemble_moments`` (:mod:`uavest.core.states`). The kernels draw
 their normals and uniforms from the caller's ``numpy.random.Generator`` itself, through
@@ -16,7 +18,7 @@ numpy path to rounding (``tests/unit/test_hybrid_local_compiled.py``). Importing
 module imports numba and compiles nothing; each kernel compiles at its first call
 (cached on disk by numba).
 
-Shapes: M members, n state (tangent) dimension, m <= 2 measurement components; all
+Shapes: M members, n state (tangent) dimension, m >= 1 measurement components; all
 arrays float64 (``idx`` int64). Units are the state's and the measurement's own (the
 radar: m, m/s, rad).
 """
@@ -32,7 +34,7 @@ from numba import njit
 from numba.np.random.distributions import random_standard_normal
 from numba.np.random.generator_core import next_double
 
-from ..compiled.helpers import bitgen
+from ..compiled.helpers import bitgen, chol_into
 
 __all__ = ["add_noise", "centres", "local_draw", "local_gains", "local_update", "moments",
            "prior_moments",
@@ -114,24 +116,30 @@ def local_gains(Hs: Array, B: Array, R: Array, nu: Array, dY: Array, w: Array,
                 confidence: bool, tag: tuple[float, ...]
                 ) -> tuple[Array, Array, Array, Array, int]:  # pragma: no cover - compiled
     """Innovation covariances and confidence weights of the Gaussian-mixture update
-    (m = 1 or 2).
+    (any m >= 1).
 
     Per member j: ``HB`` (M, m, n) = H_j B and S_j = H_j B H_j^T + R, returned as its
-    inverse's entries ``Si`` (M, 3): (S^-1)_00, (S^-1)_11, (S^-1)_01 (m = 1: the first
-    only); the local gain is K_j = (H_j B)^T S_j^-1. If ``confidence``, the weights
-    w_j N(nu_j; 0, S_j), normalised (``wu`` (M,); otherwise a copy of ``w``). ``Pyy``
-    (m, m) = sum_j w_j (dY_j dY_j^T + S_j) with the prior weights: the innovation
-    covariance. ``status`` is 1 if B is not finite or some S_j not positive definite
-    (variance or determinant <= 0, or NaN), else 0; the other outputs are then
-    meaningless. Terms with H_j entries equal to zero are skipped (the radar's velocity
-    columns): the same sums."""
+    inverse's entries ``Si`` (M, max(3, m^2)): for m = 1 and 2 (closed form, as the
+    numpy path's ``_innovation_stack``) (S^-1)_00, (S^-1)_11, (S^-1)_01 (m = 1: the
+    first only); for m >= 3 the full inverse row-major, (S^-1)_ab at a m + b, from the
+    Cholesky factor S_j = L L^T (S^-1 = L^-T L^-1, det S_j = prod L_aa^2). The local
+    gain is K_j = (H_j B)^T S_j^-1. If ``confidence``, the weights w_j N(nu_j; 0, S_j),
+    normalised (``wu`` (M,); otherwise a copy of ``w``). ``Pyy`` (m, m) = sum_j w_j
+    (dY_j dY_j^T + S_j) with the prior weights: the innovation covariance. ``status`` is
+    1 if B is not finite or some S_j not positive definite (variance or determinant
+    <= 0, or NaN; m >= 3: a Cholesky pivot not in (0, inf)), else 0; the other outputs
+    are then meaningless. Terms with H_j entries equal to zero are skipped (the radar's
+    velocity columns): the same sums."""
     n = len(tag)
     M, m = Hs.shape[0], Hs.shape[1]
     HB = np.empty((M, m, n))
-    Si = np.empty((M, 3))
+    Si = np.empty((M, max(3, m * m)))
     t = np.empty(M)  # -1/2 nu_j^T S_j^-1 nu_j
     r = np.empty(M)  # max(w_j, 1e-300) / sqrt(det S_j)
     Pyy = np.zeros((m, m))
+    S = np.empty((m, m))  # m >= 3: S_j, its factor and the factor's inverse
+    L = np.empty((m, m))
+    Li = np.empty((m, m))
     status = 0
     for c in range(n):
         for k in range(n):
@@ -162,7 +170,8 @@ def local_gains(Hs: Array, B: Array, R: Array, nu: Array, dY: Array, w: Array,
             q = n0 * n0 * i00
             d0 = dY[j, 0]
             Pyy[0, 0] += wj * (d0 * d0 + s00)
-        else:
+            sq = math.sqrt(det)
+        elif m == 2:
             s11 = R[1, 1]
             s01 = R[0, 1]
             for k in range(n):
@@ -187,10 +196,50 @@ def local_gains(Hs: Array, B: Array, R: Array, nu: Array, dY: Array, w: Array,
             Pyy[0, 0] += wj * (d0 * d0 + s00)
             Pyy[1, 1] += wj * (d1 * d1 + s11)
             Pyy[0, 1] += wj * (d0 * d1 + s01)
+            sq = math.sqrt(det)
+        else:  # m >= 3: the Cholesky factor, its inverse, S^-1 = Li^T Li
+            for a in range(m):
+                for b in range(a + 1):
+                    s = R[a, b]
+                    for k in range(n):
+                        s += HB[j, a, k] * Hs[j, b, k]
+                    S[a, b] = s
+                    S[b, a] = s
+            if not chol_into(S, L):
+                status = 1
+                for a in range(m):
+                    for b in range(m):
+                        L[a, b] = 1.0 if a == b else 0.0
+            sq = 1.0
+            for a in range(m):  # Li = L^-1 (lower), column by column
+                sq *= L[a, a]
+                for b in range(a + 1):
+                    s = 1.0 if a == b else 0.0
+                    for k in range(b, a):
+                        s -= L[a, k] * Li[k, b]
+                    Li[a, b] = s / L[a, a]
+                for b in range(a + 1, m):
+                    Li[a, b] = 0.0
+            q = 0.0
+            for a in range(m):
+                for b in range(a + 1):
+                    s = 0.0
+                    for k in range(a, m):  # (Li^T Li)_ab = sum_k Li_ka Li_kb, k >= a
+                        s += Li[k, a] * Li[k, b]
+                    Si[j, a * m + b] = s
+                    Si[j, b * m + a] = s
+            for a in range(m):
+                na = nu[j, a]
+                da = dY[j, a]
+                s = 0.0
+                for b in range(m):
+                    s += Si[j, a * m + b] * nu[j, b]
+                    Pyy[a, b] += wj * (da * dY[j, b] + S[a, b])
+                q += na * s
         if confidence:
             tj = -0.5 * q
             t[j] = tj
-            r[j] = max(wj, 1e-300) / math.sqrt(det)
+            r[j] = max(wj, 1e-300) / sq
             if tj > mx or tj != tj:  # a NaN sticks (tj > NaN is False), as in numpy
                 mx = tj
     if m == 2:
@@ -265,6 +314,8 @@ def local_draw(C: Array, HB: Array, Si: Array, Hs: Array, nu: Array, En: Array, 
     M, m = HB.shape[0], HB.shape[1]
     X = np.empty((M, n))
     e = np.empty(n)
+    dv = np.empty(m)  # m > 2: d and S^-1 d
+    gv = np.empty(m)
     for i in range(M):
         j = idx[i] if resample else i
         for k in range(n):
@@ -273,6 +324,28 @@ def local_draw(C: Array, HB: Array, Si: Array, Hs: Array, nu: Array, En: Array, 
                 s += En[i, c] * Lb[k, c]
             e[k] = s
         # d = nu_j + v_i - H_j e_i, then g = S_j^-1 d
+        if m > 2:  # the full inverse (local_gains): d, g = S^-1 d, X_i
+            for a in range(m):
+                s = 0.0
+                for c in range(n):
+                    h = Hs[j, a, c]
+                    if h != 0.0:
+                        s += h * e[c]
+                v = 0.0
+                for b in range(a + 1):
+                    v += Vn[i, b] * Lr[a, b]
+                dv[a] = nu[j, a] + v - s
+            for a in range(m):
+                s = 0.0
+                for b in range(m):
+                    s += Si[j, a * m + b] * dv[b]
+                gv[a] = s
+            for k in range(n):
+                s = 0.0
+                for a in range(m):
+                    s += gv[a] * HB[j, a, k]
+                X[i, k] = C[j, k] + (e[k] + s)
+            continue
         s = 0.0
         for c in range(n):
             h = Hs[j, 0, c]
