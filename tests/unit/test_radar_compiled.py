@@ -1,8 +1,9 @@
 """The compiled ``RadarMeasurement.linearise_rows`` (``uavest.models._compiled_radar``,
-numba; the 2-D range / azimuth and the 3-D range / azimuth / elevation radar) equals the composed default
-(``Measurement.linearise_rows``: ``h_H_rows``, the circular ``mean``, three wrapped
-``residual`` calls, which is also the fallback without numba or with ``UAVEST_NUMBA=0``)
-to rounding; the other layouts and the forced-off kernel take the default."""
+numba; the 2-D range / azimuth and the 3-D range / azimuth / elevation radar) equals
+the composed default (``Measurement.linearise_rows``: ``h_H_rows``, the circular
+``mean``, three wrapped ``residual`` calls, which is also the fallback without numba or
+with ``UAVEST_NUMBA=0``) to rounding; the range-rate layouts and the forced-off kernel
+take the default."""
 
 from __future__ import annotations
 
