@@ -34,7 +34,7 @@ from numba import njit
 from numba.np.random.distributions import random_standard_normal
 from numba.np.random.generator_core import next_double
 
-from ..compiled.helpers import bitgen, chol_into
+from ..compiled.helpers import bitgen
 
 __all__ = ["add_noise", "centres", "local_draw", "local_gains", "local_update", "moments",
            "prior_moments",
@@ -113,7 +113,7 @@ def prior_moments(X: Array, w: Array, a: float, tag: tuple[float, ...]
 
 @njit(cache=True, fastmath=_FM)
 def local_gains(Hs: Array, B: Array, R: Array, nu: Array, dY: Array, w: Array,
-                confidence: bool, tag: tuple[float, ...]
+                confidence: bool, tag: tuple[float, ...], mtag: tuple[float, ...]
                 ) -> tuple[Array, Array, Array, Array, int]:  # pragma: no cover - compiled
     """Innovation covariances and confidence weights of the Gaussian-mixture update
     (any m >= 1).
@@ -129,9 +129,12 @@ def local_gains(Hs: Array, B: Array, R: Array, nu: Array, dY: Array, w: Array,
     1 if B is not finite or some S_j not positive definite (variance or determinant
     <= 0, or NaN; m >= 3: a Cholesky pivot not in (0, inf)), else 0; the other outputs
     are then meaningless. Terms with H_j entries equal to zero are skipped (the radar's
-    velocity columns): the same sums."""
+    velocity columns): the same sums. ``tag`` / ``mtag``: tuples of n and m floats
+    (:func:`tag`; m = Hs.shape[1]), so that n and m are constants of each compiled
+    version (the loops over the components unrolled, the branches on m folded)."""
     n = len(tag)
-    M, m = Hs.shape[0], Hs.shape[1]
+    m = len(mtag)
+    M = Hs.shape[0]
     HB = np.empty((M, m, n))
     Si = np.empty((M, max(3, m * m)))
     t = np.empty(M)  # -1/2 nu_j^T S_j^-1 nu_j
@@ -205,11 +208,23 @@ def local_gains(Hs: Array, B: Array, R: Array, nu: Array, dY: Array, w: Array,
                         s += HB[j, a, k] * Hs[j, b, k]
                     S[a, b] = s
                     S[b, a] = s
-            if not chol_into(S, L):
+            ok = True  # the lower factor (chol_into's loops, with m a constant here)
+            for b in range(m):
+                p = S[b, b]
+                for k in range(b):
+                    p -= L[b, k] * L[b, k]
+                if not 0.0 < p < math.inf:
+                    ok = False
+                    p = 1.0
+                d = math.sqrt(p)
+                L[b, b] = d
+                for a in range(b + 1, m):
+                    u = S[a, b]
+                    for k in range(b):
+                        u -= L[a, k] * L[b, k]
+                    L[a, b] = u / d
+            if not ok:  # (the outputs are not read: the caller raises)
                 status = 1
-                for a in range(m):
-                    for b in range(m):
-                        L[a, b] = 1.0 if a == b else 0.0
             sq = 1.0
             for a in range(m):  # Li = L^-1 (lower), column by column
                 sq *= L[a, a]
@@ -300,7 +315,8 @@ def systematic_indices(w: Array, u: float) -> Array:  # pragma: no cover - compi
 
 @njit(cache=True, fastmath=_FM)
 def local_draw(C: Array, HB: Array, Si: Array, Hs: Array, nu: Array, En: Array, Lb: Array,
-               Vn: Array, Lr: Array, idx: Array, resample: bool, wp: Array, tag: tuple[float, ...]
+               Vn: Array, Lr: Array, idx: Array, resample: bool, wp: Array,
+               tag: tuple[float, ...], mtag: tuple[float, ...]
                ) -> tuple[Array, Array, Array, Array]:  # pragma: no cover - compiled
     """Posterior members and their moments.
 
@@ -309,9 +325,11 @@ def local_draw(C: Array, HB: Array, Si: Array, Hs: Array, nu: Array, En: Array, 
     of :func:`local_gains`), with e_i = Lb En_i ~ N(0, B) and v_i = Lr Vn_i ~ N(0, R)
     from the caller's standard normals ``En`` (M, n), ``Vn`` (M, m) and lower factors
     ``Lb``, ``Lr``: a draw from N(C_j + K_j nu_j, B - K_j H_j B). Returns ``X`` (M, n) and
-    :func:`moments` of it under the posterior weights ``wp`` (M,)."""
+    :func:`moments` of it under the posterior weights ``wp`` (M,). ``tag``, ``mtag``: as
+    :func:`local_gains`."""
     n = len(tag)
-    M, m = HB.shape[0], HB.shape[1]
+    m = len(mtag)
+    M = HB.shape[0]
     X = np.empty((M, n))
     e = np.empty(n)
     dv = np.empty(m)  # m > 2: d and S^-1 d
@@ -383,7 +401,8 @@ def _no_draw(n: int, wu: Array, Pyy: Array, resampled: bool, status: int
 @njit(cache=True, fastmath=_FM)
 def local_update(bits: Array, C: Array, Hs: Array, B: Array, R: Array, nu: Array, dY: Array,
                  w: Array, confidence: bool, regen_ess: float, Lb: Array, Lr: Array,
-                 tag: tuple[float, ...]) -> _Update:  # pragma: no cover
+                 tag: tuple[float, ...], mtag: tuple[float, ...]
+                 ) -> _Update:  # pragma: no cover
     """The whole update after the model's terms, the draws included: :func:`local_gains`,
     the effective sample size of the updated weights, :func:`systematic_indices` if it is
     < ``regen_ess`` M, and :func:`local_draw` with the standard normals ``En`` (M, n)
@@ -395,10 +414,12 @@ def local_update(bits: Array, C: Array, Hs: Array, B: Array, R: Array, nu: Array
     Returns ``X``, ``x``, ``dX``, ``P`` (the posterior members and their moments under the
     posterior weights), ``wu`` (the updated weights), ``Pyy`` (the innovation covariance),
     ``resampled`` and ``status``: 0, 1 if B is not finite or some S_j is not positive
-    definite, 2 if the weights to resample are not finite (nothing drawn then)."""
+    definite, 2 if the weights to resample are not finite (nothing drawn then).
+    ``tag``, ``mtag``: tuples of n and m floats (:func:`local_gains`)."""
     n = len(tag)
-    M, m = Hs.shape[0], Hs.shape[1]
-    HB, Si, Pyy, wu, status = local_gains(Hs, B, R, nu, dY, w, confidence, tag)
+    m = len(mtag)
+    M = Hs.shape[0]
+    HB, Si, Pyy, wu, status = local_gains(Hs, B, R, nu, dY, w, confidence, tag, mtag)
     if status:
         return _no_draw(n, wu, Pyy, False, status)
     s2 = 0.0
@@ -424,7 +445,8 @@ def local_update(bits: Array, C: Array, Hs: Array, B: Array, R: Array, nu: Array
         wp = np.full(M, 1.0 / M)
     else:
         wp = wu
-    X, x, dX, P = local_draw(C, HB, Si, Hs, nu, En, Lb, Vn, Lr, idx, resample, wp, tag)
+    X, x, dX, P = local_draw(C, HB, Si, Hs, nu, En, Lb, Vn, Lr, idx, resample, wp, tag,
+                              mtag)
     return X, x, dX, P, wu, Pyy, resample, 0
 
 

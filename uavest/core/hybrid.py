@@ -866,7 +866,8 @@ class HybridLocal(_HybridBase):
         conf = self.weights == "confidence"
         Lb, Lr = chol(B), chol(R)  # (before the draws: nothing random in either)
         X, xp, dXp, Pp, wu, Pyy, resample, bad = nb.local_update(
-            bitgen_pointers(rng), C, Hs, B, R, nu, dY, w, conf, self.regen_ess, Lb, Lr, tg)
+            bitgen_pointers(rng), C, Hs, B, R, nu, dY, w, conf, self.regen_ess, Lb, Lr, tg,
+            nb.tag(m))
         if bad == 1:
             raise NumericalError("innovation covariance not positive definite")
         if bad:  # (NaN weights have a NaN ESS, which never resamples: not reached so far)
