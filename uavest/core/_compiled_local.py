@@ -51,9 +51,10 @@ _Update = tuple[Array, Array, Array, Array, Array, Array, bool, int]
 
 @lru_cache(maxsize=16)
 def tag(n: int) -> tuple[float, ...]:
-    """The tuple of n zeros that the kernels take as their last argument: its length is
-    part of its numba type, so each kernel compiles once per state dimension n with n a
-    constant (its loops over the state components unrolled), not once per call."""
+    """The tuple of n zeros that the kernels take as their ``tag`` argument (and of m
+    zeros as ``mtag``, the measurement's size): its length is part of its numba type, so
+    each kernel compiles once per state dimension n (and m) with n a constant (its loops
+    over the state components unrolled), not once per call."""
     return (0.0,) * n
 
 
