@@ -345,7 +345,7 @@ class RadarMeasurement(Measurement):
             (r00, r01), (r10, r11) = R.tolist()
             aligned = r00 == 1.0 and r01 == 0.0 and r10 == 0.0 and r11 == 1.0
             args = (*p.tolist(), r00, r01, r10, r11, float(aligned), _EPS**2)
-        elif self.ndim == 3 and R.shape == (3, 3) and p.shape == (3,):
+        elif self.ndim == 3 and R.shape == (3, 3) and p.shape == (3,) and self.space.dim >= 3:
             args = (*p.tolist(), *R.ravel().tolist(), _EPS**2)
         memo = (pose, args, (0.0,) * self.space.dim)
         self._kpose = memo
