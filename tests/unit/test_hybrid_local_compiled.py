@@ -204,6 +204,35 @@ def test_compiled_update_equals_the_numpy_path_on_3d_radar_data(monkeypatch):
     assert 0 < resampled < len(a)  # both branches of the draw ran
 
 
+def test_3d_radar_update_dispatches_to_the_compiled_path(monkeypatch):
+    """``update`` on 3-D detections (m = 3) takes the kernels with the 3-D radar kernel
+    (the numpy update and the composed radar terms fail if called); skipped without
+    numba or with ``UAVEST_NUMBA=0``."""
+    from conftest import compiled_kernels
+
+    from uavest.core.interfaces import Measurement
+    from uavest.models import radar as radar_mod
+    from uavest.presets import build
+
+    compiled_kernels(hybrid.LOCAL_KERNELS.get, "local hybrid kernels")
+    compiled_kernels(radar_mod.RADAR_KERNELS.get, "radar kernel")
+
+    def boom(*a, **k):
+        raise AssertionError("the numpy path ran")
+
+    motion, radar, prior, Z, poses = _radar3_run(5)
+    f = build("hybrid", "radar", 6)
+    monkeypatch.setattr(HybridLocal, "_update_numpy", boom)
+    monkeypatch.setattr(Measurement, "linearise_rows", boom)
+    rng = np.random.default_rng(0)
+    E = f.init(prior, motion.space, rng)
+    z = next(z for z in Z if z is not None)
+    E, inn = f.update(f.predict(E, motion, 1.0, 1.0, None, rng), z, radar.with_pose(poses[0]),
+                      rng)
+    assert E.X.shape == (f.members(6), 6) and inn.S.shape == (3, 3)
+    assert np.all(np.isfinite(E.X)) and np.isfinite(inn.nis)
+
+
 def test_update_dispatches_to_the_kernels_unless_switched_off():
     """``update`` uses the kernels on a vector space (any m) when numba is enabled and
     the numpy path with ``UAVEST_NUMBA=0`` (decided once per process)."""
