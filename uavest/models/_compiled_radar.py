@@ -1,5 +1,7 @@
-"""Compiled (numba) kernel of :meth:`uavest.models.radar.RadarMeasurement.linearise_rows`
-for the 2-D range / azimuth radar (no range rate): the optional fast path (``pip install
+"""Compiled (numba) kernels of :meth:`uavest.models.radar.RadarMeasurement.linearise_rows`
+for the radar without range rate: :func:`linearise2` (2-D range / azimuth, described
+below) and :func:`linearise3` (3-D range / azimuth / elevation, the same steps with the
+elevation row; see its docstring). The optional fast path (``pip install
 "uavest[fast]"``), dispatched through :data:`uavest.models.radar.RADAR_KERNELS`.
 
 The composed default (:meth:`uavest.core.interfaces.Measurement.linearise_rows`: ``h_H_rows``,
