@@ -20,6 +20,17 @@ replaced, "now" the one used, and now / before):
 * step: predict + update + estimate of the hybrid against our UKF's, the ratio the
   issue's goal reads (radar_far at 5 deg, one run's detections).
 
+Then the same for 3-D detections (range, azimuth, elevation: m = 3; radar_uav, its first
+target seen from the UAV with the estimated pose of each scan, 6-D CV, M = 845 members):
+
+* 3-D linearise_rows and 3-D local update, numpy against compiled, as above;
+* 3-D step (predict + update + estimate, us per step) of the hybrid three ways: all numpy
+  (no numba), "before" (the kernels of m <= 2 only: compiled predict noise, numpy update
+  and radar terms, what the 3-D radar ran before the m >= 3 kernels), and "now" (all
+  compiled); the UKF's step on the same data, and hybrid / UKF before and now.
+
+``--only 2d`` / ``--only 3d`` runs one of the two sections.
+
 Needs numba (``uavest[fast]``); every random draw from a seeded ``numpy.random.Generator``.
 """
 
@@ -50,7 +61,17 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeats", type=int, default=15)
     ap.add_argument("--seed", type=int, default=0, help="seed of the members and draws")
+    ap.add_argument("--only", choices=("2d", "3d"), default=None,
+                    help="run one section (default: both)")
     a = ap.parse_args()
+    if a.only != "3d":
+        _radar2d(a)
+    if a.only != "2d":
+        _radar3d(a)
+
+
+def _radar2d(a: argparse.Namespace) -> None:
+    """The 2-D range / azimuth rows (the module doc)."""
 
     from numba import njit
 
@@ -154,6 +175,123 @@ def main() -> None:
     print(f"  step: hybrid {np.median(th):.1f} us, ukf {np.median(tu):.1f} us; hybrid / ukf "
           f"median of the repeats' ratios {np.median(th / tu):.2f}, of the fastest "
           f"{th.min() / tu.min():.2f}")
+
+
+def _interleaved(fns, number: int, repeats: int) -> list[float]:
+    """Median us per call of each of ``fns``, timed in turn ``repeats`` times (the
+    machine's load hits all alike)."""
+    for fn in fns:
+        fn()
+    t: list[list[float]] = [[] for _ in fns]
+    for _ in range(repeats):
+        for i, fn in enumerate(fns):
+            t[i].append(_per_call(fn, number, 1))
+    return [float(np.median(x)) for x in t]
+
+
+def _radar3d(a: argparse.Namespace) -> None:
+    """The 3-D range / azimuth / elevation rows (the module doc)."""
+    import uavest.core._compiled_local as nb
+    from uavest.core import hybrid, make_filter
+    from uavest.core.gaussian import Gaussian
+    from uavest.core.interfaces import Measurement
+    from uavest.core.states import Ensemble
+    from uavest.experiments.radar import data_rng
+    from uavest.models import radar as radar_mod
+    from uavest.presets import build
+    from uavest.scenarios import load_typed
+    from uavest.tracking.scenario import build_models, generate_run
+
+    if not hybrid.LOCAL_KERNELS.get() or not radar_mod.RADAR_KERNELS.get():
+        raise SystemExit("radar_hybrid_parts: needs numba (and UAVEST_NUMBA not 0)")
+    sc = load_typed("radar_uav", [])
+    motion, radar = build_models(sc)
+    rd = generate_run(sc, data_rng(a.seed, 0))
+    Z = [s[o == 0][0] if np.any(o == 0) else None
+         for s, o in zip(rd.scans, rd.origins, strict=True)]
+    poses = rd.poses_est
+    P0 = np.diag([50.0**2] * 3 + [20.0**2] * 3)
+    g = np.random.default_rng([a.seed, 3])
+    x0 = rd.truths[0, 0] + g.standard_normal(6) * np.sqrt(np.diag(P0))
+    f = build("hybrid", "radar", 6)
+    M = f.members(6)
+    R = a.repeats
+    # members around the target at scan 10, seen from that scan's pose
+    k0 = 10
+    rad = radar.with_pose(poses[k0])
+    X = rd.truths[0, k0 + 1] + g.standard_normal((M, 6)) * [100.0, 100.0, 50.0, 5.0, 5.0, 2.0]
+    w = g.dirichlet(np.full(M, 50.0))
+    z = rad.h(X[:1])[0] + [30.0, 0.01, 0.01]
+    rng = np.random.default_rng([a.seed, 4])
+    kl, kr = hybrid.LOCAL_KERNELS, radar_mod.RADAR_KERNELS
+    on = (kl.loaded, kr.loaded)
+
+    def paths(local: bool, radar_terms: bool) -> None:
+        kl.loaded = on[0] if local else False
+        kr.loaded = on[1] if radar_terms else False
+
+    def numpy_update():
+        paths(True, False)
+        try:
+            return f._update_numpy(Ensemble(X, motion.space, w), z, rad, rng)
+        finally:
+            paths(True, True)
+
+    print(f"\n3-D radar (range / azimuth / elevation, m = 3), radar_uav, M = {M}, us per "
+          f"call (median of {R} repeats)")
+    print(f"  {'part':38s} {'before':>9s} {'now':>9s} {'ratio':>7s}")
+    rows = [
+        (f"3-D radar linearise_rows (M = {M})",
+         lambda: Measurement.linearise_rows(rad, X, z, w),
+         lambda: rad.linearise_rows(X, z, w), 200),
+        (f"3-D local update (M = {M})", numpy_update,
+         lambda: f._update_compiled(nb, Ensemble(X, motion.space, w), z, rad, rng), 50),
+    ]
+    for name, old, new, number in rows:
+        o, n = _interleaved((old, new), number, R)
+        print(f"  {name:38s} {o:9.2f} {n:9.2f} {n / o:7.3f}")
+
+    def loop(filt, mode: str = "now") -> float:
+        paths(mode != "numpy", mode == "now")
+        if mode == "before":  # the m <= 2 dispatch: the update's numpy path
+            upd = filt._update_numpy
+        else:
+            upd = filt.update
+        r = np.random.default_rng([a.seed, 2])
+        try:
+            s = filt.init(Gaussian(x0, P0), motion.space, r)
+            c = time.perf_counter()
+            for k, zk in enumerate(Z):
+                s = filt.predict(s, motion, float(k + 1), 1.0, None, r)
+                if zk is not None:
+                    s, _ = upd(s, zk, radar.with_pose(poses[k]), r)
+                filt.estimate(s)
+            return (time.perf_counter() - c) / len(Z) * 1e6
+        finally:
+            paths(True, True)
+
+    ukf = make_filter("ukf")
+    modes = ("numpy", "before", "now")
+    for m in modes:
+        loop(f, m)
+    loop(ukf)
+    th: dict[str, list[float]] = {m: [] for m in modes}
+    tu = []
+    for _ in range(R):
+        for m in modes:
+            th[m].append(loop(f, m))
+        tu.append(loop(ukf))
+    u = np.array(tu)
+    med = {m: float(np.median(v)) for m, v in th.items()}
+    print(f"  3-D step ({len(Z)} scans), us per step: hybrid all numpy {med['numpy']:.1f}, "
+          f"before (m <= 2 kernels) {med['before']:.1f}, now {med['now']:.1f}; "
+          f"ukf {np.median(u):.1f}")
+    print(f"  3-D step now / before {med['now'] / med['before']:.3f}, now / all numpy "
+          f"{med['now'] / med['numpy']:.3f}")
+    for m in ("before", "now"):
+        h = np.array(th[m])
+        print(f"  3-D step hybrid ({m}) / ukf: median of the repeats' ratios "
+              f"{np.median(h / u):.2f}, of the fastest {h.min() / u.min():.2f}")
 
 
 if __name__ == "__main__":

@@ -6,7 +6,9 @@ The numpy update costs a few dozen array operations per step on (M, m, n) stacks
 M = 585 members (the ``radar`` preset), each paying numpy's per-call floor; here each
 stage is one loop over the members. The formulas are those of the numpy path in
 :mod:`uavest.core.hybrid` (``_innovation_stack`` and ``HybridLocal.update``): S_j's
-inverse and log-determinant in closed form for m <= 2, the local gains, the
+inverse and log-determinant in closed form for m <= 2 (from a Cholesky factor for
+m >= 3, where the numpy path takes LAPACK's ``inv`` and ``slogdet``: the 3-D radar's
+range / azimuth / elevation), the local gains, the
 log-likelihood weights, the posterior draw, the predict's process noise, and the
 ensemble moments of ``ensemble_moments`` (:mod:`uavest.core.states`). The kernels draw
 their normals and uniforms from the caller's ``numpy.random.Generator`` itself, through
@@ -16,7 +18,7 @@ numpy path to rounding (``tests/unit/test_hybrid_local_compiled.py``). Importing
 module imports numba and compiles nothing; each kernel compiles at its first call
 (cached on disk by numba).
 
-Shapes: M members, n state (tangent) dimension, m <= 2 measurement components; all
+Shapes: M members, n state (tangent) dimension, m >= 1 measurement components; all
 arrays float64 (``idx`` int64). Units are the state's and the measurement's own (the
 radar: m, m/s, rad).
 """
@@ -49,9 +51,10 @@ _Update = tuple[Array, Array, Array, Array, Array, Array, bool, int]
 
 @lru_cache(maxsize=16)
 def tag(n: int) -> tuple[float, ...]:
-    """The tuple of n zeros that the kernels take as their last argument: its length is
-    part of its numba type, so each kernel compiles once per state dimension n with n a
-    constant (its loops over the state components unrolled), not once per call."""
+    """The tuple of n zeros that the kernels take as their ``tag`` argument (and of m
+    zeros as ``mtag``, the measurement's size): its length is part of its numba type, so
+    each kernel compiles once per state dimension n (and m) with n a constant (its loops
+    over the state components unrolled), not once per call."""
     return (0.0,) * n
 
 
@@ -111,27 +114,36 @@ def prior_moments(X: Array, w: Array, a: float, tag: tuple[float, ...]
 
 @njit(cache=True, fastmath=_FM)
 def local_gains(Hs: Array, B: Array, R: Array, nu: Array, dY: Array, w: Array,
-                confidence: bool, tag: tuple[float, ...]
+                confidence: bool, tag: tuple[float, ...], mtag: tuple[float, ...]
                 ) -> tuple[Array, Array, Array, Array, int]:  # pragma: no cover - compiled
     """Innovation covariances and confidence weights of the Gaussian-mixture update
-    (m = 1 or 2).
+    (any m >= 1).
 
     Per member j: ``HB`` (M, m, n) = H_j B and S_j = H_j B H_j^T + R, returned as its
-    inverse's entries ``Si`` (M, 3): (S^-1)_00, (S^-1)_11, (S^-1)_01 (m = 1: the first
-    only); the local gain is K_j = (H_j B)^T S_j^-1. If ``confidence``, the weights
-    w_j N(nu_j; 0, S_j), normalised (``wu`` (M,); otherwise a copy of ``w``). ``Pyy``
-    (m, m) = sum_j w_j (dY_j dY_j^T + S_j) with the prior weights: the innovation
-    covariance. ``status`` is 1 if B is not finite or some S_j not positive definite
-    (variance or determinant <= 0, or NaN), else 0; the other outputs are then
-    meaningless. Terms with H_j entries equal to zero are skipped (the radar's velocity
-    columns): the same sums."""
+    inverse's entries ``Si`` (M, max(3, m^2)): for m = 1 and 2 (closed form, as the
+    numpy path's ``_innovation_stack``) (S^-1)_00, (S^-1)_11, (S^-1)_01 (m = 1: the
+    first only); for m >= 3 the full inverse row-major, (S^-1)_ab at a m + b, from the
+    Cholesky factor S_j = L L^T (S^-1 = L^-T L^-1, det S_j = prod L_aa^2). The local
+    gain is K_j = (H_j B)^T S_j^-1. If ``confidence``, the weights w_j N(nu_j; 0, S_j),
+    normalised (``wu`` (M,); otherwise a copy of ``w``). ``Pyy`` (m, m) = sum_j w_j
+    (dY_j dY_j^T + S_j) with the prior weights: the innovation covariance. ``status`` is
+    1 if B is not finite or some S_j not positive definite (variance or determinant
+    <= 0, or NaN; m >= 3: a Cholesky pivot not in (0, inf)), else 0; the other outputs
+    are then meaningless. Terms with H_j entries equal to zero are skipped (the radar's
+    velocity columns): the same sums. ``tag`` / ``mtag``: tuples of n and m floats
+    (:func:`tag`; m = Hs.shape[1]), so that n and m are constants of each compiled
+    version (the loops over the components unrolled, the branches on m folded)."""
     n = len(tag)
-    M, m = Hs.shape[0], Hs.shape[1]
+    m = len(mtag)
+    M = Hs.shape[0]
     HB = np.empty((M, m, n))
-    Si = np.empty((M, 3))
+    Si = np.empty((M, max(3, m * m)))
     t = np.empty(M)  # -1/2 nu_j^T S_j^-1 nu_j
     r = np.empty(M)  # max(w_j, 1e-300) / sqrt(det S_j)
     Pyy = np.zeros((m, m))
+    S = np.empty((m, m))  # m >= 3: S_j, its factor and the factor's inverse
+    L = np.empty((m, m))
+    Li = np.empty((m, m))
     status = 0
     for c in range(n):
         for k in range(n):
@@ -162,7 +174,8 @@ def local_gains(Hs: Array, B: Array, R: Array, nu: Array, dY: Array, w: Array,
             q = n0 * n0 * i00
             d0 = dY[j, 0]
             Pyy[0, 0] += wj * (d0 * d0 + s00)
-        else:
+            sq = math.sqrt(det)
+        elif m == 2:
             s11 = R[1, 1]
             s01 = R[0, 1]
             for k in range(n):
@@ -187,10 +200,62 @@ def local_gains(Hs: Array, B: Array, R: Array, nu: Array, dY: Array, w: Array,
             Pyy[0, 0] += wj * (d0 * d0 + s00)
             Pyy[1, 1] += wj * (d1 * d1 + s11)
             Pyy[0, 1] += wj * (d0 * d1 + s01)
+            sq = math.sqrt(det)
+        else:  # m >= 3: the Cholesky factor, its inverse, S^-1 = Li^T Li
+            for a in range(m):
+                for b in range(a + 1):
+                    s = R[a, b]
+                    for k in range(n):
+                        s += HB[j, a, k] * Hs[j, b, k]
+                    S[a, b] = s
+                    S[b, a] = s
+            ok = True  # the lower factor (chol_into's loops, with m a constant here)
+            for b in range(m):
+                p = S[b, b]
+                for k in range(b):
+                    p -= L[b, k] * L[b, k]
+                if not 0.0 < p < math.inf:
+                    ok = False
+                    p = 1.0
+                d = math.sqrt(p)
+                L[b, b] = d
+                for a in range(b + 1, m):
+                    u = S[a, b]
+                    for k in range(b):
+                        u -= L[a, k] * L[b, k]
+                    L[a, b] = u / d
+            if not ok:  # (the outputs are not read: the caller raises)
+                status = 1
+            sq = 1.0
+            for a in range(m):  # Li = L^-1 (lower), column by column
+                sq *= L[a, a]
+                for b in range(a + 1):
+                    s = 1.0 if a == b else 0.0
+                    for k in range(b, a):
+                        s -= L[a, k] * Li[k, b]
+                    Li[a, b] = s / L[a, a]
+                for b in range(a + 1, m):
+                    Li[a, b] = 0.0
+            q = 0.0
+            for a in range(m):
+                for b in range(a + 1):
+                    s = 0.0
+                    for k in range(a, m):  # (Li^T Li)_ab = sum_k Li_ka Li_kb, k >= a
+                        s += Li[k, a] * Li[k, b]
+                    Si[j, a * m + b] = s
+                    Si[j, b * m + a] = s
+            for a in range(m):
+                na = nu[j, a]
+                da = dY[j, a]
+                s = 0.0
+                for b in range(m):
+                    s += Si[j, a * m + b] * nu[j, b]
+                    Pyy[a, b] += wj * (da * dY[j, b] + S[a, b])
+                q += na * s
         if confidence:
             tj = -0.5 * q
             t[j] = tj
-            r[j] = max(wj, 1e-300) / math.sqrt(det)
+            r[j] = max(wj, 1e-300) / sq
             if tj > mx or tj != tj:  # a NaN sticks (tj > NaN is False), as in numpy
                 mx = tj
     if m == 2:
@@ -251,7 +316,8 @@ def systematic_indices(w: Array, u: float) -> Array:  # pragma: no cover - compi
 
 @njit(cache=True, fastmath=_FM)
 def local_draw(C: Array, HB: Array, Si: Array, Hs: Array, nu: Array, En: Array, Lb: Array,
-               Vn: Array, Lr: Array, idx: Array, resample: bool, wp: Array, tag: tuple[float, ...]
+               Vn: Array, Lr: Array, idx: Array, resample: bool, wp: Array,
+               tag: tuple[float, ...], mtag: tuple[float, ...]
                ) -> tuple[Array, Array, Array, Array]:  # pragma: no cover - compiled
     """Posterior members and their moments.
 
@@ -260,11 +326,15 @@ def local_draw(C: Array, HB: Array, Si: Array, Hs: Array, nu: Array, En: Array, 
     of :func:`local_gains`), with e_i = Lb En_i ~ N(0, B) and v_i = Lr Vn_i ~ N(0, R)
     from the caller's standard normals ``En`` (M, n), ``Vn`` (M, m) and lower factors
     ``Lb``, ``Lr``: a draw from N(C_j + K_j nu_j, B - K_j H_j B). Returns ``X`` (M, n) and
-    :func:`moments` of it under the posterior weights ``wp`` (M,)."""
+    :func:`moments` of it under the posterior weights ``wp`` (M,). ``tag``, ``mtag``: as
+    :func:`local_gains`."""
     n = len(tag)
-    M, m = HB.shape[0], HB.shape[1]
+    m = len(mtag)
+    M = HB.shape[0]
     X = np.empty((M, n))
     e = np.empty(n)
+    dv = np.empty(m)  # m > 2: d and S^-1 d
+    gv = np.empty(m)
     for i in range(M):
         j = idx[i] if resample else i
         for k in range(n):
@@ -273,6 +343,28 @@ def local_draw(C: Array, HB: Array, Si: Array, Hs: Array, nu: Array, En: Array, 
                 s += En[i, c] * Lb[k, c]
             e[k] = s
         # d = nu_j + v_i - H_j e_i, then g = S_j^-1 d
+        if m > 2:  # the full inverse (local_gains): d, g = S^-1 d, X_i
+            for a in range(m):
+                s = 0.0
+                for c in range(n):
+                    h = Hs[j, a, c]
+                    if h != 0.0:
+                        s += h * e[c]
+                v = 0.0
+                for b in range(a + 1):
+                    v += Vn[i, b] * Lr[a, b]
+                dv[a] = nu[j, a] + v - s
+            for a in range(m):
+                s = 0.0
+                for b in range(m):
+                    s += Si[j, a * m + b] * dv[b]
+                gv[a] = s
+            for k in range(n):
+                s = 0.0
+                for a in range(m):
+                    s += gv[a] * HB[j, a, k]
+                X[i, k] = C[j, k] + (e[k] + s)
+            continue
         s = 0.0
         for c in range(n):
             h = Hs[j, 0, c]
@@ -310,7 +402,8 @@ def _no_draw(n: int, wu: Array, Pyy: Array, resampled: bool, status: int
 @njit(cache=True, fastmath=_FM)
 def local_update(bits: Array, C: Array, Hs: Array, B: Array, R: Array, nu: Array, dY: Array,
                  w: Array, confidence: bool, regen_ess: float, Lb: Array, Lr: Array,
-                 tag: tuple[float, ...]) -> _Update:  # pragma: no cover
+                 tag: tuple[float, ...], mtag: tuple[float, ...]
+                 ) -> _Update:  # pragma: no cover
     """The whole update after the model's terms, the draws included: :func:`local_gains`,
     the effective sample size of the updated weights, :func:`systematic_indices` if it is
     < ``regen_ess`` M, and :func:`local_draw` with the standard normals ``En`` (M, n)
@@ -322,10 +415,12 @@ def local_update(bits: Array, C: Array, Hs: Array, B: Array, R: Array, nu: Array
     Returns ``X``, ``x``, ``dX``, ``P`` (the posterior members and their moments under the
     posterior weights), ``wu`` (the updated weights), ``Pyy`` (the innovation covariance),
     ``resampled`` and ``status``: 0, 1 if B is not finite or some S_j is not positive
-    definite, 2 if the weights to resample are not finite (nothing drawn then)."""
+    definite, 2 if the weights to resample are not finite (nothing drawn then).
+    ``tag``, ``mtag``: tuples of n and m floats (:func:`local_gains`)."""
     n = len(tag)
-    M, m = Hs.shape[0], Hs.shape[1]
-    HB, Si, Pyy, wu, status = local_gains(Hs, B, R, nu, dY, w, confidence, tag)
+    m = len(mtag)
+    M = Hs.shape[0]
+    HB, Si, Pyy, wu, status = local_gains(Hs, B, R, nu, dY, w, confidence, tag, mtag)
     if status:
         return _no_draw(n, wu, Pyy, False, status)
     s2 = 0.0
@@ -351,7 +446,8 @@ def local_update(bits: Array, C: Array, Hs: Array, B: Array, R: Array, nu: Array
         wp = np.full(M, 1.0 / M)
     else:
         wp = wu
-    X, x, dX, P = local_draw(C, HB, Si, Hs, nu, En, Lb, Vn, Lr, idx, resample, wp, tag)
+    X, x, dX, P = local_draw(C, HB, Si, Hs, nu, En, Lb, Vn, Lr, idx, resample, wp, tag,
+                              mtag)
     return X, x, dX, P, wu, Pyy, resample, 0
 
 

@@ -772,13 +772,13 @@ class HybridLocal(_HybridBase):
         over the components; the m x m innovation covariances (m <= 2) are inverted in
         closed form on the whole stack.
 
-        On a :class:`~uavest.geometry.spaces.VectorSpace` with m <= 2 and numba installed
+        On a :class:`~uavest.geometry.spaces.VectorSpace` (any m) and numba installed
         (``uavest[fast]``; ``UAVEST_NUMBA=0`` switches it off) the same update runs as
         compiled loops over the members (:data:`LOCAL_KERNELS`, :meth:`_update_compiled`):
         the same model calls and random draws in the same order, equal to this numpy
         path to rounding.
         """
-        if type(E.space) is VectorSpace and model.dim <= 2:
+        if type(E.space) is VectorSpace:
             nb = LOCAL_KERNELS.get()
             if nb:
                 return self._update_compiled(nb, E, z, model, rng)
@@ -834,7 +834,7 @@ class HybridLocal(_HybridBase):
     def _update_compiled(self, nb: ModuleType, E: Ensemble, z: Array, model: Measurement,
                          rng: Any = None
                          ) -> tuple[Ensemble, Innovation]:
-        """:meth:`update` on a vector space with m <= 2 through the compiled kernels
+        """:meth:`update` on a vector space through the compiled kernels
         ``nb`` (:mod:`uavest.core._compiled_local`): the numpy path's model calls and
         ``rng`` draws, in the same order and shapes; the member loops compiled. Also
         leaves the moments of the prior and of the posterior ensemble in their memos
@@ -866,7 +866,8 @@ class HybridLocal(_HybridBase):
         conf = self.weights == "confidence"
         Lb, Lr = chol(B), chol(R)  # (before the draws: nothing random in either)
         X, xp, dXp, Pp, wu, Pyy, resample, bad = nb.local_update(
-            bitgen_pointers(rng), C, Hs, B, R, nu, dY, w, conf, self.regen_ess, Lb, Lr, tg)
+            bitgen_pointers(rng), C, Hs, B, R, nu, dY, w, conf, self.regen_ess, Lb, Lr, tg,
+            nb.tag(m))
         if bad == 1:
             raise NumericalError("innovation covariance not positive definite")
         if bad:  # (NaN weights have a NaN ESS, which never resamples: not reached so far)
@@ -895,7 +896,7 @@ def _innovation2(nu: Array, S: Array) -> Innovation:
 def _local_cases(nb: ModuleType) -> Iterator[tuple[str, Any, Any]]:
     """The self-check (:mod:`uavest.compiled`): :meth:`HybridLocal._update_compiled`
     against :meth:`HybridLocal._update_numpy` (members, weights, innovation) on small
-    linear cases: m = 2 and 1, a weighted and an equally weighted ensemble, one that
+    linear cases: m = 2, 1 and 3, a weighted and an equally weighted ensemble, one that
     resamples and one that does not."""
     from .interfaces import LinearMeasurement
 
@@ -907,6 +908,9 @@ def _local_cases(nb: ModuleType) -> Iterator[tuple[str, Any, Any]]:
          None, np.array([1.5, -1.0])),
         (np.array([[0.5, -1.0, 2.0]]), np.array([[25.0]]), g.dirichlet(np.full(15, 9.0)),
          np.array([1.0])),
+        (np.array([[1.0, 0.0, 0.5], [0.2, 1.0, 0.0], [0.0, -0.3, 1.0]]),  # m = 3: Cholesky
+         np.array([[0.5, 0.1, 0.0], [0.1, 0.4, 0.05], [0.0, 0.05, 0.3]]), None,
+         np.array([0.4, -1.2, 0.3])),
     )
     for i, (H, R, w, z) in enumerate(cases):
         model = LinearMeasurement(H, R)

@@ -1,5 +1,7 @@
-"""Compiled (numba) kernel of :meth:`uavest.models.radar.RadarMeasurement.linearise_rows`
-for the 2-D range / azimuth radar (no range rate): the optional fast path (``pip install
+"""Compiled (numba) kernels of :meth:`uavest.models.radar.RadarMeasurement.linearise_rows`
+for the radar without range rate: :func:`linearise2` (2-D range / azimuth, described
+below) and :func:`linearise3` (3-D range / azimuth / elevation, the same steps with the
+elevation row; see its docstring). The optional fast path (``pip install
 "uavest[fast]"``), dispatched through :data:`uavest.models.radar.RADAR_KERNELS`.
 
 The composed default (:meth:`uavest.core.interfaces.Measurement.linearise_rows`: ``h_H_rows``,
@@ -37,7 +39,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["atan2", "linearise2"]
+__all__ = ["atan2", "linearise2", "linearise3"]
 
 #: LLVM may fuse a * b + c into one rounding (FMA): the results stay equal to the numpy
 #: path to rounding; no flag that assumes finite values. ``error_model="numpy"``: IEEE
@@ -220,3 +222,150 @@ def linearise2(X, pose, z, w, Hs, nu, dY, nubar, tag):  # pragma: no cover - com
             H2[b + k] = 0.0
     nubar[0] = z0 - s0
     nubar[1] = _wrap(z1 - m1)
+
+
+@njit(cache=True, fastmath=_FM, error_model="numpy")
+def linearise3(X, pose, z, w, Hs, nu, dY, nubar, tag):  # pragma: no cover - compiled
+    """The 3-D range / azimuth / elevation radar's ``linearise_rows`` (no range rate) into
+    the caller's arrays ``Hs`` (M, 3, n), ``nu`` (M, 3), ``dY`` (M, 3), ``nubar`` (3,)
+    (C-contiguous), the formulas of :meth:`~uavest.models.radar.RadarMeasurement.h`,
+    ``H_rows``, ``mean`` and ``residual`` in 3-D:
+
+    * D_j = R_ws^T (p_j - position) (m, sensor frame), range |D_j|, azimuth
+      atan2(D_y, D_x), elevation atan2(D_z, rho_j), rho_j = |(D_x, D_y)| (rad);
+    * the Jacobian rows (sensor frame, then times R_ws^T on the right) D / r,
+      [-D_y, D_x, 0] / rho^2 and [-D_x D_z / (r^2 rho), -D_y D_z / (r^2 rho), rho / r^2]
+      with r^2 and rho^2 floored at ``eps2``;
+    * the weighted mean: the range and the elevation arithmetic, the azimuth circular
+      from sin a_j = D_y / rho_j, cos a_j = D_x / rho_j (``math.sin`` / ``math.cos`` of
+      the angle, and ``math.hypot`` for rho, where rho_j^2 is outside [1e-300, 1e300] or
+      not finite);
+    * the residuals with the azimuth wrapped to [-pi, pi) (:func:`_wrap_fast`, the
+      modulo where it is outside its range).
+
+    ``X`` (M, >= 3): target states (world ENU, positions in columns 0..2, m). ``pose``:
+    the tuple (px, py, pz, R00, R01, R02, R10, ..., R22, eps2) of the antenna position
+    (m, world), the world-from-sensor rotation R_ws row-major and the floor of r^2 and
+    rho^2 (m^2). ``z`` (3,): range (m), azimuth, elevation (rad). ``w`` (M,): the
+    weights. ``tag``: any tuple of n floats (n the tangent dimension; the columns past 2
+    of ``Hs`` are zero)."""
+    px, py, pz, c00, c01, c02, c10, c11, c12, c20, c21, c22, eps2 = pose
+    z0 = z[0]
+    z1 = z[1]
+    z2 = z[2]
+    n = len(tag)
+    M = X.shape[0]
+    T = np.empty((18, M))  # D (3), range, azimuth, elevation, sin, cos, 9 H entries, rho
+    Dx = T[0]
+    Dy = T[1]
+    Dz = T[2]
+    rg = T[3]
+    az = T[4]
+    el = T[5]
+    sn = T[6]
+    cs = T[7]
+    rh = T[17]
+    for j in range(M):  # D = (p - s) @ R_ws, summed onto +0 as the BLAS product does
+        ex = X[j, 0] - px
+        ey = X[j, 1] - py
+        ez = X[j, 2] - pz
+        Dx[j] = ((0.0 + ex * c00) + ey * c10) + ez * c20
+        Dy[j] = ((0.0 + ex * c01) + ey * c11) + ez * c21
+        Dz[j] = ((0.0 + ex * c02) + ey * c12) + ez * c22
+    iq_floor = 1.0 / math.sqrt(eps2)
+    odd = 0
+    for j in range(M):  # no calls, no branches but selects
+        dx = Dx[j]
+        dy = Dy[j]
+        dz = Dz[j]
+        hh = dx * dx + dy * dy
+        rr = hh + dz * dz
+        rho = math.sqrt(hh)
+        irho = 1.0 / rho
+        rg[j] = math.sqrt(rr)
+        rh[j] = rho
+        az[j] = atan2(dy, dx)
+        el[j] = atan2(dz, rho)
+        sn[j] = dy * irho
+        cs[j] = dx * irho
+        odd += (hh < _RR_LO) | (hh > _RR_HI) | (hh != hh) | (rr > _RR_HI)
+        # the floored r^2, rho^2 (a NaN stays NaN, as np.maximum's) and rho
+        r2 = eps2 if rr < eps2 else rr
+        q2 = eps2 if hh < eps2 else hh
+        iqr = 1.0 / math.sqrt(r2)
+        iq2 = 1.0 / q2
+        qf = iq_floor if hh < eps2 else irho  # 1 / floored rho
+        rf = q2 * qf  # floored rho = rho2 / rho
+        ir2 = 1.0 / r2
+        g0 = dx * iqr
+        g1 = dy * iqr
+        g2 = dz * iqr
+        a0 = -dy * iq2
+        a1 = dx * iq2
+        t = dz * (ir2 * qf)
+        e0 = -dx * t
+        e1 = -dy * t
+        e2 = rf * ir2
+        # g @ R_ws^T: row i, column k = sum_l g_l R_kl
+        T[8, j] = (g0 * c00 + g1 * c01) + g2 * c02
+        T[9, j] = (g0 * c10 + g1 * c11) + g2 * c12
+        T[10, j] = (g0 * c20 + g1 * c21) + g2 * c22
+        T[11, j] = a0 * c00 + a1 * c01
+        T[12, j] = a0 * c10 + a1 * c11
+        T[13, j] = a0 * c20 + a1 * c21
+        T[14, j] = (e0 * c00 + e1 * c01) + e2 * c02
+        T[15, j] = (e0 * c10 + e1 * c11) + e2 * c12
+        T[16, j] = (e0 * c20 + e1 * c21) + e2 * c22
+    if odd:  # members on the sensor's z axis (within 1e-150 m), far or not finite
+        for j in range(M):
+            dx = Dx[j]
+            dy = Dy[j]
+            hh = dx * dx + dy * dy
+            if not (_RR_LO <= hh <= _RR_HI and hh + Dz[j] * Dz[j] <= _RR_HI):
+                a = math.atan2(dy, dx)
+                rho = math.hypot(dx, dy)
+                az[j] = a
+                sn[j] = math.sin(a)
+                cs[j] = math.cos(a)
+                rh[j] = rho
+                el[j] = math.atan2(Dz[j], rho)
+    s0 = 0.0
+    ss = 0.0
+    sc = 0.0
+    s2 = 0.0
+    for j in range(M):
+        wj = w[j]
+        s0 += wj * rg[j]
+        ss += wj * sn[j]
+        sc += wj * cs[j]
+        s2 += wj * el[j]
+    m1 = math.atan2(ss, sc)
+    nu3 = nu.reshape(3 * M)
+    dY3 = dY.reshape(3 * M)
+    odd = 0
+    for j in range(M):
+        a = az[j]
+        nu3[3 * j] = z0 - rg[j]
+        dY3[3 * j] = rg[j] - s0
+        e, out1 = _wrap_fast(z1 - a)
+        nu3[3 * j + 1] = e
+        f, out2 = _wrap_fast(a - m1)
+        dY3[3 * j + 1] = f
+        nu3[3 * j + 2] = z2 - el[j]
+        dY3[3 * j + 2] = el[j] - s2
+        odd += out1 | out2
+    if odd:  # an azimuth residual outside [-3 pi, 3 pi): the modulo
+        for j in range(M):
+            nu3[3 * j + 1] = _wrap(z1 - az[j])
+            dY3[3 * j + 1] = _wrap(az[j] - m1)
+    H3 = Hs.reshape(3 * n * M)
+    for j in range(M):
+        for i in range(3):
+            b = (3 * j + i) * n
+            for k in range(3):
+                H3[b + k] = T[8 + 3 * i + k, j]
+            for k in range(3, n):
+                H3[b + k] = 0.0
+    nubar[0] = z0 - s0
+    nubar[1] = _wrap(z1 - m1)
+    nubar[2] = z2 - s2

@@ -298,11 +298,12 @@ class RadarMeasurement(Measurement):
                        ) -> tuple[Array, Array, Array, Array]:
         """:meth:`Measurement.linearise_rows` (the local hybrid's Jacobians ``Hs`` (M, m, n),
         residuals ``nu`` (M, m), deviations ``dY`` (M, m) from the weighted mean and its
-        residual ``nubar`` (m,)). The 2-D range / azimuth radar runs it as one compiled
-        kernel if numba is there (:data:`RADAR_KERNELS`; ``UAVEST_NUMBA=0`` switches it
-        off): the composed default's arrays to rounding, ~10x faster at M = 585. Every
-        other layout (3-D, range rate), and arguments of other shapes, take the default."""
-        if self.ndim == 2 and self._rr is None:
+        residual ``nubar`` (m,)). The radar without range rate (2-D range / azimuth, 3-D
+        range / azimuth / elevation) runs it as one compiled kernel if numba is there
+        (:data:`RADAR_KERNELS`; ``UAVEST_NUMBA=0`` switches it off): the composed
+        default's arrays to rounding, ~10x faster at M = 585. Range-rate layouts, and
+        arguments of other shapes, take the default."""
+        if self._rr is None:
             nb = RADAR_KERNELS.get()
             if nb:
                 out = self._linearise_compiled(nb, X, z, w)
@@ -311,13 +312,14 @@ class RadarMeasurement(Measurement):
         return super().linearise_rows(X, z, w)
 
     def _linearise_compiled(self, nb, X, z, w) -> tuple[Array, Array, Array, Array] | None:
-        """:meth:`linearise_rows` through the kernels ``nb`` (2-D range / azimuth), or
-        None if the arguments are not (M, >= 2) rows, (2,) and (M,) (the default then
-        raises or broadcasts as it does)."""
+        """:meth:`linearise_rows` through the kernels ``nb`` (``linearise2`` in 2-D,
+        ``linearise3`` in 3-D), or None if the arguments are not (M, >= d) rows, (d,)
+        and (M,) with d = ndim (the default then raises or broadcasts as it does)."""
+        d = self.ndim
         X = np.ascontiguousarray(X, dtype=_F8)  # (no copy of a float64 C array)
         w = np.ascontiguousarray(w, dtype=_F8)
         z = np.ascontiguousarray(z, dtype=_F8)
-        if X.ndim != 2 or X.shape[1] < 2 or z.shape != (2,) or w.shape != (X.shape[0],):
+        if X.ndim != 2 or X.shape[1] < d or z.shape != (d,) or w.shape != (X.shape[0],):
             return None
         memo = self.__dict__.get("_kpose")
         if memo is None or memo[0] is not self.pose:
@@ -326,22 +328,25 @@ class RadarMeasurement(Measurement):
         if pose is None:
             return None
         M, n = X.shape[0], len(tag)
-        Hs, nu, dY, nubar = np.empty((M, 2, n)), np.empty((M, 2)), np.empty((M, 2)), np.empty(2)
-        nb.linearise2(X, pose, z, w, Hs, nu, dY, nubar, tag)
+        Hs, nu, dY, nubar = np.empty((M, d, n)), np.empty((M, d)), np.empty((M, d)), np.empty(d)
+        (nb.linearise2 if d == 2 else nb.linearise3)(X, pose, z, w, Hs, nu, dY, nubar, tag)
         return Hs, nu, dY, nubar
 
     def _kernel_pose(self) -> tuple:
-        """(pose, its kernel tuple (px, py, R00, R01, R10, R11, aligned, eps2) or None if
-        not 2-D, the tuple of n zeros), remembered per pose (a new pose every step costs
-        one conversion to floats). ``aligned``: 1.0 if R_ws equals the identity, the test
-        of :meth:`_axes_aligned` on floats."""
+        """(pose, its kernel tuple or None if its shapes are not the radar's, the tuple of
+        n zeros), remembered per pose (a new pose every step costs one conversion to
+        floats). 2-D: (px, py, R00, R01, R10, R11, aligned, eps2), ``aligned`` 1.0 if R_ws
+        equals the identity (the test of :meth:`_axes_aligned` on floats); 3-D: (px, py,
+        pz, R00, R01, ..., R22, eps2), R_ws row-major."""
         pose = self.pose
         R, p = np.asarray(pose.R_ws, float), np.asarray(pose.position, float)
         args = None
-        if R.shape == (2, 2) and p.shape == (2,):
+        if self.ndim == 2 and R.shape == (2, 2) and p.shape == (2,):
             (r00, r01), (r10, r11) = R.tolist()
             aligned = r00 == 1.0 and r01 == 0.0 and r10 == 0.0 and r11 == 1.0
             args = (*p.tolist(), r00, r01, r10, r11, float(aligned), _EPS**2)
+        elif self.ndim == 3 and R.shape == (3, 3) and p.shape == (3,) and self.space.dim >= 3:
+            args = (*p.tolist(), *R.ravel().tolist(), _EPS**2)
         memo = (pose, args, (0.0,) * self.space.dim)
         self._kpose = memo
         return memo
@@ -428,7 +433,9 @@ def _kernel_cases(nb):
     :meth:`Measurement.linearise_rows` on small cases (a ground radar: axes aligned,
     n = 4, equal weights; a rotated and offset one: n = 5, unequal weights; the members'
     azimuths straddling +-pi, one member at the sensor), compared to 1e-10 of the
-    Jacobian rows' largest entry, of 1e4 m for ranges and of 1 rad for angles."""
+    Jacobian rows' largest entry, of 1e4 m for ranges and of 1 rad for angles; and a
+    3-D case (a rotated, offset UAV radar, n = 6, a member at the sensor and one on its
+    z axis)."""
     g = np.random.default_rng(5)
     M = 24
     poses = (SensorPose.fixed(2), SensorPose(np.array([150.0, -40.0]), rot_z(2.5)[:2, :2],
@@ -448,11 +455,35 @@ def _kernel_cases(nb):
         if got is None:
             yield f"case {i}", None, want[0]
             return
-        row = np.abs(want[0]).max(axis=2, keepdims=True)
-        row = np.where(row > 0.0, row, 1.0)
-        yield f"case {i} Hs", got[0] / row, want[0] / row
-        for label, a, b in zip(("nu", "dY", "nubar"), got[1:], want[1:], strict=True):
-            yield f"case {i} {label}", np.asarray(a) / scale, np.asarray(b) / scale
+        yield from _scaled(f"case {i}", got, want, scale)
+    # 3-D: a UAV radar (rotated, offset), n = 6, unequal weights, azimuths near +-pi,
+    # one member at the sensor and one straight above it
+    pose = SensorPose(np.array([150.0, -40.0, 300.0]), euler_zyx(2.5, 0.2, -0.3), np.zeros(3))
+    radar = RadarMeasurement(3, 6, pose=pose)
+    X = np.zeros((M, 6))
+    X[:, :3] = pose.position + (np.array([-2000.0, 0.0, 400.0]) + g.normal(0.0, 100.0, (M, 3))
+                                ) @ pose.R_ws.T
+    X[0, :3] = pose.position
+    X[1, :3] = pose.position + 500.0 * pose.R_ws[:, 2]
+    X[:, 3:] = g.normal(0.0, 10.0, (M, 3))
+    w = g.dirichlet(np.full(M, 2.0))
+    z = np.array([2000.0, math.pi - 0.01, 0.2])
+    got = radar._linearise_compiled(nb, X, z, w)
+    want = Measurement.linearise_rows(radar, X, z, w)
+    if got is None:
+        yield "3-D case", None, want[0]
+        return
+    yield from _scaled("3-D case", got, want, np.array([1e4, 1.0, 1.0]))
+
+
+def _scaled(label, got, want, scale):
+    """(label, got, want) of the self-check with the Jacobian rows divided by their
+    largest entry and the rest by ``scale`` (m, rad per component)."""
+    row = np.abs(want[0]).max(axis=2, keepdims=True)
+    row = np.where(row > 0.0, row, 1.0)
+    yield f"{label} Hs", got[0] / row, want[0] / row
+    for name, a, b in zip(("nu", "dY", "nubar"), got[1:], want[1:], strict=True):
+        yield f"{label} {name}", np.asarray(a) / scale, np.asarray(b) / scale
 
 
 #: The compiled kernel of :meth:`RadarMeasurement.linearise_rows`
