@@ -609,13 +609,29 @@ def _plt():
 
 
 def _attitude_figures(data: dict, rows: dict, m: dict, events: list) -> list[tuple]:
-    from scipy.stats import chi2
-
-    plt = _plt()
+    """The figures of an attitude report in :data:`ATTITUDE_FIGURES` order (the
+    navigation errors after the trajectory when the recording has navigation channels)."""
     S = m["series"]
-    ref = m["reference"]
-    figs = []
-    # attitude angles
+    dt = _dt(S)
+    w = max(1, int(round(1.0 / dt))) if dt else 1  # steps in the 1 s moving means
+    figs = [_attitude_angles_fig(data, S, m["reference"]),
+            _attitude_errors_fig(S, rows, m["reference"]),
+            _attitude_nees_fig(S, rows, w),
+            _attitude_nis_fig(data, rows, w),
+            _trajectory_fig(data)]
+    if m.get("navigation"):
+        figs.append(_navigation_fig(data["nav"], m["navigation"]))
+    figs.append(_timing_fig({lab: (f["t"], f["wall_us"]) for lab, f in data["filters"].items()},
+                            "filter step"))
+    figs.append(_resets_fig({lab: (f["t"], f["resets"]) for lab, f in data["filters"].items()},
+                            events))
+    return figs
+
+
+def _attitude_angles_fig(data: dict, S: dict, ref: str | None) -> tuple:
+    """Roll, pitch, yaw (deg, ZYX Euler of body FRD -> NED) of every filter and of the
+    reference ``ref`` (black)."""
+    plt = _plt()
     fig, axs = plt.subplots(3, 1, figsize=(12, 7.5), sharex=True)
     if ref:
         from ..geometry.rotation import quat_to_euler
@@ -633,9 +649,14 @@ def _attitude_figures(data: dict, rows: dict, m: dict, events: list) -> list[tup
     axs[0].legend(loc="upper right", fontsize=8, ncol=4)
     axs[-1].set_xlabel("time t (s, source clock)")
     fig.suptitle("Attitude (ZYX Euler, body FRD -> NED) of every filter and the reference")
-    figs.append(("fig-attitude", "Attitude", _fig_png(fig),
-                 "Roll, pitch, yaw of each filter and the reference (black)."))
-    # errors with own 3 sigma
+    return ("fig-attitude", "Attitude", _fig_png(fig),
+            "Roll, pitch, yaw of each filter and the reference (black).")
+
+
+def _attitude_errors_fig(S: dict, rows: dict, ref: str | None) -> tuple:
+    """Per-axis attitude error (deg, wrapped) against ``ref`` with each filter's own
+    +-3 sigma."""
+    plt = _plt()
     fig, axs = plt.subplots(3, 1, figsize=(12, 8.5), sharex=True)
     _error_axes(axs, S, lambda lab, i: f"{lab} error (RMSE "
                 f"{rows[lab].get(_AX[i] + '_rmse_deg', math.nan):.2f})",
@@ -643,13 +664,18 @@ def _attitude_figures(data: dict, rows: dict, m: dict, events: list) -> list[tup
     axs[-1].set_xlabel("time t (s)")
     fig.suptitle(f"Error vs {ref} (estimate - reference, wrapped) with each filter's own "
                  "+-3 sigma (dashed)")
-    figs.append(("fig-errors", "Errors with +-3 sigma", _fig_png(fig),
-                 "Per-axis error (solid) and the filter's own +-3 sigma bound (dashed, from "
-                 "its covariance, linearised to Euler angles)."))
-    # NEES
+    return ("fig-errors", "Errors with +-3 sigma", _fig_png(fig),
+            "Per-axis error (solid) and the filter's own +-3 sigma bound (dashed, from "
+            "its covariance, linearised to Euler angles).")
+
+
+def _attitude_nees_fig(S: dict, rows: dict, w: int) -> tuple:
+    """Attitude NEES (3 dof) per step against truth and its ``w``-step moving mean with
+    the chi-square 95 % band of that mean."""
+    from scipy.stats import chi2
+
+    plt = _plt()
     fig, ax = plt.subplots(figsize=(12, 4))
-    dt = _dt(S)
-    w = max(1, int(round(1.0 / dt))) if dt else 1
     have = False
     for lab, s in S.items():
         if "nees" not in s:
@@ -671,10 +697,17 @@ def _attitude_figures(data: dict, rows: dict, m: dict, events: list) -> list[tup
     ax.set_ylabel("attitude NEES (3 dof)")
     ax.grid(alpha=0.3)
     ax.set_title("NEES against truth: dots per step, lines the moving mean, band chi-square")
-    figs.append(("fig-nees", "NEES", _fig_png(fig),
-                 "Attitude NEES (3 dof) per step and its 1 s moving mean with the chi-square "
-                 "95% band of that mean."))
-    # NIS
+    return ("fig-nees", "NEES", _fig_png(fig),
+            "Attitude NEES (3 dof) per step and its 1 s moving mean with the chi-square "
+            "95% band of that mean.")
+
+
+def _attitude_nis_fig(data: dict, rows: dict, w: int) -> tuple:
+    """NIS / dof of every filter's updates, ``w``-step moving mean, with the chi-square
+    95 % band of that mean."""
+    from scipy.stats import chi2
+
+    plt = _plt()
     fig, ax = plt.subplots(figsize=(12, 4))
     dofm = []
     for lab, f in data["filters"].items():
@@ -698,9 +731,14 @@ def _attitude_figures(data: dict, rows: dict, m: dict, events: list) -> list[tup
     ax.set_ylabel("NIS / dof (moving mean)")
     ax.grid(alpha=0.3)
     ax.set_title("NIS of the updates divided by their dof, with the chi-square band")
-    figs.append(("fig-nis", "NIS", _fig_png(fig),
-                 "Normalised innovation squared per degree of freedom (1 s moving mean)."))
-    # trajectory
+    return ("fig-nis", "NIS", _fig_png(fig),
+            "Normalised innovation squared per degree of freedom (1 s moving mean).")
+
+
+def _trajectory_fig(data: dict) -> tuple:
+    """The vehicle's position sources, top view (east/north m in the local NED frame;
+    from lat/lon/alt at the first fix when the recording has no NED position)."""
+    plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 7))
     if data["positions"]:
         styles = [(REFERENCE_COLOUR, "-", 1.2), ("#888888", "--", 0.9), ("#bbbbbb", ":", 0.9)]
@@ -720,20 +758,13 @@ def _attitude_figures(data: dict, rows: dict, m: dict, events: list) -> list[tup
     ax.set_title("Vehicle trajectory, top view (" + (
         "local NED at the first fix, from lat/lon/alt" if from_lla else "local NED origin")
         + ")")
-    figs.append(("fig-trajectory", "Trajectory", _fig_png(fig),
-                 "Vehicle position from the log (top view, east/north in m)" + (
-                     "; no local NED position was recorded, so the lat/lon/alt fixes are "
-                     "shown in the local tangent plane at the first fix (of the fused "
-                     "position when there is one), the same origin for every source"
-                     if from_lla
-                     else "") + "."))
-    if m.get("navigation"):
-        figs.append(_navigation_fig(data["nav"], m["navigation"]))
-    figs.append(_timing_fig({lab: (f["t"], f["wall_us"]) for lab, f in data["filters"].items()},
-                            "filter step"))
-    figs.append(_resets_fig({lab: (f["t"], f["resets"]) for lab, f in data["filters"].items()},
-                            events))
-    return figs
+    return ("fig-trajectory", "Trajectory", _fig_png(fig),
+            "Vehicle position from the log (top view, east/north in m)" + (
+                "; no local NED position was recorded, so the lat/lon/alt fixes are "
+                "shown in the local tangent plane at the first fix (of the fused "
+                "position when there is one), the same origin for every source"
+                if from_lla
+                else "") + ".")
 
 
 def _dt(S: dict) -> float:
