@@ -436,16 +436,25 @@ def _error_axes(axs, S: dict, legend, ylabel) -> None:
 
 
 def _state_figures(data: dict, rows: dict, m: dict, events: list) -> list[tuple]:
-    from scipy.stats import chi2
-
-    plt = _plt()
+    """The figures of a generic-state report in :data:`STATE_FIGURES` order (the first
+    six state components drawn)."""
     S = m["series"]
-    figs = []
     n = max((f["x"].shape[1] for f in data["filters"].values() if f["x"].ndim == 2),
             default=1)
     nc = max(1, min(n, 6))  # components drawn
+    return [_state_fig(data, nc), _state_errors_fig(S, rows, nc), _state_nees_fig(S, rows, n),
+            _state_nis_fig(data, rows),
+            _timing_fig({lab: (f["t"], f["wall_us"]) for lab, f in data["filters"].items()},
+                        "filter step"),
+            _resets_fig({lab: (f["t"], f["resets"]) for lab, f in data["filters"].items()},
+                        events)]
+
+
+def _state_fig(data: dict, nc: int) -> tuple:
+    """The first ``nc`` state components of every filter's estimate and of the truth
+    (black) over time."""
+    plt = _plt()
     truth = data["truth"]
-    # state over time: truth, estimates (and a 1-D measurement)
     fig, axs = plt.subplots(nc, 1, figsize=(12, 2.6 * nc + 1), sharex=True, squeeze=False)
     axs = axs[:, 0]
     for i, ax in enumerate(axs):
@@ -458,9 +467,14 @@ def _state_figures(data: dict, rows: dict, m: dict, events: list) -> list[tuple]
     axs[0].legend(loc="upper right", fontsize=8, ncol=4)
     axs[-1].set_xlabel("time t (s)")
     fig.suptitle("State of every filter and the truth (black)")
-    figs.append(("fig-state", "State", _fig_png(fig),
-                 "Each state component of every filter's estimate and the truth."))
-    # errors with own 3 sigma
+    return ("fig-state", "State", _fig_png(fig),
+            "Each state component of every filter's estimate and the truth.")
+
+
+def _state_errors_fig(S: dict, rows: dict, nc: int) -> tuple:
+    """Error (estimate - truth) of the first ``nc`` components with each filter's own
+    +-3 sqrt(P_ii)."""
+    plt = _plt()
     fig, axs = plt.subplots(nc, 1, figsize=(12, 2.8 * nc + 1), sharex=True, squeeze=False)
     axs = axs[:, 0]
     _error_axes(axs, S, lambda lab, i: f"{lab} error (RMSE "
@@ -468,10 +482,17 @@ def _state_figures(data: dict, rows: dict, m: dict, events: list) -> list[tuple]
     axs[-1].set_xlabel("time t (s)")
     fig.suptitle("Error (estimate - truth) per component with each filter's own +-3 sigma "
                  "(dashed)")
-    figs.append(("fig-errors", "Errors with +-3 sigma", _fig_png(fig),
-                 "Per-component error (solid) and the filter's own +-3 sqrt(P_ii) "
-                 "(dashed)."))
-    # NEES with its chi-square band (n dof per step)
+    return ("fig-errors", "Errors with +-3 sigma", _fig_png(fig),
+            "Per-component error (solid) and the filter's own +-3 sqrt(P_ii) "
+            "(dashed).")
+
+
+def _state_nees_fig(S: dict, rows: dict, n: int) -> tuple:
+    """NEES per step against the truth (``n`` dof) with the chi-square 95 % band of one
+    step."""
+    from scipy.stats import chi2
+
+    plt = _plt()
     fig, ax = plt.subplots(figsize=(12, 4))
     have = False
     for lab, s in S.items():
@@ -493,9 +514,16 @@ def _state_figures(data: dict, rows: dict, m: dict, events: list) -> list[tuple]
     ax.set_ylabel(f"NEES ({n} dof)")
     ax.grid(alpha=0.3)
     ax.set_title("NEES per step against the truth, with the chi-square 95% band")
-    figs.append(("fig-nees", "NEES", _fig_png(fig),
-                 f"NEES e^T P^-1 e per step ({n} dof) and the 95% band of one step."))
-    # NIS
+    return ("fig-nees", "NEES", _fig_png(fig),
+            f"NEES e^T P^-1 e per step ({n} dof) and the 95% band of one step.")
+
+
+def _state_nis_fig(data: dict, rows: dict) -> tuple:
+    """NIS of every filter's updates per step with the chi-square 95 % band at their mean
+    dof."""
+    from scipy.stats import chi2
+
+    plt = _plt()
     fig, ax = plt.subplots(figsize=(12, 4))
     dofm = []
     for lab, f in data["filters"].items():
@@ -515,12 +543,7 @@ def _state_figures(data: dict, rows: dict, m: dict, events: list) -> list[tuple]
     ax.set_ylabel("NIS")
     ax.grid(alpha=0.3)
     ax.set_title("NIS of each step's update with the chi-square band")
-    figs.append(("fig-nis", "NIS", _fig_png(fig), "Normalised innovation squared per step."))
-    figs.append(_timing_fig({lab: (f["t"], f["wall_us"]) for lab, f in data["filters"].items()},
-                            "filter step"))
-    figs.append(_resets_fig({lab: (f["t"], f["resets"]) for lab, f in data["filters"].items()},
-                            events))
-    return figs
+    return ("fig-nis", "NIS", _fig_png(fig), "Normalised innovation squared per step.")
 
 
 # ------------------------------------------------------------------------------ radar
