@@ -984,52 +984,15 @@ def write_report(mcap_path: str | Path, out_dir: str | Path | None = None,
     sections = []  # (title, rows, cols)
     figs: list = []
     extra: dict = {}
-    all_rows: dict = {}
+    rows: dict = {}
     for kd in kinds:
         stage(f"{kd}: metrics and figures")
-        if kd == "attitude":
-            data = attitude_data(rec)
-            rows, m = attitude_metrics(data)
-            kf = _attitude_figures(data, rows, m, events)
-            cols = ["roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg", "n", "nees_mean",
-                    "frac_in_3sigma", "nis_mean", "nis_dof_mean", "resets", "us_per_step"]
-            if m["navigation"]:
-                cols[5:5] = ["vel_rmse_ms", "hpos_rmse_m", "vpos_rmse_m", "nees_vel_in95",
-                             "nees_pos_in95"]
-            extra.update(reference=m["reference"], reference_kind=m["reference_kind"])
-        elif kd == "state":
-            data = state_data(rec)
-            rows, m = state_metrics(data)
-            kf = _state_figures(data, rows, m, events)
-            n = max((r.get("nees_dof", 0) for r in rows.values()), default=0)
-            cols = (["rmse"] + [f"rmse_x{i}" for i in range(min(n, 6))]
-                    + ["nees_mean", "nees_dof", "frac_in_3sigma", "nis_mean", "nis_dof_mean",
-                       "resets", "us_per_step", "steps"])
-            cfg = rec.metadata.get("config", {})
-            extra.update({k: json.loads(cfg[k]) for k in ("scenario", "trial") if k in cfg})
-        else:
-            data = radar_data(rec)
-            cfg = rec.metadata.get("config", {})
-            c = 100.0
-            for key in ("gospa_c", "metrics"):
-                if key in cfg:
-                    try:
-                        v = json.loads(cfg[key])
-                        c = float(v["gospa_c"] if isinstance(v, dict) else v)
-                    except (ValueError, KeyError, TypeError):
-                        pass
-            rows, m = radar_metrics(data, c)
-            kf = _radar_figures(data, rows, m, events)
-            if len(kinds) > 1:  # ids unique on the page: the radar's timing, resets...
-                kf = [(f"radar-{fid}", t, png, cap) for fid, t, png, cap in kf]
-            cols = ["gospa_mean", "tracks_confirmed_total", "false_tracks", "track_breaks",
-                    "id_swaps", "time_to_confirm_s", "confirmed_mean", "resets",
-                    "us_per_scan", "scans"]
-            extra["gospa_c"] = c
-        sections.append((kd, rows, cols))
+        make = {"attitude": _attitude_section, "state": _state_section}.get(kd, _radar_section)
+        krows, cols, kf, kextra = make(rec, events, len(kinds) > 1)
+        extra.update(kextra)
+        sections.append((kd, krows, cols))
         figs += kf
-        all_rows.update(rows)
-    rows = all_rows
+        rows.update(krows)
     stage("writing HTML and Markdown")
     stem = mcap_path.stem
     figdir = out / f"{stem}_figures"
@@ -1039,6 +1002,82 @@ def write_report(mcap_path: str | Path, out_dir: str | Path | None = None,
         p = figdir / f"{fid}.png"
         p.write_bytes(png)
         pngs.append(p)
+    html_path = out / f"{stem}.html"
+    html_path.write_text(_html_page(rec, mcap_path, kind, extra, sections, figs, events))
+    md_path = out / f"{stem}.md"
+    md_path.write_text(_markdown_page(rec, mcap_path, kind, extra, sections, figs, events,
+                                      figdir.name))
+    metrics_path = out / f"{stem}.metrics.json"
+    metrics_path.write_text(json.dumps({"kind": kind, **extra, "filters": rows},
+                                       indent=2, default=_jsonnum))
+    return {"html": html_path, "markdown": md_path, "metrics": metrics_path, "figures": pngs}
+
+
+def _attitude_section(rec: Recording, events: list, _multi: bool) -> tuple:
+    """(rows, table columns, figures, page facts) of the attitude (and navigation)
+    channels; the navigation columns only when the recording has navigation channels."""
+    data = attitude_data(rec)
+    rows, m = attitude_metrics(data)
+    figs = _attitude_figures(data, rows, m, events)
+    cols = ["roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg", "n", "nees_mean",
+            "frac_in_3sigma", "nis_mean", "nis_dof_mean", "resets", "us_per_step"]
+    if m["navigation"]:
+        cols[5:5] = ["vel_rmse_ms", "hpos_rmse_m", "vpos_rmse_m", "nees_vel_in95",
+                     "nees_pos_in95"]
+    return rows, cols, figs, {"reference": m["reference"],
+                              "reference_kind": m["reference_kind"]}
+
+
+def _state_section(rec: Recording, events: list, _multi: bool) -> tuple:
+    """(rows, table columns, figures, page facts) of a generic vector-state recording
+    (``uavest bench --mcap``): per-component RMSE columns for up to six components, and
+    the scenario and trial from the recording's config."""
+    data = state_data(rec)
+    rows, m = state_metrics(data)
+    figs = _state_figures(data, rows, m, events)
+    n = max((r.get("nees_dof", 0) for r in rows.values()), default=0)
+    cols = (["rmse"] + [f"rmse_x{i}" for i in range(min(n, 6))]
+            + ["nees_mean", "nees_dof", "frac_in_3sigma", "nis_mean", "nis_dof_mean",
+               "resets", "us_per_step", "steps"])
+    cfg = rec.metadata.get("config", {})
+    return rows, cols, figs, {k: json.loads(cfg[k]) for k in ("scenario", "trial") if k in cfg}
+
+
+def _radar_gospa_c(cfg: dict) -> float:
+    """The GOSPA cut-off c (m) of the run from the recording's config (``gospa_c``, or
+    ``metrics`` as a number or a dict with ``gospa_c``); 100 m when it has none."""
+    c = 100.0
+    for key in ("gospa_c", "metrics"):
+        if key in cfg:
+            try:
+                v = json.loads(cfg[key])
+                c = float(v["gospa_c"] if isinstance(v, dict) else v)
+            except (ValueError, KeyError, TypeError):
+                pass
+    return c
+
+
+def _radar_section(rec: Recording, events: list, multi: bool) -> tuple:
+    """(rows, table columns, figures, page facts) of the radar tracker channels; with
+    ``multi`` (another kind on the same page) the figure ids are prefixed ``radar-`` to
+    stay unique."""
+    data = radar_data(rec)
+    c = _radar_gospa_c(rec.metadata.get("config", {}))
+    rows, m = radar_metrics(data, c)
+    figs = _radar_figures(data, rows, m, events)
+    if multi:  # ids unique on the page: the radar's timing, resets...
+        figs = [(f"radar-{fid}", t, png, cap) for fid, t, png, cap in figs]
+    cols = ["gospa_mean", "tracks_confirmed_total", "false_tracks", "track_breaks",
+            "id_swaps", "time_to_confirm_s", "confirmed_mean", "resets",
+            "us_per_scan", "scans"]
+    return rows, cols, figs, {"gospa_c": c}
+
+
+def _html_page(rec: Recording, mcap_path: Path, kind: str, extra: dict, sections: list,
+               figs: list, events: list) -> str:
+    """The self-contained HTML page: the run facts, a comparison table per section, the
+    figures as base64 PNG and the /log events."""
+    stem = mcap_path.stem
     run = rec.metadata.get("run", {})
     meta_rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(str(v))}</td></tr>"
                         for k, v in [("recording", mcap_path.name), ("kind", kind),
@@ -1053,30 +1092,30 @@ def write_report(mcap_path: str | Path, out_dir: str | Path | None = None,
         f"<img alt='{html.escape(title)}' src='data:image/png;base64,"
         f"{base64.b64encode(png).decode()}'><figcaption>{html.escape(cap)}</figcaption>"
         "</figure>" for fid, title, png, cap in figs)
-    page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>uavest report "
+    return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>uavest report "
             f"{html.escape(stem)}</title><style>{_CSS}</style></head><body>"
             f"<h1>uavest report: {html.escape(stem)}</h1><table class='meta'>{meta_rows}"
             f"</table>" + "".join(f"<h2>Comparison ({k})</h2>{_table_html(r, c)}"
                                   for k, r, c in sections) + f"{fig_html}"
             f"<h2>Events (/log)</h2><table><tr><th>t (s)</th><th>level</th><th>name</th>"
             f"<th>message</th></tr>{ev_rows}</table></body></html>")
-    html_path = out / f"{stem}.html"
-    html_path.write_text(page)
+
+
+def _markdown_page(rec: Recording, mcap_path: Path, kind: str, extra: dict, sections: list,
+                   figs: list, events: list, figdir: str) -> str:
+    """The Markdown page: the same content as the HTML, figures linked from ``figdir``."""
+    stem = mcap_path.stem
+    run = rec.metadata.get("run", {})
     md = [f"# uavest report: {stem}", "", f"- recording: `{mcap_path.name}` ({kind})"]
     md += [f"- {k}: {v}" for k, v in [*run.items(), *extra.items()]]
     md += [f"- truncated: {rec.truncated}; chunks: {rec.chunks}", ""]
     for k, r, c in sections:
         md += [f"## Comparison ({k})", "", _table_md(r, c), ""]
     md += ["## Figures", ""]
-    md += [f"![{title}]({figdir.name}/{fid}.png)\n\n{cap}\n" for fid, title, _, cap in figs]
+    md += [f"![{title}]({figdir}/{fid}.png)\n\n{cap}\n" for fid, title, _, cap in figs]
     md += ["## Events", ""] + [f"- t = {e['t']:.3f} s [{e['name']}] {e['message']}"
                                for e in events]
-    md_path = out / f"{stem}.md"
-    md_path.write_text("\n".join(md) + "\n")
-    metrics_path = out / f"{stem}.metrics.json"
-    metrics_path.write_text(json.dumps({"kind": kind, **extra, "filters": rows},
-                                       indent=2, default=_jsonnum))
-    return {"html": html_path, "markdown": md_path, "metrics": metrics_path, "figures": pngs}
+    return "\n".join(md) + "\n"
 
 
 def _jsonnum(o):
