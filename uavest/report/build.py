@@ -173,13 +173,16 @@ def navigation_data(rec: Recording) -> dict:
 
 
 def navigation_metrics(nav: dict, att: dict) -> dict:
-    """Per label the velocity and position errors against ``nav["ref"]`` (interpolated to
-    the step times, inside its time span only) for the figure: ``ev``, ``ep`` (K, 3) and
-    the mask; and the replay's own scores (:class:`uavest.eval.navigation.NavScorer` over
-    the recorded states, ``att`` the attitude filters of :func:`attitude_data` for ``q``
-    and the full P): ``vel_rmse_ms``, ``hpos_rmse_m``, ``vpos_rmse_m`` and the share of
-    steps in the 95 % NEES band per block (``nees_vel_in95``, ``nees_pos_in95``)."""
-    from ..eval.navigation import NavScorer
+    """Per label the velocity and position errors against ``nav["ref"]`` for the figure:
+    ``ev`` (K, 3) m/s, ``ep`` (K, 3) m, the reference interpolated at the step times by
+    the scorer's own :func:`uavest.eval.navigation.interp_reference`, NaN at the steps
+    the scores leave out (outside the reference's span, or in a reference gap longer
+    than ``MAX_REF_GAP_S``); and the replay's own scores
+    (:class:`uavest.eval.navigation.NavScorer` over the recorded states, ``att`` the
+    attitude filters of :func:`attitude_data` for ``q`` and the full P): ``vel_rmse_ms``,
+    ``hpos_rmse_m``, ``vpos_rmse_m`` and the share of steps in the 95 % NEES band per
+    block (``nees_vel_in95``, ``nees_pos_in95``)."""
+    from ..eval.navigation import NavScorer, interp_reference
     from ..geometry.geodesy import LocalFrame
 
     out: dict = {}
@@ -189,12 +192,11 @@ def navigation_metrics(nav: dict, att: dict) -> dict:
     origin = nav.get("origin")
     for lab, f in nav["filters"].items():
         t = f["t"]
-        mask = (t >= tr[0]) & (t <= tr[-1]) if len(tr) > 1 else np.zeros(len(t), bool)
-        m: dict = {"t": t, "mask": mask,
-                   "ev": f["v"] - np.column_stack([np.interp(t, tr, vr[:, i])
-                                                   for i in range(3)])}
+        v_ref, ok_v = interp_reference(tr, vr, t)
+        m: dict = {"t": t, "ev": np.where(ok_v[:, None], f["v"] - v_ref, np.nan)}
         if pr is not None:
-            m["ep"] = f["p"] - np.column_stack([np.interp(t, tr, pr[:, i]) for i in range(3)])
+            p_ref, ok_p = interp_reference(tr, pr, t)
+            m["ep"] = np.where(ok_p[:, None], f["p"] - p_ref, np.nan)
         a = att.get(lab)
         if a is not None and len(a["t"]) == len(t) and a["P"].shape[1] == 15:
             sc = NavScorer()
@@ -230,8 +232,8 @@ def _navigation_fig(nav: dict, nm: dict) -> tuple:
                 continue
             for i in range(3):
                 ax = axs[i, j]
-                e = np.where(m["mask"], m[key][:, i], np.nan)
-                ax.plot(m["t"], e, color=colour(lab), lw=0.9, label=lab if i == 0 else None)
+                ax.plot(m["t"], m[key][:, i], color=colour(lab), lw=0.9,
+                        label=lab if i == 0 else None)
                 ax.plot(m["t"], f[s3][:, i], color=colour(lab), lw=0.7, ls="--")
                 ax.plot(m["t"], -f[s3][:, i], color=colour(lab), lw=0.7, ls="--")
                 ax.set_ylabel(f"{'NED'[i]} {'velocity' if j == 0 else 'position'} "
@@ -243,8 +245,9 @@ def _navigation_fig(nav: dict, nm: dict) -> tuple:
     fig.suptitle(f"Navigation errors vs {src} with each filter's own +-3 sigma (dashed)")
     return ("fig-navigation", "Velocity and position errors", _fig_png(fig),
             f"Velocity (left) and position (right) error of each filter against {src} "
-            "(interpolated to the step time; position in the local NED frame at the first "
-            "raw GNSS fix, the model's origin) and the filter's own +-3 sigma.")
+            "(interpolated to the step time as the scores are, steps in a reference gap "
+            "left out; position in the local NED frame at the first raw GNSS fix, the "
+            "model's origin) and the filter's own +-3 sigma.")
 
 
 #: Preference among lat/lon/alt sources for the origin of the trajectory (the fused
