@@ -391,14 +391,8 @@ def replay(
     """Replay the log at ``path`` with ``cfg``; returns the JSON-ready result document
     (strict JSON through :func:`uavest.sinks.jsonout.dumps`). ``on_source(src)`` is
     called with the opened source (progress bars read ``src.bytes_read``)."""
-    from ..ingest import open_source
-
     cfg = cfg or ReplayConfig()
-    src = open_source(path)
-    if on_source is not None:
-        on_source(src)
-    if cfg.declination is None and src.format in ("tlog", "dataflash", "dataflash-text"):
-        src.prescan_geo()  # the GPS fix and date, for the magnetic model if needed
+    src = _open_log(path, cfg, on_source)
     info = RunInfo(command, str(path), cfg.seed, config=_config_dict(cfg),
                    versions=package_versions())
     try:
@@ -407,20 +401,59 @@ def replay(
     except NavNotStarted as e:
         raise IngestError(f"{path}: {e}") from None
     except NoSamplesError:
-        st = src.stats.as_dict()
-        dmg = ", ".join(f"{k} {st[k]}" for k in st
-                        if isinstance(st[k], int) and st[k] and k != "bad_total")
-        window = (f" in the window {cfg.start}..{cfg.end} s"
-                  if cfg.start is not None or cfg.end is not None else "")
-        raise IngestError(f"{path}: no IMU samples could be read{window} "
-                          f"({dmg or 'no bad data counted'}; "
-                          f"{sum(st['messages'].values())} records decoded)") from None
+        raise _no_samples_error(path, src, cfg) from None
     sm = stream.summary
     refs = scorer.refs
     ref_name, ap_name, rejected = choose_reference(refs, scorer.window)
     truth = ref_name is not None and refs[ref_name].kind == "truth"
-    wall = out["wall_s"]
-    doc: dict = {
+    doc = _doc_header(path, cfg, src, stream, info, ref_name, refs, rejected)
+    nav = out["model"]["value"] == "nav"
+    doc["model"] = out["model"]
+    nsc: NavScorer = out["nav"]
+    doc.update(_position_fields(nsc, src.params, sm, nav))
+    frame = getattr(stream, "frame", None)
+    for r in runners:
+        doc["filters"][r.label] = _filter_row(r, cfg, out, stream, scorer, coll, ref_name,
+                                              truth, nav, frame)
+    if ref_name is not None:
+        _add_autopilot_rows(doc["filters"], scorer, ref_name, ap_name)
+    _add_run_health(doc, src, runners, sm, out["wall_s"])
+    return doc
+
+
+def _open_log(path: str | Path, cfg: ReplayConfig, on_source: Callable | None):
+    """The opened source of ``path``; a MAVLink log prescanned for its GPS fix and date
+    when the declination must come from the magnetic model."""
+    from ..ingest import open_source
+
+    src = open_source(path)
+    if on_source is not None:
+        on_source(src)
+    if cfg.declination is None and src.format in ("tlog", "dataflash", "dataflash-text"):
+        src.prescan_geo()  # the GPS fix and date, for the magnetic model if needed
+    return src
+
+
+def _no_samples_error(path: str | Path, src, cfg: ReplayConfig) -> IngestError:
+    """The one-line error for a log (or window) without a usable IMU sample, naming the
+    bad data the reader counted and how many records it decoded."""
+    st = src.stats.as_dict()
+    dmg = ", ".join(f"{k} {st[k]}" for k in st
+                    if isinstance(st[k], int) and st[k] and k != "bad_total")
+    window = (f" in the window {cfg.start}..{cfg.end} s"
+              if cfg.start is not None or cfg.end is not None else "")
+    return IngestError(f"{path}: no IMU samples could be read{window} "
+                       f"({dmg or 'no bad data counted'}; "
+                       f"{sum(st['messages'].values())} records decoded)")
+
+
+def _doc_header(path: str | Path, cfg: ReplayConfig, src, stream, info: RunInfo,
+                ref_name: str | None, refs: dict, rejected: dict) -> dict:
+    """The result document up to its (empty) ``filters``: the run, the log, the
+    reference chosen, and what the stream decided (rates in Hz, times in s, declination
+    in rad, the noise values used)."""
+    sm = stream.summary
+    return {
         "run": info.as_dict(),
         "log": str(path),
         "format": "dataflash" if src.format == "dataflash-text" else src.format,
@@ -453,54 +486,76 @@ def replay(
         "noise": {k: float(getattr(stream.noise, k)) for k in stream.noise.__dataclass_fields__},
         "filters": {},
     }
-    nav = out["model"]["value"] == "nav"
-    doc["model"] = out["model"]
-    nsc: NavScorer = out["nav"]
+
+
+def _position_fields(nsc: NavScorer, params: dict, summary: dict, nav: bool) -> dict:
+    """The position reference (name and kind) if the log has one, and for a navigation
+    run the stream's GNSS/baro choices, its origin and its aiding."""
+    got: dict = {}
     pref = nsc.position_ref()
     if pref is not None:
-        doc["position_reference"] = pref
-        doc["position_reference_kind"] = position_ref_kind(pref, src.params)
+        got["position_reference"] = pref
+        got["position_reference_kind"] = position_ref_kind(pref, params)
     if nav:
-        doc.update({k: sm.get(k) for k in ("gnss_source", "gnss_sources", "baro_source",
-                                           "gnss_delay_s", "baro_offset_m", "origin",
-                                           "aiding", "fix_from_t")})
-    frame = getattr(stream, "frame", None)
-    nsc.pos_from = getattr(stream, "fix_from", None)
-    steps = max(int(sm.get("steps") or 0), 1)
-    for r in runners:
-        row: dict = scorer.scores(r.label, ref_name, truth) if ref_name else {}
-        extra = nsc.scores(r.label, ref_name if truth else None, frame)
-        extra.pop("position_reference", None)
-        row.update({k: v for k, v in extra.items() if v or k == "airborne"})
+        got.update({k: summary.get(k) for k in ("gnss_source", "gnss_sources", "baro_source",
+                                                "gnss_delay_s", "baro_offset_m", "origin",
+                                                "aiding", "fix_from_t")})
+    return got
+
+
+def _filter_row(r: FilterRunner, cfg: ReplayConfig, out: dict, stream, scorer: AttitudeScorer,
+                coll: Collector | None, ref_name: str | None, truth: bool, nav: bool,
+                frame) -> dict:
+    """One filter's result row: the attitude scores against ``ref_name``, the navigation
+    scores, the gates (nav), the cost per step (us, without the warm-up), its guard
+    resets, and with smoothing the smoothed run's ``smoothed`` row."""
+    nsc: NavScorer = out["nav"]
+    nsc.pos_from = getattr(stream, "fix_from", None)  # positions before it: in no frame
+    row: dict = scorer.scores(r.label, ref_name, truth) if ref_name else {}
+    extra = nsc.scores(r.label, ref_name if truth else None, frame)
+    extra.pop("position_reference", None)
+    row.update({k: v for k, v in extra.items() if v or k == "airborne"})
+    if nav:
+        row["gates"] = dict(getattr(r, "gates", {}))
+    row["us_per_step"] = r.us_per_step  # without the one-time warm-up
+    row["resets"] = r.resets
+    if cfg.smooth and coll is not None:
+        srow = (_score_smoothed(coll, out["refs"], r.label, ref_name, truth, stream.space)
+                if ref_name else {})
         if nav:
-            row["gates"] = dict(getattr(r, "gates", {}))
-        row["us_per_step"] = r.us_per_step  # without the one-time warm-up
-        row["resets"] = r.resets
-        if cfg.smooth and coll is not None:
-            srow = (_score_smoothed(coll, out["refs"], r.label, ref_name, truth, stream.space)
-                    if ref_name else {})
-            if nav:
-                srow.update(_score_smoothed_nav(coll, nsc, r.label, ref_name if truth
-                                                else None, frame, stream.space))
-            srow["us_per_step"] = 1e6 * r.smooth_seconds / steps
-            row["smoothed"] = srow
-        doc["filters"][r.label] = row
-    if ref_name is not None:
-        for name, label in ((ap_name, "autopilot"), ("AHRS2", "ahrs2"), ("AHR2", "ahrs2")):
-            if name is None or name == ref_name or name not in refs:
-                continue
-            row = scorer.scores(name, ref_name, False)
-            row["source"] = name
-            doc["filters"].setdefault(label, row)
+            srow.update(_score_smoothed_nav(coll, nsc, r.label, ref_name if truth
+                                            else None, frame, stream.space))
+        steps = max(int(stream.summary.get("steps") or 0), 1)
+        srow["us_per_step"] = 1e6 * r.smooth_seconds / steps
+        row["smoothed"] = srow
+    return row
+
+
+def _add_autopilot_rows(rows: dict, scorer: AttitudeScorer, ref_name: str,
+                        ap_name: str | None) -> None:
+    """The autopilot's own estimate and its second AHRS scored against ``ref_name`` as
+    rows ``autopilot`` / ``ahrs2`` beside the filters (a filter's row wins a clash)."""
+    refs = scorer.refs
+    for name, label in ((ap_name, "autopilot"), ("AHRS2", "ahrs2"), ("AHR2", "ahrs2")):
+        if name is None or name == ref_name or name not in refs:
+            continue
+        row = scorer.scores(name, ref_name, False)
+        row["source"] = name
+        rows.setdefault(label, row)
+
+
+def _add_run_health(doc: dict, src, runners: list[FilterRunner], summary: dict,
+                    wall: float) -> None:
+    """The bad data the reader counted and repaired, the guard resets, the reliability
+    flags, the wall time (s) and the realtime factor (log duration / wall)."""
     bad = src.stats.as_dict()
     doc["bad_data"] = bad
     doc["repaired"] = {k: bad[k] for k in ("time_outlier",) if bad.get(k)}
     doc["guard_resets"] = {r.label: r.resets for r in runners}
-    doc["unreliable"] = reliability(doc, sm)
+    doc["unreliable"] = reliability(doc, summary)
     doc["wall_s"] = wall
-    dur = float(sm.get("duration_s") or 0.0)
+    dur = float(summary.get("duration_s") or 0.0)
     doc["realtime_factor"] = dur / wall if wall > 0 else None
-    return doc
 
 
 def position_ref_kind(name: str, params: dict) -> str:

@@ -31,7 +31,8 @@ from .attitude import TRUTH_SOURCES, euler_errors_deg
 
 Array = np.ndarray
 
-__all__ = ["AIRBORNE_M", "NavScorer", "POSITION_REFS", "nees_band", "choose_position_ref"]
+__all__ = ["AIRBORNE_M", "MAX_REF_GAP_S", "NavScorer", "POSITION_REFS", "choose_position_ref",
+           "interp_reference", "nees_band"]
 
 #: Height above the run's lowest reference height (m) from which a step is airborne.
 AIRBORNE_M = 2.0
@@ -58,9 +59,13 @@ def choose_position_ref(names: list[str]) -> str | None:
     return None
 
 
-def _interp(t_ref: Array, y: Array, t: Array) -> tuple[Array, Array]:
-    """Linear interpolation of rows ``y`` at ``t``; mask of the steps inside the span
-    with both neighbours within :data:`MAX_REF_GAP_S` and finite."""
+def interp_reference(t_ref: Array, y: Array, t: Array) -> tuple[Array, Array]:
+    """Linear interpolation of the reference rows ``y`` (K, d) sampled at ``t_ref``
+    (K,) s at the step times ``t`` (N,) s, and the mask (N,) of the steps the scorer
+    scores: inside the reference's span with both neighbouring samples within
+    :data:`MAX_REF_GAP_S` (a step in a longer reference gap is not scored). Whether the
+    interpolated values are finite is the caller's check. The one interpolation of a
+    reference for the scores and for the report's figures."""
     out = np.full((t.shape[0], y.shape[1]), np.nan)
     if t_ref.shape[0] < 2:
         return out, np.zeros(t.shape[0], bool)
@@ -169,7 +174,7 @@ class NavScorer:
             if frame is not None and good.sum() >= 10:
                 ned = np.asarray(frame.geodetic_to_ned(lla[good, 0], lla[good, 1],
                                                        lla[good, 2]), float)
-                p_ref, okp = _interp(tr[good], ned, t)
+                p_ref, okp = interp_reference(tr[good], ned, t)
                 air = okp & (-p_ref[:, 2] > np.nanmin(-ned[:, 2]) + AIRBORNE_M)
                 if self.pos_from is not None:
                     okp = okp & (t >= self.pos_from)
@@ -180,7 +185,7 @@ class NavScorer:
                     out["vpos_rmse_m"] = _rms(e[:, 2])
                     nees["position"] = _nees(e, P[okp, 6:9, 6:9])
             if nav:
-                v_ref, okv = _interp(tr, vel, t)
+                v_ref, okv = interp_reference(tr, vel, t)
                 okv &= np.isfinite(v_ref[:, :2]).all(axis=1)
                 vz = bool(np.isfinite(v_ref[okv, 2]).all())
                 cols = [0, 1, 2] if vz else [0, 1]

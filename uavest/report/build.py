@@ -173,13 +173,16 @@ def navigation_data(rec: Recording) -> dict:
 
 
 def navigation_metrics(nav: dict, att: dict) -> dict:
-    """Per label the velocity and position errors against ``nav["ref"]`` (interpolated to
-    the step times, inside its time span only) for the figure: ``ev``, ``ep`` (K, 3) and
-    the mask; and the replay's own scores (:class:`uavest.eval.navigation.NavScorer` over
-    the recorded states, ``att`` the attitude filters of :func:`attitude_data` for ``q``
-    and the full P): ``vel_rmse_ms``, ``hpos_rmse_m``, ``vpos_rmse_m`` and the share of
-    steps in the 95 % NEES band per block (``nees_vel_in95``, ``nees_pos_in95``)."""
-    from ..eval.navigation import NavScorer
+    """Per label the velocity and position errors against ``nav["ref"]`` for the figure:
+    ``ev`` (K, 3) m/s, ``ep`` (K, 3) m, the reference interpolated at the step times by
+    the scorer's own :func:`uavest.eval.navigation.interp_reference`, NaN at the steps
+    the scores leave out (outside the reference's span, or in a reference gap longer
+    than ``MAX_REF_GAP_S``); and the replay's own scores
+    (:class:`uavest.eval.navigation.NavScorer` over the recorded states, ``att`` the
+    attitude filters of :func:`attitude_data` for ``q`` and the full P): ``vel_rmse_ms``,
+    ``hpos_rmse_m``, ``vpos_rmse_m`` and the share of steps in the 95 % NEES band per
+    block (``nees_vel_in95``, ``nees_pos_in95``)."""
+    from ..eval.navigation import NavScorer, interp_reference
     from ..geometry.geodesy import LocalFrame
 
     out: dict = {}
@@ -189,12 +192,11 @@ def navigation_metrics(nav: dict, att: dict) -> dict:
     origin = nav.get("origin")
     for lab, f in nav["filters"].items():
         t = f["t"]
-        mask = (t >= tr[0]) & (t <= tr[-1]) if len(tr) > 1 else np.zeros(len(t), bool)
-        m: dict = {"t": t, "mask": mask,
-                   "ev": f["v"] - np.column_stack([np.interp(t, tr, vr[:, i])
-                                                   for i in range(3)])}
+        v_ref, ok_v = interp_reference(tr, vr, t)
+        m: dict = {"t": t, "ev": np.where(ok_v[:, None], f["v"] - v_ref, np.nan)}
         if pr is not None:
-            m["ep"] = f["p"] - np.column_stack([np.interp(t, tr, pr[:, i]) for i in range(3)])
+            p_ref, ok_p = interp_reference(tr, pr, t)
+            m["ep"] = np.where(ok_p[:, None], f["p"] - p_ref, np.nan)
         a = att.get(lab)
         if a is not None and len(a["t"]) == len(t) and a["P"].shape[1] == 15:
             sc = NavScorer()
@@ -230,8 +232,8 @@ def _navigation_fig(nav: dict, nm: dict) -> tuple:
                 continue
             for i in range(3):
                 ax = axs[i, j]
-                e = np.where(m["mask"], m[key][:, i], np.nan)
-                ax.plot(m["t"], e, color=colour(lab), lw=0.9, label=lab if i == 0 else None)
+                ax.plot(m["t"], m[key][:, i], color=colour(lab), lw=0.9,
+                        label=lab if i == 0 else None)
                 ax.plot(m["t"], f[s3][:, i], color=colour(lab), lw=0.7, ls="--")
                 ax.plot(m["t"], -f[s3][:, i], color=colour(lab), lw=0.7, ls="--")
                 ax.set_ylabel(f"{'NED'[i]} {'velocity' if j == 0 else 'position'} "
@@ -243,8 +245,9 @@ def _navigation_fig(nav: dict, nm: dict) -> tuple:
     fig.suptitle(f"Navigation errors vs {src} with each filter's own +-3 sigma (dashed)")
     return ("fig-navigation", "Velocity and position errors", _fig_png(fig),
             f"Velocity (left) and position (right) error of each filter against {src} "
-            "(interpolated to the step time; position in the local NED frame at the first "
-            "raw GNSS fix, the model's origin) and the filter's own +-3 sigma.")
+            "(interpolated to the step time as the scores are, steps in a reference gap "
+            "left out; position in the local NED frame at the first raw GNSS fix, the "
+            "model's origin) and the filter's own +-3 sigma.")
 
 
 #: Preference among lat/lon/alt sources for the origin of the trajectory (the fused
@@ -436,16 +439,25 @@ def _error_axes(axs, S: dict, legend, ylabel) -> None:
 
 
 def _state_figures(data: dict, rows: dict, m: dict, events: list) -> list[tuple]:
-    from scipy.stats import chi2
-
-    plt = _plt()
+    """The figures of a generic-state report in :data:`STATE_FIGURES` order (the first
+    six state components drawn)."""
     S = m["series"]
-    figs = []
     n = max((f["x"].shape[1] for f in data["filters"].values() if f["x"].ndim == 2),
             default=1)
     nc = max(1, min(n, 6))  # components drawn
+    return [_state_fig(data, nc), _state_errors_fig(S, rows, nc), _state_nees_fig(S, rows, n),
+            _state_nis_fig(data, rows),
+            _timing_fig({lab: (f["t"], f["wall_us"]) for lab, f in data["filters"].items()},
+                        "filter step"),
+            _resets_fig({lab: (f["t"], f["resets"]) for lab, f in data["filters"].items()},
+                        events)]
+
+
+def _state_fig(data: dict, nc: int) -> tuple:
+    """The first ``nc`` state components of every filter's estimate and of the truth
+    (black) over time."""
+    plt = _plt()
     truth = data["truth"]
-    # state over time: truth, estimates (and a 1-D measurement)
     fig, axs = plt.subplots(nc, 1, figsize=(12, 2.6 * nc + 1), sharex=True, squeeze=False)
     axs = axs[:, 0]
     for i, ax in enumerate(axs):
@@ -458,9 +470,14 @@ def _state_figures(data: dict, rows: dict, m: dict, events: list) -> list[tuple]
     axs[0].legend(loc="upper right", fontsize=8, ncol=4)
     axs[-1].set_xlabel("time t (s)")
     fig.suptitle("State of every filter and the truth (black)")
-    figs.append(("fig-state", "State", _fig_png(fig),
-                 "Each state component of every filter's estimate and the truth."))
-    # errors with own 3 sigma
+    return ("fig-state", "State", _fig_png(fig),
+            "Each state component of every filter's estimate and the truth.")
+
+
+def _state_errors_fig(S: dict, rows: dict, nc: int) -> tuple:
+    """Error (estimate - truth) of the first ``nc`` components with each filter's own
+    +-3 sqrt(P_ii)."""
+    plt = _plt()
     fig, axs = plt.subplots(nc, 1, figsize=(12, 2.8 * nc + 1), sharex=True, squeeze=False)
     axs = axs[:, 0]
     _error_axes(axs, S, lambda lab, i: f"{lab} error (RMSE "
@@ -468,10 +485,17 @@ def _state_figures(data: dict, rows: dict, m: dict, events: list) -> list[tuple]
     axs[-1].set_xlabel("time t (s)")
     fig.suptitle("Error (estimate - truth) per component with each filter's own +-3 sigma "
                  "(dashed)")
-    figs.append(("fig-errors", "Errors with +-3 sigma", _fig_png(fig),
-                 "Per-component error (solid) and the filter's own +-3 sqrt(P_ii) "
-                 "(dashed)."))
-    # NEES with its chi-square band (n dof per step)
+    return ("fig-errors", "Errors with +-3 sigma", _fig_png(fig),
+            "Per-component error (solid) and the filter's own +-3 sqrt(P_ii) "
+            "(dashed).")
+
+
+def _state_nees_fig(S: dict, rows: dict, n: int) -> tuple:
+    """NEES per step against the truth (``n`` dof) with the chi-square 95 % band of one
+    step."""
+    from scipy.stats import chi2
+
+    plt = _plt()
     fig, ax = plt.subplots(figsize=(12, 4))
     have = False
     for lab, s in S.items():
@@ -493,9 +517,16 @@ def _state_figures(data: dict, rows: dict, m: dict, events: list) -> list[tuple]
     ax.set_ylabel(f"NEES ({n} dof)")
     ax.grid(alpha=0.3)
     ax.set_title("NEES per step against the truth, with the chi-square 95% band")
-    figs.append(("fig-nees", "NEES", _fig_png(fig),
-                 f"NEES e^T P^-1 e per step ({n} dof) and the 95% band of one step."))
-    # NIS
+    return ("fig-nees", "NEES", _fig_png(fig),
+            f"NEES e^T P^-1 e per step ({n} dof) and the 95% band of one step.")
+
+
+def _state_nis_fig(data: dict, rows: dict) -> tuple:
+    """NIS of every filter's updates per step with the chi-square 95 % band at their mean
+    dof."""
+    from scipy.stats import chi2
+
+    plt = _plt()
     fig, ax = plt.subplots(figsize=(12, 4))
     dofm = []
     for lab, f in data["filters"].items():
@@ -515,12 +546,7 @@ def _state_figures(data: dict, rows: dict, m: dict, events: list) -> list[tuple]
     ax.set_ylabel("NIS")
     ax.grid(alpha=0.3)
     ax.set_title("NIS of each step's update with the chi-square band")
-    figs.append(("fig-nis", "NIS", _fig_png(fig), "Normalised innovation squared per step."))
-    figs.append(_timing_fig({lab: (f["t"], f["wall_us"]) for lab, f in data["filters"].items()},
-                            "filter step"))
-    figs.append(_resets_fig({lab: (f["t"], f["resets"]) for lab, f in data["filters"].items()},
-                            events))
-    return figs
+    return ("fig-nis", "NIS", _fig_png(fig), "Normalised innovation squared per step.")
 
 
 # ------------------------------------------------------------------------------ radar
@@ -609,13 +635,29 @@ def _plt():
 
 
 def _attitude_figures(data: dict, rows: dict, m: dict, events: list) -> list[tuple]:
-    from scipy.stats import chi2
-
-    plt = _plt()
+    """The figures of an attitude report in :data:`ATTITUDE_FIGURES` order (the
+    navigation errors after the trajectory when the recording has navigation channels)."""
     S = m["series"]
-    ref = m["reference"]
-    figs = []
-    # attitude angles
+    dt = _dt(S)
+    w = max(1, int(round(1.0 / dt))) if dt else 1  # steps in the 1 s moving means
+    figs = [_attitude_angles_fig(data, S, m["reference"]),
+            _attitude_errors_fig(S, rows, m["reference"]),
+            _attitude_nees_fig(S, rows, w),
+            _attitude_nis_fig(data, rows, w),
+            _trajectory_fig(data)]
+    if m.get("navigation"):
+        figs.append(_navigation_fig(data["nav"], m["navigation"]))
+    figs.append(_timing_fig({lab: (f["t"], f["wall_us"]) for lab, f in data["filters"].items()},
+                            "filter step"))
+    figs.append(_resets_fig({lab: (f["t"], f["resets"]) for lab, f in data["filters"].items()},
+                            events))
+    return figs
+
+
+def _attitude_angles_fig(data: dict, S: dict, ref: str | None) -> tuple:
+    """Roll, pitch, yaw (deg, ZYX Euler of body FRD -> NED) of every filter and of the
+    reference ``ref`` (black)."""
+    plt = _plt()
     fig, axs = plt.subplots(3, 1, figsize=(12, 7.5), sharex=True)
     if ref:
         from ..geometry.rotation import quat_to_euler
@@ -633,9 +675,14 @@ def _attitude_figures(data: dict, rows: dict, m: dict, events: list) -> list[tup
     axs[0].legend(loc="upper right", fontsize=8, ncol=4)
     axs[-1].set_xlabel("time t (s, source clock)")
     fig.suptitle("Attitude (ZYX Euler, body FRD -> NED) of every filter and the reference")
-    figs.append(("fig-attitude", "Attitude", _fig_png(fig),
-                 "Roll, pitch, yaw of each filter and the reference (black)."))
-    # errors with own 3 sigma
+    return ("fig-attitude", "Attitude", _fig_png(fig),
+            "Roll, pitch, yaw of each filter and the reference (black).")
+
+
+def _attitude_errors_fig(S: dict, rows: dict, ref: str | None) -> tuple:
+    """Per-axis attitude error (deg, wrapped) against ``ref`` with each filter's own
+    +-3 sigma."""
+    plt = _plt()
     fig, axs = plt.subplots(3, 1, figsize=(12, 8.5), sharex=True)
     _error_axes(axs, S, lambda lab, i: f"{lab} error (RMSE "
                 f"{rows[lab].get(_AX[i] + '_rmse_deg', math.nan):.2f})",
@@ -643,13 +690,18 @@ def _attitude_figures(data: dict, rows: dict, m: dict, events: list) -> list[tup
     axs[-1].set_xlabel("time t (s)")
     fig.suptitle(f"Error vs {ref} (estimate - reference, wrapped) with each filter's own "
                  "+-3 sigma (dashed)")
-    figs.append(("fig-errors", "Errors with +-3 sigma", _fig_png(fig),
-                 "Per-axis error (solid) and the filter's own +-3 sigma bound (dashed, from "
-                 "its covariance, linearised to Euler angles)."))
-    # NEES
+    return ("fig-errors", "Errors with +-3 sigma", _fig_png(fig),
+            "Per-axis error (solid) and the filter's own +-3 sigma bound (dashed, from "
+            "its covariance, linearised to Euler angles).")
+
+
+def _attitude_nees_fig(S: dict, rows: dict, w: int) -> tuple:
+    """Attitude NEES (3 dof) per step against truth and its ``w``-step moving mean with
+    the chi-square 95 % band of that mean."""
+    from scipy.stats import chi2
+
+    plt = _plt()
     fig, ax = plt.subplots(figsize=(12, 4))
-    dt = _dt(S)
-    w = max(1, int(round(1.0 / dt))) if dt else 1
     have = False
     for lab, s in S.items():
         if "nees" not in s:
@@ -671,10 +723,17 @@ def _attitude_figures(data: dict, rows: dict, m: dict, events: list) -> list[tup
     ax.set_ylabel("attitude NEES (3 dof)")
     ax.grid(alpha=0.3)
     ax.set_title("NEES against truth: dots per step, lines the moving mean, band chi-square")
-    figs.append(("fig-nees", "NEES", _fig_png(fig),
-                 "Attitude NEES (3 dof) per step and its 1 s moving mean with the chi-square "
-                 "95% band of that mean."))
-    # NIS
+    return ("fig-nees", "NEES", _fig_png(fig),
+            "Attitude NEES (3 dof) per step and its 1 s moving mean with the chi-square "
+            "95% band of that mean.")
+
+
+def _attitude_nis_fig(data: dict, rows: dict, w: int) -> tuple:
+    """NIS / dof of every filter's updates, ``w``-step moving mean, with the chi-square
+    95 % band of that mean."""
+    from scipy.stats import chi2
+
+    plt = _plt()
     fig, ax = plt.subplots(figsize=(12, 4))
     dofm = []
     for lab, f in data["filters"].items():
@@ -698,9 +757,14 @@ def _attitude_figures(data: dict, rows: dict, m: dict, events: list) -> list[tup
     ax.set_ylabel("NIS / dof (moving mean)")
     ax.grid(alpha=0.3)
     ax.set_title("NIS of the updates divided by their dof, with the chi-square band")
-    figs.append(("fig-nis", "NIS", _fig_png(fig),
-                 "Normalised innovation squared per degree of freedom (1 s moving mean)."))
-    # trajectory
+    return ("fig-nis", "NIS", _fig_png(fig),
+            "Normalised innovation squared per degree of freedom (1 s moving mean).")
+
+
+def _trajectory_fig(data: dict) -> tuple:
+    """The vehicle's position sources, top view (east/north m in the local NED frame;
+    from lat/lon/alt at the first fix when the recording has no NED position)."""
+    plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 7))
     if data["positions"]:
         styles = [(REFERENCE_COLOUR, "-", 1.2), ("#888888", "--", 0.9), ("#bbbbbb", ":", 0.9)]
@@ -720,20 +784,13 @@ def _attitude_figures(data: dict, rows: dict, m: dict, events: list) -> list[tup
     ax.set_title("Vehicle trajectory, top view (" + (
         "local NED at the first fix, from lat/lon/alt" if from_lla else "local NED origin")
         + ")")
-    figs.append(("fig-trajectory", "Trajectory", _fig_png(fig),
-                 "Vehicle position from the log (top view, east/north in m)" + (
-                     "; no local NED position was recorded, so the lat/lon/alt fixes are "
-                     "shown in the local tangent plane at the first fix (of the fused "
-                     "position when there is one), the same origin for every source"
-                     if from_lla
-                     else "") + "."))
-    if m.get("navigation"):
-        figs.append(_navigation_fig(data["nav"], m["navigation"]))
-    figs.append(_timing_fig({lab: (f["t"], f["wall_us"]) for lab, f in data["filters"].items()},
-                            "filter step"))
-    figs.append(_resets_fig({lab: (f["t"], f["resets"]) for lab, f in data["filters"].items()},
-                            events))
-    return figs
+    return ("fig-trajectory", "Trajectory", _fig_png(fig),
+            "Vehicle position from the log (top view, east/north in m)" + (
+                "; no local NED position was recorded, so the lat/lon/alt fixes are "
+                "shown in the local tangent plane at the first fix (of the fused "
+                "position when there is one), the same origin for every source"
+                if from_lla
+                else "") + ".")
 
 
 def _dt(S: dict) -> float:
@@ -930,52 +987,15 @@ def write_report(mcap_path: str | Path, out_dir: str | Path | None = None,
     sections = []  # (title, rows, cols)
     figs: list = []
     extra: dict = {}
-    all_rows: dict = {}
+    rows: dict = {}
     for kd in kinds:
         stage(f"{kd}: metrics and figures")
-        if kd == "attitude":
-            data = attitude_data(rec)
-            rows, m = attitude_metrics(data)
-            kf = _attitude_figures(data, rows, m, events)
-            cols = ["roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg", "n", "nees_mean",
-                    "frac_in_3sigma", "nis_mean", "nis_dof_mean", "resets", "us_per_step"]
-            if m["navigation"]:
-                cols[5:5] = ["vel_rmse_ms", "hpos_rmse_m", "vpos_rmse_m", "nees_vel_in95",
-                             "nees_pos_in95"]
-            extra.update(reference=m["reference"], reference_kind=m["reference_kind"])
-        elif kd == "state":
-            data = state_data(rec)
-            rows, m = state_metrics(data)
-            kf = _state_figures(data, rows, m, events)
-            n = max((r.get("nees_dof", 0) for r in rows.values()), default=0)
-            cols = (["rmse"] + [f"rmse_x{i}" for i in range(min(n, 6))]
-                    + ["nees_mean", "nees_dof", "frac_in_3sigma", "nis_mean", "nis_dof_mean",
-                       "resets", "us_per_step", "steps"])
-            cfg = rec.metadata.get("config", {})
-            extra.update({k: json.loads(cfg[k]) for k in ("scenario", "trial") if k in cfg})
-        else:
-            data = radar_data(rec)
-            cfg = rec.metadata.get("config", {})
-            c = 100.0
-            for key in ("gospa_c", "metrics"):
-                if key in cfg:
-                    try:
-                        v = json.loads(cfg[key])
-                        c = float(v["gospa_c"] if isinstance(v, dict) else v)
-                    except (ValueError, KeyError, TypeError):
-                        pass
-            rows, m = radar_metrics(data, c)
-            kf = _radar_figures(data, rows, m, events)
-            if len(kinds) > 1:  # ids unique on the page: the radar's timing, resets...
-                kf = [(f"radar-{fid}", t, png, cap) for fid, t, png, cap in kf]
-            cols = ["gospa_mean", "tracks_confirmed_total", "false_tracks", "track_breaks",
-                    "id_swaps", "time_to_confirm_s", "confirmed_mean", "resets",
-                    "us_per_scan", "scans"]
-            extra["gospa_c"] = c
-        sections.append((kd, rows, cols))
+        make = {"attitude": _attitude_section, "state": _state_section}.get(kd, _radar_section)
+        krows, cols, kf, kextra = make(rec, events, len(kinds) > 1)
+        extra.update(kextra)
+        sections.append((kd, krows, cols))
         figs += kf
-        all_rows.update(rows)
-    rows = all_rows
+        rows.update(krows)
     stage("writing HTML and Markdown")
     stem = mcap_path.stem
     figdir = out / f"{stem}_figures"
@@ -985,6 +1005,82 @@ def write_report(mcap_path: str | Path, out_dir: str | Path | None = None,
         p = figdir / f"{fid}.png"
         p.write_bytes(png)
         pngs.append(p)
+    html_path = out / f"{stem}.html"
+    html_path.write_text(_html_page(rec, mcap_path, kind, extra, sections, figs, events))
+    md_path = out / f"{stem}.md"
+    md_path.write_text(_markdown_page(rec, mcap_path, kind, extra, sections, figs, events,
+                                      figdir.name))
+    metrics_path = out / f"{stem}.metrics.json"
+    metrics_path.write_text(json.dumps({"kind": kind, **extra, "filters": rows},
+                                       indent=2, default=_jsonnum))
+    return {"html": html_path, "markdown": md_path, "metrics": metrics_path, "figures": pngs}
+
+
+def _attitude_section(rec: Recording, events: list, _multi: bool) -> tuple:
+    """(rows, table columns, figures, page facts) of the attitude (and navigation)
+    channels; the navigation columns only when the recording has navigation channels."""
+    data = attitude_data(rec)
+    rows, m = attitude_metrics(data)
+    figs = _attitude_figures(data, rows, m, events)
+    cols = ["roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg", "n", "nees_mean",
+            "frac_in_3sigma", "nis_mean", "nis_dof_mean", "resets", "us_per_step"]
+    if m["navigation"]:
+        cols[5:5] = ["vel_rmse_ms", "hpos_rmse_m", "vpos_rmse_m", "nees_vel_in95",
+                     "nees_pos_in95"]
+    return rows, cols, figs, {"reference": m["reference"],
+                              "reference_kind": m["reference_kind"]}
+
+
+def _state_section(rec: Recording, events: list, _multi: bool) -> tuple:
+    """(rows, table columns, figures, page facts) of a generic vector-state recording
+    (``uavest bench --mcap``): per-component RMSE columns for up to six components, and
+    the scenario and trial from the recording's config."""
+    data = state_data(rec)
+    rows, m = state_metrics(data)
+    figs = _state_figures(data, rows, m, events)
+    n = max((r.get("nees_dof", 0) for r in rows.values()), default=0)
+    cols = (["rmse"] + [f"rmse_x{i}" for i in range(min(n, 6))]
+            + ["nees_mean", "nees_dof", "frac_in_3sigma", "nis_mean", "nis_dof_mean",
+               "resets", "us_per_step", "steps"])
+    cfg = rec.metadata.get("config", {})
+    return rows, cols, figs, {k: json.loads(cfg[k]) for k in ("scenario", "trial") if k in cfg}
+
+
+def _radar_gospa_c(cfg: dict) -> float:
+    """The GOSPA cut-off c (m) of the run from the recording's config (``gospa_c``, or
+    ``metrics`` as a number or a dict with ``gospa_c``); 100 m when it has none."""
+    c = 100.0
+    for key in ("gospa_c", "metrics"):
+        if key in cfg:
+            try:
+                v = json.loads(cfg[key])
+                c = float(v["gospa_c"] if isinstance(v, dict) else v)
+            except (ValueError, KeyError, TypeError):
+                pass
+    return c
+
+
+def _radar_section(rec: Recording, events: list, multi: bool) -> tuple:
+    """(rows, table columns, figures, page facts) of the radar tracker channels; with
+    ``multi`` (another kind on the same page) the figure ids are prefixed ``radar-`` to
+    stay unique."""
+    data = radar_data(rec)
+    c = _radar_gospa_c(rec.metadata.get("config", {}))
+    rows, m = radar_metrics(data, c)
+    figs = _radar_figures(data, rows, m, events)
+    if multi:  # ids unique on the page: the radar's timing, resets...
+        figs = [(f"radar-{fid}", t, png, cap) for fid, t, png, cap in figs]
+    cols = ["gospa_mean", "tracks_confirmed_total", "false_tracks", "track_breaks",
+            "id_swaps", "time_to_confirm_s", "confirmed_mean", "resets",
+            "us_per_scan", "scans"]
+    return rows, cols, figs, {"gospa_c": c}
+
+
+def _html_page(rec: Recording, mcap_path: Path, kind: str, extra: dict, sections: list,
+               figs: list, events: list) -> str:
+    """The self-contained HTML page: the run facts, a comparison table per section, the
+    figures as base64 PNG and the /log events."""
+    stem = mcap_path.stem
     run = rec.metadata.get("run", {})
     meta_rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(str(v))}</td></tr>"
                         for k, v in [("recording", mcap_path.name), ("kind", kind),
@@ -999,30 +1095,30 @@ def write_report(mcap_path: str | Path, out_dir: str | Path | None = None,
         f"<img alt='{html.escape(title)}' src='data:image/png;base64,"
         f"{base64.b64encode(png).decode()}'><figcaption>{html.escape(cap)}</figcaption>"
         "</figure>" for fid, title, png, cap in figs)
-    page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>uavest report "
+    return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>uavest report "
             f"{html.escape(stem)}</title><style>{_CSS}</style></head><body>"
             f"<h1>uavest report: {html.escape(stem)}</h1><table class='meta'>{meta_rows}"
             f"</table>" + "".join(f"<h2>Comparison ({k})</h2>{_table_html(r, c)}"
                                   for k, r, c in sections) + f"{fig_html}"
             f"<h2>Events (/log)</h2><table><tr><th>t (s)</th><th>level</th><th>name</th>"
             f"<th>message</th></tr>{ev_rows}</table></body></html>")
-    html_path = out / f"{stem}.html"
-    html_path.write_text(page)
+
+
+def _markdown_page(rec: Recording, mcap_path: Path, kind: str, extra: dict, sections: list,
+                   figs: list, events: list, figdir: str) -> str:
+    """The Markdown page: the same content as the HTML, figures linked from ``figdir``."""
+    stem = mcap_path.stem
+    run = rec.metadata.get("run", {})
     md = [f"# uavest report: {stem}", "", f"- recording: `{mcap_path.name}` ({kind})"]
     md += [f"- {k}: {v}" for k, v in [*run.items(), *extra.items()]]
     md += [f"- truncated: {rec.truncated}; chunks: {rec.chunks}", ""]
     for k, r, c in sections:
         md += [f"## Comparison ({k})", "", _table_md(r, c), ""]
     md += ["## Figures", ""]
-    md += [f"![{title}]({figdir.name}/{fid}.png)\n\n{cap}\n" for fid, title, _, cap in figs]
+    md += [f"![{title}]({figdir}/{fid}.png)\n\n{cap}\n" for fid, title, _, cap in figs]
     md += ["## Events", ""] + [f"- t = {e['t']:.3f} s [{e['name']}] {e['message']}"
                                for e in events]
-    md_path = out / f"{stem}.md"
-    md_path.write_text("\n".join(md) + "\n")
-    metrics_path = out / f"{stem}.metrics.json"
-    metrics_path.write_text(json.dumps({"kind": kind, **extra, "filters": rows},
-                                       indent=2, default=_jsonnum))
-    return {"html": html_path, "markdown": md_path, "metrics": metrics_path, "figures": pngs}
+    return "\n".join(md) + "\n"
 
 
 def _jsonnum(o):
