@@ -62,6 +62,7 @@ def test_same_numbers_serial_pool_and_dask_threads(tmp_path, windows):
         assert numbers(s["groups"]) == numbers(mc_ser["groups"])
 
 
+@pytest.mark.slow
 def test_shards_give_the_bench_table(tmp_path):
     """The aggregate of the shards is the table of one bench run over the same trials."""
     from uavest.experiments.montecarlo import evaluate as bench
@@ -105,6 +106,7 @@ def test_bad_logs_are_listed_with_their_reason(tmp_path, windows):
     assert "corrupt.bin" in csv and "empty.ulg" in csv
 
 
+@pytest.mark.slow
 def test_rerun_skips_and_changed_configuration_recomputes(tmp_path, windows):
     inputs = [str(w) for w in windows[:2]]
     plan = build_plan(inputs)

@@ -58,6 +58,7 @@ def frames(sysid: int = 1, key: bytes | None = None):
     return m, buf
 
 
+@pytest.mark.slow
 def test_heartbeat_timeout_is_one_clear_line():
     port = free_port()
     notes = []
@@ -117,6 +118,7 @@ def test_streams_requested_acked_and_rates_measured():
     assert np.all(np.diff([s.t for s in got]) >= 0)  # vehicle-time order
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("ack", ["deny", "none"])
 def test_fallback_to_request_data_stream(ack):
     port = free_port()
@@ -193,6 +195,7 @@ def test_obstacle_distance_3d_and_adsb_over_the_link():
     assert adsb[0].lat_lon_alt[2] == pytest.approx(700.0)
 
 
+@pytest.mark.slow
 def test_bad_input_counted_not_fatal():
     port = free_port()
     with FakeVehicle(port, auto_streams={"ATTITUDE": 20.0}) as fv:
@@ -233,6 +236,7 @@ def test_bad_input_counted_not_fatal():
     assert len(t) > 10 and np.all(np.diff(t) >= 0) and max(t) < 1000
 
 
+@pytest.mark.slow
 def test_signing_rejects_unsigned_and_wrong_key(tmp_path):
     port = free_port()
     key = hashlib.sha256(b"secret words").digest()
@@ -470,6 +474,7 @@ def test_declination_from_wmm_without_params():
             assert 0.15 < link.declination < 0.25  # Canberra: about 12 deg east
 
 
+@pytest.mark.slow
 def test_tcp_vehicle_started_after_the_link():
     port = free_port(socket.SOCK_STREAM)
     import threading

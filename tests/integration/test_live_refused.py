@@ -18,6 +18,7 @@ def _free_port() -> int:
     return port
 
 
+@pytest.mark.slow
 def test_refused_tcp_connection_is_reported_as_refused():
     port = _free_port()
     notes: list[str] = []
@@ -29,6 +30,7 @@ def test_refused_tcp_connection_is_reported_as_refused():
     assert notes and all("cannot connect" in n for n in notes), notes
 
 
+@pytest.mark.slow
 def test_silent_listener_is_still_a_missing_heartbeat():
     srv = socket.socket()
     srv.bind(("127.0.0.1", 0))

@@ -221,6 +221,7 @@ def test_sigint_leaves_complete_output_files(tmp_path):
     assert n > 100 and src.stats.truncated == 0 and src.stats.corrupt == 0
 
 
+@pytest.mark.slow  # six subprocesses
 @pytest.mark.parametrize("argv,says", [
     (["run", "--connect", "udpin:127.0.0.1:9", "--heartbeat-timeout", "1",
       "--no-status"], "heartbeat"),

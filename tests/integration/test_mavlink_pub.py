@@ -31,6 +31,7 @@ def listen(sock: socket.socket, seconds: float) -> list:
     return out
 
 
+@pytest.mark.slow
 def test_publisher_sends_own_identity_and_simulated_tracks():
     port = free_port()
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

@@ -18,6 +18,7 @@ from uavest.sinks.mcap import McapSink
 LOG = REPO_ROOT / "logs" / "sim_200hz.tlog"
 
 
+@pytest.mark.slow
 def test_navigation_channels_equal_the_run(tmp_path):
     path = tmp_path / "nav.mcap"
     coll = Collector()

@@ -21,6 +21,8 @@ from uavest.presets import resolve_list
 from uavest.sinks.base import Collector
 
 SP = NavSpace()
+#: the UKF and hybrid cases are in the full suite (seconds each), the EKF in the fast tier
+SLOW_SPECS = [pytest.param(s, marks=pytest.mark.slow) for s in ("ukf", "hybrid")]
 ORIGIN = (47.4, 8.5, 430.0)
 DT = 0.01  # 100 Hz IMU
 
@@ -99,7 +101,7 @@ def rms(e):
     return float(np.sqrt(np.mean(e**2)))
 
 
-@pytest.mark.parametrize("spec", ["ekf", "ukf", "hybrid"])
+@pytest.mark.parametrize("spec", ["ekf", *SLOW_SPECS])
 def test_every_filter_converges_on_a_synthetic_flight(spec):
     samples, ts, xs = flight(1)
     stream, runners, coll = run_nav(samples, [spec])
@@ -116,7 +118,7 @@ def test_every_filter_converges_on_a_synthetic_flight(spec):
     assert any(d["what"] == "alignment" and "magnetometer" in d["why"] for d in s["decisions"])
 
 
-@pytest.mark.parametrize("spec", ["ekf", "ukf", "hybrid"])
+@pytest.mark.parametrize("spec", ["ekf", *SLOW_SPECS])
 def test_before_the_first_fix_the_stream_runs_unaided_then_anchors(spec):
     """A flight whose GNSS fix arrives 15 s after the IMU: estimates from 2 s in (attitude
     from the accelerometer and magnetometer, a constant-position hold), velocity and
@@ -163,6 +165,7 @@ def test_no_course_while_slow_and_no_magnetometer_means_no_start():
         run_nav(samples)
 
 
+@pytest.mark.slow
 def test_gnss_delay_compensated():
     samples, ts, xs = flight(3, delay=0.2)
     s0, r0, c0 = run_nav(samples)
@@ -172,6 +175,7 @@ def test_gnss_delay_compensated():
     assert rms(e1[:, 6:8]) < 0.6 * rms(e0[:, 6:8])  # a 0.2 s lag at 6 m/s is 1.2 m
 
 
+@pytest.mark.slow
 def test_bad_aiding_is_gated_and_counted_never_a_reset_storm():
     samples, ts, xs = flight(4, vd=-1.0)  # climbing at 1 m/s
     stuck = None

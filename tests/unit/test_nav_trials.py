@@ -39,6 +39,7 @@ def test_trial_is_deterministic_per_seed():
     np.testing.assert_array_equal(f1.prior.x, f2.prior.x)
 
 
+@pytest.mark.slow
 def test_filters_recover_after_a_gnss_outage():
     rows = nav.trial_rows(OUTAGE, ["ekf", "ukf", "hybrid"], seed=0, trials=range(2))
     agg = nav.aggregate(rows)
