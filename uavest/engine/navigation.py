@@ -584,8 +584,7 @@ class NavStream:
         self._started = True
         self._recent.clear()
         if self._unaided:
-            self._unaided = False
-            self.fix_from = self.summary["fix_from_t"] = r.t - self.imu_delay
+            self._anchored(r)
         comp = (f" less the GNSS acceleration ({np.linalg.norm(a_ned):.1f} m/s^2)"
                 if np.any(a_ned) else "")
         why = (f"roll/pitch from the accelerometer{comp}, yaw from {ywhy}, velocity and "
@@ -593,7 +592,7 @@ class NavStream:
         self._decide("alignment", "done" if first else "re-aligned", r.t, why)
         keep = 0 if first or self._switched else 6
         self._switched = False
-        return [Start(r.t - self.imu_delay, Gaussian(x, P), self.space,
+        return [Start(self._stamp(r), Gaussian(x, P), self.space,
                       reason="start" if first else "gap", keep_tail=keep)]
 
     def _level(self, a_ned: Array, mags: list[Any], vh: Array) -> tuple[Array, float, str]:
@@ -626,7 +625,7 @@ class NavStream:
         prior variances from a good fix."""
         n, g = self.noise, fix.gnss
         assert g is not None and fix.ned is not None
-        dt = r.t - self.imu_delay - fix.t
+        dt = self._stamp(r) - fix.t
         v = np.asarray(g.vel_ned, float).copy()
         vz_ok = bool(np.isfinite(v[2]))
         if not vz_ok:
@@ -660,7 +659,16 @@ class NavStream:
                      f"accelerometer, yaw from {ywhy}; velocity and position held near the "
                      f"start ({n.nofix_pos_noise:g} m constant-position measurement) until "
                      "the first fix")
-        return [Start(r.t - self.imu_delay, Gaussian(x, P), self.space, reason="start")]
+        return [Start(self._stamp(r), Gaussian(x, P), self.space, reason="start")]
+
+    def _stamp(self, r: _Raw) -> float:
+        """The time (s) the step ``r`` describes: its samples' end less the IMU delay."""
+        return r.t - self.imu_delay
+
+    def _anchored(self, r: _Raw) -> None:
+        """The unaided run ends at ``r``: positions are in :attr:`frame` from here."""
+        self._unaided = False
+        self.fix_from = self.summary["fix_from_t"] = self._stamp(r)
 
     def _anchor(self, r: _Raw, fix: _Aid) -> list[Start | Step]:
         """The first good fix after an unaided start: velocity and position from it, the
@@ -671,13 +679,12 @@ class NavStream:
         x = np.concatenate([[1.0, 0.0, 0.0, 0.0], v, p, np.zeros(6)])
         P = np.diag([n.init_tilt**2] * 3 + pv + [n.init_gyro_bias**2] * 3
                     + [n.init_accel_bias**2] * 3)
-        self._unaided = False
-        self.fix_from = self.summary["fix_from_t"] = r.t - self.imu_delay
+        self._anchored(r)
         self._vfix.clear()
         self._decide("alignment", "velocity and position from the first fix", r.t,
                      f"the {self._gnss} fix at t={g.t:.1f} s; attitude and biases kept "
                      "from the unaided start")
-        return [Start(r.t - self.imu_delay, Gaussian(x, P), self.space, reason="first fix",
+        return [Start(self._stamp(r), Gaussian(x, P), self.space, reason="first fix",
                       keep_x=KEEP_ATT_BIAS_X, keep_P=KEEP_ATT_BIAS_P)]
 
     def _first_start(self, r: _Raw) -> None:
@@ -729,7 +736,7 @@ class NavStream:
         if fix is not None and fix.gnss is not None and fix.ned is not None:
             g = fix.gnss
             v = np.asarray(g.vel_ned, float)
-            dt = r.t - self.imu_delay - fix.t
+            dt = self._stamp(r) - fix.t
             if np.isfinite(v[:2]).all():
                 sv = max(n.gnss_vel_floor, g.s_acc if np.isfinite(g.s_acc) else 0.0)
                 rows = (0, 1, 2) if np.isfinite(v[2]) else (0, 1)
@@ -774,7 +781,7 @@ class NavStream:
             sensors.append("hold")
         self._k += 1
         u = np.concatenate([r.w, r.a])
-        return Step(self._k, r.t - self.imu_delay, r.t - r.t0, self._model, tuple(ups), u,
+        return Step(self._k, self._stamp(r), r.t - r.t0, self._model, tuple(ups), u,
                     {"sensors": tuple(sensors)} if sensors else None)
 
     def _offset_pair(self, d: float, t: float) -> None:
