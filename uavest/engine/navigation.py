@@ -83,7 +83,7 @@ from .attitude import (
     failover_rate,
     step_plan,
 )
-from .records import Start, Step
+from .records import NavAnchor, Start, Step
 from .runner import FilterRunner
 
 Array = np.ndarray
@@ -293,6 +293,7 @@ class NavStream:
         #: vehicle time (s) from which positions are in :attr:`frame` (the first-fix
         #: re-anchoring); None when the stream started at a fix
         self.fix_from: float | None = None
+        self._anchor_sample: NavAnchor | None = None  # for the sinks, with the next step
         self._wait_why = "no good GNSS fix yet"
         self._t_out: float | None = None  # end of the last released step
         self._now = -np.inf
@@ -585,6 +586,8 @@ class NavStream:
         self._recent.clear()
         if self._unaided:
             self._anchored(r)
+        elif first:
+            self._announce(r, "start at a GNSS fix")
         comp = (f" less the GNSS acceleration ({np.linalg.norm(a_ned):.1f} m/s^2)"
                 if np.any(a_ned) else "")
         why = (f"roll/pitch from the accelerometer{comp}, yaw from {ywhy}, velocity and "
@@ -669,6 +672,15 @@ class NavStream:
         """The unaided run ends at ``r``: positions are in :attr:`frame` from here."""
         self._unaided = False
         self.fix_from = self.summary["fix_from_t"] = self._stamp(r)
+        self._announce(r, "first fix after an unaided start")
+
+    def _announce(self, r: _Raw, reason: str) -> None:
+        """The frame's origin and the time from which positions are in it, handed to the
+        sinks with the next step (:class:`~uavest.engine.records.NavAnchor`)."""
+        o = self.summary.get("origin")
+        if o is not None:
+            self._anchor_sample = NavAnchor(self._stamp(r), o["lat"], o["lon"], o["alt"],
+                                            str(self._gnss), reason)
 
     def _anchor(self, r: _Raw, fix: _Aid) -> list[Start | Step]:
         """The first good fix after an unaided start: velocity and position from it, the
@@ -781,8 +793,11 @@ class NavStream:
             sensors.append("hold")
         self._k += 1
         u = np.concatenate([r.w, r.a])
-        return Step(self._k, self._stamp(r), r.t - r.t0, self._model, tuple(ups), u,
-                    {"sensors": tuple(sensors)} if sensors else None)
+        info: dict[str, Any] | None = {"sensors": tuple(sensors)} if sensors else None
+        if self._anchor_sample is not None:
+            info = {**(info or {}), "samples": (self._anchor_sample,)}
+            self._anchor_sample = None
+        return Step(self._k, self._stamp(r), r.t - r.t0, self._model, tuple(ups), u, info)
 
     def _offset_pair(self, d: float, t: float) -> None:
         """One (baro height - GNSS height) pair (m): the offset is their running mean

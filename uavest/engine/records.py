@@ -27,8 +27,8 @@ import numpy as np
 Array = np.ndarray
 
 __all__ = [
-    "RadarScanSample", "RunInfo", "ScanRecord", "Start", "StateSample", "Step", "StepRecord",
-    "TrackEstimate", "Update", "package_versions",
+    "NavAnchor", "RadarScanSample", "RunInfo", "ScanRecord", "Start", "StateSample", "Step",
+    "StepRecord", "TrackEstimate", "Update", "package_versions",
 ]
 
 
@@ -88,6 +88,23 @@ class RadarScanSample:
     model: Any
     origins: Array | None = None
     truths: Array | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class NavAnchor:
+    """Where a navigation run's positions are: from time ``t`` (s) on, in the local NED
+    frame whose origin is ``lat``/``lon`` (deg, WGS-84) and ``alt`` (m) (the first raw
+    GNSS fix of ``source``). A run that starts before the first fix (unaided) has its
+    positions in no frame before ``t``. Handed to sinks through ``Step.info["samples"]``
+    with the first step at the anchor, so a recording carries it (``/navigation/anchor``)
+    and its report scores what the replay scored."""
+
+    t: float
+    lat: float
+    lon: float
+    alt: float
+    source: str
+    reason: str
 
 
 @dataclass(frozen=True, slots=True)

@@ -138,7 +138,9 @@ def navigation_data(rec: Recording) -> dict:
     (K,) s, ``v``, ``p`` (K, 3) NED m/s and m, ``s3v``, ``s3p`` (K, 3) their 3-sigma; and
     ``ref``: (source, t, v (K, 3) m/s, p (K, 3) m or None) from the first of
     :data:`_NAV_REFS` in the recording, its position in the local NED frame at the first
-    raw GNSS fix (the model's origin). Empty without navigation channels."""
+    raw GNSS fix (the model's origin; the run's ``/navigation/anchor`` when recorded); and
+    ``pos_from``, the time (s) from which positions are in that frame (None: all).
+    Empty without navigation channels."""
     out: dict = {"filters": {}, "ref": None}
     for topic in rec.topics("/navigation/"):
         msgs = rec.json.get(topic, [])
@@ -151,13 +153,7 @@ def navigation_data(rec: Recording) -> dict:
             "s3p": _stack(msgs, "sigma3_position_m", 3)}
     if not out["filters"]:
         return out
-    origin = None
-    for src in _RAW_GNSS:
-        fix = [m for m in rec.json.get(f"/position/{src}", []) if m.get("lat_lon_alt")
-               and None not in m["lat_lon_alt"]]
-        if fix:
-            origin = np.array(fix[0]["lat_lon_alt"], float)
-            break
+    origin, out["pos_from"] = _nav_anchor(rec)
     for src in _NAV_REFS:
         msgs = [m for m in rec.json.get(f"/position/{src}", []) if m.get("vel_ned_m_s")
                 and None not in m["vel_ned_m_s"]]
@@ -170,6 +166,23 @@ def navigation_data(rec: Recording) -> dict:
             break
     out["origin"] = origin
     return out
+
+
+def _nav_anchor(rec: Recording) -> tuple[Array | None, float | None]:
+    """The navigation frame's origin [lat deg, lon deg, alt m] and the time (s) from which
+    positions are in it: the run's own ``/navigation/anchor`` (its last), else (a
+    recording without that channel) the first raw GNSS fix and no time."""
+    anchors = [m for m in rec.json.get("/navigation/anchor", [])
+               if m.get("lat_lon_alt") and None not in m["lat_lon_alt"]]
+    if anchors:
+        a = anchors[-1]
+        return np.array(a["lat_lon_alt"], float), float(a["t"])
+    for src in _RAW_GNSS:
+        fix = [m for m in rec.json.get(f"/position/{src}", []) if m.get("lat_lon_alt")
+               and None not in m["lat_lon_alt"]]
+        if fix:
+            return np.array(fix[0]["lat_lon_alt"], float), None
+    return None, None
 
 
 def navigation_metrics(nav: dict, att: dict) -> dict:
@@ -196,10 +209,13 @@ def navigation_metrics(nav: dict, att: dict) -> dict:
         m: dict = {"t": t, "ev": np.where(ok_v[:, None], f["v"] - v_ref, np.nan)}
         if pr is not None:
             p_ref, ok_p = interp_reference(tr, pr, t)
+            if nav.get("pos_from") is not None:  # before it the positions are in no frame
+                ok_p = ok_p & (t >= nav["pos_from"])
             m["ep"] = np.where(ok_p[:, None], f["p"] - p_ref, np.nan)
         a = att.get(lab)
         if a is not None and len(a["t"]) == len(t) and a["P"].shape[1] == 15:
             sc = NavScorer()
+            sc.pos_from = nav.get("pos_from")
             x = np.zeros(16)
             for k in range(len(t)):
                 x[:4], x[4:7], x[7:10] = a["q"][k], f["v"][k], f["p"][k]

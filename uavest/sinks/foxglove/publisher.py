@@ -152,6 +152,10 @@ class FoxglovePublisher:
             self.radar.scan_sample(s)
         elif name == "StateSample":
             self.state.sample(s)
+        elif name == "NavAnchor":
+            self.chans.json("/navigation/anchor", "uavest.NavAnchor", s.t, {
+                "t": s.t, "lat_lon_alt": [s.lat, s.lon, s.alt], "source": s.source,
+                "reason": s.reason})
 
     def _record(self, rec: StepRecord | ScanRecord) -> None:
         if type(rec) is not StepRecord:

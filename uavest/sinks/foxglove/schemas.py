@@ -73,6 +73,14 @@ SCHEMAS: dict[str, dict] = {
         "uavest.Measurement", "the measurement z of step k (system units)", {
             "t": _NUM, "k": {"type": "integer"}, "z": {"type": "array", "items": _NUM}},
         ["t", "k", "z"]),
+    "uavest.NavAnchor": _obj(
+        "uavest.NavAnchor", "a navigation run's local NED frame: its origin (lat, lon deg "
+        "WGS-84, alt m; the first raw GNSS fix of source) and the time t (s) from which "
+        "positions are in it (later than the first estimate when the run started before "
+        "the first fix)", {
+            "t": _NUM, "lat_lon_alt": {"type": "array", "items": _NUM},
+            "source": {"type": "string"}, "reason": {"type": "string"}},
+        ["t", "lat_lon_alt"]),
     "uavest.RunInfo": _obj("uavest.RunInfo", "the run (also in the MCAP metadata)", {
         "command": {"type": "string"}, "source": {"type": "string"},
         "seed": {"type": "integer"}, "filters": {"type": "object"},
