@@ -176,6 +176,11 @@ def format_doc(doc: dict) -> str:
                      f"{doc['imu_gap_threshold_s']:.2f} s (max(0.5 s, 20 median intervals)), "
                      f"longest {doc['imu_gap_longest_s']:.1f} s from t={g0:.1f} s; not "
                      "integrated across, the filters re-aligned after each")
+    if doc.get("imu_split_intervals"):
+        lines.append(f"long IMU intervals: {doc['imu_split_intervals']} longer than "
+                     f"{doc['max_step_s']:.2f} s (below the gap threshold), longest "
+                     f"{doc['imu_split_longest_s']:.2f} s; each predicted in sub-steps, the "
+                     "aiding inside it at its own time")
     rows = {}
     for name, row in doc["filters"].items():
         rows[name] = row

@@ -109,6 +109,10 @@ UNAIDED_WAIT_ALIGNS = 2.0
 #: The unaided constant-position measurement is applied at most this often (s): a
 #: GNSS-like rate, so its information does not grow with the IMU rate.
 HOLD_INTERVAL_S = 0.2
+#: A step longer than max(MAX_STEP_S, MAX_STEP_PERIODS x the nominal step) s (an IMU
+#: interval below the gap threshold) is predicted in that many equal sub-steps.
+MAX_STEP_S = 0.5
+MAX_STEP_PERIODS = 2.0
 #: Provisional latitude (rad) for gravity before the first fix gives the true one
 #: (normal gravity differs by at most 0.026 m/s^2 from its value here).
 UNAIDED_LAT = float(np.deg2rad(45.0))
@@ -293,6 +297,7 @@ class NavStream:
         #: vehicle time (s) from which positions are in :attr:`frame` (the first-fix
         #: re-anchoring); None when the stream started at a fix
         self.fix_from: float | None = None
+        self.max_step = np.inf  # s, set from the IMU's rate (_split)
         self._anchor_sample: NavAnchor | None = None  # for the sinks, with the next step
         self._wait_why = "no good GNSS fix yet"
         self._t_out: float | None = None  # end of the last released step
@@ -397,8 +402,27 @@ class NavStream:
                 self._go_wait(f"re-alignment after an IMU gap of {r.t1 - r.t0:.1f} s",
                               r.t1)
             else:
-                self._queue.append(r)
+                self._queue.extend(self._split(r))
         return out + self._release()
+
+    def _split(self, r: _Raw) -> list[_Raw]:
+        """A step longer than :attr:`max_step` (s; an IMU interval below the gap threshold
+        but several nominal steps long) as equal sub-steps with the same rate and specific
+        force, the magnetometer on the last: aiding measurements inside the interval then
+        update at their own times and each prediction stays short (one 3.4 s prediction
+        left the sigma-point filters' attitude 30-160 deg off on vtol.tlog)."""
+        dt = r.t - r.t0
+        if not dt > self.max_step:
+            return [r]
+        k = int(np.ceil(dt / self.max_step))
+        ts = r.t0 + dt * np.arange(k + 1) / k
+        out = [_Raw(float(ts[i + 1]), float(ts[i]), r.w, r.a, 0, None, r.accel_ned)
+               for i in range(k - 1)]
+        out.append(_Raw(r.t, float(ts[k - 1]), r.w, r.a, r.n, r.mag, r.accel_ned))
+        self.summary["imu_split_intervals"] = self.summary.get("imu_split_intervals", 0) + 1
+        self.summary["imu_split_longest_s"] = max(self.summary.get("imu_split_longest_s", 0.0),
+                                                  dt)
+        return out
 
     def _failover(self, s: ImuSample) -> list[Start | Step]:
         """The IMU choice re-decided when the evidence arrives, as the attitude stream
@@ -864,6 +888,8 @@ class NavStream:
         med = float(np.median(np.diff(ti))) if len(ti) > 1 else 0.0
         self._builder.gap_s = max(GAP_MIN_S, GAP_MEDIANS * med)
         self.summary["imu_gap_threshold_s"] = self._builder.gap_s
+        self.max_step = max(MAX_STEP_S, MAX_STEP_PERIODS * med * factor)
+        self.summary["max_step_s"] = self.max_step
         self._imu_n = [0, t_first, t_first]
         self._go_wait("no good GNSS fix yet", t_first)
         self.decisions.pop()  # the first wait is the start, not a decision
