@@ -98,7 +98,13 @@ def test_the_one_cholesky_refuses_non_finite_pivots(numba_on):
     for bad in (np.inf, np.nan, -1.0, 0.0):  # an infinite pivot is no factor either
         Q = P.copy()
         Q[1, 1] = bad
-        assert not chol_into(Q, np.empty((3, 3)))
+        F = np.full((3, 3), np.nan)
+        assert not chol_into(Q, F)
+        # the failed pivot set to 1 and the factor completed: a diagonal in (0, inf), so
+        # that an inverse taken before the status is read cannot divide by zero
+        assert F[1, 1] == 1.0
+        assert np.all((np.diag(F) > 0.0) & (np.diag(F) < np.inf)), (bad, F)
+        assert np.all(np.triu(F, 1) == 0.0)
     ok, L1 = factor(np.array([[np.inf]]))
     assert not ok
     ok, L2 = factor(P[:2, :2])

@@ -20,27 +20,42 @@ from numba import njit, types
 from numba.core import cgutils
 from numba.core.extending import intrinsic
 
-__all__ = ["bitgen", "chol_into", "factor", "solve_lower"]
+__all__ = ["bitgen", "chol_into", "chol_n", "factor", "solve_lower"]
 
 Array = np.ndarray
 
 
 @njit(cache=True)
 def chol_into(P: Array, L: Array) -> bool:  # pragma: no cover - compiled
-    """Lower Cholesky factor of the lower triangle of ``P`` (n, n) into ``L``; False if a
-    pivot is not finite and positive (then ``L`` is partial and the caller takes the
-    numpy path, which decides what a covariance with no plain factor means).
+    """:func:`chol_n` of the whole of ``P`` (n, n) (n = ``P.shape[0]``)."""
+    return chol_n(P, L, P.shape[0])
+
+
+@njit(cache=True, inline="always")
+def chol_n(P: Array, L: Array, n: int) -> bool:  # pragma: no cover - compiled
+    """Lower Cholesky factor of the lower triangle of ``P`` (n, n) into ``L`` (its upper
+    triangle zeroed); False if a pivot is not finite and positive. The caller then takes
+    the numpy path, which decides what a covariance with no plain factor means; ``L``
+    is then meaningless but safe to use: each failed pivot is set to 1 and the factor
+    completed, so every diagonal entry of ``L`` is in (0, inf) and a triangular solve or
+    inverse that follows cannot divide by zero (a numba ``ZeroDivisionError``) before
+    the caller reads the status (``_compiled_local.local_gains`` inverts it unread).
 
     A pivot must be in (0, inf): ``not s > 0`` alone would let an infinite pivot through
     and return a factor of infinities and NaNs (t / inf, inf - inf) as a success, i.e.
-    NaN in a filter's state; with this test a factor that is returned is finite."""
-    n = P.shape[0]
+    NaN in a filter's state; with this test a factor returned with True is finite.
+
+    The leading ``n`` x ``n`` block is factored; inlined into its caller (numba IR), so
+    that a kernel whose ``n`` is a compile-time constant (``_compiled_local``'s m) gets
+    the loops unrolled as a hand-written copy would."""
+    ok = True
     for j in range(n):
         s = P[j, j]
         for k in range(j):
             s -= L[j, k] * L[j, k]
         if not 0.0 < s < math.inf:
-            return False
+            ok = False
+            s = 1.0
         d = math.sqrt(s)
         L[j, j] = d
         for i in range(j + 1, n):
@@ -50,7 +65,7 @@ def chol_into(P: Array, L: Array) -> bool:  # pragma: no cover - compiled
             L[i, j] = t / d
         for i in range(j):
             L[i, j] = 0.0
-    return True
+    return ok
 
 
 @njit(cache=True)

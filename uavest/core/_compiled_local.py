@@ -6,8 +6,8 @@ The numpy update costs a few dozen array operations per step on (M, m, n) stacks
 M = 585 members (the ``radar`` preset), each paying numpy's per-call floor; here each
 stage is one loop over the members. The formulas are those of the numpy path in
 :mod:`uavest.core.hybrid` (``_innovation_stack`` and ``HybridLocal.update``): S_j's
-inverse and log-determinant in closed form for m <= 2 (from a Cholesky factor for
-m >= 3, where the numpy path takes LAPACK's ``inv`` and ``slogdet``: the 3-D radar's
+inverse and log-determinant in closed form for m <= 2 (from the shared Cholesky factor
+for m >= 3, where the numpy path takes LAPACK's ``inv`` and ``slogdet``: the 3-D radar's
 range / azimuth / elevation), the local gains, the
 log-likelihood weights, the posterior draw, the predict's process noise, and the
 ensemble moments of ``ensemble_moments`` (:mod:`uavest.core.states`). The kernels draw
@@ -34,7 +34,7 @@ from numba import njit
 from numba.np.random.distributions import random_standard_normal
 from numba.np.random.generator_core import next_double
 
-from ..compiled.helpers import bitgen
+from ..compiled.helpers import bitgen, chol_n
 
 __all__ = ["add_noise", "centres", "local_draw", "local_gains", "local_update", "moments",
            "prior_moments",
@@ -123,16 +123,17 @@ def local_gains(Hs: Array, B: Array, R: Array, nu: Array, dY: Array, w: Array,
     inverse's entries ``Si`` (M, max(3, m^2)): for m = 1 and 2 (closed form, as the
     numpy path's ``_innovation_stack``) (S^-1)_00, (S^-1)_11, (S^-1)_01 (m = 1: the
     first only); for m >= 3 the full inverse row-major, (S^-1)_ab at a m + b, from the
-    Cholesky factor S_j = L L^T (S^-1 = L^-T L^-1, det S_j = prod L_aa^2). The local
-    gain is K_j = (H_j B)^T S_j^-1. If ``confidence``, the weights w_j N(nu_j; 0, S_j),
-    normalised (``wu`` (M,); otherwise a copy of ``w``). ``Pyy`` (m, m) = sum_j w_j
-    (dY_j dY_j^T + S_j) with the prior weights: the innovation covariance. ``status`` is
-    1 if B is not finite or some S_j not positive definite (variance or determinant
-    <= 0, or NaN; m >= 3: a Cholesky pivot not in (0, inf)), else 0; the other outputs
-    are then meaningless. Terms with H_j entries equal to zero are skipped (the radar's
-    velocity columns): the same sums. ``tag`` / ``mtag``: tuples of n and m floats
-    (:func:`tag`; m = Hs.shape[1]), so that n and m are constants of each compiled
-    version (the loops over the components unrolled, the branches on m folded)."""
+    Cholesky factor S_j = L L^T of :func:`uavest.compiled.helpers.chol_n` (S^-1 =
+    L^-T L^-1, det S_j = prod L_aa^2). The local gain is K_j = (H_j B)^T S_j^-1. If
+    ``confidence``, the weights w_j N(nu_j; 0, S_j), normalised (``wu`` (M,); otherwise
+    a copy of ``w``). ``Pyy`` (m, m) = sum_j w_j (dY_j dY_j^T + S_j) with the prior
+    weights: the innovation covariance. ``status`` is 1 if B is not finite or some S_j
+    not positive definite (variance or determinant <= 0, or NaN; m >= 3: a Cholesky
+    pivot not in (0, inf)), else 0; the other outputs are then meaningless. Terms with
+    H_j entries equal to zero are skipped (the radar's velocity columns): the same sums.
+    ``tag`` / ``mtag``: tuples of n and m floats (:func:`tag`; m = Hs.shape[1]), so that
+    n and m are constants of each compiled version (the loops over the components
+    unrolled, the branches on m folded)."""
     n = len(tag)
     m = len(mtag)
     M = Hs.shape[0]
@@ -209,22 +210,9 @@ def local_gains(Hs: Array, B: Array, R: Array, nu: Array, dY: Array, w: Array,
                         s += HB[j, a, k] * Hs[j, b, k]
                     S[a, b] = s
                     S[b, a] = s
-            ok = True  # the lower factor (chol_into's loops, with m a constant here)
-            for b in range(m):
-                p = S[b, b]
-                for k in range(b):
-                    p -= L[b, k] * L[b, k]
-                if not 0.0 < p < math.inf:
-                    ok = False
-                    p = 1.0
-                d = math.sqrt(p)
-                L[b, b] = d
-                for a in range(b + 1, m):
-                    u = S[a, b]
-                    for k in range(b):
-                        u -= L[a, k] * L[b, k]
-                    L[a, b] = u / d
-            if not ok:  # (the outputs are not read: the caller raises)
+            # the shared factor: a failed pivot is set to 1, so the inverse below cannot
+            # divide by zero (the outputs are then not read: the caller raises)
+            if not chol_n(S, L, m):
                 status = 1
             sq = 1.0
             for a in range(m):  # Li = L^-1 (lower), column by column

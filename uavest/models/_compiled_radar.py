@@ -114,6 +114,45 @@ def _wrap_fast(d):  # pragma: no cover - compiled
     return m - _PI, (t < -_TWO_PI) | (t >= _FOUR_PI) | (t != t)
 
 
+@njit(cache=True, fastmath=_FM, error_model="numpy", inline="always")
+def _range_azimuth(rg, az, sn, cs, w, z0, z1, nuF, dYF, m):  # pragma: no cover - compiled
+    """The range and azimuth parts of the weighted mean and of the residuals, shared by
+    :func:`linearise2` and :func:`linearise3`; returns (s0, m1), the mean range (m) and
+    the circular mean azimuth (rad).
+
+    ``rg``, ``az``, ``sn``, ``cs`` (M,): range (m), azimuth, its sine and cosine per
+    member; ``w`` (M,): the weights; ``z0``, ``z1``: measured range (m) and azimuth
+    (rad). ``nuF``, ``dYF`` (M m,): flat views of the (M, m) residual rows, whose
+    columns 0 (range) and 1 (azimuth, wrapped to [-pi, pi)) are written (constant
+    strides, so the stores vectorise; ``m`` a constant of the inlined caller). Sums in
+    index order: s0 = sum_j w_j r_j, m1 = atan2(sum_j w_j sin a_j, sum_j w_j cos a_j)."""
+    M = rg.shape[0]
+    s0 = 0.0
+    ss = 0.0
+    sc = 0.0
+    for j in range(M):
+        wj = w[j]
+        s0 += wj * rg[j]
+        ss += wj * sn[j]
+        sc += wj * cs[j]
+    m1 = math.atan2(ss, sc)
+    odd = 0
+    for j in range(M):
+        a = az[j]
+        nuF[m * j] = z0 - rg[j]
+        dYF[m * j] = rg[j] - s0
+        e, out1 = _wrap_fast(z1 - a)
+        nuF[m * j + 1] = e
+        f, out2 = _wrap_fast(a - m1)
+        dYF[m * j + 1] = f
+        odd += out1 | out2
+    if odd:  # an azimuth residual outside [-3 pi, 3 pi): the modulo
+        for j in range(M):
+            nuF[m * j + 1] = _wrap(z1 - az[j])
+            dYF[m * j + 1] = _wrap(az[j] - m1)
+    return s0, m1
+
+
 @njit(cache=True, fastmath=_FM, error_model="numpy")
 def linearise2(X, pose, z, w, Hs, nu, dY, nubar, tag):  # pragma: no cover - compiled
     """The range / azimuth radar's ``linearise_rows`` into the caller's arrays ``Hs``
@@ -183,32 +222,10 @@ def linearise2(X, pose, z, w, Hs, nu, dY, nubar, tag):  # pragma: no cover - com
                 az[j] = a
                 sn[j] = math.sin(a)
                 cs[j] = math.cos(a)
-    s0 = 0.0
-    ss = 0.0
-    sc = 0.0
-    for j in range(M):
-        wj = w[j]
-        s0 += wj * rg[j]
-        ss += wj * sn[j]
-        sc += wj * cs[j]
-    m1 = math.atan2(ss, sc)
     # (M, 2) and (M, 2, n) through flat views: constant strides, so the stores vectorise
     nu2 = nu.reshape(2 * M)
     dY2 = dY.reshape(2 * M)
-    odd = 0
-    for j in range(M):
-        a = az[j]
-        nu2[2 * j] = z0 - rg[j]
-        dY2[2 * j] = rg[j] - s0
-        e, out1 = _wrap_fast(z1 - a)
-        nu2[2 * j + 1] = e
-        f, out2 = _wrap_fast(a - m1)
-        dY2[2 * j + 1] = f
-        odd += out1 | out2
-    if odd:  # an azimuth residual outside [-3 pi, 3 pi): the modulo
-        for j in range(M):
-            nu2[2 * j + 1] = _wrap(z1 - az[j])
-            dY2[2 * j + 1] = _wrap(az[j] - m1)
+    s0, m1 = _range_azimuth(rg, az, sn, cs, w, z0, z1, nu2, dY2, 2)
     H2 = Hs.reshape(2 * n * M)
     for j in range(M):
         b = 2 * n * j
@@ -329,35 +346,15 @@ def linearise3(X, pose, z, w, Hs, nu, dY, nubar, tag):  # pragma: no cover - com
                 cs[j] = math.cos(a)
                 rh[j] = rho
                 el[j] = math.atan2(Dz[j], rho)
-    s0 = 0.0
-    ss = 0.0
-    sc = 0.0
-    s2 = 0.0
-    for j in range(M):
-        wj = w[j]
-        s0 += wj * rg[j]
-        ss += wj * sn[j]
-        sc += wj * cs[j]
-        s2 += wj * el[j]
-    m1 = math.atan2(ss, sc)
     nu3 = nu.reshape(3 * M)
     dY3 = dY.reshape(3 * M)
-    odd = 0
+    s0, m1 = _range_azimuth(rg, az, sn, cs, w, z0, z1, nu3, dY3, 3)
+    s2 = 0.0  # the elevation's mean (arithmetic) and residuals
     for j in range(M):
-        a = az[j]
-        nu3[3 * j] = z0 - rg[j]
-        dY3[3 * j] = rg[j] - s0
-        e, out1 = _wrap_fast(z1 - a)
-        nu3[3 * j + 1] = e
-        f, out2 = _wrap_fast(a - m1)
-        dY3[3 * j + 1] = f
+        s2 += w[j] * el[j]
+    for j in range(M):
         nu3[3 * j + 2] = z2 - el[j]
         dY3[3 * j + 2] = el[j] - s2
-        odd += out1 | out2
-    if odd:  # an azimuth residual outside [-3 pi, 3 pi): the modulo
-        for j in range(M):
-            nu3[3 * j + 1] = _wrap(z1 - az[j])
-            dY3[3 * j + 1] = _wrap(az[j] - m1)
     H3 = Hs.reshape(3 * n * M)
     for j in range(M):
         for i in range(3):
