@@ -619,28 +619,13 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
              if cfg.filters else [])
     tspecs = (build_filters(resolve_list(cfg.trackers, "radar", dim=TRACKER_DIM))
               if cfg.trackers else [])
-
-    def make_stream() -> AttitudeStream | NavStream:
-        d = declination() if declination is not None else None
-        if nav:
-            return NavStream(opts=NavOptions(rate_hz=cfg.rate_hz, declination=d,
-                                             gnss_delay=cfg.gnss_delay), params=params)
-        return AttitudeStream(opts=AttitudeOptions(rate_hz=cfg.rate_hz, update_hz=cfg.update_hz,
-                                                     declination=d),
-                              params=params)
-
-    att = _GapAware(make_stream, cfg.bridge_s)
+    att = _GapAware(_stream_factory(cfg, params, declination), cfg.bridge_s)
     runner_cls = NavRunner if nav else FilterRunner
     runners = [runner_cls(sp.label, f, rng(cfg.seed, 0, filter_stream(sp.label)))
                for sp, f in specs]
     nav_scorer = NavScorer()
     lane = TrackLane(cfg, cfg.seed)
-    tcfg = TrackerConfig(pd=cfg.radar.pd, clutter_density=max(cfg.radar.clutter_density, 1e-12))
-    trackers = [  # labelled "track:<spec>": an attitude ekf and a tracking ekf are two
-        TrackerRunner(f"track:{sp.label}", lambda f=f, lab=sp.label: Tracker(
-            f, lane.motion, tcfg, rng(cfg.seed, 0, filter_stream(lab))))
-        for sp, f in tspecs
-    ]
+    trackers = _track_runners(cfg, lane, tspecs)
     scorer = AttitudeScorer()
     tscore = _TrackScore(lane)
     st = _Status(link, status)
@@ -657,30 +642,67 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
     wall = time.perf_counter() - wall0
     scorer.finish()
     nav_scorer.pos_from = getattr(att.stream, "fix_from", None)
+    doc = {"run": info.as_dict(), "steps": steps, "wall_s": wall,
+           **_attitude_result(cfg, att, runners, scorer, nav_scorer if nav else None),
+           "tracks": tscore.result(cfg.gospa_c),
+           "scans": len(lane.truth),
+           "attitude_steps": steps - len(lane.truth),
+           "imu_samples": st.imu_samples,
+           "targets_seen": len({i for _, tr in lane.truth for i in tr}),
+           "attitude_restarts": att.restarts,
+           "decisions": att.decisions, "t_first": att.t_first,
+           "sink_failures": [f.as_dict() for f in failures],
+           "latency_ms": ({"p50": 1e3 * float(np.percentile(st.lat, 50)),
+                           "p99": 1e3 * float(np.percentile(st.lat, 99))} if st.lat else None)}
+    return doc
+
+
+def _stream_factory(cfg: LiveConfig, params: dict | None,
+                    declination: Callable[[], float | None] | None
+                    ) -> Callable[[], AttitudeStream | NavStream]:
+    """A maker of the attitude lane's stream (:class:`NavStream` for ``--model nav``), for
+    :class:`_GapAware` to call again after a gap: the declination (rad) asked each time."""
+    def make_stream() -> AttitudeStream | NavStream:
+        d = declination() if declination is not None else None
+        if cfg.model == "nav":
+            return NavStream(opts=NavOptions(rate_hz=cfg.rate_hz, declination=d,
+                                             gnss_delay=cfg.gnss_delay), params=params)
+        return AttitudeStream(opts=AttitudeOptions(rate_hz=cfg.rate_hz, update_hz=cfg.update_hz,
+                                                     declination=d),
+                              params=params)
+    return make_stream
+
+
+def _track_runners(cfg: LiveConfig, lane: TrackLane, tspecs: list) -> list[TrackerRunner]:
+    """One tracker runner per tracker spec on the radar lane's motion model, labelled
+    "track:<spec>" (an attitude ekf and a tracking ekf are two)."""
+    tcfg = TrackerConfig(pd=cfg.radar.pd, clutter_density=max(cfg.radar.clutter_density, 1e-12))
+    return [
+        TrackerRunner(f"track:{sp.label}", lambda f=f, lab=sp.label: Tracker(
+            f, lane.motion, tcfg, rng(cfg.seed, 0, filter_stream(lab))))
+        for sp, f in tspecs
+    ]
+
+
+def _attitude_result(cfg: LiveConfig, att: _GapAware, runners: list,
+                     scorer: AttitudeScorer, nav_scorer: NavScorer | None) -> dict:
+    """The result document's reference, model and per-filter ``attitude`` scores (with the
+    navigation scores when ``nav_scorer`` is given, and the autopilot's own estimate
+    scored against a truth reference when the log has both)."""
     refs = scorer.refs
     ref, _ = select_reference(refs)
     truth = ref is not None and refs[ref].kind == "truth"
-    doc = {
-        "run": info.as_dict(), "steps": steps, "wall_s": wall, "reference": ref,
+    doc: dict = {
+        "reference": ref,
         "reference_kind": None if ref is None else refs[ref].kind,
         "model": cfg.model,
         "attitude": {r.label: {**(scorer.scores(r.label, ref, truth) if ref else {}),
                                **(nav_scorer.scores(r.label, ref if truth else None,
                                                     getattr(att.stream, "frame", None))
-                                  if nav else {}),
+                                  if nav_scorer is not None else {}),
                                "resets": r.resets,
                                "us_per_step": r.us_per_step}
                      for r in runners},
-        "tracks": tscore.result(cfg.gospa_c),
-        "scans": len(lane.truth),
-        "attitude_steps": steps - len(lane.truth),
-        "imu_samples": st.imu_samples,
-        "targets_seen": len({i for _, tr in lane.truth for i in tr}),
-        "attitude_restarts": att.restarts,
-        "decisions": att.decisions, "t_first": att.t_first,
-        "sink_failures": [f.as_dict() for f in failures],
-        "latency_ms": ({"p50": 1e3 * float(np.percentile(st.lat, 50)),
-                        "p99": 1e3 * float(np.percentile(st.lat, 99))} if st.lat else None),
     }
     if ref is not None:
         for name in refs:

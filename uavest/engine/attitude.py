@@ -574,6 +574,38 @@ class AttitudeStream:
         o, held = self.opts, self._held
         assert held is not None  # called once, while holding
         self._held = None
+        imu, imu_counts, mag, mag_counts, pos = self._choose_sources(held)
+        ti = [s.t for s in held if isinstance(s, ImuSample) and s.source == imu]
+        n_mag = mag_counts.get(mag, 0) if mag else 0
+        integ, why, factor, ref, every, rate = self._plan_steps(imu, ti, n_mag)
+        self.noise = noise_for_source(imu).with_(**o.noise)
+        self._model = GyroTransition(self.noise)
+        self.summary.update(
+            imu_source=imu, imu_sources=imu_counts, mag_source=mag, accel_compensation=pos,
+            integration=integ, integration_why=why, preintegrated_samples_per_step=factor,
+            align_rate_hz=rate, steps_per_update=every,
+        )
+        self._imu, self._mag, self._pos = imu, mag, pos
+        t_first = next(s.t for s in held if isinstance(s, ImuSample) and s.source == imu)
+        self._decide_sources(imu, imu_counts, integ, why, pos, t_first)
+        self._builder = _StepBuilder(integ, factor, pos is not None, ref, every)
+        med = float(np.median(np.diff(ti))) if len(ti) > 1 else 0.0
+        self._builder.gap_s = max(GAP_MIN_S, GAP_MEDIANS * med)
+        self.summary["imu_gap_threshold_s"] = self._builder.gap_s
+        self._first_samples(held, imu, mag)
+        self._imu_n = [0, self._first.t, self._first.t]
+        self._align = []
+        out: list[Start | Step] = []
+        for s in held:
+            out += self._feed(s)
+        return out
+
+    def _choose_sources(self, held: list[Sample]) -> tuple[
+            str, dict[str, int], str | None, dict[str, int], str | None]:
+        """The IMU, magnetometer and velocity (acceleration compensation) sources of the
+        held window: ``(imu, imu_counts, mag, mag_counts, pos)``, counts per source name.
+        No IMU: :class:`NoSamplesError`; ``--imu`` naming an absent one: :class:`InputError`."""
+        o = self.opts
         imu_counts: dict[str, int] = {}
         mag_counts: dict[str, int] = {}
         for s in held:
@@ -597,7 +629,17 @@ class AttitudeStream:
                         and np.isfinite(s.vel_ned).all()):
                     pos = s.source
                     break
-        ti = [s.t for s in held if isinstance(s, ImuSample) and s.source == imu]
+        return imu, imu_counts, mag, mag_counts, pos
+
+    def _plan_steps(self, imu: str, ti: list[float], n_mag: int
+                    ) -> tuple[str, str, int, int, int, float]:
+        """Integration, pre-integration and update cadence from the IMU ``imu``'s held
+        sample times ``ti`` (s) and the magnetometer's sample count ``n_mag`` over the same
+        window; sets the accelerometer and magnetometer update weights. Returns
+        ``(integration, why, factor, ref, every, rate)``: IMU samples per step, IMU samples
+        per reference step (at ``DEFAULT_MAX_RATE_HZ``), steps per update, and the IMU's
+        rate (Hz)."""
+        o = self.opts
         rate = (len(ti) - 1) / max(ti[-1] - ti[0], 1e-9) if len(ti) > 1 else 0.0
         integ, why, factor = step_plan(imu, rate, o.integration, o.rate_hz)
         ref = max(1, round(rate / DEFAULT_MAX_RATE_HZ))
@@ -610,20 +652,18 @@ class AttitudeStream:
         # the magnetometer: its updates per second now against those at the default rate
         # (each step uses its latest sample): 1 when it is slower than both filter rates
         span = (ti[-1] - ti[0]) if len(ti) > 1 else 0.0
-        mrate = mag_counts.get(mag, 0) / span if mag and span > 0 else 0.0
+        mrate = n_mag / span if span > 0 else 0.0
         urate = frate / every
         ref_rate = rate / ref
         self._mag_weight = (min(1.0, min(mrate, ref_rate) / min(mrate, urate))
                             if mrate > 0 else 1.0)
-        self.noise = noise_for_source(imu).with_(**o.noise)
-        self._model = GyroTransition(self.noise)
-        self.summary.update(
-            imu_source=imu, imu_sources=imu_counts, mag_source=mag, accel_compensation=pos,
-            integration=integ, integration_why=why, preintegrated_samples_per_step=factor,
-            align_rate_hz=rate, steps_per_update=every,
-        )
-        self._imu, self._mag, self._pos = imu, mag, pos
-        t_first = next(s.t for s in held if isinstance(s, ImuSample) and s.source == imu)
+        return integ, why, factor, ref, every, rate
+
+    def _decide_sources(self, imu: str, imu_counts: dict[str, int], integ: str, why: str,
+                        pos: str | None, t_first: float) -> None:
+        """Log the IMU, integration and acceleration-compensation decisions at ``t_first``
+        (s, the first IMU sample)."""
+        o = self.opts
         self._decide("IMU", imu, t_first,
                      "option --imu" if o.imu is not None else
                      f"most samples in the first {2 * o.align_s:g} s ("
@@ -638,11 +678,10 @@ class AttitudeStream:
         else:
             self._decide("acceleration compensation", "off", t_first,
                          "no valid velocity yet (switches on when one arrives)")
-        self._builder = _StepBuilder(integ, factor, pos is not None, ref, every)
-        med = float(np.median(np.diff(ti))) if len(ti) > 1 else 0.0
-        self._builder.gap_s = max(GAP_MIN_S, GAP_MEDIANS * med)
-        self.summary["imu_gap_threshold_s"] = self._builder.gap_s
-        # the first IMU sample, the magnetometer at/before it (else the first one held)
+
+    def _first_samples(self, held: list[Sample], imu: str, mag: str | None) -> None:
+        """The first IMU sample of ``imu`` (``_first``) and the magnetometer field at/before
+        it (``_mag0``; else the first one held; None without a magnetometer)."""
         self._first = first = next(s for s in held if isinstance(s, ImuSample)
                                    and s.source == imu)
         self._mag0 = None
@@ -652,12 +691,6 @@ class AttitudeStream:
                     self._mag0 = s.field
                 if s.t > first.t:
                     break
-        self._imu_n = [0, first.t, first.t]
-        self._align = []
-        out: list[Start | Step] = []
-        for s in held:
-            out += self._feed(s)
-        return out
 
     def _start(self) -> list[Start | Step]:
         """Alignment done: declination, inclination, prior; the Start and held steps."""

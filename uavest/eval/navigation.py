@@ -147,72 +147,99 @@ class NavScorer:
         t = np.array([r[0] for r in rows])
         x = np.array([r[1] for r in rows])
         P = np.array([r[2] for r in rows])
-        nav = P.shape[1] == 9
         out: dict[str, Any] = {}
         nees: dict[str, Array] = {}
         masks: dict[str, Array] = {}
         errs: dict[str, Array] = {}
         if att_ref is not None and att_ref in self.att:
-            ts, qs = self.att[att_ref]
-            qr, ok = quat_slerp_interp(np.array(ts), np.array(qs), t)
-            e = quat_log(quat_mul(quat_conj(x[ok, :4]), qr[ok]))
-            nees["attitude"], masks["attitude"] = _nees(e, P[ok, :3, :3]), ok
-            errs["euler"] = euler_errors_deg(x[ok, :4], qr[ok])
+            self._attitude_errors(att_ref, t, x, P, nees, masks, errs)
         pref = self.position_ref()
         air = None
         if pref is not None:
-            pr = self.pos[pref]
-            tr = np.array([r[0] for r in pr])
-            vel = np.array([r[2] for r in pr])
-            lla = np.array([r[3] for r in pr])
             out["position_reference"] = pref
-            good = np.isfinite(lla).all(axis=1)
-            if frame is None and good.sum() >= 10:  # an attitude run: the reference's own
-                from ..geometry.geodesy import LocalFrame
-
-                frame = LocalFrame(*lla[good][0])
-            if frame is not None and good.sum() >= 10:
-                ned = np.asarray(frame.geodetic_to_ned(lla[good, 0], lla[good, 1],
-                                                       lla[good, 2]), float)
-                p_ref, okp = interp_reference(tr[good], ned, t)
-                air = okp & (-p_ref[:, 2] > np.nanmin(-ned[:, 2]) + AIRBORNE_M)
-                if self.pos_from is not None:
-                    okp = okp & (t >= self.pos_from)
-                if nav:
-                    e = p_ref[okp] - x[okp, 7:10]
-                    errs["pos"], masks["position"] = e, okp
-                    out["hpos_rmse_m"] = _rms(e[:, :2])
-                    out["vpos_rmse_m"] = _rms(e[:, 2])
-                    nees["position"] = _nees(e, P[okp, 6:9, 6:9])
-            if nav:
-                v_ref, okv = interp_reference(tr, vel, t)
-                okv &= np.isfinite(v_ref[:, :2]).all(axis=1)
-                vz = bool(np.isfinite(v_ref[okv, 2]).all())
-                cols = [0, 1, 2] if vz else [0, 1]
-                e = (v_ref[okv] - x[okv, 4:7])[:, cols]
-                errs["vel"], masks["velocity"] = e, okv
-                out["vel_rmse_ms"] = _rms(e)
-                nees["velocity"] = _nees(e, P[okv][:, 3:6, 3:6][:, cols][:, :, cols])
+            air = self._position_errors(pref, t, x, P, frame, out, nees, masks, errs)
         dof = {"attitude": 3, "velocity": 3, "position": 3}
         if "velocity" in nees and errs["vel"].shape[1] == 2:
             dof["velocity"] = 2
         out["nees"] = {k: _block(v, dof[k]) for k, v in nees.items()}
         if air is not None and air.any():
-            a: dict[str, Any] = {"t": [float(t[air][0]), float(t[air][-1])],
-                                 "n": int(air.sum()), "height_above_lowest_m": AIRBORNE_M}
-            if "attitude" in masks:
-                sel = air[masks["attitude"]]
-                eu = errs["euler"][sel]
-                if eu.size:
-                    r = np.sqrt(np.mean(eu * eu, axis=0))
-                    a.update(roll_rmse_deg=float(r[0]), pitch_rmse_deg=float(r[1]),
-                             yaw_rmse_deg=float(r[2]))
-            if "velocity" in masks:
-                a["vel_rmse_ms"] = _rms(errs["vel"][air[masks["velocity"]]])
-            if "position" in masks:
-                ep = errs["pos"][air[masks["position"]]]
-                a["hpos_rmse_m"] = _rms(ep[:, :2])
-                a["vpos_rmse_m"] = _rms(ep[:, 2])
-            a["nees"] = {k: _block(v[air[masks[k]]], dof[k]) for k, v in nees.items()}
-            out["airborne"] = a
+            out["airborne"] = _airborne(t, air, nees, masks, errs, dof)
         return out
+
+    def _attitude_errors(self, att_ref: str, t: Array, x: Array, P: Array,
+                         nees: dict[str, Array], masks: dict[str, Array],
+                         errs: dict[str, Array]) -> None:
+        """Fill ``nees["attitude"]``, ``masks["attitude"]`` (steps with a reference) and
+        ``errs["euler"]`` (deg) from the truth ``att_ref`` interpolated to the steps ``t``
+        (s); ``x``/``P`` are the steps' states and covariances."""
+        ts, qs = self.att[att_ref]
+        qr, ok = quat_slerp_interp(np.array(ts), np.array(qs), t)
+        e = quat_log(quat_mul(quat_conj(x[ok, :4]), qr[ok]))
+        nees["attitude"], masks["attitude"] = _nees(e, P[ok, :3, :3]), ok
+        errs["euler"] = euler_errors_deg(x[ok, :4], qr[ok])
+
+    def _position_errors(self, pref: str, t: Array, x: Array, P: Array, frame: Any,
+                         out: dict[str, Any], nees: dict[str, Array],
+                         masks: dict[str, Array], errs: dict[str, Array]) -> Array | None:
+        """Against the position reference ``pref``: the position (m, NED of ``frame``, or of
+        the reference's first valid fix for an attitude run) and velocity (m/s) errors of a
+        navigation state, their RMSE in ``out`` and NEES in ``nees``. Returns the airborne
+        steps (more than ``AIRBORNE_M`` above the reference's lowest point), None when the
+        reference has fewer than 10 valid fixes."""
+        nav = P.shape[1] == 9
+        air = None
+        pr = self.pos[pref]
+        tr = np.array([r[0] for r in pr])
+        vel = np.array([r[2] for r in pr])
+        lla = np.array([r[3] for r in pr])
+        good = np.isfinite(lla).all(axis=1)
+        if frame is None and good.sum() >= 10:  # an attitude run: the reference's own
+            from ..geometry.geodesy import LocalFrame
+
+            frame = LocalFrame(*lla[good][0])
+        if frame is not None and good.sum() >= 10:
+            ned = np.asarray(frame.geodetic_to_ned(lla[good, 0], lla[good, 1],
+                                                   lla[good, 2]), float)
+            p_ref, okp = interp_reference(tr[good], ned, t)
+            air = okp & (-p_ref[:, 2] > np.nanmin(-ned[:, 2]) + AIRBORNE_M)
+            if self.pos_from is not None:
+                okp = okp & (t >= self.pos_from)
+            if nav:
+                e = p_ref[okp] - x[okp, 7:10]
+                errs["pos"], masks["position"] = e, okp
+                out["hpos_rmse_m"] = _rms(e[:, :2])
+                out["vpos_rmse_m"] = _rms(e[:, 2])
+                nees["position"] = _nees(e, P[okp, 6:9, 6:9])
+        if nav:
+            v_ref, okv = interp_reference(tr, vel, t)
+            okv &= np.isfinite(v_ref[:, :2]).all(axis=1)
+            vz = bool(np.isfinite(v_ref[okv, 2]).all())
+            cols = [0, 1, 2] if vz else [0, 1]
+            e = (v_ref[okv] - x[okv, 4:7])[:, cols]
+            errs["vel"], masks["velocity"] = e, okv
+            out["vel_rmse_ms"] = _rms(e)
+            nees["velocity"] = _nees(e, P[okv][:, 3:6, 3:6][:, cols][:, :, cols])
+        return air
+
+
+def _airborne(t: Array, air: Array, nees: dict[str, Array], masks: dict[str, Array],
+              errs: dict[str, Array], dof: dict[str, int]) -> dict[str, Any]:
+    """The ``airborne`` block of :meth:`NavScorer.scores`: the scores over the steps
+    ``air`` only (time span in s, Euler RMSE in deg, velocity/position RMSE, NEES)."""
+    a: dict[str, Any] = {"t": [float(t[air][0]), float(t[air][-1])],
+                         "n": int(air.sum()), "height_above_lowest_m": AIRBORNE_M}
+    if "attitude" in masks:
+        sel = air[masks["attitude"]]
+        eu = errs["euler"][sel]
+        if eu.size:
+            r = np.sqrt(np.mean(eu * eu, axis=0))
+            a.update(roll_rmse_deg=float(r[0]), pitch_rmse_deg=float(r[1]),
+                     yaw_rmse_deg=float(r[2]))
+    if "velocity" in masks:
+        a["vel_rmse_ms"] = _rms(errs["vel"][air[masks["velocity"]]])
+    if "position" in masks:
+        ep = errs["pos"][air[masks["position"]]]
+        a["hpos_rmse_m"] = _rms(ep[:, :2])
+        a["vpos_rmse_m"] = _rms(ep[:, 2])
+    a["nees"] = {k: _block(v[air[masks[k]]], dof[k]) for k, v in nees.items()}
+    return a

@@ -308,6 +308,17 @@ def bench_tracker_mode(sc: Any, filters: Sequence[str | FilterSpec], runs: int, 
     """Tracker-mode table of the typed scenario ``sc`` over runs 0..runs-1;
     ``record = (r, sinks, info)`` hands run r's engine run (scans, truths, every tracker's
     records) to ``sinks``."""
+    acc, K = _run_tracker_trials(sc, filters, runs, seed, steps, record)
+    return {lab: _tracker_row(a, sc.ndim, K) for lab, a in acc.items()}
+
+
+def _run_tracker_trials(sc: Any, filters: Sequence[str | FilterSpec], runs: int, seed: int,
+                        steps: int | None, record: tuple | None
+                        ) -> tuple[dict[str, dict], int | None]:
+    """Run every tracker on trials 0..runs-1 and gather per label the trials' quality
+    (``q``), the assigned-pair errors tagged with their run (``e``: (r, k, approximation
+    error, estimate error, NEES)), the compute time (``sec``, s), the scans run and each
+    run's position RMSE (m, ``runrmse``); also the scans per run (None without runs)."""
     ndim = sc.ndim
     dt = float(sc.dt)
     c = float(sc.metrics.gospa_c)
@@ -332,62 +343,75 @@ def bench_tracker_mode(sc: Any, filters: Sequence[str | FilterSpec], runs: int, 
                 a["runrmse"].append(
                     float(np.sqrt(np.mean([np.sum(e[2][:ndim] ** 2) for e in errs])))
                 )
-    out = {}
-    for lab in labels:
-        a = acc[lab]
-        qs = a["q"]
-        e = a["e"]
-        if e:
-            ks = np.array([x[1] for x in e])
-            pe = np.array([np.sum(x[3][:ndim] ** 2) for x in e])
-            ve = np.array([np.sum(x[3][ndim:] ** 2) for x in e])
-            ne = np.array([x[4] for x in e])
-            uk = np.unique(ks)
-            pos_k = np.array([np.sqrt(pe[ks == k].mean()) for k in uk])
-            vel_k = np.array([np.sqrt(ve[ks == k].mean()) for k in uk])
-            nees_k = np.array([ne[ks == k].mean() for k in uk])
-            # a scan's NEES averages every assigned (run, truth) pair at that scan, so the
-            # band is for that many samples (~ runs x targets), not for `runs`
-            cnt_k = np.array([np.count_nonzero(ks == k) for k in uk])
-            band = nees_band(2 * ndim, float(cnt_k.mean()))
-            bands = np.array([nees_band(2 * ndim, int(c)) for c in cnt_k])
-            in_band = float(np.mean((nees_k >= bands[:, 0]) & (nees_k <= bands[:, 1])))
-            samples = float(cnt_k.mean())
-            pos_rmse, vel_rmse = float(pos_k.mean()), float(vel_k.mean())
-            nees_m = float(nees_k.mean())
-            approx = float(np.mean([np.linalg.norm(x[2]) for x in e]))
-            est = float(np.mean([np.linalg.norm(x[3][:ndim]) for x in e]))
-        else:
-            pos_rmse = vel_rmse = nees_m = approx = est = in_band = samples = float("nan")
-            band = (float("nan"), float("nan"))
-        rr = np.array(a["runrmse"]) if a["runrmse"] else np.array([np.nan])
-        ttc = [q.time_to_confirm for q in qs if q.time_to_confirm is not None]
-        out[lab] = {
-            "rmse_mean": float(rr.mean()),
-            "rmse_median": float(np.median(rr)),
-            "approx_error": approx,
-            "est_error": est,
-            "nees_mean": nees_m,
-            "nees_band": list(band),
-            "nees_in_band_fraction": in_band,
-            "nees_samples_per_scan": samples,
-            "diverged_fraction": float(np.mean([q.track_breaks > 0 for q in qs])),
-            "us_per_step": 1e6 * a["sec"] / max(a["scans"], 1),
-            "pos_rmse": pos_rmse,
-            "vel_rmse": vel_rmse,
-            "pcrlb_pos": None,
-            "pcrlb_ratio": None,
-            "pcrlb_ratio_rms": None,
-            "cond_ratio": None,
-            "gospa": float(np.mean([q.gospa for q in qs])),
-            "id_swaps": float(np.mean([q.id_swaps for q in qs])),
-            "false_tracks": float(np.mean([q.false_tracks for q in qs])),
-            "track_breaks": float(np.mean([q.track_breaks for q in qs])),
-            "tracks_confirmed_total": float(np.mean([q.confirmed_tracks for q in qs])),
-            "time_to_confirm": float(np.mean(ttc)) if ttc else None,
-            "scans": K,
-        }
-    return out
+    return acc, K
+
+
+def _assigned_error_stats(e: list[tuple], ndim: int) -> dict[str, Any]:
+    """Per-scan error statistics over every assigned (run, truth) pair ``e`` (as gathered
+    by :func:`_run_tracker_trials`), averaged over the scans: position and velocity RMSE
+    (m, m/s), NEES with its 95% band and the fraction of scans inside it, the samples per
+    scan, and the mean approximation and estimate error norms (m). NaN without pairs."""
+    if not e:
+        nan = float("nan")
+        return {"pos_rmse": nan, "vel_rmse": nan, "nees_mean": nan, "approx_error": nan,
+                "est_error": nan, "nees_in_band_fraction": nan,
+                "nees_samples_per_scan": nan, "nees_band": (nan, nan)}
+    ks = np.array([x[1] for x in e])
+    pe = np.array([np.sum(x[3][:ndim] ** 2) for x in e])
+    ve = np.array([np.sum(x[3][ndim:] ** 2) for x in e])
+    ne = np.array([x[4] for x in e])
+    uk = np.unique(ks)
+    pos_k = np.array([np.sqrt(pe[ks == k].mean()) for k in uk])
+    vel_k = np.array([np.sqrt(ve[ks == k].mean()) for k in uk])
+    nees_k = np.array([ne[ks == k].mean() for k in uk])
+    # a scan's NEES averages every assigned (run, truth) pair at that scan, so the
+    # band is for that many samples (~ runs x targets), not for `runs`
+    cnt_k = np.array([np.count_nonzero(ks == k) for k in uk])
+    band = nees_band(2 * ndim, float(cnt_k.mean()))
+    bands = np.array([nees_band(2 * ndim, int(c)) for c in cnt_k])
+    return {
+        "pos_rmse": float(pos_k.mean()), "vel_rmse": float(vel_k.mean()),
+        "nees_mean": float(nees_k.mean()),
+        "approx_error": float(np.mean([np.linalg.norm(x[2]) for x in e])),
+        "est_error": float(np.mean([np.linalg.norm(x[3][:ndim]) for x in e])),
+        "nees_in_band_fraction": float(np.mean((nees_k >= bands[:, 0])
+                                               & (nees_k <= bands[:, 1]))),
+        "nees_samples_per_scan": float(cnt_k.mean()),
+        "nees_band": band,
+    }
+
+
+def _tracker_row(a: dict, ndim: int, K: int | None) -> dict[str, Any]:
+    """One tracker's row of the tracker-mode table from its gathered trials ``a``."""
+    qs = a["q"]
+    st = _assigned_error_stats(a["e"], ndim)
+    rr = np.array(a["runrmse"]) if a["runrmse"] else np.array([np.nan])
+    ttc = [q.time_to_confirm for q in qs if q.time_to_confirm is not None]
+    return {
+        "rmse_mean": float(rr.mean()),
+        "rmse_median": float(np.median(rr)),
+        "approx_error": st["approx_error"],
+        "est_error": st["est_error"],
+        "nees_mean": st["nees_mean"],
+        "nees_band": list(st["nees_band"]),
+        "nees_in_band_fraction": st["nees_in_band_fraction"],
+        "nees_samples_per_scan": st["nees_samples_per_scan"],
+        "diverged_fraction": float(np.mean([q.track_breaks > 0 for q in qs])),
+        "us_per_step": 1e6 * a["sec"] / max(a["scans"], 1),
+        "pos_rmse": st["pos_rmse"],
+        "vel_rmse": st["vel_rmse"],
+        "pcrlb_pos": None,
+        "pcrlb_ratio": None,
+        "pcrlb_ratio_rms": None,
+        "cond_ratio": None,
+        "gospa": float(np.mean([q.gospa for q in qs])),
+        "id_swaps": float(np.mean([q.id_swaps for q in qs])),
+        "false_tracks": float(np.mean([q.false_tracks for q in qs])),
+        "track_breaks": float(np.mean([q.track_breaks for q in qs])),
+        "tracks_confirmed_total": float(np.mean([q.confirmed_tracks for q in qs])),
+        "time_to_confirm": float(np.mean(ttc)) if ttc else None,
+        "scans": K,
+    }
 
 
 def trial_info(sc: Any, filters: list[str], seed: int, r: int, command: str = ""):

@@ -293,18 +293,7 @@ def read_log(
     """
     p = Path(path)
     fmt = detect_format(p)
-    if fmt == "ulog":
-        from .types import IngestStats
-
-        stats = IngestStats()
-        d = ULogData(p, stats)
-        imu_d, mag_d, ref_d, pos_d, params = d.imu, d.mag, d.refs, d.pos, d.params
-        gnss_d, baro_d = d.gnss, d.baro
-    else:
-        src = MavlinkSource(p, fmt)
-        imu_d, mag_d, ref_d, pos_d, gnss_d, baro_d = _collect_stream(src)
-        stats, params = src.stats, src.params
-
+    imu_d, mag_d, ref_d, pos_d, gnss_d, baro_d, stats, params = _read_raw(p, fmt)
     counts = {s: int(v[0].shape[0]) for s, v in imu_d.items()}
     if imu is not None:
         if imu not in imu_d:
@@ -312,45 +301,14 @@ def read_log(
         chosen = imu
     else:
         chosen = choose_source(counts)
-    if chosen is None:
-        z3 = np.zeros((0, 3))
-        imu_series = ImuSeries(np.zeros(0), z3, z3.copy(), "", 0)
-    else:
-        t, g, a, inst = imu_d[chosen]
-        t, g, a = _sort_dedup(t, g, a)
-        k = _window(t, start, end)
-        imu_series = ImuSeries(t[k], g[k], a[k], chosen, inst)
-
     mag_counts = {s: int(v[0].shape[0]) for s, v in mag_d.items()}
-    mag_series = None
-    if mag_counts:
-        if chosen in mag_counts:
-            mname = chosen
-        else:
-            mname = choose_source(mag_counts)
-        t, f, inst = mag_d[mname]
-        t, f = _sort_dedup(t, f)
-        k = _window(t, start, end)
-        mag_series = MagSeries(t[k], f[k], mname, inst)
-
-    refs = {}
-    for s, (t, q, kind) in ref_d.items():
-        t, q = _sort_dedup(t, q)
-        k = _window(t, start, end)
-        refs[s] = RefSeries(t[k], q[k], kind, s)
-    positions = {}
-    for s, (t, n, v, lla) in pos_d.items():
-        t, n, v, lla = _sort_dedup(t, n, v, lla)
-        k = _window(t, start, end)
-        positions[s] = PositionSeries(t[k], n[k], v[k], lla[k], s)
-
     return LogData(
         path=p,
         format=fmt if fmt != "dataflash-text" else "dataflash",
-        imu=imu_series,
-        mag=mag_series,
-        references=refs,
-        positions=positions,
+        imu=_imu_series(imu_d, chosen, start, end),
+        mag=_mag_series(mag_d, mag_counts, chosen, start, end),
+        references=_ref_series(ref_d, start, end),
+        positions=_position_series(pos_d, start, end),
         params=dict(params),
         stats=stats,
         imu_sources=counts,
@@ -358,6 +316,68 @@ def read_log(
         gnss=_series(GnssSeries, gnss_d, start, end),
         baro=_series(BaroSeries, baro_d, start, end),
     )
+
+
+def _read_raw(p: Path, fmt: str) -> tuple:
+    """The raw per-source arrays of the log ``p`` in format ``fmt``: ``(imu, mag, refs,
+    positions, gnss, baro, stats, params)`` as :func:`_collect_stream` gives them (a ULog
+    through :class:`ULogData`, the MAVLink formats through :class:`MavlinkSource`)."""
+    if fmt == "ulog":
+        from .types import IngestStats
+
+        stats = IngestStats()
+        d = ULogData(p, stats)
+        return d.imu, d.mag, d.refs, d.pos, d.gnss, d.baro, stats, d.params
+    src = MavlinkSource(p, fmt)
+    imu_d, mag_d, ref_d, pos_d, gnss_d, baro_d = _collect_stream(src)
+    return imu_d, mag_d, ref_d, pos_d, gnss_d, baro_d, src.stats, src.params
+
+
+def _imu_series(imu_d: dict, chosen: str | None, start: float | None,
+                end: float | None) -> ImuSeries:
+    """The sorted, de-duplicated, windowed series of IMU source ``chosen`` (empty when
+    the log has none); ``start``/``end`` in s of the vehicle clock."""
+    if chosen is None:
+        z3 = np.zeros((0, 3))
+        return ImuSeries(np.zeros(0), z3, z3.copy(), "", 0)
+    t, g, a, inst = imu_d[chosen]
+    t, g, a = _sort_dedup(t, g, a)
+    k = _window(t, start, end)
+    return ImuSeries(t[k], g[k], a[k], chosen, inst)
+
+
+def _mag_series(mag_d: dict, mag_counts: dict[str, int], chosen: str | None,
+                start: float | None, end: float | None) -> MagSeries | None:
+    """The magnetometer series: the IMU's own source ``chosen`` when it has one, else the
+    one with most samples (:func:`choose_source`); None without a magnetometer."""
+    if not mag_counts:
+        return None
+    mname = chosen if chosen in mag_counts else choose_source(mag_counts)
+    t, f, inst = mag_d[mname]
+    t, f = _sort_dedup(t, f)
+    k = _window(t, start, end)
+    return MagSeries(t[k], f[k], mname, inst)
+
+
+def _ref_series(ref_d: dict, start: float | None, end: float | None) -> dict[str, RefSeries]:
+    """Every attitude reference (truth or autopilot) as a sorted, windowed series."""
+    refs = {}
+    for s, (t, q, kind) in ref_d.items():
+        t, q = _sort_dedup(t, q)
+        k = _window(t, start, end)
+        refs[s] = RefSeries(t[k], q[k], kind, s)
+    return refs
+
+
+def _position_series(pos_d: dict, start: float | None,
+                     end: float | None) -> dict[str, PositionSeries]:
+    """Every position/velocity source as a sorted, windowed series."""
+    positions = {}
+    for s, (t, n, v, lla) in pos_d.items():
+        t, n, v, lla = _sort_dedup(t, n, v, lla)
+        k = _window(t, start, end)
+        positions[s] = PositionSeries(t[k], n[k], v[k], lla[k], s)
+    return positions
 
 
 __all__ = ["open_source", "read_log", "detect_format", "Source"]

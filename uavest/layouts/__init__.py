@@ -110,6 +110,121 @@ def _column(ids: list[str]) -> str | dict:
     return _split("column", ids[0], _column(ids[1:]), 100.0 / len(ids))
 
 
+def _event_log() -> dict:
+    """The event-log panel (``/log``, info and above)."""
+    return {"searchTerms": [], "minLogLevel": 1, "foxglovePanelTitle": "events (/log)"}
+
+#: A layout's panels: the panel configs by id and the mosaic tree that places them.
+Panels = tuple[dict[str, dict], str | dict]
+
+
+def _sigma_paths(base: str, err: str, sigma: str, neg_sigma: str, lab: str) -> list[tuple]:
+    """One estimator's error and +-3 sigma plot paths under ``base`` (the bounds in the
+    estimator's colour at half opacity)."""
+    c = colour(lab)
+    return [(mpath(base, err), f"{lab} error", c),
+            (mpath(base, sigma), f"{lab} +3 sigma", c + "80"),
+            (mpath(base, neg_sigma), f"{lab} -3 sigma", c + "80")]
+
+
+def _attitude_panels(labels: list[str], follow: str | None) -> Panels:
+    """The attitude layout's panels: the 3-D bodies, roll/pitch/yaw error (deg) with every
+    filter's +-3 sigma, NEES, NIS and the event log."""
+    cfg: dict[str, dict] = {}
+    topics = ["/attitude/bodies"] + [f"/tf/{lab}" for lab in labels]
+    cfg["3D!uavest3d"] = _three_d(follow or "body_truth", topics, 12.0)
+    plots = []
+    for ax in ("roll", "pitch", "yaw"):
+        paths = []
+        for lab in labels:
+            paths += _sigma_paths(f"/attitude/{lab}/error", f"err_deg.{ax}",
+                                  f"sigma3_deg.{ax}", f"neg_sigma3_deg.{ax}", lab)
+        pid = f"Plot!uavest_err_{ax}"
+        cfg[pid] = _plot(f"{ax} error vs reference (deg), +-3 sigma", paths, "deg")
+        plots.append(pid)
+    cfg["Plot!uavest_nees"] = _plot(
+        "attitude NEES (3 dof; 95% band of one step 0.22..9.35)",
+        [(mpath(f"/attitude/{lab}/error", "nees"), lab, colour(lab)) for lab in labels],
+        "NEES", 0.0, 30.0)
+    cfg["Plot!uavest_nis"] = _plot(
+        "NIS of the step's updates (dof in .nis_dof)",
+        [(mpath(f"/attitude/{lab}/health", "nis"), lab, colour(lab)) for lab in labels],
+        "NIS", 0.0, 50.0)
+    cfg["RosOut!uavest_log"] = _event_log()
+    right = _column(plots + ["Plot!uavest_nees", "Plot!uavest_nis"])
+    left = _split("column", "3D!uavest3d", "RosOut!uavest_log", 75.0)
+    return cfg, _split("row", left, right, 45.0)
+
+
+def _radar_panels(labels: list[str], follow: str | None) -> Panels:
+    """The radar layout's panels: the 3-D detections, truths and tracks (15 km view), the
+    confirmed-track count per tracker against the truth's, and the event log."""
+    cfg: dict[str, dict] = {}
+    topics = ["/radar/detections", "/radar/truth"] + [f"/tracks/{lab}" for lab in labels]
+    td = _three_d(follow or "world", topics, 15000.0)
+    td["followMode"] = "follow-none"
+    cfg["3D!uavest3d"] = td
+    cfg["Plot!uavest_tracks"] = _plot(
+        "confirmed tracks per tracker (truth: /radar/truth/state.n)",
+        [(mpath(f"/tracks/{lab}/state", "n_confirmed"), lab, colour(lab)) for lab in labels]
+        + [("/radar/truth/state.n", "truth", REFERENCE_COLOUR)], "tracks")
+    cfg["RosOut!uavest_log"] = _event_log()
+    layout = _split("row", "3D!uavest3d",
+                    _split("column", "Plot!uavest_tracks", "RosOut!uavest_log", 60.0),
+                    65.0)
+    return cfg, layout
+
+
+def _state_panels(labels: list[str], dim: int) -> Panels:
+    """The generic vector-state layout's panels: per component (``dim``, at most 6) the
+    error with every filter's +-3 sigma, x[0] of the truth and estimates, NEES, NIS and
+    the event log."""
+    cfg: dict[str, dict] = {}
+    plots = []
+    for i in range(max(1, min(int(dim), 6))):  # one error plot per state component
+        paths = []
+        for lab in labels:
+            paths += _sigma_paths(f"/state/{lab}/error", f"err[{i}]", f"sigma3[{i}]",
+                                  f"neg_sigma3[{i}]", lab)
+        pid = f"Plot!uavest_err_x{i}"
+        cfg[pid] = _plot(f"x[{i}] error (estimate - truth), +-3 sigma", paths)
+        plots.append(pid)
+    cfg["Plot!uavest_state"] = _plot(
+        "x[0]: truth and estimates",
+        [("/truth/state.x[0]", "truth", REFERENCE_COLOUR)]
+        + [(mpath(f"/state/{lab}/estimate", "x[0]"), lab, colour(lab))
+           for lab in labels], "x[0]")
+    cfg["Plot!uavest_nees"] = _plot(
+        f"NEES ({dim} dof)",
+        [(mpath(f"/state/{lab}/error", "nees"), lab, colour(lab)) for lab in labels],
+        "NEES", 0.0)
+    cfg["Plot!uavest_nis"] = _plot(
+        "NIS of the step's updates (dof in .nis_dof)",
+        [(mpath(f"/state/{lab}/health", "nis"), lab, colour(lab)) for lab in labels],
+        "NIS", 0.0)
+    cfg["RosOut!uavest_log"] = _event_log()
+    left = _split("column", "Plot!uavest_state", "RosOut!uavest_log", 70.0)
+    layout = _split("row", left, _column(plots + ["Plot!uavest_nees", "Plot!uavest_nis"]),
+                    40.0)
+    return cfg, layout
+
+
+def _attitude_and_radar(labels: list[str], follow: str | None,
+                        track_labels: list[str]) -> dict:
+    """The live run's layout: the attitude layout for ``labels`` with a radar 3-D panel
+    and the track-count plot for ``track_labels`` on its right."""
+    att = build_layout(labels, "attitude", follow)
+    rad = build_layout(track_labels, "radar")
+    cfg = dict(att["configById"])
+    cfg["3D!uavest3d_radar"] = rad["configById"]["3D!uavest3d"]
+    cfg["Plot!uavest_tracks"] = rad["configById"]["Plot!uavest_tracks"]
+    att["configById"] = cfg
+    att["layout"] = _split("row", att["layout"],
+                           _split("column", "3D!uavest3d_radar", "Plot!uavest_tracks",
+                                  60.0), 70.0)
+    return att
+
+
 def build_layout(labels: list[str] | tuple[str, ...], kind: str = "attitude",
                  follow: str | None = None, dim: int = 1,
                  track_labels: list[str] | tuple[str, ...] = ()) -> dict:
@@ -128,90 +243,13 @@ def build_layout(labels: list[str] | tuple[str, ...], kind: str = "attitude",
     ``follow``: the frame the 3-D view follows (default ``body_truth`` / ``world``)."""
     labels = list(labels)
     if kind == "attitude+radar":
-        att = build_layout(labels, "attitude", follow)
-        rad = build_layout(list(track_labels), "radar")
-        cfg = dict(att["configById"])
-        cfg["3D!uavest3d_radar"] = rad["configById"]["3D!uavest3d"]
-        cfg["Plot!uavest_tracks"] = rad["configById"]["Plot!uavest_tracks"]
-        att["configById"] = cfg
-        att["layout"] = _split("row", att["layout"],
-                               _split("column", "3D!uavest3d_radar", "Plot!uavest_tracks",
-                                      60.0), 70.0)
-        return att
-    cfg: dict[str, dict] = {}
+        return _attitude_and_radar(labels, follow, list(track_labels))
     if kind == "attitude":
-        topics = ["/attitude/bodies"] + [f"/tf/{lab}" for lab in labels]
-        cfg["3D!uavest3d"] = _three_d(follow or "body_truth", topics, 12.0)
-        plots = []
-        for ax in ("roll", "pitch", "yaw"):
-            paths = []
-            for lab in labels:
-                c = colour(lab)
-                base = f"/attitude/{lab}/error"
-                paths += [(mpath(base, f"err_deg.{ax}"), f"{lab} error", c),
-                          (mpath(base, f"sigma3_deg.{ax}"), f"{lab} +3 sigma", c + "80"),
-                          (mpath(base, f"neg_sigma3_deg.{ax}"), f"{lab} -3 sigma", c + "80")]
-            pid = f"Plot!uavest_err_{ax}"
-            cfg[pid] = _plot(f"{ax} error vs reference (deg), +-3 sigma", paths, "deg")
-            plots.append(pid)
-        cfg["Plot!uavest_nees"] = _plot(
-            "attitude NEES (3 dof; 95% band of one step 0.22..9.35)",
-            [(mpath(f"/attitude/{lab}/error", "nees"), lab, colour(lab)) for lab in labels],
-            "NEES", 0.0, 30.0)
-        cfg["Plot!uavest_nis"] = _plot(
-            "NIS of the step's updates (dof in .nis_dof)",
-            [(mpath(f"/attitude/{lab}/health", "nis"), lab, colour(lab)) for lab in labels],
-            "NIS", 0.0, 50.0)
-        cfg["RosOut!uavest_log"] = {"searchTerms": [], "minLogLevel": 1,
-                                    "foxglovePanelTitle": "events (/log)"}
-        right = _column(plots + ["Plot!uavest_nees", "Plot!uavest_nis"])
-        left = _split("column", "3D!uavest3d", "RosOut!uavest_log", 75.0)
-        layout = _split("row", left, right, 45.0)
+        cfg, layout = _attitude_panels(labels, follow)
     elif kind == "radar":
-        topics = ["/radar/detections", "/radar/truth"] + [f"/tracks/{lab}" for lab in labels]
-        td = _three_d(follow or "world", topics, 15000.0)
-        td["followMode"] = "follow-none"
-        cfg["3D!uavest3d"] = td
-        cfg["Plot!uavest_tracks"] = _plot(
-            "confirmed tracks per tracker (truth: /radar/truth/state.n)",
-            [(mpath(f"/tracks/{lab}/state", "n_confirmed"), lab, colour(lab)) for lab in labels]
-            + [("/radar/truth/state.n", "truth", REFERENCE_COLOUR)], "tracks")
-        cfg["RosOut!uavest_log"] = {"searchTerms": [], "minLogLevel": 1,
-                                    "foxglovePanelTitle": "events (/log)"}
-        layout = _split("row", "3D!uavest3d",
-                        _split("column", "Plot!uavest_tracks", "RosOut!uavest_log", 60.0),
-                        65.0)
+        cfg, layout = _radar_panels(labels, follow)
     elif kind == "state":
-        plots = []
-        for i in range(max(1, min(int(dim), 6))):  # one error plot per state component
-            paths = []
-            for lab in labels:
-                c = colour(lab)
-                base = f"/state/{lab}/error"
-                paths += [(mpath(base, f"err[{i}]"), f"{lab} error", c),
-                          (mpath(base, f"sigma3[{i}]"), f"{lab} +3 sigma", c + "80"),
-                          (mpath(base, f"neg_sigma3[{i}]"), f"{lab} -3 sigma", c + "80")]
-            pid = f"Plot!uavest_err_x{i}"
-            cfg[pid] = _plot(f"x[{i}] error (estimate - truth), +-3 sigma", paths)
-            plots.append(pid)
-        cfg["Plot!uavest_state"] = _plot(
-            "x[0]: truth and estimates",
-            [("/truth/state.x[0]", "truth", REFERENCE_COLOUR)]
-            + [(mpath(f"/state/{lab}/estimate", "x[0]"), lab, colour(lab))
-               for lab in labels], "x[0]")
-        cfg["Plot!uavest_nees"] = _plot(
-            f"NEES ({dim} dof)",
-            [(mpath(f"/state/{lab}/error", "nees"), lab, colour(lab)) for lab in labels],
-            "NEES", 0.0)
-        cfg["Plot!uavest_nis"] = _plot(
-            "NIS of the step's updates (dof in .nis_dof)",
-            [(mpath(f"/state/{lab}/health", "nis"), lab, colour(lab)) for lab in labels],
-            "NIS", 0.0)
-        cfg["RosOut!uavest_log"] = {"searchTerms": [], "minLogLevel": 1,
-                                    "foxglovePanelTitle": "events (/log)"}
-        left = _split("column", "Plot!uavest_state", "RosOut!uavest_log", 70.0)
-        layout = _split("row", left, _column(plots + ["Plot!uavest_nees", "Plot!uavest_nis"]),
-                        40.0)
+        cfg, layout = _state_panels(labels, dim)
     else:
         raise ValueError("layout kind must be attitude, radar, attitude+radar or state, "
                          f"not {kind!r}")
