@@ -216,13 +216,14 @@ def test_failure_reasons():
 
 class _Bar:
     def __init__(self):
-        self.n, self.total, self.posts = 0, None, []
+        self.n, self.total, self.posts, self.shown = 0, None, [], []
 
     def reset(self, total):
         self.total = total
 
     def update(self, k):
         self.n += k
+        self.shown.append((self.n, self.posts[-1]))  # what a line printer prints now
 
     def set_postfix_str(self, s):
         self.posts.append(s)
@@ -249,3 +250,8 @@ def test_progress_counts_done_failed_remaining(tmp_path, monkeypatch):
     assert (bar.total, bar.n, st.skipped, st.computed, st.failed) == (2, 2, 1, 2, 1)
     assert bar.posts[0] == "done 0, failed 0, remaining 2, reused 1"
     assert bar.posts[-1] == "done 1, failed 1, remaining 0, reused 1"
+    # the line printed at each update already counts that task (it said "1/2, done 0,
+    # ... remaining 2" when the postfix came after the update)
+    for n, post in bar.shown:
+        done, failed, left = (int(x.split()[-1]) for x in post.split(", ")[:3])
+        assert done + failed == n and left == bar.total - n, (n, post)

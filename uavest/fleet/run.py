@@ -98,8 +98,8 @@ def execute(plan: Plan, out: str | Path, backend, *, recompute: bool = False,
         stats.computed += 1
         stats.computed_keys.append(t.key)
         if bar is not None:
+            postfix()  # before the update: a line printer prints the line on update
             bar.update(1)
-            postfix()
         if on_done:
             on_done(t, doc)
 
