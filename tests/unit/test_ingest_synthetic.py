@@ -206,3 +206,27 @@ def test_two_messages_back_in_time_are_not_a_reboot(tmp_path):
     assert log.stats.rejected["time_backwards:SCALED_IMU"] == 2
     assert len(log.imu) == 60 and len(log.mag) == 60
     np.testing.assert_allclose(log.imu.gyro[:, 0], 0.1)
+
+
+@pytest.mark.parametrize("byte,value", [(4, 0xFD), (4, 0xFE), (3, 0xFD), (2, 0xFE)])
+def test_record_times_holding_a_frame_marker_are_still_a_tlog(tmp_path, byte, value):
+    """A tlog's record times share their high bytes for minutes to days (byte 4 of a UNIX
+    time in us changes every 16.8 s, byte 3 every 71.6 min): when one of them is a MAVLink
+    frame marker (0xFD, 0xFE), a stream parser that starts at the file's first byte takes
+    every record time for a frame start and swallows the real frame behind it. The
+    format check must frame records as the reader does (it failed 3 live-link tests in CI
+    that ran during such 16.8 s)."""
+    b = bytearray(struct.pack(">Q", int(T0_UNIX * 1e6)))
+    b[byte] = value
+    t0 = struct.unpack(">Q", bytes(b))[0] * 1e-6
+    p = tmp_path / "marker_times.tlog"
+    w = TlogWriter(p)
+    for i in range(40):
+        t = 10_000 + 20 * i
+        w.write(scaled(t), t0 + i * 1e-4)  # 4 ms in all: the marker byte stays put
+    w.close()
+    data = p.read_bytes()
+    rec = len(data) // 40  # every record the same size
+    assert all(data[k * rec + byte] == value for k in range(40))  # in every record time
+    log = read_log(p)
+    assert log.format == "tlog" and len(log.imu) == 40
