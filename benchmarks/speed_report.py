@@ -129,6 +129,20 @@ def _ungm(runs: int, repeats: int) -> dict:
     return {k: v * 1e6 for k, v in best.items()}
 
 
+def _radar_far_5deg() -> tuple[object, float, float]:
+    """radar_far at 5 deg: (scenario, dt s, q m^2/s^3), typed, or on a base tree before the
+    typed scenarios (no ``load_typed``: a base without its own worker) the dict."""
+    try:
+        from uavest.scenarios import load_typed
+    except ImportError:
+        from uavest.scenarios import load_scenario
+
+        d = load_scenario("radar_far", ["radar.sigma_az_deg=5"])
+        return d, float(d.get("dt", 1.0)), float(d["motion"]["q"])
+    sc = load_typed("radar_far", ["radar.sigma_az_deg=5"])
+    return sc, float(sc.dt), float(sc.motion.q)
+
+
 def _radar(runs: int, repeats: int) -> dict:
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from radar_compare import filterpy_run, stonesoup_run
@@ -137,13 +151,10 @@ def _radar(runs: int, repeats: int) -> dict:
     from uavest.core.gaussian import Gaussian
     from uavest.experiments.radar import data_rng
     from uavest.presets import build
-    from uavest.scenarios import load_typed
     from uavest.tracking.scenario import build_models, generate_run, prior
 
-    sc = load_typed("radar_far", ["radar.sigma_az_deg=5"])
+    sc, dt, q = _radar_far_5deg()
     motion, radar = build_models(sc)
-    dt = float(sc.dt)
-    q = float(sc.motion.q)
     _, P0 = prior(sc)
     data = [generate_run(sc, data_rng(0, r)) for r in range(runs)]
     hyb = build("hybrid", "radar", 4)
