@@ -1,6 +1,6 @@
 """``uavest track SCENARIO``: run a radar scenario once and print the track table.
 
-Registered by ``uavest/cli.py`` through :func:`add_track_parser`.
+Registered by ``uavest/cli/__init__.py`` through :func:`add_track_parser`.
 """
 
 from __future__ import annotations
