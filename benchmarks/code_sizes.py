@@ -4,6 +4,7 @@ Run from the repository root::
 
     python benchmarks/code_sizes.py            # top 10 classes, functions over 80 lines
     python benchmarks/code_sizes.py --top 20 --over 60
+    python benchmarks/code_sizes.py --root /path/to/other/checkout   # another commit's tree
 
 A class's size is its source lines (``end_lineno - lineno + 1``, decorators excluded)
 and the number of functions defined directly in its body; a function's size counts its
@@ -45,8 +46,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--top", type=int, default=10, help="classes to list (default 10)")
     ap.add_argument("--over", type=int, default=80,
                     help="list functions longer than this many lines (default 80)")
+    ap.add_argument("--root", type=Path, default=ROOT.parent,
+                    help="the checkout to measure (default: this one)")
     args = ap.parse_args(argv)
-    classes, functions = _sizes(ROOT)
+    classes, functions = _sizes(args.root.resolve() / "uavest")
     classes.sort(reverse=True)
     print(f"largest classes (lines, methods), top {args.top}:")
     for lines, methods, where in classes[: args.top]:

@@ -1,10 +1,10 @@
 """Ingest speed: decoding only the record types the converters use (``uavest/ingest/skip.py``)
-against decoding every record (the former path, ``MavlinkSource._decode_all = True``).
+against decoding every record (``MavlinkSource._decode_all = True``).
 
     PYTHONPATH=$PWD python benchmarks/ingest_speed.py [--rounds 5] [--logs ../shared/logs]
 
 In one process, for each log (``vtol.tlog`` and ``test.BIN`` from the shared logs,
-``logs/sim_200hz.tlog``), old and new alternate (the order flips every round) for
+``logs/sim_200hz.tlog``), the two paths alternate (the order flips every round) for
 ``--rounds`` rounds; the best time of each is kept. Two stages are timed:
 
 * ``samples``: every sample of the log (``list(MavlinkSource(...))``: open, read, convert,
@@ -12,9 +12,10 @@ In one process, for each log (``vtol.tlog`` and ``test.BIN`` from the shared log
 * ``records``: the reader alone (``MavlinkSource._messages()``: open and read the records,
   bad-data counting, receive-time check), where the decoding is.
 
-Printed per log: records in the log, the share of them decoded by the new path, samples,
+Printed per log: records in the log, the share of them decoded (``used``), samples,
 best CPU times of the process (s; ``time.process_time``, less disturbed than the wall clock
-by other processes on a shared machine) and new/old ratios (< 1: the new path is faster;
+by other processes on a shared machine) of decoding every (``all``) and only the used
+types (``used``), and used/all ratios (< 1: decoding only the used types is faster;
 the wall-clock ratio in brackets), and whether both paths gave the same samples and stats
 (checked on the first round). Only ratios mean anything on a shared, loaded machine.
 """
@@ -86,24 +87,24 @@ def main(argv: list[str] | None = None) -> int:
     if (ROOT / "logs" / "sim_200hz.tlog").is_file():
         logs.append(ROOT / "logs" / "sim_200hz.tlog")
     print(f"best of {a.rounds} alternating rounds, one process; times in s of CPU time of the"
-          " process (robust to other load; wall-clock ratio in brackets); ratio = new / old")
+          " process (robust to other load; wall-clock ratio in brackets); ratio = used / all")
     print(f"{'log':<15} {'records':>7} {'decoded':>7} {'samples':>7} | "
-          f"{'samples: old':>12} {'new':>6} {'ratio':>12} | "
-          f"{'records: old':>12} {'new':>6} {'ratio':>12} | same")
+          f"{'samples: all':>12} {'used':>6} {'ratio':>12} | "
+          f"{'records: all':>12} {'used':>6} {'ratio':>12} | same")
     for path in logs:
         inf = (float("inf"), float("inf"))
-        best = {(stage, old): inf for stage in ("s", "r") for old in (True, False)}
+        best = {(stage, every): inf for stage in ("s", "r") for every in (True, False)}
         same = None
         info = None
         for r in range(a.rounds):
             order = (True, False) if r % 2 == 0 else (False, True)
             got = {}
-            for old in order:
-                dt, src, out = _time_samples(path, old)
-                best["s", old] = tuple(map(min, best["s", old], dt))
-                got[old] = (src, out)
-            for old in order:
-                best["r", old] = tuple(map(min, best["r", old], _time_records(path, old)))
+            for every in order:
+                dt, src, out = _time_samples(path, every)
+                best["s", every] = tuple(map(min, best["s", every], dt))
+                got[every] = (src, out)
+            for every in order:
+                best["r", every] = tuple(map(min, best["r", every], _time_records(path, every)))
             if same is None:
                 (so, oo), (sn, on) = got[True], got[False]
                 same = _same(oo, on) and so.stats.as_dict() == sn.stats.as_dict()

@@ -26,7 +26,6 @@ from uavest.eval.pcrlb import pcrlb, position_bound
 from uavest.eval.tracking import nees, nees_band
 from uavest.experiments.radar import data_rng
 from uavest.models.radar import wrap_angle
-from uavest.scenarios import load_typed
 from uavest.tracking.scenario import build_models, generate_run, prior
 
 # state permutation: ours [x, y, vx, vy] <-> Stone Soup [x, vx, y, vy]
@@ -155,6 +154,10 @@ def main() -> None:
     a = ap.parse_args()
     impls = ["ours_ekf", "ours_ukf", "ours_ukf_guarded", "filterpy_ekf", "filterpy_ukf",
              "stonesoup_ekf", "stonesoup_ukf"]
+    # imported here, not at the top: speed_report imports this module's runners on base
+    # trees from before the typed scenarios
+    from uavest.scenarios import load_typed
+
     out = {}
     for case in a.cases.split(","):
         name, deg = case.split(":")

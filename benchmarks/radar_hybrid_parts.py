@@ -3,8 +3,9 @@ replaces, timed side by side in one process (docs/speed.md, "Radar hybrid").
 
     OMP_NUM_THREADS=1 python benchmarks/radar_hybrid_parts.py [--repeats 15] [--seed 0]
 
-Rows (microseconds per call, median of the repeats' per-call means, "before" the form
-replaced, "now" the one used, and now / before):
+Rows (microseconds per call, median of the repeats' per-call means, "numpy" the numpy
+form (the fallback without numba), "compiled" the one used with numba, and their ratio
+compiled / numpy):
 
 * normals: the predict's process noise for the radar preset's M = 585 members, numpy's
   ``X + rng.standard_normal((M, 4)) @ L.T`` against the kernel drawing the same normals
@@ -17,17 +18,15 @@ replaced, "now" the one used, and now / before):
 * update: ``HybridLocal._update_numpy`` with the radar's composed numpy terms (the
   whole fallback without numba) against ``_update_compiled`` (model terms, gains,
   resampling, draws and moments);
-* step: predict + update + estimate of the hybrid against our UKF's, the ratio the
-  issue's goal reads (radar_far at 5 deg, one run's detections).
+* step: predict + update + estimate of the hybrid against our UKF's, the ratio the speed
+  goal reads (docs/speed.md; radar_far at 5 deg, one run's detections).
 
 Then the same for 3-D detections (range, azimuth, elevation: m = 3; radar_uav, its first
 target seen from the UAV with the estimated pose of each scan, 6-D CV, M = 845 members):
 
 * 3-D linearise_rows and 3-D local update, numpy against compiled, as above;
-* 3-D step (predict + update + estimate, us per step) of the hybrid three ways: all numpy
-  (no numba), "before" (the kernels of m <= 2 only: compiled predict noise, numpy update
-  and radar terms, what the 3-D radar ran before the m >= 3 kernels), and "now" (all
-  compiled); the UKF's step on the same data, and hybrid / UKF before and now.
+* 3-D step (predict + update + estimate, us per step) of the hybrid two ways: all numpy
+  (no numba) and all compiled; the UKF's step on the same data, and hybrid / UKF.
 
 ``--only 2d`` / ``--only 3d`` runs one of the two sections.
 
@@ -138,13 +137,13 @@ def _radar2d(a: argparse.Namespace) -> None:
          100),
     ]
     print(f"radar hybrid parts, us per call (median of {R} repeats; BLAS 1 thread)")
-    print(f"  {'part':38s} {'before':>9s} {'now':>9s} {'ratio':>7s}")
-    for name, old, new, number in rows:
-        old(), new()
+    print(f"  {'part':38s} {'numpy':>9s} {'compiled':>9s} {'ratio':>7s}")
+    for name, ref, fast, number in rows:
+        ref(), fast()
         to, tn = [], []
         for _ in range(R):  # interleaved: the machine's load hits both alike
-            to.append(_per_call(old, number, 1))
-            tn.append(_per_call(new, number, 1))
+            to.append(_per_call(ref, number, 1))
+            tn.append(_per_call(fast, number, 1))
         o, n = float(np.median(to)), float(np.median(tn))
         print(f"  {name:38s} {o:9.2f} {n:9.2f} {n / o:7.3f}")
     del E
@@ -239,7 +238,7 @@ def _radar3d(a: argparse.Namespace) -> None:
 
     print(f"\n3-D radar (range / azimuth / elevation, m = 3), radar_uav, M = {M}, us per "
           f"call (median of {R} repeats)")
-    print(f"  {'part':38s} {'before':>9s} {'now':>9s} {'ratio':>7s}")
+    print(f"  {'part':38s} {'numpy':>9s} {'compiled':>9s} {'ratio':>7s}")
     rows = [
         (f"3-D radar linearise_rows (M = {M})",
          lambda: Measurement.linearise_rows(rad, X, z, w),
@@ -247,16 +246,13 @@ def _radar3d(a: argparse.Namespace) -> None:
         (f"3-D local update (M = {M})", numpy_update,
          lambda: f._update_compiled(nb, Ensemble(X, motion.space, w), z, rad, rng), 50),
     ]
-    for name, old, new, number in rows:
-        o, n = _interleaved((old, new), number, R)
+    for name, ref, fast, number in rows:
+        o, n = _interleaved((ref, fast), number, R)
         print(f"  {name:38s} {o:9.2f} {n:9.2f} {n / o:7.3f}")
 
-    def loop(filt, mode: str = "now") -> float:
-        paths(mode != "numpy", mode == "now")
-        if mode == "before":  # the m <= 2 dispatch: the update's numpy path
-            upd = filt._update_numpy
-        else:
-            upd = filt.update
+    def loop(filt, mode: str = "compiled") -> float:
+        paths(mode == "compiled", mode == "compiled")
+        upd = filt.update
         r = np.random.default_rng([a.seed, 2])
         try:
             s = filt.init(Gaussian(x0, P0), motion.space, r)
@@ -271,7 +267,7 @@ def _radar3d(a: argparse.Namespace) -> None:
             paths(True, True)
 
     ukf = make_filter("ukf")
-    modes = ("numpy", "before", "now")
+    modes = ("numpy", "compiled")
     for m in modes:
         loop(f, m)
     loop(ukf)
@@ -284,11 +280,9 @@ def _radar3d(a: argparse.Namespace) -> None:
     u = np.array(tu)
     med = {m: float(np.median(v)) for m, v in th.items()}
     print(f"  3-D step ({len(Z)} scans), us per step: hybrid all numpy {med['numpy']:.1f}, "
-          f"before (m <= 2 kernels) {med['before']:.1f}, now {med['now']:.1f}; "
-          f"ukf {np.median(u):.1f}")
-    print(f"  3-D step now / before {med['now'] / med['before']:.3f}, now / all numpy "
-          f"{med['now'] / med['numpy']:.3f}")
-    for m in ("before", "now"):
+          f"compiled {med['compiled']:.1f}; ukf {np.median(u):.1f}")
+    print(f"  3-D step compiled / all numpy {med['compiled'] / med['numpy']:.3f}")
+    for m in modes:
         h = np.array(th[m])
         print(f"  3-D step hybrid ({m}) / ukf: median of the repeats' ratios "
               f"{np.median(h / u):.2f}, of the fastest {h.min() / u.min():.2f}")

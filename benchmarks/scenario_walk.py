@@ -52,9 +52,19 @@ ALIASES = {"typed", "replace", "deepcopy"}
 READERS = {"get", "setdefault", "items", "keys", "values"}
 
 
+#: This checkout: its layer list and scenario schema are the rules when the measured
+#: checkout (``--root``, e.g. a commit before the contracts or the schema) has none.
+HERE = ROOT
+
+
 def layers() -> list[list[str]]:
+    """The layer rows of ``pyproject.toml``'s import-linter contract (top first)."""
     with open(ROOT / "pyproject.toml", "rb") as fh:
-        cfg = tomllib.load(fh)["tool"]["importlinter"]["contracts"]
+        tool = tomllib.load(fh)["tool"]
+    if "importlinter" not in tool:
+        with open(HERE / "pyproject.toml", "rb") as fh:
+            tool = tomllib.load(fh)["tool"]
+    cfg = tool["importlinter"]["contracts"]
     lay = next(c for c in cfg if c["type"] == "layers")["layers"]
     return [[s.strip() for s in row.split("|")] for row in lay]
 
@@ -72,7 +82,10 @@ def layer_of(module: str) -> int:
 
 def table_names() -> set[str]:
     """The scenario tables (fields of kind table / tables) the schema declares."""
-    src = (PKG / "scenarios" / "schema.py").read_text()
+    schema = PKG / "scenarios" / "schema.py"
+    if not schema.exists():
+        schema = HERE / "uavest" / "scenarios" / "schema.py"
+    src = schema.read_text()
     out = set()
     for node in ast.walk(ast.parse(src)):
         if isinstance(node, ast.AnnAssign) and isinstance(node.value, ast.Call):

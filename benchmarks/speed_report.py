@@ -5,10 +5,12 @@ measured in one run, with same-run ratios.
         [--base COMMIT] [--repeats 2] [--inner 3] [--runs 10] [--window 0]
         [--sections help,ungm,radar,tracker,replay] [--json out.json]
 
-The pre-change code is taken from git (``git archive COMMIT uavest`` into a temporary
-directory) and both trees are run as subprocesses of this script with PYTHONPATH pointing
-at them, alternately (old, new, old, new, ...), so machine load hits both; each figure is
-the best of ``--repeats`` worker runs (per-step times are best-of inside a worker too).
+The pre-change code is taken from git (``git archive COMMIT uavest benchmarks`` into a
+temporary directory) and both trees are run as subprocesses with PYTHONPATH pointing at
+them, each by its own copy of this script's worker where it has one (so the worker speaks
+its tree's API), alternately (old, new, old, new, ...), so machine load hits both; each
+figure is the best of ``--repeats`` worker runs (per-step times are best-of inside a
+worker too).
 Comparisons with FilterPy and Stone Soup are made inside one worker process, interleaved
 per run.
 
@@ -127,6 +129,20 @@ def _ungm(runs: int, repeats: int) -> dict:
     return {k: v * 1e6 for k, v in best.items()}
 
 
+def _radar_far_5deg() -> tuple[object, float, float]:
+    """radar_far at 5 deg: (scenario, dt s, q m^2/s^3), typed, or on a base tree before the
+    typed scenarios (no ``load_typed``: a base without its own worker) the dict."""
+    try:
+        from uavest.scenarios import load_typed
+    except ImportError:
+        from uavest.scenarios import load_scenario
+
+        d = load_scenario("radar_far", ["radar.sigma_az_deg=5"])
+        return d, float(d.get("dt", 1.0)), float(d["motion"]["q"])
+    sc = load_typed("radar_far", ["radar.sigma_az_deg=5"])
+    return sc, float(sc.dt), float(sc.motion.q)
+
+
 def _radar(runs: int, repeats: int) -> dict:
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from radar_compare import filterpy_run, stonesoup_run
@@ -135,13 +151,10 @@ def _radar(runs: int, repeats: int) -> dict:
     from uavest.core.gaussian import Gaussian
     from uavest.experiments.radar import data_rng
     from uavest.presets import build
-    from uavest.scenarios import load_typed
     from uavest.tracking.scenario import build_models, generate_run, prior
 
-    sc = load_typed("radar_far", ["radar.sigma_az_deg=5"])
+    sc, dt, q = _radar_far_5deg()
     motion, radar = build_models(sc)
-    dt = float(sc.dt)
-    q = float(sc.motion.q)
     _, P0 = prior(sc)
     data = [generate_run(sc, data_rng(0, r)) for r in range(runs)]
     hyb = build("hybrid", "radar", 4)
@@ -268,18 +281,36 @@ def worker(section: str, a) -> dict:
 
 
 def _old_tree(base: str, tmp: Path) -> Path:
-    tar = subprocess.run(["git", "-C", str(ROOT), "archive", base, "uavest"],
-                         capture_output=True, check=True).stdout
+    """``base``'s package and benchmarks in ``tmp/old`` (``git archive``), with
+    ``tmp/shared`` linked to the shared logs beside this checkout, so that the base's own
+    worker finds ``sample.ulg`` where it looks (``../shared/logs``)."""
+    def archive(*paths: str) -> subprocess.CompletedProcess:
+        return subprocess.run(["git", "-C", str(ROOT), "archive", base, *paths],
+                              capture_output=True)
+
+    p = archive("uavest", "benchmarks")
+    if p.returncode != 0:  # a base without benchmarks/: this script's worker runs it
+        p = archive("uavest")
+        p.check_returncode()
     dest = tmp / "old"
-    with tarfile.open(fileobj=io.BytesIO(tar)) as tf:
+    with tarfile.open(fileobj=io.BytesIO(p.stdout)) as tf:
         tf.extractall(dest, filter="data")
+    if (ROOT.parent / "shared").is_dir():
+        (tmp / "shared").symlink_to(ROOT.parent / "shared")
     return dest
+
+
+def _worker_script(tree: Path) -> Path:
+    """The tree's own ``benchmarks/speed_report.py`` (its worker speaks that tree's API:
+    a base before an API change cannot run this tree's worker), else this script."""
+    own = tree / "benchmarks" / "speed_report.py"
+    return own if own.is_file() else Path(__file__).resolve()
 
 
 def _run(tree: Path, section: str, a) -> dict:
     env = dict(os.environ, PYTHONPATH=str(tree), OMP_NUM_THREADS="1",
                OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
-    cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", section,
+    cmd = [sys.executable, str(_worker_script(tree)), "--worker", section,
            "--runs", str(a.runs), "--inner", str(a.inner), "--window", str(a.window)]
     p = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=tree.parent)
     if p.returncode != 0:

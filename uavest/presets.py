@@ -129,14 +129,21 @@ def resolve(spec: str | FilterSpec, preset_name: str, dim: int | None = None) ->
 
 
 def resolve_list(
-    text: str | Sequence[str | FilterSpec], preset_name: str, dim: int | None = None
+    text: str | Sequence[str | FilterSpec], preset_name: str, dim: int | None = None,
+    *, distinct: bool = True,
 ) -> list[FilterSpec]:
     """:func:`resolve` for every spec of a list ('a,b(x=1),c' or a sequence), refusing
     an empty list and duplicates. In a preset with ``match_members`` and exactly one
     hybrid-family entry in the list, EnKF/ETKF that do not write ``members`` get that
     hybrid's member count (so the run compares equal ensemble sizes). A list of specs
     already resolved in this preset at this ``dim`` (this function's result) is returned
-    as it is."""
+    as it is.
+
+    ``distinct=False`` lets two labels that resolve to the same filter through: each
+    label draws from its own random stream (``filter:<label>``), which is how a benchmark
+    shows one filter's stream-to-stream spread on the same truths
+    (``benchmarks/radar_bound.py``). The same label twice is refused either way; the
+    command line keeps ``distinct=True`` (two names of one filter are a user's slip)."""
     p = preset(preset_name)
     items = split_filter_list(text) if isinstance(text, str) else list(text)
     if items and dim is not None and all(
@@ -165,7 +172,7 @@ def resolve_list(
         key = (s.name, tuple(sorted(s.params.items())))
         if s.label in seen.values():
             raise SpecError(f"the filter list names {s.label} more than once")
-        if key in seen:
+        if key in seen and distinct:
             raise SpecError(f"the filter list names {seen[key]} and {s.label}, which resolve "
                             f"to the same filter in preset {p.name}")
         seen[key] = s.label

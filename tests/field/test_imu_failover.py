@@ -9,14 +9,13 @@ record after 100 s (SCALED_IMU2 continues)."""
 from __future__ import annotations
 
 import json
-import struct
 
 import numpy as np
 import pytest
 from conftest import shared_log
 
 from tests.field.test_imu_gap import _errors
-from tests.hostile.corpus import tlog_records
+from tests.hostile.corpus import drop_tlog_records
 from uavest.cli import main
 
 RAW_IMU = 27
@@ -25,21 +24,7 @@ RAW_IMU = 27
 def drop_after(src, dst, msgid: int, at: float) -> int:
     """Write ``src`` to ``dst`` without the ``msgid`` records received ``at`` s or more
     after the first record. Returns how many were dropped."""
-    data = src.read_bytes()
-    recs = tlog_records(data)
-    (t0,) = struct.unpack(">Q", data[recs[0][0]:recs[0][0] + 8])
-    out, last, n = bytearray(), 0, 0
-    for off, ln, mid in recs:
-        out += data[last:off]
-        last = off + ln
-        (t,) = struct.unpack(">Q", data[off:off + 8])
-        if mid == msgid and (t - t0) * 1e-6 >= at:
-            n += 1
-            continue
-        out += data[off:off + ln]
-    out += data[last:]
-    dst.write_bytes(bytes(out))
-    return n
+    return drop_tlog_records(src, dst, (msgid,), at)
 
 
 @pytest.mark.slow

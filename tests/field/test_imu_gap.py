@@ -8,13 +8,11 @@ with the attitude model and under the default (the navigation model for this log
 
 from __future__ import annotations
 
-import struct
-
 import numpy as np
 import pytest
 from conftest import shared_log
 
-from tests.hostile.corpus import tlog_records
+from tests.hostile.corpus import drop_tlog_records
 from uavest.apps.replay import ReplayConfig, replay
 from uavest.cli import main
 from uavest.geometry.rotation import quat_conj, quat_mul, quat_slerp_interp
@@ -28,21 +26,7 @@ FILTERS = ("ekf", "ukf", "hybrid")
 def drop_imu(src, dst, at: float = 100.0, length: float = 17.0) -> int:
     """Write ``src`` to ``dst`` without the IMU records received in [at, at + length) s
     after the first record. Returns how many were dropped."""
-    data = src.read_bytes()
-    recs = tlog_records(data)
-    (t0,) = struct.unpack(">Q", data[recs[0][0]:recs[0][0] + 8])
-    out, last, n = bytearray(), 0, 0
-    for off, ln, mid in recs:
-        out += data[last:off]
-        last = off + ln
-        (t,) = struct.unpack(">Q", data[off:off + 8])
-        if mid in IMU_IDS and at <= (t - t0) * 1e-6 < at + length:
-            n += 1
-            continue
-        out += data[off:off + ln]
-    out += data[last:]
-    dst.write_bytes(bytes(out))
-    return n
+    return drop_tlog_records(src, dst, IMU_IDS, at, at + length)
 
 
 class _Truth(Sink):

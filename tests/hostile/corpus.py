@@ -40,6 +40,28 @@ def tlog_records(data: bytes) -> list[tuple[int, int, int]]:
     return out
 
 
+def drop_tlog_records(src: Path, dst: Path, msgids, start: float,
+                      end: float = float("inf")) -> int:
+    """Write the tlog ``src`` to ``dst`` without the records of ``msgids`` received in
+    [``start``, ``end``) s after the first record (the bytes between records kept).
+    Returns how many were dropped."""
+    data = src.read_bytes()
+    recs = tlog_records(data)
+    (t0,) = struct.unpack(">Q", data[recs[0][0]:recs[0][0] + 8])
+    out, last, n = bytearray(), 0, 0
+    for off, ln, mid in recs:
+        out += data[last:off]
+        last = off + ln
+        (t,) = struct.unpack(">Q", data[off:off + 8])
+        if mid in msgids and start <= (t - t0) * 1e-6 < end:
+            n += 1
+            continue
+        out += data[off:off + ln]
+    out += data[last:]
+    dst.write_bytes(bytes(out))
+    return n
+
+
 def flip_tlog_rx_top_bit(data: bytes, msgid: int = 30, which: int = 100) -> bytes:
     """Set the top bit of the 8-byte receive time of the ``which``-th record of ``msgid``
     (30 = ATTITUDE)."""

@@ -100,6 +100,9 @@ def test_unknown_set_key_names_close_matches():
         load_scenario("sim_default", ["gps.sigma_hh=1"])
     with pytest.raises(ScenarioError, match="unknown scenario key 'targets.start'"):
         load_scenario("radar_multitarget", ["targets.start=[1]"])
+    # the same key in another case comes first (UNGM's noise is model.Q)
+    with pytest.raises(ScenarioError, match=r"'model.q' \(did you mean model.Q, "):
+        load_scenario("ungm", ["model.q=1"])
 
 
 def test_unknown_kind_is_a_scenario_error(tmp_path):

@@ -227,6 +227,17 @@ def test_duplicates_are_judged_in_the_preset_not_with_core_defaults():
         presets.resolve_list("ekf,,ukf", "bench", dim=1)
 
 
+def test_distinct_false_lets_two_labels_of_one_filter_through_but_not_one_label_twice():
+    # benchmarks/radar_bound.py runs one filter under two labels (two random streams)
+    text = "hybrid,hybrid(update_mode=local,n_cloud=64)"
+    with pytest.raises(SpecError, match="resolve to the same filter in preset radar"):
+        presets.resolve_list(text, "radar", dim=4)
+    a, b = presets.resolve_list(text, "radar", dim=4, distinct=False)
+    assert dict(a.params) == dict(b.params) and a.label != b.label
+    with pytest.raises(SpecError, match="more than once"):
+        presets.resolve_list("hybrid,hybrid", "radar", dim=4, distinct=False)
+
+
 def test_describe_presets_says_what_hybrid_is_in_each_command():
     text = presets.describe_presets()
     lines = text.splitlines()

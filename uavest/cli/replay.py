@@ -148,6 +148,13 @@ def model_lines(doc: dict) -> list[str]:
 
 def format_doc(doc: dict) -> str:
     """The human-readable result of a replay: what was read, the table, bad data."""
+    return "\n".join(_source_lines(doc) + model_lines(doc) + decision_lines(doc)
+                     + _imu_interval_lines(doc) + _table_lines(doc) + _bad_data_lines(doc)
+                     + [_speed_line(doc)])
+
+
+def _source_lines(doc: dict) -> list[str]:
+    """The log, its IMU and filter rates, the integration, the reference, the declination."""
     then = "".join(f" then {w['to']} from t={w['t']:.1f} s" for w in doc.get("imu_switches") or [])
     lines = [
         f"{doc['log']}: {doc['format']}, IMU {doc['imu_source']}{then} at "
@@ -168,8 +175,12 @@ def format_doc(doc: dict) -> str:
     if doc.get("declination_source"):
         lines.append(f"declination: {math.degrees(doc['declination_rad'] or 0.0):.2f} deg "
                      f"({doc['declination_source']})")
-    lines += model_lines(doc)
-    lines += decision_lines(doc)
+    return lines
+
+
+def _imu_interval_lines(doc: dict) -> list[str]:
+    """IMU gaps (not integrated across) and long intervals (predicted in sub-steps)."""
+    lines = []
     if doc.get("imu_gaps"):
         (g0, _), = [max(doc["imu_gap_list"], key=lambda g: g[1] - g[0])]
         lines.append(f"IMU gaps: {doc['imu_gaps']} longer than "
@@ -181,6 +192,12 @@ def format_doc(doc: dict) -> str:
                      f"{doc['max_step_s']:.2f} s (below the gap threshold), longest "
                      f"{doc['imu_split_longest_s']:.2f} s; each predicted in sub-steps, the "
                      "aiding inside it at its own time")
+    return lines
+
+
+def _table_lines(doc: dict) -> list[str]:
+    """The filters' table (smoothed rows indented; navigation columns for the nav model)
+    and, when the log says when the vehicle was airborne, the airborne table."""
     rows = {}
     for name, row in doc["filters"].items():
         rows[name] = row
@@ -192,7 +209,7 @@ def format_doc(doc: dict) -> str:
     if nav:
         rows = {k: _flat(r) for k, r in rows.items()}
         cols = cols[:4] + NAV_COLS + ["rejected"] + cols[4:]
-    lines.append(table(rows, cols))
+    lines = [table(rows, cols)]
     air = {k: _flat(r["airborne"]) for k, r in doc["filters"].items() if r.get("airborne")}
     if air:
         a0 = next(iter(doc["filters"].values())).get("airborne") or {}
@@ -202,11 +219,17 @@ def format_doc(doc: dict) -> str:
                      "lowest):")
         acols = ["roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg"]
         lines.append(table(air, acols + (NAV_COLS if nav else ["nees_att_in95"])))
+    return lines
+
+
+def _bad_data_lines(doc: dict) -> list[str]:
+    """Bad data by kind, then what was skipped, absent, without a fix, retimed or repaired
+    (none of them bad data), and the reasons the run is unreliable."""
     bad = doc["bad_data"]
     parts = [f"{k} {bad[k]}" for k in bad
              if isinstance(bad[k], int) and bad[k]
              and k not in ("bad_total", "absent_sensor", "non_mavlink", "no_fix", "retimed")]
-    lines.append(f"bad data: {bad['bad_total']}" + (f" ({', '.join(parts)})" if parts else ""))
+    lines = [f"bad data: {bad['bad_total']}" + (f" ({', '.join(parts)})" if parts else "")]
     skipped = bad.get("skipped") or {}
     if skipped:
         lines.append("skipped between records: " + ", ".join(
@@ -226,12 +249,14 @@ def format_doc(doc: dict) -> str:
     if rep.get("time_outlier"):
         lines.append(f"repaired: {rep['time_outlier']} time stamps that were outliers against "
                      "their neighbours (kept with a time from their neighbours)")
-    for why in doc.get("unreliable") or []:
-        lines.append(f"UNRELIABLE: {why}")
+    return lines + [f"UNRELIABLE: {why}" for why in doc.get("unreliable") or []]
+
+
+def _speed_line(doc: dict) -> str:
+    """The replay speed: log duration over the filter loop's wall time, all filters."""
     rt = doc["realtime_factor"]
-    lines.append(f"replay speed: {rt:.1f}x real time ({len(doc['guard_resets'])} filters "
-                 f"together, {doc['wall_s']:.2f} s)" if rt else "replay speed: -")
-    return "\n".join(lines)
+    return (f"replay speed: {rt:.1f}x real time ({len(doc['guard_resets'])} filters "
+            f"together, {doc['wall_s']:.2f} s)" if rt else "replay speed: -")
 
 
 def cmd_replay(args: argparse.Namespace) -> int:

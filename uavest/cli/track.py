@@ -1,23 +1,25 @@
 """``uavest track SCENARIO``: run a radar scenario once and print the track table.
 
-Registered by ``uavest/cli.py`` through :func:`add_track_parser`.
+Registered by ``uavest/cli/__init__.py`` through :func:`add_track_parser`.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import InputError
-from ..experiments.radar import data_rng, run_trackers, tracker_errors
-from ..presets import spec_labels
-from ..scenarios import load_typed, resolved, typed
 from ..sinks.jsonout import write_json
-from ..tracking.scenario import generate_run
-from ..tracking.tracker import Tracker
 from .record import add_recording_options, finish_recording, recording_sinks
+
+if TYPE_CHECKING:
+    from ..tracking.tracker import Tracker
+
+# The scenario schema, the radar experiments and the tracker are imported by the command,
+# not by this module: ``uavest --help`` registers every parser and stays fast.
 
 
 def track_table(sc, filters: list[str], seed: int, sinks=(), command: str = "") -> dict:
@@ -28,11 +30,15 @@ def track_table(sc, filters: list[str], seed: int, sinks=(), command: str = "") 
     Row fields: filter, track id, born / confirmed / deleted scan times (s; None if never),
     length (scans alive), hits, truth (index of the truth it was assigned to most often,
     None for a false track), pos_rmse (m) against that truth over the assigned scans."""
+    from ..engine.records import RunInfo, package_versions
+    from ..experiments.radar import data_rng, run_trackers, tracker_errors
+    from ..presets import spec_labels
+    from ..scenarios import resolved, typed
+    from ..tracking.scenario import generate_run
+
     scn = typed(sc)
     dt, ndim, c = float(scn.dt), int(scn.ndim), float(scn.metrics.gospa_c)
     run = generate_run(scn, data_rng(seed, 0))  # filter-mode scenarios: tracker too
-    from ..engine.records import RunInfo, package_versions
-
     info = RunInfo(command, f"scenario:{scn.name}", seed,
                    filters={lab: {"spec": lab, "preset": "radar"} for lab in spec_labels(filters)},
                    config={"scenario": scn.name, "dt": dt, "gospa_c": c},
@@ -122,6 +128,8 @@ def print_table(res: dict) -> None:
 
 
 def cmd_track(args: argparse.Namespace) -> int:
+    from ..scenarios import load_typed
+
     scn = load_typed(args.scenario, args.set or [])
     if scn.kind != "radar":
         raise InputError(f"scenario {args.scenario!r} is not a radar scenario "

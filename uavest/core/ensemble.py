@@ -63,13 +63,15 @@ def _equal_moments(E: Ensemble, model: Measurement
     return x, dX, Y, ybar, dY
 
 
+@dataclass(frozen=True)
 class _PersistentEnsemble(EnsembleFilter):
     """Shared by EnKF and ETKF: iid Gaussian start, members propagated with process noise
     and multiplicative ``inflation``, the estimate from the ensemble's moments. Every
     predict keeps member j as row j (member-wise RTS cross-covariance)."""
 
-    members: int
-    inflation: float
+    members: int = field(default=100, metadata=param("int", lo=2, doc="ensemble size M"))
+    inflation: float = field(default=1.0, metadata=param(
+        "float", lo=0.0, lo_open=True, doc="multiplicative anomaly inflation (1: none)"))
 
     def init(  # type: ignore[override]  # (a generator is required here)
         self, prior: Gaussian, space: Space, rng: np.random.Generator
@@ -89,9 +91,6 @@ class EnKF(_PersistentEnsemble):
     """Stochastic EnKF with perturbed observations. ``members`` M (default 100),
     multiplicative ``inflation`` of the forecast anomalies (default 1.0: none)."""
 
-    members: int = field(default=100, metadata=param("int", lo=2, doc="ensemble size M"))
-    inflation: float = field(default=1.0, metadata=param(
-        "float", lo=0.0, lo_open=True, doc="multiplicative anomaly inflation (1: none)"))
     name: str = "enkf"
 
     def update(self, E: Ensemble, z: Array, model: Measurement, rng: Any = None
@@ -112,9 +111,6 @@ class ETKF(_PersistentEnsemble):
     observations); the analysis ensemble has exactly the Kalman posterior covariance in
     the ensemble subspace. Symmetric square root keeps the mean unbiased."""
 
-    members: int = field(default=100, metadata=param("int", lo=2, doc="ensemble size M"))
-    inflation: float = field(default=1.0, metadata=param(
-        "float", lo=0.0, lo_open=True, doc="multiplicative anomaly inflation (1: none)"))
     name: str = "etkf"
 
     def update(self, E: Ensemble, z: Array, model: Measurement, rng: Any = None

@@ -11,7 +11,7 @@ averages over the supplied truth trajectories. J_0 = P_0^-1 for a Gaussian prior
 bound on any estimator's error covariance is E[(x^ - x)(x^ - x)^T] >= J_k^-1.
 
 On a linear-Gaussian model the recursion reproduces the Kalman filter covariance exactly
-(tested in ``tests/test_radar_pcrlb.py``).
+(tested in ``tests/unit/test_radar_pcrlb.py``).
 """
 
 from __future__ import annotations

@@ -440,8 +440,10 @@ def run_bench(
     ``sinks`` (tracker mode: the very run the table uses; filter mode, which runs no
     tracker: the trackers on trial r's data, as ``uavest track`` does)."""
     sc = typed(scenario)
+    # once for all runs; the command line refused two names of one filter already (a
+    # library caller may list them: each label its own random stream)
     filters = resolve_list(list(filters or sc.filters), "radar",
-                           dim=state_dim(sc.ndim, sc.motion))  # once for all runs
+                           dim=state_dim(sc.ndim, sc.motion), distinct=False)
     runs = int(runs or sc.runs)
     if sc.mode == "filter":
         out = bench_filter_mode(sc, filters, runs, seed, steps)

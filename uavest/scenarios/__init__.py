@@ -17,7 +17,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from .schema import ScenarioError, declared, known_keys, parse, schema_for
+from .schema import ScenarioError, close_keys, declared, known_keys, parse, schema_for
 
 __all__ = ["ScenarioError", "load_scenario", "load_typed", "list_scenarios",
            "find_scenario", "apply_sets", "parse_value", "validate_scenario", "typed",
@@ -256,14 +256,9 @@ def _check_known(sc: dict, parts: list[str]) -> None:
             return
         if m["kind"] != "table":
             break
-    cands = sorted(known)
-    import difflib
-
-    close = difflib.get_close_matches(key, cands, n=3, cutoff=0.6)
-    # a bare leaf name ("clutter_rate") matches its dotted form ("radar.clutter_rate")
-    close += [c for c in cands if c.rsplit(".", 1)[-1] == parts[-1] and c not in close]
+    close = close_keys(key, sorted(known))
     if close:
-        hint = f"did you mean {', '.join(close[:3])}?"
+        hint = f"did you mean {', '.join(close)}?"
     else:
         secs = sorted(k for k, m in declared(cls).items() if m["kind"] == "table")
         hint = f"known sections: {', '.join(secs) or '(none)'}"

@@ -515,12 +515,22 @@ def known_keys(cls: type, prefix: str = "") -> list[str]:
     return out
 
 
-def _unknown(key: str, cands: list[str], where: str) -> ScenarioError:
-    close = difflib.get_close_matches(key, cands, n=3, cutoff=0.6)
+def close_keys(key: str, cands: list[str]) -> list[str]:
+    """Up to three of ``cands`` a user who wrote ``key`` may have meant: the same key in
+    another case first (``model.q`` for ``model.Q``), then ``difflib``'s close matches,
+    then the dotted forms of a bare leaf name (``clutter_rate``: ``radar.clutter_rate``)."""
+    close = [c for c in cands if c.lower() == key.lower()]
+    close += [c for c in difflib.get_close_matches(key, cands, n=3, cutoff=0.6)
+              if c not in close]
     leaf = key.rsplit(".", 1)[-1]
     close += [c for c in cands if c.rsplit(".", 1)[-1] == leaf and c not in close]
+    return close[:3]
+
+
+def _unknown(key: str, cands: list[str], where: str) -> ScenarioError:
+    close = close_keys(key, cands)
     if close:
-        hint = f"did you mean {', '.join(close[:3])}?"
+        hint = f"did you mean {', '.join(close)}?"
     else:
         top = sorted(c for c in cands if "." not in c)
         hint = f"known keys: {', '.join(top)}"
