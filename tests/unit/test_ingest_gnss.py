@@ -295,3 +295,32 @@ def test_ulog_gnss_and_baro_rows_bad_ones_counted():
     d._baro("sensor_baro[1]", {"timestamp": np.array([1, 2], dtype=np.uint64),
                                "pressure": np.zeros(2)}, 1)
     assert "sensor_baro[1]" not in d.baro and d.stats.absent["sensor_baro[1]"] == 2
+
+
+def test_on_arrival_releases_every_sample_as_it_comes_and_counts_none_late(tmp_path):
+    """``reorder_window=0``: nothing held or reordered (the engine's history orders):
+    the fixes stamped 60 ms before they are sent come after newer IMU samples, not
+    ``late``; each stream stays in time order; a RAW_IMU's magnetometer comes before its
+    IMU sample (a step that ends at that sample is complete when it arrives); a short
+    reorder window drops those fixes as ``late``, a long one orders them."""
+    from uavest.ingest import GnssSample, ImuSample, MagSample, open_source
+
+    p = tmp_path / "a.tlog"
+    write_log(p, n=200)
+    arr = open_source(p, reorder_window=0.0)
+    got = list(arr)
+    ordered = list(open_source(p, reorder_window=1.0))
+    short = open_source(p, reorder_window=0.02)
+    n_short = sum(isinstance(s, GnssSample) for s in short)
+    assert arr.stats.late == 0 and short.stats.late > 0 and n_short < 20
+    key = lambda s: (type(s).__name__, s.source, s.t)  # noqa: E731
+    assert sorted(map(key, got)) == sorted(map(key, ordered))
+    assert [s.t for s in got] != sorted(s.t for s in got)  # as they came
+    for kind in (ImuSample, MagSample, GnssSample):
+        ts = [s.t for s in got if isinstance(s, kind)]
+        assert ts == sorted(ts) and len(ts) > 10
+    fix = next(i for i, s in enumerate(got) if isinstance(s, GnssSample))
+    assert any(isinstance(s, ImuSample) and s.t > got[fix].t for s in got[:fix])
+    for i, s in enumerate(got):
+        if isinstance(s, ImuSample):
+            assert isinstance(got[i - 1], MagSample) and got[i - 1].t == s.t

@@ -149,25 +149,52 @@ def gate_time(raw: Raw, t: float) -> float:
 
 
 class _Reorder:
-    """Small heap that releases measurements in time order once older than ``window`` s."""
+    """Small heap that releases measurements in time order once older than ``window`` s.
+
+    ``window`` <= 0 is **on arrival**: nothing is held or reordered; the items of each
+    message are released as soon as it is accepted (in time order within the message, an
+    IMU sample after the other parts of its message, e.g. HIGHRES_IMU's magnetometer, so a
+    step that ends at it is complete when it arrives), and an item older than one
+    released before is not ``late`` here: ordering is then the consumer's (the engine's
+    bounded history, :mod:`uavest.engine.history`)."""
 
     def __init__(self, window: float, stats: IngestStats) -> None:
         self.window = window
         self.stats = stats
+        self.on_arrival = not window > 0
         self.heap: list = []
+        self.ready: list[Sample] = []  # on arrival: the items of the message being read
         self.seq = 0
         self.newest = -math.inf
         self.last_out = -math.inf
 
+    @property
+    def floor(self) -> float:
+        """The time (s) below which an item would be ``late`` (-inf on arrival)."""
+        return -math.inf if self.on_arrival else self.last_out
+
     def push(self, m: Sample) -> None:
+        if self.on_arrival:
+            self.ready.append(m)
+            return
         if m.t < self.last_out:
-            self.stats.bad("late", _source_key(m))
+            self.stats.bad("late", sample_key(m))
             return
         heapq.heappush(self.heap, (m.t, self.seq, m))
         self.seq += 1
         self.newest = max(self.newest, m.t)
 
     def pop_ready(self, flush: bool = False) -> Iterator[Sample]:
+        if self.on_arrival:
+            if self.ready:
+                out, self.ready = self.ready, []
+                if len(out) > 1:
+                    out.sort(key=_arrival_key)
+                for m in out:
+                    if m.t > self.last_out:
+                        self.last_out = m.t
+                    yield m
+            return
         limit = math.inf if flush else self.newest - self.window
         while self.heap and self.heap[0][0] <= limit:
             t, _, m = heapq.heappop(self.heap)
@@ -175,8 +202,19 @@ class _Reorder:
             yield m
 
 
-def _source_key(m) -> str:
-    return m.source + (".mag" if isinstance(m, MagSample) else "")
+def _arrival_key(m: Sample) -> tuple[float, bool]:
+    """Order of the items of one message released on arrival: time, then an IMU sample
+    after the other items of its time."""
+    return (m.t, type(m) is ImuSample)
+
+
+def sample_key(m: Sample) -> str:
+    """The name a sample is counted under in :class:`IngestStats` (``late``...): its
+    source, ``<source>.mag`` for the magnetometer of an IMU message (as
+    :func:`~uavest.ingest.convert.stat_key` counts the converted items)."""
+    if isinstance(m, MagSample) and not m.source.startswith("MAG"):
+        return m.source + ".mag"
+    return m.source
 
 
 _GPS_EPOCH = 315964800.0  # UNIX time of the GPS epoch (1980-01-06)
@@ -611,7 +649,7 @@ class MavlinkSource:
                 # time yet): onto the vehicle clock without moving it
                 # (timebase.retime_unix), never "late"
                 t = retime_unix(tu * 1e-6, rx, clock, None if gnss_no_time else
-                                systime.get(sysid), reorder.last_out)
+                                systime.get(sysid), reorder.floor)
                 if t is None:
                     st.bad("no_time", stat_key(good[0]))
                     continue
