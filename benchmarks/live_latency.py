@@ -11,8 +11,9 @@ Two latencies per estimate (attitude step or radar scan) emitted at wall time ``
 * **receipt -> estimate**: ``w`` minus the receive time (reader thread, ``time.time()``) of
   the first IMU message at or after the estimate's vehicle time, i.e. of the message whose
   arrival made the estimate possible. It includes the link's reorder window
-  (``--reorder-window``, vehicle time held to order messages: 0.05 s by default, 0 here
-  unless given), the queue and the engine.
+  (``--reorder-window``; by default 0, ``uavest run``'s: samples on arrival, a late one
+  applied at its time within ``--history``), the queue and the engine (with the history's
+  re-steps).
 * **engine**: from the sample entering the engine to the estimate (what the status line
   shows).
 
@@ -232,9 +233,12 @@ def main() -> None:
     ap.add_argument("--imu-rate", type=float, default=400.0, help="simulated IMU, Hz")
     ap.add_argument("--sets", default="default,no-radar-hybrid,radar-hybrid")
     ap.add_argument("--connect", help="attach to this vehicle/SITL instead of uavest sim")
-    ap.add_argument("--reorder-window", type=float, default=0.05,
+    ap.add_argument("--reorder-window", type=float, default=LiveConfig.reorder_window,
                     help="s of vehicle time the link holds to order messages (default "
-                    "0.05, uavest run's; 0 drops GLOBAL_POSITION_INT as late)")
+                    f"{LiveConfig.reorder_window:g}, uavest run's: on arrival)")
+    ap.add_argument("--history", type=float, default=LiveConfig.history_s,
+                    help="on arrival: s kept to apply late samples at their time (default "
+                    f"{LiveConfig.history_s:g}, uavest run's)")
     ap.add_argument("--pin", action=argparse.BooleanOptionalAction, default=True,
                     help="pin this process to one core (default on)")
     ap.add_argument("--scan-hz", type=float, default=10.0, help="virtual radar scan rate")
@@ -265,6 +269,7 @@ def main() -> None:
             cfg = LiveConfig(connect=conn, duration=a.duration, filters=filters,
                              tlog=str(Path(d) / "session.tlog"),
                              trackers=trackers, reorder_window=a.reorder_window,
+                             history_s=a.history,
                              radar=RadarConfig(period=1.0 / a.scan_hz, max_range=8000.0),
                              streams=streams, heartbeat_timeout=30.0)
             try:
@@ -280,8 +285,10 @@ def main() -> None:
             print(f"cProfile of set {name}, the engine over the session's tlog (thread CPU "
                   f"time; top 20 by own time):\n{prof}")
     src = a.connect or f"uavest sim, {a.targets} aircraft, IMU {a.imu_rate:g} Hz"
-    print(f"live latency ({src}; virtual radar {a.scan_hz:g} Hz; reorder window "
-          f"{a.reorder_window:g} s; {a.duration:g} s per set, first {a.settle:g} s left out; "
+    order = (f"on arrival, history {a.history:g} s" if not a.reorder_window > 0 else
+             f"reorder window {a.reorder_window:g} s")
+    print(f"live latency ({src}; virtual radar {a.scan_hz:g} Hz; {order}; "
+          f"{a.duration:g} s per set, first {a.settle:g} s left out; "
           f"{'one core' if a.pin else 'not pinned'}; load average "
           f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores); ms")
     print("receipt = receive time of the message completing the estimate -> estimate "
@@ -300,8 +307,9 @@ def main() -> None:
             c50, c95, c99 = _percentiles(cl[kind])
             if kind == "attitude":
                 late = doc["link"]["bad_data"].get("late", 0)
+                rw = sum(v["rewinds"] for v in doc["history"]["lanes"].values())
                 extra = (f"IMU {imu_hz:.0f} Hz in; {doc['steps'] - doc['scans']} steps; "
-                         f"late {late}")
+                         f"late {late}, applied at their time {rw}")
             else:
                 extra = (f"{doc['scans']} scans, {doc['targets_seen']} aircraft; ms/scan " +
                          ", ".join(f"{k} {v['us_per_scan'] / 1e3:.1f}"
