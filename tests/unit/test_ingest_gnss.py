@@ -324,3 +324,39 @@ def test_on_arrival_releases_every_sample_as_it_comes_and_counts_none_late(tmp_p
     for i, s in enumerate(got):
         if isinstance(s, ImuSample):
             assert isinstance(got[i - 1], MagSample) and got[i - 1].t == s.t
+
+
+def test_on_arrival_releases_a_receive_burst_in_time_order(tmp_path):
+    """The messages of one read (one receive time, as a tlog records them) are released
+    together in time order: a velocity stamped 1 ms before the IMU sample read with it
+    comes first (a step ending at that IMU sample is complete when it arrives); across
+    receive times nothing is reordered."""
+    from uavest.ingest import ImuSample, PositionSample, open_source
+
+    p = tmp_path / "b.tlog"
+    w = TlogWriter(p)
+    for i in range(40):
+        t_ms = 10_000 + 20 * i
+        rx = BOOT_UNIX + t_ms * 1e-3 + 0.003
+        w.write(imu(t_ms), rx)
+        if i % 5 == 4:  # in the IMU's burst, stamped before it
+            w.write(ml.MAVLink_global_position_int_message(
+                t_ms - 1, 473977420, 85455940, 488_000, 20_000, 100, 0, 0, 9000), rx)
+        if i % 5 == 2:  # in a burst of its own after the IMU's, stamped before it
+            w.write(ml.MAVLink_global_position_int_message(
+                t_ms - 1, 473977420, 85455940, 488_000, 20_000, 100, 0, 0, 9000), rx + 1e-3)
+    w.close()
+    got = [s for s in open_source(p, reorder_window=0.0)
+           if isinstance(s, ImuSample | PositionSample) and s.source != "GPS_RAW_INT"]
+    same, own = 0, 0
+    for i, s in enumerate(got):
+        if isinstance(s, PositionSample):
+            t_ms = round(s.t * 1000) + 1  # the IMU's time it was written with
+            if t_ms % 100 == 80:  # read with that IMU sample: released before it
+                assert isinstance(got[i + 1], ImuSample) and round(got[i + 1].t * 1000) == t_ms
+                same += 1
+            else:  # read after that IMU sample: released after it, as it came
+                assert t_ms % 100 == 40
+                assert isinstance(got[i - 1], ImuSample) and round(got[i - 1].t * 1000) == t_ms
+                own += 1
+    assert same == own == 8

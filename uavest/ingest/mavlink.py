@@ -148,15 +148,24 @@ def gate_time(raw: Raw, t: float) -> float:
     return t
 
 
+#: A live link's mark after the messages of one read of its connection (one receive
+#: burst, one receive time): ``(None, BURST_END)`` from ``_messages``.
+BURST_END = object()
+
+
 class _Reorder:
     """Small heap that releases measurements in time order once older than ``window`` s.
 
-    ``window`` <= 0 is **on arrival**: nothing is held or reordered; the items of each
-    message are released as soon as it is accepted (in time order within the message, an
-    IMU sample after the other parts of its message, e.g. HIGHRES_IMU's magnetometer, so a
-    step that ends at it is complete when it arrives), and an item older than one
-    released before is not ``late`` here: ordering is then the consumer's (the engine's
-    bounded history, :mod:`uavest.engine.history`)."""
+    ``window`` <= 0 is **on arrival**: nothing waits for newer samples. The items of one
+    receive burst (the messages of one read of the connection, which share their receive
+    time: a tlog replays the same bursts) are released together as soon as the burst is
+    complete (at the link's end-of-read mark, or when a message of another receive time
+    comes; without receive times each message is a burst), in time order within the
+    burst, an IMU sample after the other items of its time (a step that ends at it is
+    then complete when it arrives: the magnetometer of its message or of another message
+    read with it). An item older than one released before is not ``late`` here: ordering
+    across bursts is the consumer's (the engine's bounded history,
+    :mod:`uavest.engine.history`)."""
 
     def __init__(self, window: float, stats: IngestStats) -> None:
         self.window = window
@@ -186,7 +195,7 @@ class _Reorder:
 
     def pop_ready(self, flush: bool = False) -> Iterator[Sample]:
         if self.on_arrival:
-            if self.ready:
+            if flush and self.ready:  # the end of a burst
                 out, self.ready = self.ready, []
                 if len(out) > 1:
                     out.sort(key=_arrival_key)
@@ -580,13 +589,21 @@ class MavlinkSource:
                         st.bad(kind, stat_key(raw))
 
         self._reorder = reorder
+        arrival = reorder.on_arrival
+        burst_rx: float | None = None  # receive time of the burst being read (on arrival)
         for msg, rx in self._messages():
             if msg is None:  # live: a link event (rx holds it); flush what is buffered first
+                if rx is BURST_END:  # the end of a read: its burst is complete
+                    yield from reorder.pop_ready(flush=arrival)
+                    continue
                 yield from reorder.pop_ready(flush=True)
                 if rx is not None:
                     t_ev = reorder.last_out if math.isfinite(reorder.last_out) else 0.0
                     yield dataclasses.replace(rx, t=t_ev)
                 continue
+            if arrival and rx != burst_rx:  # a new burst: the one before is complete
+                yield from reorder.pop_ready(flush=True)
+                burst_rx = rx
             if rx is not None and self.params.date is None:  # the log's own date
                 self.params.set_date(rx, "tlog's receive times")
             if type(msg) is Skipped:  # a record no converter uses: only its system counts
@@ -655,7 +672,7 @@ class MavlinkSource:
                     continue
                 st.retimed += 1
                 finish([(t, (sysid, good))])
-                yield from reorder.pop_ready()
+                yield from reorder.pop_ready(flush=arrival and rx is None)
                 continue
             raw_t = self._vehicle_time(msg, clock)
             if raw_t is None:
@@ -668,7 +685,7 @@ class MavlinkSource:
                 accepted = clock.push(raw_t, rx, (sysid, good))
                 drain(clock)
                 finish(accepted)
-            yield from reorder.pop_ready()
+            yield from reorder.pop_ready(flush=arrival and rx is None)
         for clock in clocks.values():
             finish(clock.flush())
             drain(clock)
