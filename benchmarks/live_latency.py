@@ -2,9 +2,10 @@
 
 The built-in simulator (a subprocess, ``uavest sim``, real time) sends the IMU at the
 scenario's rate (400 Hz) and ADS-B for ``--targets`` aircraft over loopback UDP; the live
-estimator (this process, pinned to one core) runs with the virtual radar scanning at
-10 Hz. Or ``--connect`` attaches to a running vehicle/SITL instead (e.g. the ArduCopter
-SITL of ../shared/sitl on tcp:127.0.0.1:5763 while fly.py flies it).
+estimator (this process, pinned to one core; the simulator on the others) runs with the
+virtual radar scanning at 10 Hz. Or ``--connect`` attaches to a running vehicle/SITL
+instead (e.g. the ArduCopter SITL of ../shared/sitl on tcp:127.0.0.1:5763 while fly.py
+flies it).
 
 Two latencies per estimate (attitude step or radar scan) emitted at wall time ``w``:
 
@@ -245,8 +246,13 @@ def main() -> None:
     ap.add_argument("--settle", type=float, default=5.0, help="s left out at the start")
     ap.add_argument("--profile", action="store_true", help="cProfile the first set")
     a = ap.parse_args()
-    if a.pin and hasattr(os, "sched_setaffinity"):
-        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
+    cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    sim_cores = set(cores)
+    if a.pin and cores:
+        os.sched_setaffinity(0, {cores[0]})
+        # the simulator is the vehicle: on the other cores (when there are any), not
+        # sharing the estimator's (a child inherits its parent's affinity)
+        sim_cores = set(cores[1:]) or set(cores)
     table = []
     for k, name in enumerate(a.sets.split(",")):
         filters, trackers = SETS[name]
@@ -266,6 +272,8 @@ def main() -> None:
                     [sys.executable, "-m", "uavest", "sim", str(scen), "--out",
                      f"udpout:127.0.0.1:{port}", "--imu-rate", str(a.imu_rate),
                      "--duration", str(a.duration + 60), "--quiet", "--wait"], env=env)
+                if sim_cores:
+                    os.sched_setaffinity(sim.pid, sim_cores)
             cfg = LiveConfig(connect=conn, duration=a.duration, filters=filters,
                              tlog=str(Path(d) / "session.tlog"),
                              trackers=trackers, reorder_window=a.reorder_window,
@@ -289,7 +297,8 @@ def main() -> None:
              f"reorder window {a.reorder_window:g} s")
     print(f"live latency ({src}; virtual radar {a.scan_hz:g} Hz; {order}; "
           f"{a.duration:g} s per set, first {a.settle:g} s left out; "
-          f"{'one core' if a.pin else 'not pinned'}; load average "
+          f"{f'estimator on core {cores[0]}' if a.pin and cores else 'not pinned'}; "
+          f"{'' if a.connect else f'simulator on cores {sorted(sim_cores)}; '}load average "
           f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores); ms")
     print("receipt = receive time of the message completing the estimate -> estimate "
           "emitted (wall); engine cpu = this thread's CPU time from the sample entering the "
@@ -307,9 +316,12 @@ def main() -> None:
             c50, c95, c99 = _percentiles(cl[kind])
             if kind == "attitude":
                 late = doc["link"]["bad_data"].get("late", 0)
-                rw = sum(v["rewinds"] for v in doc["history"]["lanes"].values())
+                h = list(doc["history"]["lanes"].values())
+                rw = sum(v["rewinds"] for v in h)
+                deep = max((v["deepest_s"] for v in h), default=0.0)
                 extra = (f"IMU {imu_hz:.0f} Hz in; {doc['steps'] - doc['scans']} steps; "
-                         f"late {late}, applied at their time {rw}")
+                         f"late {late}; applied at their time {rw} (deepest "
+                         f"{1e3 * deep:.0f} ms)")
             else:
                 extra = (f"{doc['scans']} scans, {doc['targets_seen']} aircraft; ms/scan " +
                          ", ".join(f"{k} {v['us_per_scan'] / 1e3:.1f}"

@@ -297,7 +297,7 @@ class LaneHistory:
         b = self.builder
         items = b.push(s)
         n = self._emit(items) if items else 0
-        if items or b.committed != self.t_ck:  # items made (or steps closed without any)
+        if items or (sens and b.committed != self.t_ck):  # (or steps closed without any)
             self._checkpoint()
         return n
 
