@@ -245,6 +245,8 @@ def main() -> None:
     ap.add_argument("--scan-hz", type=float, default=10.0, help="virtual radar scan rate")
     ap.add_argument("--settle", type=float, default=5.0, help="s left out at the start")
     ap.add_argument("--profile", action="store_true", help="cProfile the first set")
+    ap.add_argument("--model", default="attitude", choices=("attitude", "nav"),
+                    help="the attitude lane's model (nav: GNSS-aided navigation)")
     a = ap.parse_args()
     cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
     sim_cores = set(cores)
@@ -277,7 +279,7 @@ def main() -> None:
             cfg = LiveConfig(connect=conn, duration=a.duration, filters=filters,
                              tlog=str(Path(d) / "session.tlog"),
                              trackers=trackers, reorder_window=a.reorder_window,
-                             history_s=a.history,
+                             history_s=a.history, model=a.model,
                              radar=RadarConfig(period=1.0 / a.scan_hz, max_range=8000.0),
                              streams=streams, heartbeat_timeout=30.0)
             try:
@@ -295,7 +297,7 @@ def main() -> None:
     src = a.connect or f"uavest sim, {a.targets} aircraft, IMU {a.imu_rate:g} Hz"
     order = (f"on arrival, history {a.history:g} s" if not a.reorder_window > 0 else
              f"reorder window {a.reorder_window:g} s")
-    print(f"live latency ({src}; virtual radar {a.scan_hz:g} Hz; {order}; "
+    print(f"live latency ({src}; {a.model} model; virtual radar {a.scan_hz:g} Hz; {order}; "
           f"{a.duration:g} s per set, first {a.settle:g} s left out; "
           f"{f'estimator on core {cores[0]}' if a.pin and cores else 'not pinned'}; "
           f"{'' if a.connect else f'simulator on cores {sorted(sim_cores)}; '}load average "

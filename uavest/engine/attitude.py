@@ -81,7 +81,7 @@ from .records import Start, Step
 
 Array = np.ndarray
 
-__all__ = ["DEFAULT_MAX_RATE_HZ", "AttitudeOptions", "AttitudeStream"]
+__all__ = ["DEFAULT_MAX_RATE_HZ", "AttitudeOptions", "AttitudeStream", "StreamSnapshots"]
 
 DEFAULT_MAX_RATE_HZ = 25.0
 #: An IMU interval longer than max(GAP_MIN_S, GAP_MEDIANS x the median interval of the
@@ -345,7 +345,28 @@ def _preintegrate(t0: float, block: list[ImuSample], g0: Array | None = None
     return qlog_f(q)
 
 
-class AttitudeStream:
+class StreamSnapshots:
+    """``snapshot`` / ``restore`` of a step builder (:class:`AttitudeStream`,
+    :class:`~uavest.engine.navigation.NavStream`) for the engine's history
+    (:mod:`uavest.engine.history`): every attribute but the shared ones (the sample
+    iterable, the options, the source's parameters, the state space), the decisions as
+    their number (only ever appended)."""
+
+    summary: dict[str, Any]
+    decisions: list[dict[str, Any]]
+
+    def snapshot(self) -> dict[str, Any]:
+        """This moment of the stream, for :meth:`restore`."""
+        return snapshot_vars(self, skip=("samples", "opts", "params", "space"),
+                             appended=("decisions",))
+
+    def restore(self, snap: dict[str, Any]) -> None:
+        restore_vars(self, snap)
+        if "decisions" in self.summary:
+            self.summary["decisions"] = self.decisions
+
+
+class AttitudeStream(StreamSnapshots):
     """One :class:`Start` then :class:`Step` s from a sample stream (see the module
     docstring). Push samples one at a time (:meth:`push`, :meth:`flush`: each returns the
     items it completed), or iterate it over ``samples``. :attr:`summary` describes what
@@ -423,16 +444,6 @@ class AttitudeStream:
                 self._pos is None and self.opts.accel_comp == "auto"
                 and s.vel_ned is not None)
         return False
-
-    def snapshot(self) -> dict[str, Any]:
-        """This moment of the stream, for :meth:`restore`."""
-        return snapshot_vars(self, skip=("samples", "opts", "params", "space"),
-                             appended=("decisions",))
-
-    def restore(self, snap: dict[str, Any]) -> None:
-        restore_vars(self, snap)
-        if "decisions" in self.summary:
-            self.summary["decisions"] = self.decisions
 
     # ------------------------------------------------------------------ pushing
     def push(self, s: Sample) -> list[Start | Step]:

@@ -113,58 +113,57 @@ _LEAF = (int, float, str, bytes, bool, complex, type(None), np.ndarray, np.gener
          frozenset, range)
 
 
+_OWN = object()  # a leaf rule's "not mine": the value is copied as a container or kept
+
+
+def _copy(v: Any, leaf: Callable[[Any], Any]) -> Any:
+    """``v`` with its containers (list, dict, tuple, deque, set) and mutable dataclass
+    instances copied all the way down, every other value through ``leaf`` (which returns
+    ``_OWN`` for a value it does not handle: kept as it is)."""
+    t = type(v)
+    if t in _LEAF:
+        return v
+    if t is list:
+        return [_copy(x, leaf) for x in v]
+    if t is dict:
+        return {k: _copy(x, leaf) for k, x in v.items()}
+    if t is tuple:
+        return tuple(_copy(x, leaf) for x in v)
+    if t is deque:
+        return deque((_copy(x, leaf) for x in v), v.maxlen)
+    if t is set:
+        return set(v)
+    out = leaf(v)
+    if out is not _OWN:
+        return out
+    if dataclasses.is_dataclass(v) and not isinstance(v, type) and \
+            not type(v).__dataclass_params__.frozen:  # type: ignore[attr-defined]
+        c = copy.copy(v)
+        for f in dataclasses.fields(v):
+            setattr(c, f.name, _copy(getattr(v, f.name), leaf))
+        return c
+    return v
+
+
+def _freeze_leaf(v: Any) -> Any:
+    if isinstance(v, np.random.Generator):
+        return _Rng(v)
+    if hasattr(v, "snapshot") and hasattr(v, "restore"):
+        return _Nested(v)
+    return _OWN
+
+
 def _freeze(v: Any) -> Any:
     """A copy of ``v`` that later changes to ``v`` cannot reach: containers (list, dict,
     deque, set, tuple) copied all the way down, a mutable dataclass instance copied with
     its fields, a numpy Generator as its state, an object with ``snapshot`` as its
     snapshot. Anything else (numbers, strings, numpy arrays, frozen dataclasses such as
     the samples, models) is shared: it is never changed in place."""
+    return _copy(v, _freeze_leaf)
+
+
+def _thaw_leaf(v: Any) -> Any:
     t = type(v)
-    if t in _LEAF:
-        return v
-    if t is list:
-        return [_freeze(x) for x in v]
-    if t is dict:
-        return {k: _freeze(x) for k, x in v.items()}
-    if t is tuple:
-        return tuple(_freeze(x) for x in v)
-    if t is deque:
-        return deque((_freeze(x) for x in v), v.maxlen)
-    if t is set:
-        return set(v)
-    if isinstance(v, np.random.Generator):
-        return _Rng(v)
-    if hasattr(v, "snapshot") and hasattr(v, "restore"):
-        return _Nested(v)
-    if _mutable_dataclass(v):
-        c = copy.copy(v)
-        for f in dataclasses.fields(v):
-            setattr(c, f.name, _freeze(getattr(v, f.name)))
-        return c
-    return v
-
-
-def _mutable_dataclass(v: Any) -> bool:
-    return (dataclasses.is_dataclass(v) and not isinstance(v, type)
-            and not type(v).__dataclass_params__.frozen)  # type: ignore[attr-defined]
-
-
-def _thaw(v: Any) -> Any:
-    """The value to put back from :func:`_freeze`'s copy, copied again (a snapshot can
-    be restored more than once)."""
-    t = type(v)
-    if t in _LEAF:
-        return v
-    if t is list:
-        return [_thaw(x) for x in v]
-    if t is dict:
-        return {k: _thaw(x) for k, x in v.items()}
-    if t is tuple:
-        return tuple(_thaw(x) for x in v)
-    if t is deque:
-        return deque((_thaw(x) for x in v), v.maxlen)
-    if t is set:
-        return set(v)
     if t is _Nested:
         v.obj.restore(v.snap)
         return v.obj
@@ -174,12 +173,13 @@ def _thaw(v: Any) -> Any:
     if t is _Appended:
         del v.lst[v.n:]
         return v.lst
-    if _mutable_dataclass(v):
-        c = copy.copy(v)
-        for f in dataclasses.fields(v):
-            setattr(c, f.name, _thaw(getattr(v, f.name)))
-        return c
-    return v
+    return _OWN
+
+
+def _thaw(v: Any) -> Any:
+    """The value to put back from :func:`_freeze`'s copy, copied again (a snapshot can
+    be restored more than once)."""
+    return _copy(v, _thaw_leaf)
 
 
 def snapshot_vars(obj: Any, skip: Iterable[str] = (), appended: Iterable[str] = ()

@@ -77,13 +77,13 @@ from .attitude import (
     DEFAULT_MAX_RATE_HZ,
     GAP_MEDIANS,
     GAP_MIN_S,
+    StreamSnapshots,
     _Gap,
     _Raw,
     _StepBuilder,
     failover_rate,
     step_plan,
 )
-from .history import restore_vars, snapshot_vars
 from .records import NavAnchor, Start, Step
 from .runner import FilterRunner
 
@@ -262,7 +262,7 @@ class _NavBuilder(_StepBuilder):
         return r
 
 
-class NavStream:
+class NavStream(StreamSnapshots):
     """One :class:`Start` then navigation :class:`Step` s from a sample stream (module
     docstring). :meth:`push` / :meth:`flush` return the items they completed; iterating
     runs over ``samples``. :attr:`summary` has the keys of the attitude stream's summary
@@ -358,16 +358,6 @@ class NavStream:
         if isinstance(s, BaroSample):
             return self.opts.use_baro and (self._baro is None or s.source == self._baro)
         return False
-
-    def snapshot(self) -> dict[str, Any]:
-        """This moment of the stream, for :meth:`restore`."""
-        return snapshot_vars(self, skip=("samples", "opts", "params", "space"),
-                             appended=("decisions",))
-
-    def restore(self, snap: dict[str, Any]) -> None:
-        restore_vars(self, snap)
-        if "decisions" in self.summary:
-            self.summary["decisions"] = self.decisions
 
     # ------------------------------------------------------------------ pushing
     def push(self, s: Any) -> list[Start | Step]:
