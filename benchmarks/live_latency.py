@@ -2,17 +2,19 @@
 
 The built-in simulator (a subprocess, ``uavest sim``, real time) sends the IMU at the
 scenario's rate (400 Hz) and ADS-B for ``--targets`` aircraft over loopback UDP; the live
-estimator (this process, pinned to one core) runs with the virtual radar scanning at
-10 Hz. Or ``--connect`` attaches to a running vehicle/SITL instead (e.g. the ArduCopter
-SITL of ../shared/sitl on tcp:127.0.0.1:5763 while fly.py flies it).
+estimator (this process, pinned to one core; the simulator on the others) runs with the
+virtual radar scanning at 10 Hz. Or ``--connect`` attaches to a running vehicle/SITL
+instead (e.g. the ArduCopter SITL of ../shared/sitl on tcp:127.0.0.1:5763 while fly.py
+flies it).
 
 Two latencies per estimate (attitude step or radar scan) emitted at wall time ``w``:
 
 * **receipt -> estimate**: ``w`` minus the receive time (reader thread, ``time.time()``) of
   the first IMU message at or after the estimate's vehicle time, i.e. of the message whose
   arrival made the estimate possible. It includes the link's reorder window
-  (``--reorder-window``, vehicle time held to order messages: 0.05 s by default, 0 here
-  unless given), the queue and the engine.
+  (``--reorder-window``; by default 0, ``uavest run``'s: samples on arrival, a late one
+  applied at its time within ``--history``), the queue and the engine (with the history's
+  re-steps).
 * **engine**: from the sample entering the engine to the estimate (what the status line
   shows).
 
@@ -232,17 +234,27 @@ def main() -> None:
     ap.add_argument("--imu-rate", type=float, default=400.0, help="simulated IMU, Hz")
     ap.add_argument("--sets", default="default,no-radar-hybrid,radar-hybrid")
     ap.add_argument("--connect", help="attach to this vehicle/SITL instead of uavest sim")
-    ap.add_argument("--reorder-window", type=float, default=0.05,
+    ap.add_argument("--reorder-window", type=float, default=LiveConfig.reorder_window,
                     help="s of vehicle time the link holds to order messages (default "
-                    "0.05, uavest run's; 0 drops GLOBAL_POSITION_INT as late)")
+                    f"{LiveConfig.reorder_window:g}, uavest run's: on arrival)")
+    ap.add_argument("--history", type=float, default=LiveConfig.history_s,
+                    help="on arrival: s kept to apply late samples at their time (default "
+                    f"{LiveConfig.history_s:g}, uavest run's)")
     ap.add_argument("--pin", action=argparse.BooleanOptionalAction, default=True,
                     help="pin this process to one core (default on)")
     ap.add_argument("--scan-hz", type=float, default=10.0, help="virtual radar scan rate")
     ap.add_argument("--settle", type=float, default=5.0, help="s left out at the start")
     ap.add_argument("--profile", action="store_true", help="cProfile the first set")
+    ap.add_argument("--model", default="attitude", choices=("attitude", "nav"),
+                    help="the attitude lane's model (nav: GNSS-aided navigation)")
     a = ap.parse_args()
-    if a.pin and hasattr(os, "sched_setaffinity"):
-        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
+    cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    sim_cores = set(cores)
+    if a.pin and cores:
+        os.sched_setaffinity(0, {cores[0]})
+        # the simulator is the vehicle: on the other cores (when there are any), not
+        # sharing the estimator's (a child inherits its parent's affinity)
+        sim_cores = set(cores[1:]) or set(cores)
     table = []
     for k, name in enumerate(a.sets.split(",")):
         filters, trackers = SETS[name]
@@ -262,9 +274,12 @@ def main() -> None:
                     [sys.executable, "-m", "uavest", "sim", str(scen), "--out",
                      f"udpout:127.0.0.1:{port}", "--imu-rate", str(a.imu_rate),
                      "--duration", str(a.duration + 60), "--quiet", "--wait"], env=env)
+                if sim_cores:
+                    os.sched_setaffinity(sim.pid, sim_cores)
             cfg = LiveConfig(connect=conn, duration=a.duration, filters=filters,
                              tlog=str(Path(d) / "session.tlog"),
                              trackers=trackers, reorder_window=a.reorder_window,
+                             history_s=a.history, model=a.model,
                              radar=RadarConfig(period=1.0 / a.scan_hz, max_range=8000.0),
                              streams=streams, heartbeat_timeout=30.0)
             try:
@@ -280,9 +295,12 @@ def main() -> None:
             print(f"cProfile of set {name}, the engine over the session's tlog (thread CPU "
                   f"time; top 20 by own time):\n{prof}")
     src = a.connect or f"uavest sim, {a.targets} aircraft, IMU {a.imu_rate:g} Hz"
-    print(f"live latency ({src}; virtual radar {a.scan_hz:g} Hz; reorder window "
-          f"{a.reorder_window:g} s; {a.duration:g} s per set, first {a.settle:g} s left out; "
-          f"{'one core' if a.pin else 'not pinned'}; load average "
+    order = (f"on arrival, history {a.history:g} s" if not a.reorder_window > 0 else
+             f"reorder window {a.reorder_window:g} s")
+    print(f"live latency ({src}; {a.model} model; virtual radar {a.scan_hz:g} Hz; {order}; "
+          f"{a.duration:g} s per set, first {a.settle:g} s left out; "
+          f"{f'estimator on core {cores[0]}' if a.pin and cores else 'not pinned'}; "
+          f"{'' if a.connect else f'simulator on cores {sorted(sim_cores)}; '}load average "
           f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores); ms")
     print("receipt = receive time of the message completing the estimate -> estimate "
           "emitted (wall); engine cpu = this thread's CPU time from the sample entering the "
@@ -300,8 +318,12 @@ def main() -> None:
             c50, c95, c99 = _percentiles(cl[kind])
             if kind == "attitude":
                 late = doc["link"]["bad_data"].get("late", 0)
+                h = list(doc["history"]["lanes"].values())
+                rw = sum(v["rewinds"] for v in h)
+                deep = max((v["deepest_s"] for v in h), default=0.0)
                 extra = (f"IMU {imu_hz:.0f} Hz in; {doc['steps'] - doc['scans']} steps; "
-                         f"late {late}")
+                         f"late {late}; applied at their time {rw} (deepest "
+                         f"{1e3 * deep:.0f} ms)")
             else:
                 extra = (f"{doc['scans']} scans, {doc['targets_seen']} aircraft; ms/scan " +
                          ", ".join(f"{k} {v['us_per_scan'] / 1e3:.1f}"

@@ -120,7 +120,8 @@ def test_sim_to_live_estimator_matches_truth_and_its_tlog_replays_the_same(tmp_p
         assert t["pos_rmse"] is not None and t["pos_rmse"] < 150.0, t  # sigma_r 10 m, 1 deg
     assert doc["link"]["declination_source"].startswith("param")
     # the recorded tlog, replayed through the same job, gives the same attitude estimates
-    src = open_source(tlog, sysid=doc["link"]["vehicle_sysid"], reorder_window=0.05)
+    src = open_source(tlog, sysid=doc["link"]["vehicle_sysid"],
+                      reorder_window=LiveConfig().reorder_window)
     again = Collector()
     run_samples(src, _cfg(port, trackers=()), params=src.params, sinks=[again], status=False)
     for label in ("ekf", "ukf", "hybrid"):
@@ -152,7 +153,8 @@ def test_live_navigation_model_against_the_simulator_and_its_tlog_replays_the_sa
         assert row["vel_rmse_ms"] is not None and row["vel_rmse_ms"] < 0.5, row
         assert row["hpos_rmse_m"] is not None and row["hpos_rmse_m"] < 3.0, row
         assert coll.arrays(label)["x"].shape[1] == 16
-    src = open_source(tlog, sysid=doc["link"]["vehicle_sysid"], reorder_window=0.05)
+    src = open_source(tlog, sysid=doc["link"]["vehicle_sysid"],
+                      reorder_window=LiveConfig().reorder_window)
     again = Collector()
     run_samples(src, _cfg(port, trackers=(), model="nav", filters=("ekf", "hybrid")),
                 params=src.params, sinks=[again], status=False)

@@ -295,3 +295,68 @@ def test_ulog_gnss_and_baro_rows_bad_ones_counted():
     d._baro("sensor_baro[1]", {"timestamp": np.array([1, 2], dtype=np.uint64),
                                "pressure": np.zeros(2)}, 1)
     assert "sensor_baro[1]" not in d.baro and d.stats.absent["sensor_baro[1]"] == 2
+
+
+def test_on_arrival_releases_every_sample_as_it_comes_and_counts_none_late(tmp_path):
+    """``reorder_window=0``: nothing held or reordered (the engine's history orders):
+    the fixes stamped 60 ms before they are sent come after newer IMU samples, not
+    ``late``; each stream stays in time order; a RAW_IMU's magnetometer comes before its
+    IMU sample (a step that ends at that sample is complete when it arrives); a short
+    reorder window drops those fixes as ``late``, a long one orders them."""
+    from uavest.ingest import GnssSample, ImuSample, MagSample, open_source
+
+    p = tmp_path / "a.tlog"
+    write_log(p, n=200)
+    arr = open_source(p, reorder_window=0.0)
+    got = list(arr)
+    ordered = list(open_source(p, reorder_window=1.0))
+    short = open_source(p, reorder_window=0.02)
+    n_short = sum(isinstance(s, GnssSample) for s in short)
+    assert arr.stats.late == 0 and short.stats.late > 0 and n_short < 20
+    key = lambda s: (type(s).__name__, s.source, s.t)  # noqa: E731
+    assert sorted(map(key, got)) == sorted(map(key, ordered))
+    assert [s.t for s in got] != sorted(s.t for s in got)  # as they came
+    for kind in (ImuSample, MagSample, GnssSample):
+        ts = [s.t for s in got if isinstance(s, kind)]
+        assert ts == sorted(ts) and len(ts) > 10
+    fix = next(i for i, s in enumerate(got) if isinstance(s, GnssSample))
+    assert any(isinstance(s, ImuSample) and s.t > got[fix].t for s in got[:fix])
+    for i, s in enumerate(got):
+        if isinstance(s, ImuSample):
+            assert isinstance(got[i - 1], MagSample) and got[i - 1].t == s.t
+
+
+def test_on_arrival_releases_a_receive_burst_in_time_order(tmp_path):
+    """The messages of one read (one receive time, as a tlog records them) are released
+    together in time order: a velocity stamped 1 ms before the IMU sample read with it
+    comes first (a step ending at that IMU sample is complete when it arrives); across
+    receive times nothing is reordered."""
+    from uavest.ingest import ImuSample, PositionSample, open_source
+
+    p = tmp_path / "b.tlog"
+    w = TlogWriter(p)
+    for i in range(40):
+        t_ms = 10_000 + 20 * i
+        rx = BOOT_UNIX + t_ms * 1e-3 + 0.003
+        w.write(imu(t_ms), rx)
+        if i % 5 == 4:  # in the IMU's burst, stamped before it
+            w.write(ml.MAVLink_global_position_int_message(
+                t_ms - 1, 473977420, 85455940, 488_000, 20_000, 100, 0, 0, 9000), rx)
+        if i % 5 == 2:  # in a burst of its own after the IMU's, stamped before it
+            w.write(ml.MAVLink_global_position_int_message(
+                t_ms - 1, 473977420, 85455940, 488_000, 20_000, 100, 0, 0, 9000), rx + 1e-3)
+    w.close()
+    got = [s for s in open_source(p, reorder_window=0.0)
+           if isinstance(s, ImuSample | PositionSample) and s.source != "GPS_RAW_INT"]
+    same, own = 0, 0
+    for i, s in enumerate(got):
+        if isinstance(s, PositionSample):
+            t_ms = round(s.t * 1000) + 1  # the IMU's time it was written with
+            if t_ms % 100 == 80:  # read with that IMU sample: released before it
+                assert isinstance(got[i + 1], ImuSample) and round(got[i + 1].t * 1000) == t_ms
+                same += 1
+            else:  # read after that IMU sample: released after it, as it came
+                assert t_ms % 100 == 40
+                assert isinstance(got[i - 1], ImuSample) and round(got[i - 1].t * 1000) == t_ms
+                own += 1
+    assert same == own == 8

@@ -39,6 +39,7 @@ import numpy as np
 from ..core.spec import FilterSpec
 from ..engine.attitude import AttitudeOptions, AttitudeStream
 from ..engine.build import build_filters
+from ..engine.history import restore_vars, snapshot_vars
 from ..engine.loop import Lane, run_lanes
 from ..engine.navigation import NavOptions, NavRunner, NavStream
 from ..engine.records import (
@@ -57,6 +58,7 @@ from ..eval.metrics import nees
 from ..eval.navigation import NavScorer
 from ..eval.tracking import track_quality
 from ..ingest.adsb_radar import AdsbRadar, RadarConfig, geodetic_to_ned
+from ..ingest.mavlink import sample_key
 from ..ingest.types import (
     AdsbSample,
     AttitudeRef,
@@ -113,7 +115,14 @@ class LiveConfig:
     signing_key: str | None = None
     tlog: str | None = None
     heartbeat_timeout: float = 30.0
-    reorder_window: float = 0.05
+    #: s of vehicle time the link holds samples to order them; 0 (default): on arrival,
+    #: each lane taking its samples as they come and applying a late one at its time
+    #: within ``history_s`` (:mod:`uavest.engine.history`)
+    reorder_window: float = 0.0
+    #: s of vehicle time a lane keeps to apply late samples (on arrival): the ArduCopter
+    #: SITL's GPS_RAW_INT arrives 0.21 s after its time, the built-in simulator's
+    #: GLOBAL_POSITION_INT up to 0.04 s after newer IMU samples (docs/live.md, "Latency")
+    history_s: float = 0.3
     duration: float | None = None  # wall seconds; None: until stopped
     rate_hz: float | None = None
     update_hz: float | None = None  # above 25 Hz: update rate cap (AttitudeOptions)
@@ -129,6 +138,11 @@ class LiveConfig:
     #: cannot look ahead for a fix stream, so the model is an option, not a decision.
     model: str = "attitude"
     gnss_delay: float | None = None  # s; None: the navigation model's default
+
+    @property
+    def on_arrival(self) -> bool:
+        """Samples on arrival (no reorder window), late ones applied by the history."""
+        return not self.reorder_window > 0
 
 
 # ----------------------------------------------------------------------- tracking lane
@@ -154,6 +168,12 @@ class _AdsbTruth:
         elif isinstance(s, AdsbSample) and self.origin is not None:
             v = np.zeros(3) if s.vel_ned is None else np.asarray(s.vel_ned, float)
             self.air[s.icao] = (s.t - s.tslc, geodetic_to_ned(s.lat_lon_alt, self.origin), v)
+
+    def snapshot(self) -> dict:
+        return snapshot_vars(self)
+
+    def restore(self, snap: dict) -> None:
+        restore_vars(self, snap)
 
     def at(self, t: float, max_range: float) -> dict[int, Array]:
         """ICAO -> ENU [e, n, u, ve, vn, vu] of every fresh aircraft within range."""
@@ -189,6 +209,31 @@ class TrackLane:
         self.t_last: float | None = None
         self.k = 0
         self.pose = SensorPose(np.zeros(3), np.eye(3), np.zeros(3))
+
+    # the engine's history (:mod:`uavest.engine.history`), samples on arrival: a detection
+    # of an OBSTACLE_DISTANCE_3D sweep already made into a scan is applied at its time
+    # (the trackers re-step from before that scan). The virtual radar's inputs are used as
+    # they arrive: an ADS-B report is timed by its arrival (never older than what came
+    # before it) and carried to each scan time with its own velocity, and the ownship fix
+    # is carried to the scan time with its velocity, so a fix that comes after a scan it
+    # is older than moves that scan's ownship by at most a dt^2 / 2 (a few cm at 5 m/s^2
+    # and 0.1 s, against 10 m of range noise); the sensor attitude and the scorer's truth
+    # are held as they arrive.
+    @property
+    def committed(self) -> float:
+        """Time (s) of the last scan made."""
+        return -np.inf if self.t_last is None else self.t_last
+
+    def order_sensitive(self, s) -> bool:
+        """The vehicle's own detections (``--radar-source obstacle``) only."""
+        return (self.virtual is None and isinstance(s, DetectionSample)
+                and s.source == "OBSTACLE_DISTANCE_3D")
+
+    def snapshot(self) -> dict:
+        return snapshot_vars(self, skip=("cfg", "model", "motion"), appended=("truth",))
+
+    def restore(self, snap: dict) -> None:
+        restore_vars(self, snap)
 
     def push(self, s) -> list:
         out: list = []
@@ -473,6 +518,19 @@ class _GapAware:
         ts = [d["t"] for d in self.decisions if d["what"] == "IMU"]
         return ts[0] if ts else None
 
+    @property
+    def committed(self) -> float:
+        return float(self.stream.committed)
+
+    def order_sensitive(self, s) -> bool:
+        return not isinstance(s, LinkEvent) and self.stream.order_sensitive(s)
+
+    def snapshot(self) -> dict:
+        return snapshot_vars(self, skip=("make",), appended=("_past",))
+
+    def restore(self, snap: dict) -> None:
+        restore_vars(self, snap)
+
     def push(self, s) -> list:
         if isinstance(s, LinkEvent):
             if s.kind == "link_restored" and (s.duration or 0.0) > self.bridge_s:
@@ -499,6 +557,19 @@ class _NoEvents:
 
     def __init__(self, b) -> None:
         self.b = b
+
+    @property
+    def committed(self) -> float:
+        return float(self.b.committed)
+
+    def order_sensitive(self, s) -> bool:
+        return not isinstance(s, LinkEvent) and self.b.order_sensitive(s)
+
+    def snapshot(self):
+        return self.b.snapshot()
+
+    def restore(self, snap) -> None:
+        self.b.restore(snap)
 
     def push(self, s) -> list:
         return [] if isinstance(s, LinkEvent) else self.b.push(s)
@@ -607,13 +678,20 @@ class _Guarded(Sink):
 def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
                 declination: Callable[[], float | None] | None = None, sinks=(),
                 info: RunInfo | None = None, link=None, status: bool | None = None,
-                failures: list | None = None) -> dict:
+                failures: list | None = None, stats=None) -> dict:
     """The live job over any sample stream (a live link, or a tlog for tests): both
     lanes, scorers, ``sinks``. Returns the result document. A sink that raises is
     stopped alone (:class:`_Guarded`); its :class:`SinkFailure` is appended to
-    ``failures`` and described in the document's ``sink_failures``."""
+    ``failures`` and described in the document's ``sink_failures``. With
+    ``cfg.on_arrival`` the lanes run with the engine's history (``cfg.history_s``); a
+    sample late beyond it is counted ``late`` (per source) in ``stats`` (default the
+    source's or the link's :class:`~uavest.ingest.types.IngestStats`)."""
     if cfg.model not in ("attitude", "nav"):
         raise InputError(f"--model must be attitude or nav for a live run, not {cfg.model!r}")
+    if not (math.isfinite(cfg.reorder_window) and 0 <= cfg.reorder_window <= 5):
+        raise InputError(f"--reorder-window must be from 0 to 5 s, got {cfg.reorder_window}")
+    if cfg.on_arrival and not (math.isfinite(cfg.history_s) and 0 < cfg.history_s <= 5):
+        raise InputError(f"--history must be more than 0 and at most 5 s, got {cfg.history_s}")
     nav = cfg.model == "nav"
     specs = (build_filters(resolve_list(cfg.filters, "attitude", dim=15 if nav else 6))
              if cfg.filters else [])
@@ -632,13 +710,20 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
     info = info or RunInfo("", cfg.connect, cfg.seed)
     info.filters = {sp.label: sp.as_dict() for sp, _ in specs}
     info.filters.update({f"track:{sp.label}": sp.as_dict() for sp, _ in tspecs})
-    lanes = [Lane(att, runners)] + ([Lane(_NoEvents(lane), trackers)] if trackers else [])
+    hist = cfg.history_s if cfg.on_arrival else 0.0
+    lanes = [Lane(att, runners, hist)] + (
+        [Lane(_NoEvents(lane), trackers, hist if lane.virtual is None else 0.0)]
+        if trackers else [])
+    stats = stats if stats is not None else getattr(samples, "stats", None)
+    if stats is None and link is not None:
+        stats = getattr(link, "stats", None)
     failures = [] if failures is None else failures
     sinks = [_Guarded(s.bind(lane) if isinstance(s, _LazyPublish) else s, failures)
              for s in sinks]
     wall0 = time.perf_counter()
+    late = None if stats is None else (lambda s: stats.bad("late", sample_key(s)))
     steps = run_lanes(samples, lanes, [_Score(scorer), *([_NavScore(nav_scorer)] if nav else []),
-                                       tscore, st, *sinks], info)
+                                       tscore, st, *sinks], info, late)
     wall = time.perf_counter() - wall0
     scorer.finish()
     nav_scorer.pos_from = getattr(att.stream, "fix_from", None)
@@ -652,9 +737,20 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
            "attitude_restarts": att.restarts,
            "decisions": att.decisions, "t_first": att.t_first,
            "sink_failures": [f.as_dict() for f in failures],
+           "history": _history_doc(cfg, lanes),
            "latency_ms": ({"p50": 1e3 * float(np.percentile(st.lat, 50)),
                            "p99": 1e3 * float(np.percentile(st.lat, 99))} if st.lat else None)}
     return doc
+
+
+def _history_doc(cfg: LiveConfig, lanes: list[Lane]) -> dict:
+    """The result document's ``history``: how the samples were ordered and, per lane run
+    with a history, what it did (:class:`~uavest.engine.history.HistoryStats`)."""
+    names = ("attitude", "tracking")
+    return {"on_arrival": cfg.on_arrival, "reorder_window_s": cfg.reorder_window,
+            "history_s": cfg.history_s if cfg.on_arrival else None,
+            "lanes": {n: ln.history.stats.as_dict()
+                      for n, ln in zip(names, lanes, strict=False) if ln.history is not None}}
 
 
 def _stream_factory(cfg: LiveConfig, params: dict | None,
@@ -666,9 +762,11 @@ def _stream_factory(cfg: LiveConfig, params: dict | None,
         d = declination() if declination is not None else None
         if cfg.model == "nav":
             return NavStream(opts=NavOptions(rate_hz=cfg.rate_hz, declination=d,
-                                             gnss_delay=cfg.gnss_delay), params=params)
+                                             gnss_delay=cfg.gnss_delay,
+                                             on_arrival=cfg.on_arrival), params=params)
         return AttitudeStream(opts=AttitudeOptions(rate_hz=cfg.rate_hz, update_hz=cfg.update_hz,
-                                                     declination=d),
+                                                     declination=d,
+                                                     on_arrival=cfg.on_arrival),
                               params=params)
     return make_stream
 
@@ -772,9 +870,11 @@ def run_live(cfg: LiveConfig, *, sinks=(), stop: threading.Event | None = None,
 def replay_session(cfg: LiveConfig, *, sinks=(), command: str = "",
                    failures: list | None = None) -> dict:
     """The live job over the tlog of a live session (``cfg.connect`` = its path): the same
-    lanes, seeds, reorder window (``cfg.reorder_window``, which must be the session's:
-    ``uavest run``'s default 0.05 s) and causal decisions (declination taken when the
-    stream gives it), so the attitude estimates are the live run's step by step; only the
+    lanes, seeds, ordering (``cfg.reorder_window`` and ``cfg.history_s``, which must be
+    the session's: ``uavest run``'s defaults, on arrival with a 0.3 s history; the tlog
+    holds the messages in the order they arrived, so every late sample is late again and
+    applied the same way) and causal decisions (declination taken when the stream gives
+    it), so the attitude estimates are the live run's step by step; only the
     last step differs (the live run closed it when it stopped; the tlog also holds what
     the link had accepted but the engine not yet used). ``uavest replay`` of the same tlog
     is a file replay: it looks ahead for the GNSS fix (the magnetic model's declination at

@@ -59,8 +59,14 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--update-rate", type=float, default=None, metavar="HZ",
                    help="above 25 Hz: accelerometer/magnetometer updates at most this often "
                    "(default 25; 0 = every step, weighted)")
-    p.add_argument("--reorder-window", type=float, default=0.05,
-                   help="s of vehicle time held to order messages (default 0.05)")
+    p.add_argument("--reorder-window", type=float, default=0.0,
+                   help="s of vehicle time the link holds messages to order them; 0 "
+                   "(default): on arrival, each estimate made as soon as its last sample "
+                   "arrives, a late sample applied at its time within --history")
+    p.add_argument("--history", type=float, default=0.3, metavar="S",
+                   help="on arrival: s of vehicle time kept to apply late samples at their "
+                   "time (re-stepping the filters from before them; older ones are counted "
+                   "late and skipped; default 0.3)")
     p.add_argument("--no-status", action="store_true", help="no live status line")
     p.add_argument("--model", default="attitude", choices=("attitude", "nav"),
                    help="attitude: attitude + gyro bias (default); nav: the GNSS-aided "
@@ -118,7 +124,8 @@ def _cfg(args, connect: str) -> LiveConfig:
         seed=args.seed, sysid=getattr(args, "sysid", None),
         signing_key=getattr(args, "signing_key", None), tlog=args.tlog,
         heartbeat_timeout=getattr(args, "heartbeat_timeout", 30.0),
-        reorder_window=args.reorder_window, duration=args.duration, rate_hz=args.rate,
+        reorder_window=args.reorder_window, history_s=args.history,
+        duration=args.duration, rate_hz=args.rate,
         update_hz=getattr(args, "update_rate", None),
         radar_source=args.radar_source, radar=_radar(args), model=args.model,
         gnss_delay=args.gnss_delay)
@@ -162,6 +169,12 @@ def format_live(doc: dict) -> str:
         lat = doc["latency_ms"]
         lines.append(f"latency sample -> estimate: p50 {lat['p50']:.2f} ms, "
                      f"p99 {lat['p99']:.2f} ms")
+    hist = doc.get("history") or {}
+    if hist.get("on_arrival"):
+        lanes = hist.get("lanes", {}).values()
+        lines.append(f"samples on arrival: {sum(v['rewinds'] for v in lanes)} late ones "
+                     f"applied at their time (history {hist['history_s']:g} s), "
+                     f"{sum(v['late'] for v in lanes)} older skipped (counted late)")
     return "\n".join(lines)
 
 

@@ -36,7 +36,11 @@ with the reason), and for an unknown message trapezoid below 20 Hz, else hold.
 ``rate_hz`` (default :data:`DEFAULT_MAX_RATE_HZ`) caps the filter rate; ``rate_hz = 0``
 runs at the IMU rate.
 A step is closed when the first sample later than its end arrives (a magnetometer sample
-with the same time stamp as the step's last IMU sample still belongs to it).
+with the same time stamp as the step's last IMU sample still belongs to it); with
+``on_arrival`` (a live link releasing samples as they arrive, run with the engine's
+history, :mod:`uavest.engine.history`) at the IMU sample that ends it, the link having
+released the other items of that message before it: a sample of the step's time or older
+that comes later is late and the history applies it.
 
 Vehicle acceleration (NED, m/s^2) at a step's end is the backward difference of the last
 two velocity samples at or before it (none when they are more than 1 s apart or old):
@@ -72,11 +76,12 @@ from ..models.attitude import (
     noise_for_source,
     triad_attitude,
 )
+from .history import restore_vars, snapshot_vars
 from .records import Start, Step
 
 Array = np.ndarray
 
-__all__ = ["DEFAULT_MAX_RATE_HZ", "AttitudeOptions", "AttitudeStream"]
+__all__ = ["DEFAULT_MAX_RATE_HZ", "AttitudeOptions", "AttitudeStream", "StreamSnapshots"]
 
 DEFAULT_MAX_RATE_HZ = 25.0
 #: An IMU interval longer than max(GAP_MIN_S, GAP_MEDIANS x the median interval of the
@@ -129,7 +134,8 @@ class AttitudeOptions:
     ``imu`` an IMU source name or None (the stream's choice); ``mag_mode`` "field" (3-D
     direction) or "heading"; ``mag_delay`` s, the magnetometer sample's age, compensated
     with the step's gyro rate; ``accel_comp`` "auto" (use a velocity source when there is
-    one) or "none"."""
+    one) or "none"; ``on_arrival``: samples come as they arrive, steps are made at the
+    IMU sample that ends them (module docstring)."""
 
     start: float | None = None
     end: float | None = None
@@ -144,6 +150,7 @@ class AttitudeOptions:
     mag_mode: str = "field"
     mag_delay: float = 0.0
     align_s: float = 1.0
+    on_arrival: bool = False
 
     def in_window(self, t: float) -> bool:
         """True if ``t`` (s) lies in [start, end]."""
@@ -189,8 +196,10 @@ class _StepBuilder:
     """Streaming pre-integration and grouping (see the module docstring)."""
 
     def __init__(self, integration: str, factor: int, use_pos: bool, ref: int = 1,
-                 every: int = 1) -> None:
+                 every: int = 1, close_now: bool = False) -> None:
         self.integration = integration
+        self.close_now = close_now  # finish a step at the IMU sample that ends it
+        self.t_done = -np.inf  # end of the last finished step (s)
         self.factor = factor
         self.every = every  # steps per accelerometer/magnetometer update
         self.since = 0  # steps since the last update
@@ -209,7 +218,15 @@ class _StepBuilder:
         self.gap_s = np.inf  # an IMU interval longer than this (s) is a gap
         self.gaps: list[tuple[float, float]] = []  # (start, end) s of each gap
 
+    def snapshot(self) -> dict[str, Any]:
+        """This moment, for :meth:`restore` (:mod:`uavest.engine.history`)."""
+        return snapshot_vars(self, appended=("gaps",))
+
+    def restore(self, snap: dict[str, Any]) -> None:
+        restore_vars(self, snap)
+
     def _finish(self, r: _Raw) -> _Raw:
+        self.t_done = r.t
         if r.a is None:  # a prediction-only step (updates every ``every`` steps)
             return r
         # the magnetometer sample of the update interval: since the last update's end
@@ -258,6 +275,9 @@ class _StepBuilder:
             self.t_last = s.t
             if len(self.block) >= self.factor:
                 self.pending = self._close()
+                if self.close_now:
+                    out.append(self._finish(self.pending))
+                    self.pending = None
         elif isinstance(s, MagSample):
             self.mag_last = (s.t, s.field)
         elif isinstance(s, PositionSample):
@@ -325,7 +345,28 @@ def _preintegrate(t0: float, block: list[ImuSample], g0: Array | None = None
     return qlog_f(q)
 
 
-class AttitudeStream:
+class StreamSnapshots:
+    """``snapshot`` / ``restore`` of a step builder (:class:`AttitudeStream`,
+    :class:`~uavest.engine.navigation.NavStream`) for the engine's history
+    (:mod:`uavest.engine.history`): every attribute but the shared ones (the sample
+    iterable, the options, the source's parameters, the state space), the decisions as
+    their number (only ever appended)."""
+
+    summary: dict[str, Any]
+    decisions: list[dict[str, Any]]
+
+    def snapshot(self) -> dict[str, Any]:
+        """This moment of the stream, for :meth:`restore`."""
+        return snapshot_vars(self, skip=("samples", "opts", "params", "space"),
+                             appended=("decisions",))
+
+    def restore(self, snap: dict[str, Any]) -> None:
+        restore_vars(self, snap)
+        if "decisions" in self.summary:
+            self.summary["decisions"] = self.decisions
+
+
+class AttitudeStream(StreamSnapshots):
     """One :class:`Start` then :class:`Step` s from a sample stream (see the module
     docstring). Push samples one at a time (:meth:`push`, :meth:`flush`: each returns the
     items it completed), or iterate it over ``samples``. :attr:`summary` describes what
@@ -380,6 +421,29 @@ class AttitudeStream:
         for s in self.samples:
             yield from self.push(s)
         yield from self.flush()
+
+    # ------------------------------------------------------------------ history
+    # (the engine's history, :mod:`uavest.engine.history`, on a live link: samples on
+    # arrival, a late one applied at its time)
+    @property
+    def committed(self) -> float:
+        """End (s) of the last step made (steps held for the alignment included)."""
+        return self._builder.t_done if self._builder is not None else -np.inf
+
+    def order_sensitive(self, s: Sample) -> bool:
+        """The chosen IMU, magnetometer and velocity source (and, before compensation is
+        on, any velocity: the first one switches it on at its time). Other IMUs only
+        feed the failover, decided after a silence of the gap threshold (>= 0.5 s):
+        their order within it does not change the decision."""
+        if self._held is not None:
+            return True
+        if isinstance(s, ImuSample) or isinstance(s, MagSample):
+            return s.source == (self._imu if isinstance(s, ImuSample) else self._mag)
+        if isinstance(s, PositionSample):
+            return s.source == self._pos or (
+                self._pos is None and self.opts.accel_comp == "auto"
+                and s.vel_ned is not None)
+        return False
 
     # ------------------------------------------------------------------ pushing
     def push(self, s: Sample) -> list[Start | Step]:
@@ -514,8 +578,9 @@ class AttitudeStream:
             return None
         o, old = self.opts, self._imu
         integ, why, factor = step_plan(s.source, rate, o.integration, o.rate_hz)
-        nb = _StepBuilder(integ, factor, b.use_pos, 1, 1)
+        nb = _StepBuilder(integ, factor, b.use_pos, 1, 1, o.on_arrival)
         nb.mag_last, nb.vel, nb.gaps, nb.dropped = b.mag_last, b.vel, b.gaps, b.dropped
+        nb.t_done = b.t_done
         nb.gap_s = max(GAP_MIN_S, GAP_MEDIANS / max(rate, 1e-9))
         nb.gaps.append((last, s.t))
         out = self._emit(list(b.flush()))  # what the silent IMU left, before the switch
@@ -574,6 +639,8 @@ class AttitudeStream:
         o, held = self.opts, self._held
         assert held is not None  # called once, while holding
         self._held = None
+        if o.on_arrival:  # time order (an IMU sample after the rest of its message)
+            held.sort(key=lambda s: (s.t, isinstance(s, ImuSample)))
         imu, imu_counts, mag, mag_counts, pos = self._choose_sources(held)
         ti = [s.t for s in held if isinstance(s, ImuSample) and s.source == imu]
         n_mag = mag_counts.get(mag, 0) if mag else 0
@@ -588,7 +655,8 @@ class AttitudeStream:
         self._imu, self._mag, self._pos = imu, mag, pos
         t_first = next(s.t for s in held if isinstance(s, ImuSample) and s.source == imu)
         self._decide_sources(imu, imu_counts, integ, why, pos, t_first)
-        self._builder = _StepBuilder(integ, factor, pos is not None, ref, every)
+        self._builder = _StepBuilder(integ, factor, pos is not None, ref, every,
+                                     o.on_arrival)
         med = float(np.median(np.diff(ti))) if len(ti) > 1 else 0.0
         self._builder.gap_s = max(GAP_MIN_S, GAP_MEDIANS * med)
         self.summary["imu_gap_threshold_s"] = self._builder.gap_s

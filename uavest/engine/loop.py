@@ -6,7 +6,9 @@ one at a time (nothing is held but what the estimators hold).
 :class:`Lane` is a step builder (``push(sample) -> items``, ``flush() -> items``, e.g.
 :class:`~uavest.engine.attitude.AttitudeStream`) with the estimators it feeds, so one
 source (a live link) drives attitude filters and trackers side by side; every sample is
-shown to every sink first (recorders, scorers).
+shown to every sink first (recorders, scorers). A lane with ``history_s`` > 0 takes its
+samples as they arrive, in any order, and applies a late one at its own time
+(:mod:`uavest.engine.history`).
 
 Both run with the heap that exists before the run frozen (:func:`frozen_heap`).
 """
@@ -14,11 +16,13 @@ Both run with the heap that exists before the run frozen (:func:`frozen_heap`).
 from __future__ import annotations
 
 import gc
-from collections.abc import Iterable, Iterator, Sequence
+import math
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+from .history import LaneHistory
 from .records import RunInfo, Start, Step
 
 __all__ = ["Lane", "frozen_heap", "run", "run_lanes"]
@@ -86,33 +90,45 @@ class RecordSink(Protocol):
 
 @dataclass
 class Lane:
-    """A step builder and the estimators its items go to."""
+    """A step builder and the estimators its items go to. ``history_s`` > 0: samples on
+    arrival, late ones applied at their time within that many seconds of vehicle time
+    (:class:`~uavest.engine.history.LaneHistory`; the builder and the estimators then
+    implement its ``Rewindable`` protocol); ``history`` is that history after the run."""
 
     builder: StepBuilder
     estimators: Sequence[Estimator]
+    history_s: float = 0.0
+    history: LaneHistory | None = field(default=None, init=False)
 
 
 def _dispatch(items: Iterable[Start | Step], estimators: Sequence[Estimator],
-              sinks: Sequence[RecordSink]) -> int:
+              sinks: Sequence[RecordSink], quiet_upto: float = -math.inf) -> int:
+    """Step ``estimators`` with ``items``; the sinks get the records (and the start
+    events, the samples a step carries) of the items after ``quiet_upto`` (s) only, the
+    others being re-made by a lane's history. Returns the steps the sinks got."""
     n = 0
     for it in items:
         if isinstance(it, Step):
-            if it.info and "samples" in it.info:  # what the builder derived (radar scans)
+            loud = it.t > quiet_upto
+            if loud and it.info and "samples" in it.info:  # what the builder derived
                 for smp in it.info["samples"]:
                     for s in sinks:
                         s.sample(smp)
             for e in estimators:
                 rec = e.step(it)
-                for s in sinks:
-                    s.record(rec)
-            n += 1
+                if loud:
+                    for s in sinks:
+                        s.record(rec)
+            n += loud
         else:
             assert isinstance(it, Start), it
+            loud = it.t0 > quiet_upto
             for e in estimators:
                 e.start(it)
-                for s in sinks:
-                    s.start(e.label, it.t0, getattr(it.prior, "x", None),
-                            getattr(it.prior, "P", None))
+                if loud:
+                    for s in sinks:
+                        s.start(e.label, it.t0, getattr(it.prior, "x", None),
+                                getattr(it.prior, "P", None))
     return n
 
 
@@ -141,24 +157,46 @@ def run_lanes(
     lanes: Sequence[Lane],
     sinks: Sequence[RecordSink] = (),
     info: RunInfo | None = None,
+    late: Callable[[Any], None] | None = None,
 ) -> int:
     """Feed every sample to every sink and every lane's builder; step each lane's
-    estimators with the items it completes. Returns the number of steps of all lanes."""
+    estimators with the items it completes. Returns the number of steps of all lanes
+    (that the sinks got). A sample a lane's history skipped (late beyond it) is given
+    once to ``late``."""
     for s in sinks:
         if info is not None:
             s.open(info)
     n = 0
+    hist: list[tuple[Lane, LaneHistory | None]] = []
+    for ln in lanes:
+        h = None
+        if ln.history_s > 0:
+            def disp(items: Iterable[Start | Step], quiet: float, ln: Lane = ln) -> int:
+                return _dispatch(items, ln.estimators, sinks, quiet)
+            h = ln.history = LaneHistory(ln.builder, ln.estimators, ln.history_s, disp)
+        hist.append((ln, h))
     try:
         with frozen_heap():
             for smp in samples:
                 for s in sinks:
                     s.sample(smp)
-                for ln in lanes:
+                skipped = False
+                for ln, h in hist:
+                    if h is not None:
+                        k = h.push(smp)
+                        if k is None:
+                            skipped = True
+                        else:
+                            n += k
+                        continue
                     items = ln.builder.push(smp)
                     if items:
                         n += _dispatch(items, ln.estimators, sinks)
-            for ln in lanes:
-                n += _dispatch(ln.builder.flush(), ln.estimators, sinks)
+                if skipped and late is not None:
+                    late(smp)
+            for ln, h in hist:
+                n += h.flush() if h is not None else _dispatch(ln.builder.flush(),
+                                                               ln.estimators, sinks)
     finally:
         for s in sinks:
             s.close()

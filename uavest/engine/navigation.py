@@ -77,6 +77,7 @@ from .attitude import (
     DEFAULT_MAX_RATE_HZ,
     GAP_MEDIANS,
     GAP_MIN_S,
+    StreamSnapshots,
     _Gap,
     _Raw,
     _StepBuilder,
@@ -145,7 +146,11 @@ class NavOptions:
     windows into the IMU data, start unaided (attitude from the accelerometer and
     magnetometer, velocity and position held near the start by a constant-position
     measurement, ``NavNoise.nofix_pos_noise``) and re-anchor velocity and position at
-    the first good fix, attitude and biases kept."""
+    the first good fix, attitude and biases kept. ``on_arrival``: samples come as they
+    arrive (a live link run with the engine's history, :mod:`uavest.engine.history`): a
+    step is made at the IMU sample that ends it and released at once (with no GNSS
+    delay), an aiding sample of its time or older that comes later being late (the
+    history applies it at its time)."""
 
     start: float | None = None
     end: float | None = None
@@ -164,6 +169,7 @@ class NavOptions:
     yaw_speed: float = 3.0
     imu_delay: float | None = None
     before_fix: bool = True
+    on_arrival: bool = False
 
     def in_window(self, t: float) -> bool:
         """True if ``t`` (s) lies in [start, end]."""
@@ -229,8 +235,8 @@ class _NavBuilder(_StepBuilder):
     """The attitude path's step builder with the specific force of every step (the
     time-weighted trapezoid mean for snapshot IMUs, the plain mean for integrated ones)."""
 
-    def __init__(self, integration: str, factor: int) -> None:
-        super().__init__(integration, factor, False, 1, 1)
+    def __init__(self, integration: str, factor: int, close_now: bool = False) -> None:
+        super().__init__(integration, factor, False, 1, 1, close_now)
         self.a_edge: Array | None = None
 
     def push_nav(self, s: ImuSample | MagSample) -> list[_Raw | _Gap]:
@@ -256,7 +262,7 @@ class _NavBuilder(_StepBuilder):
         return r
 
 
-class NavStream:
+class NavStream(StreamSnapshots):
     """One :class:`Start` then navigation :class:`Step` s from a sample stream (module
     docstring). :meth:`push` / :meth:`flush` return the items they completed; iterating
     runs over ``samples``. :attr:`summary` has the keys of the attitude stream's summary
@@ -329,6 +335,29 @@ class NavStream:
         for s in self.samples:
             yield from self.push(s)
         yield from self.flush()
+
+    # ------------------------------------------------------------------ history
+    # (the engine's history, :mod:`uavest.engine.history`: samples on arrival)
+    @property
+    def committed(self) -> float:
+        """End (s) of the last step released, plus the GNSS delay (a fix stamped t is
+        applied at t - delay): an aid at or before it may be late."""
+        return -np.inf if self._t_out is None else self._t_out + self.delay
+
+    def order_sensitive(self, s: Any) -> bool:
+        """The chosen IMU and magnetometer, the GNSS receiver (any before one is chosen)
+        and the barometer: each changes the step it lands in."""
+        if self._held is not None:
+            return True
+        if isinstance(s, ImuSample):
+            return s.source == self._imu
+        if isinstance(s, MagSample):
+            return s.source == self._mag
+        if isinstance(s, GnssSample):
+            return self._gnss is None or s.source == self._gnss
+        if isinstance(s, BaroSample):
+            return self.opts.use_baro and (self._baro is None or s.source == self._baro)
+        return False
 
     # ------------------------------------------------------------------ pushing
     def push(self, s: Any) -> list[Start | Step]:
@@ -445,7 +474,7 @@ class NavStream:
             self._queue.append(r)
         out = self._release(upto=last)
         self._queue.clear()
-        nb = _NavBuilder(integ, factor)
+        nb = _NavBuilder(integ, factor, o.on_arrival)
         nb.gaps, nb.dropped = b.gaps, b.dropped
         nb.gap_s = max(GAP_MIN_S, GAP_MEDIANS / max(rate, 1e-9))
         nb.gaps.append((last, s.t))
@@ -526,8 +555,8 @@ class NavStream:
     def _release(self, upto: float | None = None) -> list[Start | Step]:
         out: list[Start | Step] = []
         lim = self._now - self.delay if upto is None else upto
-        while self._queue and (self._queue[0].t < lim or (upto is not None
-                                                            and self._queue[0].t <= lim)):
+        incl = upto is not None or (self.opts.on_arrival and not self.delay > 0)
+        while self._queue and (self._queue[0].t < lim or (incl and self._queue[0].t <= lim)):
             r = self._queue.popleft()
             aids = []
             for q in self._aid.values():  # each sensor's aids are in time order
@@ -843,6 +872,8 @@ class NavStream:
         o, held = self.opts, self._held
         assert held is not None
         self._held = None
+        if o.on_arrival:  # time order (an IMU sample after the rest of its message)
+            held.sort(key=lambda s: (s.t, isinstance(s, ImuSample)))
         imu_counts: dict[str, int] = {}
         mag_counts: dict[str, int] = {}
         for s in held:
@@ -884,7 +915,7 @@ class NavStream:
         self._decide("GNSS delay", f"{self.delay:g} s", t_first,
                      "option --gnss-delay" if o.gnss_delay is not None else "default")
         self._decide("IMU delay", f"{self.imu_delay * 1e3:.1f} ms", t_first, dwhy)
-        self._builder = _NavBuilder(integ, factor)
+        self._builder = _NavBuilder(integ, factor, o.on_arrival)
         med = float(np.median(np.diff(ti))) if len(ti) > 1 else 0.0
         self._builder.gap_s = max(GAP_MIN_S, GAP_MEDIANS * med)
         self.summary["imu_gap_threshold_s"] = self._builder.gap_s
@@ -934,6 +965,17 @@ class NavRunner(FilterRunner):
     def start(self, st: Start) -> None:
         super().start(st)
         self._rej_since.clear()
+
+    def snapshot(self) -> tuple[Any, ...]:
+        """:meth:`FilterRunner.snapshot` with the gate counts and rejection times."""
+        return (super().snapshot(), {k: dict(v) for k, v in self.gates.items()},
+                dict(self._rej_since))
+
+    def restore(self, snap: tuple[Any, ...]) -> None:
+        base, gates, rej = snap
+        super().restore(base)
+        self.gates = {k: dict(v) for k, v in gates.items()}
+        self._rej_since = dict(rej)
 
     def _gated_update(self, s: Any, z: Array, m: Any, sensor: str, t: float
                       ) -> tuple[Any, Any]:

@@ -134,6 +134,19 @@ class FilterRunner:
     def resets(self) -> int:
         return int(getattr(self.state, "resets", 0))
 
+    def snapshot(self) -> tuple[Any, ...]:
+        """This moment of the run, for :meth:`restore` (a lane's history,
+        :mod:`uavest.engine.history`): the filter's state (immutable), the previous
+        estimate, the generator's state and the step counters."""
+        return (self.state, self.space, self._last, self.rng.bit_generator.state,
+                self.steps, self.seconds, self.timed_steps, self.timed_seconds,
+                self.smooth_seconds)
+
+    def restore(self, snap: tuple[Any, ...]) -> None:
+        (self.state, self.space, self._last, st, self.steps, self.seconds,
+         self.timed_steps, self.timed_seconds, self.smooth_seconds) = snap
+        self.rng.bit_generator.state = st
+
     @property
     def us_per_step(self) -> float:
         """Mean wall time of one predict+update in microseconds, without the first
@@ -155,6 +168,16 @@ class TrackerRunner:
 
     def start(self, st: Start) -> None:
         self.tracker = self.make_tracker()
+
+    def snapshot(self) -> tuple[Any, Any]:
+        """This moment of the run, for :meth:`restore` (the tracker's own snapshot)."""
+        tr = self.tracker
+        return tr, (None if tr is None else tr.snapshot())
+
+    def restore(self, snap: tuple[Any, Any]) -> None:
+        self.tracker, s = snap
+        if self.tracker is not None:
+            self.tracker.restore(s)
 
     def step(self, st: Step) -> ScanRecord:
         ((Z, model),) = st.updates

@@ -119,6 +119,25 @@ class AdsbRadar:
         if self.config.origin is not None:
             self.origin = np.asarray(self.config.origin, dtype=float)
 
+    # ------------------------------------------------------------------ snapshots
+    def snapshot(self) -> tuple:
+        """This moment of the radar (its generator's state, aircraft, ownship, the next
+        scan time; the truth series, which only grow, as their lengths), for
+        :meth:`restore` (a live lane's history, ``uavest.engine.history``)."""
+        return (self.rng.bit_generator.state, {k: len(v) for k, v in self.truth.items()},
+                self.origin, self.scans, dict(self._own), dict(self._air), self._q,
+                self._next)
+
+    def restore(self, snap: tuple) -> None:
+        st, lens, self.origin, self.scans, own, air, self._q, self._next = snap
+        self.rng.bit_generator.state = st
+        for k in list(self.truth):
+            if k in lens:
+                del self.truth[k][lens[k]:]
+            else:
+                del self.truth[k]
+        self._own, self._air = dict(own), dict(air)
+
     # ------------------------------------------------------------------ input
     def push(self, s) -> list[DetectionScan]:
         """Take one sample; return the scans due *before* it (time-ordered input)."""

@@ -148,26 +148,62 @@ def gate_time(raw: Raw, t: float) -> float:
     return t
 
 
+#: A live link's mark after the messages of one read of its connection (one receive
+#: burst, one receive time): ``(None, BURST_END)`` from ``_messages``.
+BURST_END = object()
+
+
 class _Reorder:
-    """Small heap that releases measurements in time order once older than ``window`` s."""
+    """Small heap that releases measurements in time order once older than ``window`` s.
+
+    ``window`` <= 0 is **on arrival**: nothing waits for newer samples. The items of one
+    receive burst (the messages of one read of the connection, which share their receive
+    time: a tlog replays the same bursts) are released together as soon as the burst is
+    complete (at the link's end-of-read mark, or when a message of another receive time
+    comes; without receive times each message is a burst), in time order within the
+    burst, an IMU sample after the other items of its time (a step that ends at it is
+    then complete when it arrives: the magnetometer of its message or of another message
+    read with it). An item older than one released before is not ``late`` here: ordering
+    across bursts is the consumer's (the engine's bounded history,
+    :mod:`uavest.engine.history`)."""
 
     def __init__(self, window: float, stats: IngestStats) -> None:
         self.window = window
         self.stats = stats
+        self.on_arrival = not window > 0
         self.heap: list = []
+        self.ready: list[Sample] = []  # on arrival: the items of the message being read
         self.seq = 0
         self.newest = -math.inf
         self.last_out = -math.inf
 
+    @property
+    def floor(self) -> float:
+        """The time (s) below which an item would be ``late`` (-inf on arrival)."""
+        return -math.inf if self.on_arrival else self.last_out
+
     def push(self, m: Sample) -> None:
+        if self.on_arrival:
+            self.ready.append(m)
+            return
         if m.t < self.last_out:
-            self.stats.bad("late", _source_key(m))
+            self.stats.bad("late", sample_key(m))
             return
         heapq.heappush(self.heap, (m.t, self.seq, m))
         self.seq += 1
         self.newest = max(self.newest, m.t)
 
     def pop_ready(self, flush: bool = False) -> Iterator[Sample]:
+        if self.on_arrival:
+            if flush and self.ready:  # the end of a burst
+                out, self.ready = self.ready, []
+                if len(out) > 1:
+                    out.sort(key=_arrival_key)
+                for m in out:
+                    if m.t > self.last_out:
+                        self.last_out = m.t
+                    yield m
+            return
         limit = math.inf if flush else self.newest - self.window
         while self.heap and self.heap[0][0] <= limit:
             t, _, m = heapq.heappop(self.heap)
@@ -175,8 +211,19 @@ class _Reorder:
             yield m
 
 
-def _source_key(m) -> str:
-    return m.source + (".mag" if isinstance(m, MagSample) else "")
+def _arrival_key(m: Sample) -> tuple[float, bool]:
+    """Order of the items of one message released on arrival: time, then an IMU sample
+    after the other items of its time."""
+    return (m.t, type(m) is ImuSample)
+
+
+def sample_key(m: Sample) -> str:
+    """The name a sample is counted under in :class:`IngestStats` (``late``...): its
+    source, ``<source>.mag`` for the magnetometer of an IMU message (as
+    :func:`~uavest.ingest.convert.stat_key` counts the converted items)."""
+    if isinstance(m, MagSample) and not m.source.startswith("MAG"):
+        return m.source + ".mag"
+    return m.source
 
 
 _GPS_EPOCH = 315964800.0  # UNIX time of the GPS epoch (1980-01-06)
@@ -542,13 +589,21 @@ class MavlinkSource:
                         st.bad(kind, stat_key(raw))
 
         self._reorder = reorder
+        arrival = reorder.on_arrival
+        burst_rx: float | None = None  # receive time of the burst being read (on arrival)
         for msg, rx in self._messages():
             if msg is None:  # live: a link event (rx holds it); flush what is buffered first
+                if rx is BURST_END:  # the end of a read: its burst is complete
+                    yield from reorder.pop_ready(flush=arrival)
+                    continue
                 yield from reorder.pop_ready(flush=True)
                 if rx is not None:
                     t_ev = reorder.last_out if math.isfinite(reorder.last_out) else 0.0
                     yield dataclasses.replace(rx, t=t_ev)
                 continue
+            if arrival and rx != burst_rx:  # a new burst: the one before is complete
+                yield from reorder.pop_ready(flush=True)
+                burst_rx = rx
             if rx is not None and self.params.date is None:  # the log's own date
                 self.params.set_date(rx, "tlog's receive times")
             if type(msg) is Skipped:  # a record no converter uses: only its system counts
@@ -611,13 +666,13 @@ class MavlinkSource:
                 # time yet): onto the vehicle clock without moving it
                 # (timebase.retime_unix), never "late"
                 t = retime_unix(tu * 1e-6, rx, clock, None if gnss_no_time else
-                                systime.get(sysid), reorder.last_out)
+                                systime.get(sysid), reorder.floor)
                 if t is None:
                     st.bad("no_time", stat_key(good[0]))
                     continue
                 st.retimed += 1
                 finish([(t, (sysid, good))])
-                yield from reorder.pop_ready()
+                yield from reorder.pop_ready(flush=arrival and rx is None)
                 continue
             raw_t = self._vehicle_time(msg, clock)
             if raw_t is None:
@@ -630,7 +685,7 @@ class MavlinkSource:
                 accepted = clock.push(raw_t, rx, (sysid, good))
                 drain(clock)
                 finish(accepted)
-            yield from reorder.pop_ready()
+            yield from reorder.pop_ready(flush=arrival and rx is None)
         for clock in clocks.values():
             finish(clock.flush())
             drain(clock)

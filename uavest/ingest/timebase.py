@@ -252,8 +252,9 @@ def retime_unix(t_unix: float, rx: float | None, clock: VehicleClock,
     * otherwise the arrival: ``clock.map_rx(rx)`` (newest vehicle time of the system +
       receive time elapsed since it);
     * never before ``floor`` (s: the newest time already released in order by the reader,
-      so a fix older than a live link's short reorder window is stamped at its edge
-      instead of being dropped as ``late``).
+      so a fix older than a short reorder window is stamped at its edge instead of being
+      dropped as ``late``; -inf when the reader releases on arrival, where the engine's
+      history applies a late fix at its own time).
 
     None when the system has no vehicle time yet and no offset.
     """

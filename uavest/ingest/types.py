@@ -72,7 +72,8 @@ BAD_KINDS = (
     "unknown_message",  # MAVLink id / DataFlash type not in the dialect
     "empty",  # all-zero sensor payload of a sensor that sent real data
     "no_time",  # no vehicle time could be assigned (no timed message seen yet)
-    "late",  # arrived later than the streaming reorder window allows
+    "late",  # arrived later than the streaming reorder window allows or, processed on
+    # arrival, older than the engine's history (uavest.engine.history)
     "unknown_frame",  # OBSTACLE_DISTANCE_3D in a MAV_FRAME this layer cannot interpret
     "wrong_sysid",  # live link: message from another MAVLink system than the vehicle's
     "unsigned",  # live link with signing on: unsigned (or MAVLink 1) packet

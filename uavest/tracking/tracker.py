@@ -412,6 +412,25 @@ class Tracker:
             if tr.misses >= c.delete_misses or pos_std > c.max_pos_std:
                 tr.status, tr.deleted_at = "deleted", k
 
+    def snapshot(self) -> tuple:
+        """This moment of the tracker, for :meth:`restore` (a live lane's history applies
+        a late detection at its time by restoring the tracker before its scan): the live
+        tracks' fields (filter states are immutable; histories and the list of all tracks
+        only grow, kept as their lengths), the id counter and the generator's state."""
+        rows = [(tr, tr.state, tr.status, tr.hits, tr.scans, tr.misses, tr.confirmed_at,
+                 tr.deleted_at, tr.est, tr.pred, len(tr.history)) for tr in self.tracks]
+        return (rows, len(self.all_tracks), self._next_id, self.seconds, self.n_scans,
+                self.rng.bit_generator.state)
+
+    def restore(self, snap: tuple) -> None:
+        rows, n_all, self._next_id, self.seconds, self.n_scans, st = snap
+        for (tr, tr.state, tr.status, tr.hits, tr.scans, tr.misses, tr.confirmed_at,
+             tr.deleted_at, tr.est, tr.pred, nh) in rows:
+            del tr.history[nh:]
+        self.tracks = [r[0] for r in rows]
+        del self.all_tracks[n_all:]
+        self.rng.bit_generator.state = st
+
     def confirmed(self) -> dict[int, Gaussian]:
         """{track id: posterior Gaussian} of the currently confirmed tracks."""
         return {tr.id: tr.est for tr in self.tracks if tr.status == "confirmed"}

@@ -24,7 +24,7 @@ from ...link import (  # (sets MAVLINK20 before any pymavlink.mavutil import: si
     split_conn,
     unregister_vehicle_endpoint,
 )
-from ..mavlink import MavlinkSource
+from ..mavlink import BURST_END, MavlinkSource
 from ..types import IngestError, LinkEvent
 from .declination import Declination
 from .gaps import GapWatch
@@ -319,7 +319,8 @@ class LiveLink(MavlinkSource):
         return self._gen
 
     def _messages(self) -> Iterator[tuple[object, object]]:
-        """(message, receive time) from the queue; (None, LinkEvent) for link events."""
+        """(message, receive time) from the queue; (None, LinkEvent) for link events,
+        (None, BURST_END) after the messages of one read of the connection."""
         gaps = GapWatch(self.gap_timeout, self.conn)
         st = self.stats
         while not (self._closed and self._q.empty()):
@@ -342,6 +343,8 @@ class LiveLink(MavlinkSource):
             st.messages[name] += 1
             self._watch(m, name)
             yield m, rx
+            if getattr(m, "_burst_end", False):  # the last message of a read
+                yield None, BURST_END
 
     def _upkeep(self) -> None:
         """Between messages: re-request the streams when asked to (reconnect, gap end),

@@ -110,8 +110,14 @@ class Reader:
                 self.stats.corrupt += 1
                 self.reset_parser()
                 msgs = []
-            for m in msgs:
-                self.handle(m, rx_us, rx)
+            kept = [m for m in msgs if self.handle(m, rx_us, rx)]
+            if kept:  # the last of this read's burst: released on arrival when it is taken
+                kept[-1]._burst_end = True
+            for m in kept:
+                try:
+                    self.q.put_nowait((m, rx))
+                except queue.Full:
+                    self.stats.queue_overflow += 1
             self.flush_tlog()
 
     def _connect(self) -> Transport | None:
@@ -160,20 +166,21 @@ class Reader:
             self.tlog.close()
             self.tlog = None
 
-    def handle(self, m: Any, rx_us: int, rx: float) -> None:
-        """One parsed message received at ``rx``: dropped and counted, or kept."""
+    def handle(self, m: Any, rx_us: int, rx: float) -> bool:
+        """One parsed message received at ``rx``: dropped and counted (False), or kept
+        (True: recorded; the caller queues it)."""
         st = self.stats
         name = m.get_type()
         if name == "BAD_DATA":
             kind = bad_data_kind(m)
             setattr(st, kind, getattr(st, kind) + 1)
-            return
+            return False
         if name.startswith("UNKNOWN"):
             st.unknown_message += 1
-            return
+            return False
         if self.key is not None and not getattr(m, "_signed", False):
             st.unsigned += 1  # belt and braces: the parser should have refused it
-            return
+            return False
         sysid = m.get_srcSystem()
         if name == "HEARTBEAT" and self.sysid in (None, sysid) and is_vehicle(m):
             if self.sysid is None:
@@ -182,14 +189,15 @@ class Reader:
             self.hb.set()
         if self.sysid is None:
             st.pre_heartbeat += 1
-            return
+            return False
         if sysid != self.sysid:
             st.wrong_sysid += 1
-            return
+            return False
         self._keep(m, name, rx_us, rx)
+        return True
 
     def _keep(self, m: Any, name: str, rx_us: int, rx: float) -> None:
-        """A message of the vehicle: rate, replies, tlog, queue."""
+        """A message of the vehicle: rate, replies, tlog (the caller queues it)."""
         self.last_rx_mono = time.monotonic()
         self.rates.add(name, rx)
         if name == "COMMAND_ACK":
@@ -201,7 +209,3 @@ class Reader:
             self.replies.param(str(pid).rstrip("\x00"), float(m.param_value))
         if self.tlog is not None:
             self.tlog.add(rx_us, bytes(m.get_msgbuf()))
-        try:
-            self.q.put_nowait((m, rx))
-        except queue.Full:
-            self.stats.queue_overflow += 1
