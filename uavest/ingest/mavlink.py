@@ -480,89 +480,121 @@ class MavlinkSource:
             st.bad("truncated")
 
     def _read(self) -> Iterator[tuple[object, float | None]]:
+        """The records of the log as ``(message, receive time or None)``: a tlog's from
+        :meth:`_read_tlog`, a DataFlash log's from :meth:`_read_records` (the file checked
+        for a cut last record and closed at the end, also when the reading stops early)."""
         if self.format == "tlog":
             yield from self._read_tlog()
             return
         conn = self._open()
-        st = self.stats
-        is_df = self.format.startswith("dataflash")
-        stall = 0
-        last_pos = -1
-        skip = None
         try:
-            skip = self._skipper(conn)
-            while True:
-                if skip is not None:
-                    rec = skip.next(conn, last_pos)
-                    if rec is not None:  # a good record of an unused type, not decoded
-                        pos = skip.pos if not is_df else conn.offset
-                        self.bytes_read = pos
-                        stall, last_pos = 0, pos
-                        st.messages[rec.name] += 1
-                        self.undecoded += 1
-                        self._good_end = pos
-                        yield rec, rec.rx
-                        continue
-                buf = io.StringIO()
-                try:
-                    if is_df:
-                        with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
-                            msg = conn.recv_msg()
-                    else:
-                        msg = conn.recv_msg()
-                except Exception:  # noqa: BLE001 - corrupt bytes must not crash us
-                    st.bad("corrupt")
-                    msg = None
-                    if not is_df and self._at_eof(conn):
-                        break
-                if is_df and buf.tell():
-                    _chatter(buf.getvalue(), st, str(self.path))
-                pos = self._position(conn)
-                self.bytes_read = pos
-                if not is_df and last_pos >= 0 and not (msg is not None
-                                                        and msg.get_type() == "BAD_DATA"):
-                    # bytes the parser skipped without a frame (random runs) are counted
-                    # in frames' worth (271 bytes: the largest tlog record), which pymavlink
-                    # itself does not report
-                    size = 0
-                    if msg is not None:
-                        with contextlib.suppress(Exception):
-                            size = len(msg.get_msgbuf()) + 8
-                    skipped = pos - last_pos - size
-                    if skipped > 8:
-                        st.bad("corrupt", "skipped_bytes", -(-skipped // 271))
-                if pos == last_pos:
-                    stall += 1
-                    if stall > _MAX_STALL:
-                        st.bad("corrupt")
-                        break
-                else:
-                    stall, last_pos = 0, pos
-                if msg is None:
-                    if not self._at_eof(conn):
-                        continue
-                    break
-                name = msg.get_type()
-                if name == "BAD_DATA":
-                    reason = str(getattr(msg, "reason", ""))
-                    st.bad("unknown_message" if "unknown" in reason.lower() else "corrupt")
-                    continue
-                if name.startswith("UNKNOWN"):
-                    st.bad("unknown_message")
-                    continue
-                st.messages[name] += 1
-                if is_df:
-                    rx = None
-                else:
-                    rx = getattr(msg, "_timestamp", None)
-                    if rx is not None and not math.isfinite(rx):
-                        rx = None
-                self._good_end = pos
-                yield msg, rx
+            yield from self._read_records(conn)
         finally:
             self._check_truncated(conn)
             with contextlib.suppress(Exception):
                 conn.close()
+
+    def _read_records(self, conn) -> Iterator[tuple[object, float | None]]:
+        """The records of ``conn`` one by one: good records of unused types stepped over
+        undecoded (:meth:`_skipper`), the others decoded by pymavlink (:meth:`_recv`),
+        BAD_DATA and unknown types counted (:meth:`_bad_record`); stops at the end of the
+        file or after :data:`_MAX_STALL` reads without progress (``corrupt``)."""
+        st = self.stats
+        is_df = self.format.startswith("dataflash")
+        stall = 0
+        last_pos = -1
+        skip = self._skipper(conn)
+        while True:
+            if skip is not None:
+                rec = skip.next(conn, last_pos)
+                if rec is not None:  # a good record of an unused type, not decoded
+                    pos = skip.pos if not is_df else conn.offset
+                    self.bytes_read = pos
+                    stall, last_pos = 0, pos
+                    st.messages[rec.name] += 1
+                    self.undecoded += 1
+                    self._good_end = pos
+                    yield rec, rec.rx
+                    continue
+            msg, at_end = self._recv(conn, is_df)
+            if at_end:
+                break
+            pos = self._position(conn)
+            self.bytes_read = pos
+            if not is_df and last_pos >= 0:
+                self._count_unframed(msg, pos - last_pos)
+            if pos == last_pos:
+                stall += 1
+                if stall > _MAX_STALL:
+                    st.bad("corrupt")
+                    break
+            else:
+                stall, last_pos = 0, pos
+            if msg is None:
+                if not self._at_eof(conn):
+                    continue
+                break
+            if self._bad_record(msg):
+                continue
+            st.messages[msg.get_type()] += 1
+            rx = None if is_df else self._rx_time(msg)
+            self._good_end = pos
+            yield msg, rx
+
+    def _recv(self, conn, is_df: bool) -> tuple[object, bool]:
+        """``(the next message or None, at the end)`` from pymavlink's reader: an exception
+        on corrupt bytes counted ``corrupt`` (None), DataFlash chatter counted
+        (:func:`_chatter`)."""
+        buf = io.StringIO()
+        try:
+            if is_df:
+                with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
+                    msg = conn.recv_msg()
+            else:
+                msg = conn.recv_msg()
+        except Exception:  # noqa: BLE001 - corrupt bytes must not crash us
+            self.stats.bad("corrupt")
+            msg = None
+            if not is_df and self._at_eof(conn):
+                return None, True
+        if is_df and buf.tell():
+            _chatter(buf.getvalue(), self.stats, str(self.path))
+        return msg, False
+
+    def _count_unframed(self, msg, moved: int) -> None:
+        """Bytes the parser skipped without a frame (random runs; ``moved`` bytes since the
+        last read) counted ``corrupt`` in frames' worth (271 bytes: the largest tlog
+        record), which pymavlink itself does not report."""
+        if msg is not None and msg.get_type() == "BAD_DATA":
+            return
+        size = 0
+        if msg is not None:
+            with contextlib.suppress(Exception):
+                size = len(msg.get_msgbuf()) + 8
+        skipped = moved - size
+        if skipped > 8:
+            self.stats.bad("corrupt", "skipped_bytes", -(-skipped // 271))
+
+    def _bad_record(self, msg) -> bool:
+        """Whether ``msg`` is pymavlink's BAD_DATA (counted ``corrupt``, or
+        ``unknown_message`` for an unknown type) or an UNKNOWN_* (``unknown_message``)."""
+        name = msg.get_type()
+        if name == "BAD_DATA":
+            reason = str(getattr(msg, "reason", ""))
+            self.stats.bad("unknown_message" if "unknown" in reason.lower() else "corrupt")
+            return True
+        if name.startswith("UNKNOWN"):
+            self.stats.bad("unknown_message")
+            return True
+        return False
+
+    @staticmethod
+    def _rx_time(msg) -> float | None:
+        """A MAVLink message's receive time (s, UNIX), None when absent or not finite."""
+        rx = getattr(msg, "_timestamp", None)
+        if rx is not None and not math.isfinite(rx):
+            rx = None
+        return rx
 
     @staticmethod
     def _position(conn) -> int:
