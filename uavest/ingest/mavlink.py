@@ -495,12 +495,13 @@ class MavlinkSource:
                 conn.close()
 
     def _read_records(self, conn) -> Iterator[tuple[object, float | None]]:
-        """The records of ``conn`` one by one: good records of unused types stepped over
-        undecoded (:meth:`_skipper`), the others decoded by pymavlink (:meth:`_recv`),
-        BAD_DATA and unknown types counted (:meth:`_bad_record`); stops at the end of the
-        file or after :data:`_MAX_STALL` reads without progress (``corrupt``)."""
+        """The records of the DataFlash log ``conn`` (binary or text; a tlog is read by
+        :meth:`_read_tlog`) one by one, without receive times: good records of unused types
+        stepped over undecoded (:meth:`_skipper`), the others decoded by pymavlink
+        (:meth:`_recv`), BAD_DATA and unknown types counted (:meth:`_bad_record`); stops
+        at the end of the file or after :data:`_MAX_STALL` reads without progress
+        (``corrupt``)."""
         st = self.stats
-        is_df = self.format.startswith("dataflash")
         stall = 0
         last_pos = -1
         skip = self._skipper(conn)
@@ -508,7 +509,7 @@ class MavlinkSource:
             if skip is not None:
                 rec = skip.next(conn, last_pos)
                 if rec is not None:  # a good record of an unused type, not decoded
-                    pos = skip.pos if not is_df else conn.offset
+                    pos = conn.offset
                     self.bytes_read = pos
                     stall, last_pos = 0, pos
                     st.messages[rec.name] += 1
@@ -516,13 +517,9 @@ class MavlinkSource:
                     self._good_end = pos
                     yield rec, rec.rx
                     continue
-            msg, at_end = self._recv(conn, is_df)
-            if at_end:
-                break
+            msg = self._recv(conn)
             pos = self._position(conn)
             self.bytes_read = pos
-            if not is_df and last_pos >= 0:
-                self._count_unframed(msg, pos - last_pos)
             if pos == last_pos:
                 stall += 1
                 if stall > _MAX_STALL:
@@ -537,43 +534,23 @@ class MavlinkSource:
             if self._bad_record(msg):
                 continue
             st.messages[msg.get_type()] += 1
-            rx = None if is_df else self._rx_time(msg)
             self._good_end = pos
-            yield msg, rx
+            yield msg, None
 
-    def _recv(self, conn, is_df: bool) -> tuple[object, bool]:
-        """``(the next message or None, at the end)`` from pymavlink's reader: an exception
-        on corrupt bytes counted ``corrupt`` (None), DataFlash chatter counted
+    def _recv(self, conn):
+        """The next message from pymavlink's DataFlash reader, or None: an exception on
+        corrupt bytes counted ``corrupt``, what the reader printed counted
         (:func:`_chatter`)."""
         buf = io.StringIO()
         try:
-            if is_df:
-                with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
-                    msg = conn.recv_msg()
-            else:
+            with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
                 msg = conn.recv_msg()
         except Exception:  # noqa: BLE001 - corrupt bytes must not crash us
             self.stats.bad("corrupt")
             msg = None
-            if not is_df and self._at_eof(conn):
-                return None, True
-        if is_df and buf.tell():
+        if buf.tell():
             _chatter(buf.getvalue(), self.stats, str(self.path))
-        return msg, False
-
-    def _count_unframed(self, msg, moved: int) -> None:
-        """Bytes the parser skipped without a frame (random runs; ``moved`` bytes since the
-        last read) counted ``corrupt`` in frames' worth (271 bytes: the largest tlog
-        record), which pymavlink itself does not report."""
-        if msg is not None and msg.get_type() == "BAD_DATA":
-            return
-        size = 0
-        if msg is not None:
-            with contextlib.suppress(Exception):
-                size = len(msg.get_msgbuf()) + 8
-        skipped = moved - size
-        if skipped > 8:
-            self.stats.bad("corrupt", "skipped_bytes", -(-skipped // 271))
+        return msg
 
     def _bad_record(self, msg) -> bool:
         """Whether ``msg`` is pymavlink's BAD_DATA (counted ``corrupt``, or
@@ -587,14 +564,6 @@ class MavlinkSource:
             self.stats.bad("unknown_message")
             return True
         return False
-
-    @staticmethod
-    def _rx_time(msg) -> float | None:
-        """A MAVLink message's receive time (s, UNIX), None when absent or not finite."""
-        rx = getattr(msg, "_timestamp", None)
-        if rx is not None and not math.isfinite(rx):
-            rx = None
-        return rx
 
     @staticmethod
     def _position(conn) -> int:
@@ -614,11 +583,9 @@ class MavlinkSource:
         return self._position(conn) >= size
 
     def _check_truncated(self, conn) -> None:
-        if self.format.startswith("dataflash"):
-            left = getattr(conn, "data_len", 0) - getattr(conn, "offset", 0)
-        else:
-            mav = getattr(conn, "mav", None)
-            left = len(getattr(mav, "buf", b"")) - getattr(mav, "buf_index", 0) if mav else 0
+        """Count ``truncated`` when the DataFlash reader stopped before the end of the file
+        or a few bytes after the last good record are left (a cut inside it)."""
+        left = getattr(conn, "data_len", 0) - getattr(conn, "offset", 0)
         if left <= 0:
             # a cut inside the last record: a few bytes after the end of the last good one
             # that the reader skipped silently (less than one record, so not 'corrupt')
