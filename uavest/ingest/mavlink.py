@@ -293,6 +293,46 @@ def merge_gpa(pairs):
         yield from held[1]
 
 
+@dataclasses.dataclass
+class _Pass:
+    """The state of one pass of :meth:`MavlinkSource.__iter__` over the messages: the
+    stream gate, the reorder buffer, one vehicle clock per system, each system's UNIX
+    offset from SYSTEM_TIME (``systime``: sysid -> unix - boot s) and the sensor
+    instances that sent a non-zero record (``fitted``)."""
+
+    stats: IngestStats
+    gate: StreamGate
+    reorder: _Reorder
+    clocks: dict[int, VehicleClock] = dataclasses.field(default_factory=dict)
+    systime: dict[int, float] = dataclasses.field(default_factory=dict)
+    fitted: set[str] = dataclasses.field(default_factory=set)
+
+    def finish(self, items) -> None:
+        """Items the clock let through, ``(t, (sysid, the converted items of one
+        message))`` (one message is one clock push, so the IMU and mag parts of a message
+        do not confirm a reset twice): each through the stream gate (detections may share
+        a time, ADS-B repeats, ADS-B at its position time), then into the reorder
+        buffer."""
+        gate, st = self.gate, self.stats
+        for t, (sysid, raws) in items:
+            for raw in raws:
+                key = (sysid, raw.cat, raw.source, raw.instance)
+                admit = {"det": gate.admit_multi, "adsb": gate.admit_repeat}.get(
+                    raw.cat, gate.admit)
+                tg = gate_time(raw, t)
+                if not admit(key, tg, raw.values, stat_key(raw), count=raw.primary):
+                    continue
+                st.accepted[stat_key(raw)] += 1
+                self.reorder.push(build(raw, t))
+
+    def drain(self, clock: VehicleClock) -> None:
+        """Count the messages ``clock`` rejected (time faults: once per message)."""
+        for kind, (_sysid, raws) in clock.take_rejected():
+            for raw in raws:
+                if raw.primary:
+                    self.stats.bad(kind, stat_key(raw))
+
+
 class MavlinkSource:
     """Iterable of measurements from a tlog or a DataFlash log (live links: ``LiveLink``).
 
@@ -440,89 +480,90 @@ class MavlinkSource:
             st.bad("truncated")
 
     def _read(self) -> Iterator[tuple[object, float | None]]:
+        """The records of the log as ``(message, receive time or None)``: a tlog's from
+        :meth:`_read_tlog`, a DataFlash log's from :meth:`_read_records` (the file checked
+        for a cut last record and closed at the end, also when the reading stops early)."""
         if self.format == "tlog":
             yield from self._read_tlog()
             return
         conn = self._open()
-        st = self.stats
-        is_df = self.format.startswith("dataflash")
-        stall = 0
-        last_pos = -1
-        skip = None
         try:
-            skip = self._skipper(conn)
-            while True:
-                if skip is not None:
-                    rec = skip.next(conn, last_pos)
-                    if rec is not None:  # a good record of an unused type, not decoded
-                        pos = skip.pos if not is_df else conn.offset
-                        self.bytes_read = pos
-                        stall, last_pos = 0, pos
-                        st.messages[rec.name] += 1
-                        self.undecoded += 1
-                        self._good_end = pos
-                        yield rec, rec.rx
-                        continue
-                buf = io.StringIO()
-                try:
-                    if is_df:
-                        with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
-                            msg = conn.recv_msg()
-                    else:
-                        msg = conn.recv_msg()
-                except Exception:  # noqa: BLE001 - corrupt bytes must not crash us
-                    st.bad("corrupt")
-                    msg = None
-                    if not is_df and self._at_eof(conn):
-                        break
-                if is_df and buf.tell():
-                    _chatter(buf.getvalue(), st, str(self.path))
-                pos = self._position(conn)
-                self.bytes_read = pos
-                if not is_df and last_pos >= 0 and not (msg is not None
-                                                        and msg.get_type() == "BAD_DATA"):
-                    # bytes the parser skipped without a frame (random runs) are counted
-                    # in frames' worth (271 bytes: the largest tlog record), which pymavlink
-                    # itself does not report
-                    size = 0
-                    if msg is not None:
-                        with contextlib.suppress(Exception):
-                            size = len(msg.get_msgbuf()) + 8
-                    skipped = pos - last_pos - size
-                    if skipped > 8:
-                        st.bad("corrupt", "skipped_bytes", -(-skipped // 271))
-                if pos == last_pos:
-                    stall += 1
-                    if stall > _MAX_STALL:
-                        st.bad("corrupt")
-                        break
-                else:
-                    stall, last_pos = 0, pos
-                if msg is None:
-                    if not self._at_eof(conn):
-                        continue
-                    break
-                name = msg.get_type()
-                if name == "BAD_DATA":
-                    reason = str(getattr(msg, "reason", ""))
-                    st.bad("unknown_message" if "unknown" in reason.lower() else "corrupt")
-                    continue
-                if name.startswith("UNKNOWN"):
-                    st.bad("unknown_message")
-                    continue
-                st.messages[name] += 1
-                if is_df:
-                    rx = None
-                else:
-                    rx = getattr(msg, "_timestamp", None)
-                    if rx is not None and not math.isfinite(rx):
-                        rx = None
-                self._good_end = pos
-                yield msg, rx
+            yield from self._read_records(conn)
         finally:
             self._check_truncated(conn)
             with contextlib.suppress(Exception):
                 conn.close()
+
+    def _read_records(self, conn) -> Iterator[tuple[object, float | None]]:
+        """The records of the DataFlash log ``conn`` (binary or text; a tlog is read by
+        :meth:`_read_tlog`) one by one, without receive times: good records of unused types
+        stepped over undecoded (:meth:`_skipper`), the others decoded by pymavlink
+        (:meth:`_recv`), BAD_DATA and unknown types counted (:meth:`_bad_record`); stops
+        at the end of the file or after :data:`_MAX_STALL` reads without progress
+        (``corrupt``)."""
+        st = self.stats
+        stall = 0
+        last_pos = -1
+        skip = self._skipper(conn)
+        while True:
+            if skip is not None:
+                rec = skip.next(conn, last_pos)
+                if rec is not None:  # a good record of an unused type, not decoded
+                    pos = conn.offset
+                    self.bytes_read = pos
+                    stall, last_pos = 0, pos
+                    st.messages[rec.name] += 1
+                    self.undecoded += 1
+                    self._good_end = pos
+                    yield rec, rec.rx
+                    continue
+            msg = self._recv(conn)
+            pos = self._position(conn)
+            self.bytes_read = pos
+            if pos == last_pos:
+                stall += 1
+                if stall > _MAX_STALL:
+                    st.bad("corrupt")
+                    break
+            else:
+                stall, last_pos = 0, pos
+            if msg is None:
+                if not self._at_eof(conn):
+                    continue
+                break
+            if self._bad_record(msg):
+                continue
+            st.messages[msg.get_type()] += 1
+            self._good_end = pos
+            yield msg, None
+
+    def _recv(self, conn):
+        """The next message from pymavlink's DataFlash reader, or None: an exception on
+        corrupt bytes counted ``corrupt``, what the reader printed counted
+        (:func:`_chatter`)."""
+        buf = io.StringIO()
+        try:
+            with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
+                msg = conn.recv_msg()
+        except Exception:  # noqa: BLE001 - corrupt bytes must not crash us
+            self.stats.bad("corrupt")
+            msg = None
+        if buf.tell():
+            _chatter(buf.getvalue(), self.stats, str(self.path))
+        return msg
+
+    def _bad_record(self, msg) -> bool:
+        """Whether ``msg`` is pymavlink's BAD_DATA (counted ``corrupt``, or
+        ``unknown_message`` for an unknown type) or an UNKNOWN_* (``unknown_message``)."""
+        name = msg.get_type()
+        if name == "BAD_DATA":
+            reason = str(getattr(msg, "reason", ""))
+            self.stats.bad("unknown_message" if "unknown" in reason.lower() else "corrupt")
+            return True
+        if name.startswith("UNKNOWN"):
+            self.stats.bad("unknown_message")
+            return True
+        return False
 
     @staticmethod
     def _position(conn) -> int:
@@ -542,11 +583,9 @@ class MavlinkSource:
         return self._position(conn) >= size
 
     def _check_truncated(self, conn) -> None:
-        if self.format.startswith("dataflash"):
-            left = getattr(conn, "data_len", 0) - getattr(conn, "offset", 0)
-        else:
-            mav = getattr(conn, "mav", None)
-            left = len(getattr(mav, "buf", b"")) - getattr(mav, "buf_index", 0) if mav else 0
+        """Count ``truncated`` when the DataFlash reader stopped before the end of the file
+        or a few bytes after the last good record are left (a cut inside it)."""
+        left = getattr(conn, "data_len", 0) - getattr(conn, "offset", 0)
         if left <= 0:
             # a cut inside the last record: a few bytes after the end of the last good one
             # that the reader skipped silently (less than one record, so not 'corrupt')
@@ -560,136 +599,150 @@ class MavlinkSource:
 
     # ----------------------------------------------------------------- main loop
     def __iter__(self) -> Iterator[Sample]:
+        """One message's path: a live link event (:meth:`_link_event`) or a message that is
+        converted and checked (:meth:`_convert`), timed (:meth:`_assign_time`: a receiver's
+        UNIX time or the vehicle clock), gated and buffered (:meth:`_Pass.finish`) and
+        released in order (``_Reorder.pop_ready``); the clocks' held items at the end."""
         st = self.stats
-        is_df = self.format.startswith("dataflash")
-        clocks: dict[int, VehicleClock] = {}
-        gate = StreamGate(st)
-        reorder = _Reorder(self.reorder_window, st)
-        systime: dict[int, float] = {}  # sysid -> unix_us - boot_us offset (s)
-        fitted: set[str] = set()  # sensor instances that sent a non-zero record
-
-        # clock payloads are (sysid, the converted items of one message): one message is
-        # one push, so the IMU and mag parts of a message do not confirm a reset twice
-        def finish(items) -> None:
-            for t, (sysid, raws) in items:
-                for raw in raws:
-                    key = (sysid, raw.cat, raw.source, raw.instance)
-                    admit = {"det": gate.admit_multi, "adsb": gate.admit_repeat}.get(
-                        raw.cat, gate.admit)
-                    tg = gate_time(raw, t)
-                    if not admit(key, tg, raw.values, stat_key(raw), count=raw.primary):
-                        continue
-                    st.accepted[stat_key(raw)] += 1
-                    reorder.push(build(raw, t))
-
-        def drain(clock: VehicleClock) -> None:
-            for kind, (_sysid, raws) in clock.take_rejected():
-                for raw in raws:
-                    if raw.primary:  # time faults are counted once per message
-                        st.bad(kind, stat_key(raw))
-
-        self._reorder = reorder
+        run = _Pass(st, StreamGate(st), _Reorder(self.reorder_window, st))
+        reorder = self._reorder = run.reorder
         arrival = reorder.on_arrival
         burst_rx: float | None = None  # receive time of the burst being read (on arrival)
         for msg, rx in self._messages():
-            if msg is None:  # live: a link event (rx holds it); flush what is buffered first
-                if rx is BURST_END:  # the end of a read: its burst is complete
-                    yield from reorder.pop_ready(flush=arrival)
-                    continue
-                yield from reorder.pop_ready(flush=True)
-                if rx is not None:
-                    t_ev = reorder.last_out if math.isfinite(reorder.last_out) else 0.0
-                    yield dataclasses.replace(rx, t=t_ev)
+            if msg is None:  # live: a link event (rx holds it)
+                yield from self._link_event(reorder, rx)
                 continue
             if arrival and rx != burst_rx:  # a new burst: the one before is complete
                 yield from reorder.pop_ready(flush=True)
                 burst_rx = rx
             if rx is not None and self.params.date is None:  # the log's own date
                 self.params.set_date(rx, "tlog's receive times")
-            if type(msg) is Skipped:  # a record no converter uses: only its system counts
-                if self.sysid is not None and not is_df and msg.sysid != self.sysid:
-                    st.bad("wrong_sysid", msg.name)
+            converted = self._convert(msg, run)
+            if converted is None:
                 continue
-            name = msg.get_type()
-            if name in ("GPS", "GPS_RAW_INT") and self.params.geo is None:
-                _gps_geo(msg, self.params, systime.get(0 if is_df else msg.get_srcSystem()))
-            if is_df:
-                if name == "PARM":
-                    self._param(getattr(msg, "Name", None), getattr(msg, "Value", None))
-                    continue
-                raws = convert_dataflash(msg)
-                sysid = 0
-            else:
-                if name == "PARAM_VALUE":
-                    self._param(getattr(msg, "param_id", None), getattr(msg, "param_value", None))
-                    continue
-                sysid = int(msg.get_srcSystem())
-                if self.sysid is not None and sysid != self.sysid:
-                    st.bad("wrong_sysid", name)
-                    continue
-                if name == "SYSTEM_TIME" and msg.time_boot_ms and msg.time_unix_usec:
-                    systime[sysid] = msg.time_unix_usec * 1e-6 - msg.time_boot_ms * 1e-3
-                    continue
-                raws = convert_mavlink(msg)
-            if not raws:
+            sysid, good = converted
+            items = self._assign_time(msg, sysid, good, rx, run)
+            if items is None:
                 continue
-            if self.imu is not None:
-                raws = [r for r in raws if r.cat != "imu" or r.source == self.imu]
-            good = []
-            for r in raws:
-                bad = check(r)
-                if bad is None:
-                    good.append(r)
-                    if r.cat in _SENSOR_CATS:
-                        fitted.add(stat_key(r))
-                elif (bad == "empty" and r.cat in _SENSOR_CATS and stat_key(r) not in fitted
-                      and (r.cat != "gnss" or _all_zero_gnss(r))):
-                    # all zeros from an instance that never sent anything else: a sensor
-                    # that is not fitted, not bad data (one info line at the end)
-                    st.absent_sensor += 1
-                    st.absent[stat_key(r)] += 1
-                elif r.cat == "pos" and not r.primary:
-                    pass  # GPS_RAW_INT's position: counted once, as its GNSS item
-                elif bad == "empty" and r.cat in ("pos", "gnss"):
-                    st.no_fix += 1  # no GNSS fix yet (lat/lon 0): not bad data
-                else:
-                    st.bad(bad, stat_key(r))
-            if not good:
-                continue
-            clock = clocks.get(sysid)
-            if clock is None:
-                clock = clocks[sysid] = VehicleClock(st)
-            tu = getattr(msg, "time_usec", None)
-            gnss_no_time = tu == 0 and name in _GNSS_MESSAGES
-            if tu is not None and (tu >= UNIX_US_MIN or gnss_no_time) and name not in _UNTIMED:
-                # a receiver's UNIX time (ArduPilot's GPS_RAW_INT; 0: a fix without GNSS
-                # time yet): onto the vehicle clock without moving it
-                # (timebase.retime_unix), never "late"
-                t = retime_unix(tu * 1e-6, rx, clock, None if gnss_no_time else
-                                systime.get(sysid), reorder.floor)
-                if t is None:
-                    st.bad("no_time", stat_key(good[0]))
-                    continue
-                st.retimed += 1
-                finish([(t, (sysid, good))])
-                yield from reorder.pop_ready(flush=arrival and rx is None)
-                continue
-            raw_t = self._vehicle_time(msg, clock)
-            if raw_t is None:
-                t = clock.map_rx(rx)
-                if t is None:
-                    st.bad("no_time", stat_key(good[0]))
-                    continue
-                finish([(t, (sysid, good))])
-            else:
-                accepted = clock.push(raw_t, rx, (sysid, good))
-                drain(clock)
-                finish(accepted)
+            run.finish(items)
             yield from reorder.pop_ready(flush=arrival and rx is None)
-        for clock in clocks.values():
-            finish(clock.flush())
-            drain(clock)
+        for clock in run.clocks.values():
+            run.finish(clock.flush())
+            run.drain(clock)
         yield from reorder.pop_ready(flush=True)
+
+    @staticmethod
+    def _link_event(reorder: _Reorder, event) -> Iterator[Sample]:
+        """A live link's mark: :data:`BURST_END` completes the burst being read (released
+        on arrival); a :class:`~uavest.ingest.types.LinkEvent` (or None) flushes what is
+        buffered first, then the event goes out timed at the newest sample released."""
+        if event is BURST_END:
+            yield from reorder.pop_ready(flush=reorder.on_arrival)
+            return
+        yield from reorder.pop_ready(flush=True)
+        if event is not None:
+            t_ev = reorder.last_out if math.isfinite(reorder.last_out) else 0.0
+            yield dataclasses.replace(event, t=t_ev)
+
+    def _convert(self, msg, run: _Pass) -> tuple[int, list[Raw]] | None:
+        """``(sysid, the message's good converted items)``, or None when nothing of it goes
+        on: a record no converter uses, a parameter (into ``params``), another system's
+        message (``wrong_sysid``), SYSTEM_TIME (the UNIX offset of its system), a message
+        with no good item. Records the first dated GPS fix (``params.geo``)."""
+        is_df = self.format.startswith("dataflash")
+        if type(msg) is Skipped:  # a record no converter uses: only its system counts
+            if self.sysid is not None and not is_df and msg.sysid != self.sysid:
+                self.stats.bad("wrong_sysid", msg.name)
+            return None
+        name = msg.get_type()
+        if name in ("GPS", "GPS_RAW_INT") and self.params.geo is None:
+            _gps_geo(msg, self.params, run.systime.get(0 if is_df else msg.get_srcSystem()))
+        if is_df:
+            if name == "PARM":
+                self._param(getattr(msg, "Name", None), getattr(msg, "Value", None))
+                return None
+            raws = convert_dataflash(msg)
+            sysid = 0
+        else:
+            if name == "PARAM_VALUE":
+                self._param(getattr(msg, "param_id", None), getattr(msg, "param_value", None))
+                return None
+            sysid = int(msg.get_srcSystem())
+            if self.sysid is not None and sysid != self.sysid:
+                self.stats.bad("wrong_sysid", name)
+                return None
+            if name == "SYSTEM_TIME" and msg.time_boot_ms and msg.time_unix_usec:
+                run.systime[sysid] = msg.time_unix_usec * 1e-6 - msg.time_boot_ms * 1e-3
+                return None
+            raws = convert_mavlink(msg)
+        if not raws:
+            return None
+        good = self._checked(raws, run.fitted)
+        return (sysid, good) if good else None
+
+    def _checked(self, raws: list[Raw], fitted: set[str]) -> list[Raw]:
+        """The items of the chosen IMU (``imu``; every other kind) that pass
+        :func:`~uavest.ingest.convert.check`; the others counted by why: a sensor that is
+        not fitted (all zeros from an instance never seen otherwise: ``absent``), no GNSS
+        fix yet (``no_fix``), or bad data of the kind ``check`` names. ``fitted`` gathers
+        the sensor instances that sent a good record."""
+        st = self.stats
+        if self.imu is not None:
+            raws = [r for r in raws if r.cat != "imu" or r.source == self.imu]
+        good = []
+        for r in raws:
+            bad = check(r)
+            if bad is None:
+                good.append(r)
+                if r.cat in _SENSOR_CATS:
+                    fitted.add(stat_key(r))
+            elif (bad == "empty" and r.cat in _SENSOR_CATS and stat_key(r) not in fitted
+                  and (r.cat != "gnss" or _all_zero_gnss(r))):
+                # all zeros from an instance that never sent anything else: a sensor
+                # that is not fitted, not bad data (one info line at the end)
+                st.absent_sensor += 1
+                st.absent[stat_key(r)] += 1
+            elif r.cat == "pos" and not r.primary:
+                pass  # GPS_RAW_INT's position: counted once, as its GNSS item
+            elif bad == "empty" and r.cat in ("pos", "gnss"):
+                st.no_fix += 1  # no GNSS fix yet (lat/lon 0): not bad data
+            else:
+                st.bad(bad, stat_key(r))
+        return good
+
+    def _assign_time(self, msg, sysid: int, good: list[Raw], rx: float | None,
+                     run: _Pass) -> list | None:
+        """The ``(t, (sysid, items))`` of the message that its system's vehicle clock lets
+        through now (``t`` s, vehicle clock), or None without a time (``no_time``).
+
+        A receiver's UNIX time (ArduPilot's GPS_RAW_INT; ``time_usec`` 0 from a GNSS
+        message: a fix without GNSS time yet) goes onto the vehicle clock without moving
+        it (:func:`~uavest.ingest.timebase.retime_unix`, counted ``retimed``, never
+        ``late``); a message without a time field by its receive time (``map_rx``); any
+        other through the clock (``push``: resets, wraps and faults, which it may hold
+        back or reject: rejections are counted here)."""
+        clock = run.clocks.get(sysid)
+        if clock is None:
+            clock = run.clocks[sysid] = VehicleClock(self.stats)
+        name = msg.get_type()
+        tu = getattr(msg, "time_usec", None)
+        gnss_no_time = tu == 0 and name in _GNSS_MESSAGES
+        if tu is not None and (tu >= UNIX_US_MIN or gnss_no_time) and name not in _UNTIMED:
+            t = retime_unix(tu * 1e-6, rx, clock, None if gnss_no_time else
+                            run.systime.get(sysid), run.reorder.floor)
+            if t is not None:
+                self.stats.retimed += 1
+        else:
+            raw_t = self._vehicle_time(msg, clock)
+            if raw_t is not None:
+                accepted = clock.push(raw_t, rx, (sysid, good))
+                run.drain(clock)
+                return accepted
+            t = clock.map_rx(rx)
+        if t is None:
+            self.stats.bad("no_time", stat_key(good[0]))
+            return None
+        return [(t, (sysid, good))]
 
     def prescan_geo(self, max_messages: int = 100_000) -> None:
         """Find the first GPS fix with its date before the replay (``params.geo``): a
