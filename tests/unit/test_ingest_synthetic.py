@@ -230,3 +230,41 @@ def test_record_times_holding_a_frame_marker_are_still_a_tlog(tmp_path, byte, va
     assert all(data[k * rec + byte] == value for k in range(40))  # in every record time
     log = read_log(p)
     assert log.format == "tlog" and len(log.imu) == 40
+
+
+def test_a_program_that_imported_mavutil_first_reads_mavlink2_messages(tmp_path):
+    """pymavlink's mavutil picks its process-wide dialect once, when first imported, and
+    it is MAVLink 1 unless MAVLINK20 was set then. A program (or a test) that imported
+    mavutil before uavest made the tlog reader decode with that dialect: every message id
+    above 255 (OBSTACLE_DISTANCE_3D) and every extension field (GPS_RAW_INT's h_acc) was
+    lost without a word. Run in a fresh interpreter, so the import order is real."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from pymavlink.dialects.v20 import ardupilotmega as m2
+
+    root = Path(__file__).resolve().parents[2]
+    p = tmp_path / "v2.tlog"
+    mav = m2.MAVLink(None, srcSystem=1, srcComponent=1)
+    with open(p, "wb") as f:
+        for i in range(20):
+            t = 10_000 + 100 * i
+            rx = int((T0_UNIX + t * 1e-3) * 1e6)
+            gps = m2.MAVLink_gps_raw_int_message(
+                t * 1000, 3, 473977000, 85456000, 408000, 80, 120, 500, 9000, 12,
+                0, 1500, 2500, 300, 900, 0)
+            imu = m2.MAVLink_scaled_imu_message(t, 0, 0, -1000, 100, 0, 0, 200, 0, 400)
+            for m in (imu, gps):
+                f.write(struct.pack(">Q", rx) + m.pack(mav))
+    code = (
+        "from pymavlink import mavutil\n"  # before uavest, MAVLINK20 unset
+        "from uavest.ingest import open_source\n"
+        "g = [s for s in open_source(%r) if type(s).__name__ == 'GnssSample']\n"
+        "print(len(g), sum(s.h_acc == s.h_acc for s in g))\n" % str(p))
+    env = {k: v for k, v in os.environ.items() if k != "MAVLINK20"}
+    env["PYTHONPATH"] = str(root) + os.pathsep + env.get("PYTHONPATH", "")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, timeout=60, check=True).stdout.split()
+    assert out == ["20", "20"], out  # every fix read, with its receiver accuracy

@@ -10,7 +10,6 @@ import logging
 import math
 import os
 import re
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -372,11 +371,9 @@ class MavlinkSource:
 
     # ----------------------------------------------------------------- readers
     def _open(self):
-        from pymavlink import DFReader, mavutil
+        from pymavlink import DFReader
 
         try:
-            if self.format == "tlog":
-                return mavutil.mavlogfile(str(self.path), robust_parsing=True)
             with _quiet() as buf:
                 if self.format == "dataflash":
                     conn = DFReader.DFReader_binary(str(self.path), zero_time_base=False)
@@ -412,13 +409,20 @@ class MavlinkSource:
         resync/validity routine of both paths): good frames of used types decoded by
         pymavlink's parser, of unused types stepped over as :class:`Skipped` (every one
         decoded with ``_decode_all``); what lies between counted by kind
-        (``stats.skipped``; text as ``non_mavlink``, the rest ``corrupt``/``truncated``)."""
-        conn = self._open()
+        (``stats.skipped``; text as ``non_mavlink``, the rest ``corrupt``/``truncated``).
+
+        Frames are decoded with the MAVLink 2 ``ardupilotmega`` dialect named here, not
+        with ``pymavlink.mavutil``'s process-wide one: that is chosen once, when mavutil is
+        first imported, and is MAVLink 1 unless ``MAVLINK20`` was set then, so a program
+        that imported mavutil before uavest lost every message id above 255
+        (OBSTACLE_DISTANCE_3D) and every extension field (GNSS accuracies)."""
+        from pymavlink.dialects.v20 import ardupilotmega as mod
+
         st = self.stats
         mm = None
+        mav = mod.MAVLink(None)
+        mav.robust_parsing = True
         try:
-            mav = conn.mav
-            mod = sys.modules[type(mav).__module__]
             mm, size = _map(self.path)
             if mm is None:
                 return
@@ -461,8 +465,6 @@ class MavlinkSource:
         finally:
             if mm is not None:
                 mm.close()
-            with contextlib.suppress(Exception):
-                conn.close()
 
     def _count_skipped(self, skipped: dict[str, int]) -> None:
         """Count what the framer stepped over: text as ``non_mavlink`` (one per run: not
