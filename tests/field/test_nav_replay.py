@@ -130,3 +130,27 @@ def test_a_long_imu_interval_below_the_gap_threshold_is_predicted_in_sub_steps(t
     assert f["hybrid"]["resets"] == 0
     assert doc["imu_split_intervals"] >= 1 and doc["imu_split_longest_s"] > 3.0
     assert "long IMU intervals: " in r.stdout
+
+
+@pytest.mark.slow
+def test_sitl_copter_gnss_delay_is_estimated_and_pays(tmp_path):
+    """logs/sitl_copter.tlog (the ArduCopter SITL's GPS lags 100 ms, SIM_GPS1_LAG_MS):
+    the replay estimates the delay (a decision line), scores against SIM_STATE, and the
+    estimate's run is closer to the truth than the same replay told the delay is 0."""
+    log = str(REPO_ROOT / "logs" / "sitl_copter.tlog")
+    docs = {}
+    for name, extra in (("est", ()), ("zero", ("--gnss-delay", "0"))):
+        out = tmp_path / f"{name}.json"
+        r = _replay(log, "--filters", "ekf", "--json", str(out), *extra)
+        assert r.returncode == 0, r.stderr
+        line = next(ln for ln in r.stdout.splitlines()
+                    if ln.startswith("decision: GNSS delay:"))
+        assert ("estimated" in line) == (name == "est"), line
+        docs[name] = json.loads(out.read_text())
+    est = docs["est"]["gnss_delay_estimate"]
+    assert abs(est["delay"] - 0.1) < 0.01 and est["sd"] < 0.005
+    assert docs["est"]["position_reference"] == "SIM_STATE"
+    assert docs["zero"].get("gnss_delay_estimate") is None
+    a, z = (docs[k]["filters"]["ekf"]["airborne"] for k in ("est", "zero"))
+    for k in ("roll_rmse_deg", "pitch_rmse_deg", "vel_rmse_ms", "hpos_rmse_m"):
+        assert a[k] < z[k], k

@@ -83,7 +83,9 @@ class ReplayConfig:
     #: the library default stays the attitude model (the one whose results the golden
     #: files and earlier tables hold); ``uavest replay`` defaults to "auto"
     model: str = "attitude"
-    gnss_delay: float | None = None  # s; None -> NavNoise.gnss_delay
+    gnss_delay: float | None = None  # s; None -> estimated (estimate_delay), else default
+    #: with ``gnss_delay`` None: estimate it from the log (:func:`probe_gnss_delay`)
+    estimate_delay: bool = True
     model_why: str | None = None  # why a fixed ``model`` (None: "option --model")
 
     def attitude_options(self) -> AttitudeOptions:
@@ -93,6 +95,67 @@ class ReplayConfig:
     def nav_options(self) -> NavOptions:
         names = {f.name for f in fields(NavOptions)}
         return NavOptions(**{k: v for k, v in vars(self).items() if k in names})
+
+
+#: The filter of the GNSS delay probe (``attitude`` preset, navigation state).
+PROBE_FILTER = "ekf"
+#: The probe filter's GNSS floors (m/s, m; at least these): weak aiding, so that its
+#: attitude, fitted to GNSS velocities taken at the wrong time, pulls the estimate less
+#: away from the delay the probe assumes (about 2-6 % of the difference, against 5-10 %
+#: with the run's own floors, on the SITL flight and sim_200hz with 0.15 s injected).
+PROBE_FLOORS = {"gnss_vel_floor": 1.0, "gnss_pos_floor": 2.0}
+#: A first estimate further than this (s) from the probe's assumed delay is refined by a
+#: second probe run assuming it (over the samples the first one held).
+PROBE_REFINE_S = 0.03
+
+
+def probe_gnss_delay(samples: Iterable, cfg: ReplayConfig, params: dict | None
+                     ) -> tuple[dict, Iterator]:
+    """The GNSS delay of a log estimated before the run (``cfg.gnss_delay`` None): one
+    navigation EKF over the first :data:`~uavest.engine.gnss_delay.PROBE_S` s of IMU
+    data (:func:`~uavest.engine.gnss_delay.estimate_gnss_delay`), run again over the
+    samples it held when its estimate is far from the delay it assumed. Returns the
+    estimate (``delay`` s or None, ``sd`` s, ``pairs``, ``excitation`` (m/s)^2, ``why``,
+    ``delay_used`` s, ``why_used``) and the same samples (the held ones in front)."""
+    import itertools
+
+    from ..engine.gnss_delay import PROBE_S, estimate_gnss_delay
+    from ..models.navigation import NavNoise
+
+    (sp, flt), = build_filters(resolve_list((PROBE_FILTER,), "attitude", dim=15))
+    opts = cfg.nav_options()  # checks the --noise names
+    noise = NavNoise().with_(**cfg.noise)
+    opts = replace(opts, noise={**cfg.noise, **{
+        k: max(v, float(getattr(noise, k))) for k, v in PROBE_FLOORS.items()}})
+
+    def probe(src: Iterable, prior: float):
+        runner = NavRunner("gnss delay probe", flt, rng(cfg.seed, 0, "probe:gnss_delay"))
+        return estimate_gnss_delay(src, opts, params or {}, runner, prior=prior)
+
+    prior = 0.0
+    est, held, rest = probe(samples, prior)
+    runs = 1
+    if est.delay is not None and abs(est.delay - prior) > PROBE_REFINE_S:
+        prior = est.delay
+        est2, _, _ = probe(held, prior)
+        runs = 2
+        if est2.delay is not None:
+            est = est2
+    default = float(noise.gnss_delay)
+    span = f"the first {PROBE_S:g} s of IMU data"
+    if est.delay is not None:
+        used = float(np.clip(est.delay, 0.0, 2.0))
+        neg = " (negative: used as 0)" if est.delay < 0 else ""
+        why = (f"estimated{neg}: the lag of the GNSS velocity behind the IMU ({PROBE_FILTER}, "
+               f"{est.pairs} fix pairs in {span}, standard error {est.sd * 1e3:.1f} ms"
+               + (", refined once" if runs == 2 else "") + "; --gnss-delay S to set it)")
+    else:
+        used = default
+        why = f"default (not estimated: {est.why})"
+    doc = {"delay": est.delay, "sd": est.sd, "pairs": est.pairs,
+           "excitation": est.excitation, "why": est.why, "probe_runs": runs,
+           "delay_used": used, "why_used": why}
+    return doc, itertools.chain(held, rest)
 
 
 def _good_fix(s) -> bool:
@@ -285,6 +348,11 @@ def replay_samples(
         if bad:
             raise InputError(f"--noise {bad[0]}: a parameter of the navigation model, not "
                              "of the attitude-only model that runs here")
+    wall0 = time.perf_counter()
+    delay_doc = None
+    if nav and cfg.gnss_delay is None and cfg.estimate_delay:
+        delay_doc, windowed = probe_gnss_delay(windowed, cfg, params)
+        cfg = replace(cfg, gnss_delay=delay_doc["delay_used"])
     specs = build_filters(resolve_list(cfg.filters, "attitude", dim=15 if nav else 6))
     rng_for = rng_for or (lambda label: rng(cfg.seed, 0, filter_stream(label)))
     runner_cls = NavRunner if nav else FilterRunner
@@ -298,14 +366,16 @@ def replay_samples(
     coll = Collector() if cfg.smooth else None
     refs = _Refs() if cfg.smooth else None
     stream: AttitudeStream | NavStream = (
-        NavStream(opts=replace(cfg.nav_options(), before_fix=decision["fix_stream"]),
+        NavStream(opts=replace(cfg.nav_options(), before_fix=decision["fix_stream"],
+                               gnss_delay_why=delay_doc["why_used"] if delay_doc else None),
                   params=params) if nav
         else AttitudeStream(opts=opts, params=params))
+    if delay_doc is not None:
+        stream.summary["gnss_delay_estimate"] = delay_doc
     info = info or RunInfo("", "", cfg.seed)
     info.filters = {sp.label: sp.as_dict() for sp, _ in specs}
     all_sinks = ([score, _NavScore(nav_scorer), gaps] + ([refs] if refs else [])
                  + ([coll] if coll else []) + list(sinks))
-    wall0 = time.perf_counter()
     run_lanes(windowed, [Lane(stream, runners)], all_sinks, info)
     wall = time.perf_counter() - wall0 - sum(r.smooth_seconds for r in runners)
     scorer.finish()
@@ -501,7 +571,8 @@ def _position_fields(nsc: NavScorer, params: dict, summary: dict, nav: bool) -> 
         got["position_reference_kind"] = position_ref_kind(pref, params)
     if nav:
         got.update({k: summary.get(k) for k in ("gnss_source", "gnss_sources", "baro_source",
-                                                "gnss_delay_s", "baro_offset_m", "origin",
+                                                "gnss_delay_s", "gnss_delay_estimate",
+                                                "baro_offset_m", "origin",
                                                 "aiding", "fix_from_t")})
     return got
 

@@ -355,7 +355,9 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
                    "the log carries a GNSS fix stream, attitude-only otherwise; "
                    "docs/navigation.md)")
     p.add_argument("--gnss-delay", type=float, default=None, metavar="S",
-                   help="navigation model: GNSS measurement delay in s (default 0)")
+                   help="navigation model: GNSS measurement delay in s (default: estimated "
+                   "from the log, the lag of the GNSS velocity behind the IMU; 0 when the "
+                   "log has too little manoeuvring)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_recording_options(p)
     p.add_argument("--speed", type=float, default=1.0,

@@ -137,7 +137,8 @@ class NavOptions:
     log's parameters, else 0); ``noise`` overrides of
     :class:`~uavest.models.navigation.NavNoise`; ``imu``/``gnss``/``baro`` source names
     or None (the stream's choice); ``use_mag``, ``use_baro``; ``mag_mode`` field or
-    heading; ``gnss_delay`` s (None: ``NavNoise.gnss_delay``); ``align_s`` s;
+    heading; ``gnss_delay`` s (None: ``NavNoise.gnss_delay``) and ``gnss_delay_why``
+    where it came from (None: "option --gnss-delay" / "default"); ``align_s`` s;
     ``yaw_speed`` m/s, the ground speed from which the GNSS course gives the start yaw
     without a magnetometer; ``imu_delay`` s, the lag of the IMU's samples behind the
     motion (None: :func:`imu_filter_delay` from the log's parameters); ``before_fix``:
@@ -160,6 +161,7 @@ class NavOptions:
     use_baro: bool = True
     mag_mode: str = "field"
     gnss_delay: float | None = None
+    gnss_delay_why: str | None = None
     align_s: float = 1.0
     yaw_speed: float = 3.0
     imu_delay: float | None = None
@@ -314,6 +316,11 @@ class NavStream:
         self._gnss_srcs: dict[str, int] = {}
         self._baro_srcs: dict[str, int] = {}
         self.aiding: dict[str, dict[str, int]] = {}
+
+    @property
+    def gnss_source(self) -> str | None:
+        """The GNSS receiver the stream uses (None: not chosen yet)."""
+        return self._gnss
 
     # ------------------------------------------------------------------ bookkeeping
     def _decide(self, what: str, value: Any, t: float, why: str) -> None:
@@ -881,8 +888,8 @@ class NavStream:
                      f"most samples in the first {2 * o.align_s:g} s ("
                      + ", ".join(f"{k} {v}" for k, v in sorted(imu_counts.items())) + ")")
         self._decide("integration", integ, t_first, "option" if o.integration != "auto" else why)
-        self._decide("GNSS delay", f"{self.delay:g} s", t_first,
-                     "option --gnss-delay" if o.gnss_delay is not None else "default")
+        self._decide("GNSS delay", f"{self.delay:.3f} s", t_first, o.gnss_delay_why or (
+            "option --gnss-delay" if o.gnss_delay is not None else "default"))
         self._decide("IMU delay", f"{self.imu_delay * 1e3:.1f} ms", t_first, dwhy)
         self._builder = _NavBuilder(integ, factor)
         med = float(np.median(np.diff(ti))) if len(ti) > 1 else 0.0
