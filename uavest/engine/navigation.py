@@ -138,7 +138,8 @@ class NavOptions:
     :class:`~uavest.models.navigation.NavNoise`; ``imu``/``gnss``/``baro`` source names
     or None (the stream's choice); ``use_mag``, ``use_baro``; ``mag_mode`` field or
     heading; ``gnss_delay`` s (None: ``NavNoise.gnss_delay``) and ``gnss_delay_why``
-    where it came from (None: "option --gnss-delay" / "default"); ``align_s`` s;
+    where it came from (None: "option --gnss-delay" / "default"); ``mag_delay`` s, the
+    magnetometer sample's age (None: 0), and ``mag_delay_why``; ``align_s`` s;
     ``yaw_speed`` m/s, the ground speed from which the GNSS course gives the start yaw
     without a magnetometer; ``imu_delay`` s, the lag of the IMU's samples behind the
     motion (None: :func:`imu_filter_delay` from the log's parameters); ``before_fix``:
@@ -162,6 +163,8 @@ class NavOptions:
     mag_mode: str = "field"
     gnss_delay: float | None = None
     gnss_delay_why: str | None = None
+    mag_delay: float | None = None
+    mag_delay_why: str | None = None
     align_s: float = 1.0
     yaw_speed: float = 3.0
     imu_delay: float | None = None
@@ -185,6 +188,10 @@ class NavOptions:
         d = self.gnss_delay
         if d is not None and not (np.isfinite(d) and 0.0 <= d <= 2.0):
             raise InputError(f"--gnss-delay must be from 0 to 2 s, got {d}")
+        d = self.mag_delay
+        if d is not None and not (np.isfinite(d) and 0.0 <= d <= 2.0):
+            raise InputError(f"--mag-delay must be from 0 to 2 s for the navigation model, "
+                             f"got {d}")
 
 
 def imu_filter_delay(source: str, params: dict[str, Any]) -> tuple[float, str]:
@@ -225,6 +232,7 @@ class _Aid:
     gnss: GnssSample | None = None
     ned: Array | None = None
     height: float = float("nan")
+    vec: Array | None = None  # a magnetometer sample's field (gauss, body FRD)
 
 
 class _NavBuilder(_StepBuilder):
@@ -287,7 +295,11 @@ class NavStream:
         self._baro: str | None = self.opts.baro
         self._model: ImuTransition | None = None
         self._queue: deque[_Raw] = deque()
-        self._aid: dict[str, deque[_Aid]] = {"gnss": deque(), "baro": deque()}
+        self._aid: dict[str, deque[_Aid]] = {"gnss": deque(), "baro": deque(),
+                                             "mag": deque()}
+        self.mag_delay = 0.0  # s, the magnetometer sample's age (NavOptions.mag_delay)
+        self._hold = 0.0  # s the stream holds closed steps: max(GNSS, magnetometer delay)
+        self._mag_last: Array | None = None  # the last magnetometer field queued
         self._recent: deque[_Raw] = deque()  # raws of the last align_s while waiting
         self._vfix: deque[tuple[float, Array]] = deque(maxlen=2)  # last good GNSS (t, v NED)
         self._other_imu: dict[str, list[float]] = {}  # failover evidence per other IMU
@@ -394,6 +406,7 @@ class NavStream:
             if s.source != self._mag:
                 return []
             raws = b.push_nav(s)
+            self._mag_sample(s)
         elif isinstance(s, GnssSample):
             self._gnss_sample(s)
         elif isinstance(s, BaroSample):
@@ -514,6 +527,20 @@ class NavStream:
             ned[2] = np.nan
         self._aid["gnss"].append(_Aid(s.t - self.delay, "gnss", gnss=s, ned=ned))
 
+    def _mag_sample(self, s: MagSample) -> None:
+        """Queue a magnetometer sample as an aid at its time less the magnetometer delay
+        (s), when it is a new reading: a field equal to the previous one is the same
+        reading held (MAVLink's IMU messages repeat the last compass value: the ArduCopter
+        SITL's changes 10 times a second in a 200 Hz RAW_IMU), not a new measurement."""
+        f = np.asarray(s.field, float)
+        if not (np.isfinite(f).all() and np.any(f)):
+            return
+        if self._mag_last is not None and np.array_equal(f, self._mag_last):
+            self._count("mag", "held")
+            return
+        self._mag_last = f
+        self._aid["mag"].append(_Aid(s.t - self.mag_delay, "mag", vec=f))
+
     def _baro_sample(self, s: BaroSample) -> None:
         if not self.opts.use_baro:
             return
@@ -532,19 +559,19 @@ class NavStream:
     # ------------------------------------------------------------------ releasing steps
     def _release(self, upto: float | None = None) -> list[Start | Step]:
         out: list[Start | Step] = []
-        lim = self._now - self.delay if upto is None else upto
+        lim = self._now - self._hold if upto is None else upto
         while self._queue and (self._queue[0].t < lim or (upto is not None
                                                             and self._queue[0].t <= lim)):
             r = self._queue.popleft()
             aids = []
             for q in self._aid.values():  # each sensor's aids are in time order
-                while q and q[0].t <= r.t:
+                while q and q[0].t <= self._stamp(r):
                     a = q.popleft()
                     if self._t_out is not None and a.t <= self._t_out:
                         self._count(a.sensor, "late")
                         continue
                     aids.append(a)
-            self._t_out = r.t
+            self._t_out = self._stamp(r)
             if self._waiting:
                 out += self._try_start(r, aids)
             elif self._unaided:
@@ -783,7 +810,9 @@ class NavStream:
             if np.isfinite(v[:2]).all():
                 sv = max(n.gnss_vel_floor, g.s_acc if np.isfinite(g.s_acc) else 0.0)
                 rows = (0, 1, 2) if np.isfinite(v[2]) else (0, 1)
-                ups.append((v[list(rows)], GnssVelocity(np.eye(len(rows)) * sv * sv, rows)))
+                ups.append((v[list(rows)], GnssVelocity(
+                    np.eye(len(rows)) * sv * sv, rows, back=max(dt, 0.0), f=r.a,
+                    g=self._model.g)))
                 sensors.append("gnss_vel")
                 vx = np.where(np.isfinite(v), v, 0.0)
             else:
@@ -804,20 +833,23 @@ class NavStream:
                 self._offset_pair(baro.height - self._h_fix[1], r.t)
             if self._baro_offset is not None:
                 ups.append((np.array([baro.height]),
-                            BaroHeight(np.array([[n.baro_noise**2]]), self._baro_offset)))
+                            BaroHeight(np.array([[n.baro_noise**2]]), self._baro_offset,
+                                       back=max(self._stamp(r) - baro.t, 0.0))))
                 sensors.append("baro")
                 self._count("baro", "used")
-        if (r.mag is not None and np.isfinite(r.mag).all() and np.any(r.mag)
-                and r.t - self._t_mag >= MAG_MIN_INTERVAL_S):
-            self._t_mag = r.t
-            f = np.asarray(r.mag, float)
+        mag = next((a for a in reversed(aids) if a.sensor == "mag"), None)
+        if mag is not None and mag.vec is not None and mag.t - self._t_mag >= MAG_MIN_INTERVAL_S:
+            self._t_mag = mag.t
+            f = mag.vec
+            back = max(self._stamp(r) - mag.t, 0.0)  # s the sample is older than the step
             if self._mref is not None:
-                ups.append((f / np.linalg.norm(f),
-                            OnNav(MagField(self._mref, np.eye(3) * n.mag_noise**2))))
+                ups.append((f / np.linalg.norm(f), OnNav(
+                    MagField(self._mref, np.eye(3) * n.mag_noise**2), back, r.w)))
             else:
-                ups.append((np.array([self.declination]),
-                            OnNav(MagHeading(f, np.array([[n.mag_noise**2]])))))
+                ups.append((np.array([self.declination]), OnNav(
+                    MagHeading(f, np.array([[n.mag_noise**2]])), back, r.w)))
             sensors.append("mag")
+            self._count("mag", "used")
         if self._unaided and r.t - self._t_hold >= HOLD_INTERVAL_S:
             self._t_hold = r.t
             ups.append((np.zeros(3), GnssPosition(np.eye(3) * n.nofix_pos_noise**2)))
@@ -871,6 +903,8 @@ class NavStream:
         integ, why, factor = step_plan(imu, rate, o.integration, o.rate_hz)
         self.noise = nav_noise_for_source(imu, rate).with_(**o.noise)
         self.delay = float(self.noise.gnss_delay if o.gnss_delay is None else o.gnss_delay)
+        self.mag_delay = float(o.mag_delay or 0.0)
+        self._hold = max(self.delay, self.mag_delay)
         if o.imu_delay is None:
             self.imu_delay, dwhy = imu_filter_delay(imu, self.params)
         else:
@@ -881,6 +915,7 @@ class NavStream:
             imu_source=imu, imu_sources=imu_counts, mag_source=mag, accel_compensation=None,
             integration=integ, integration_why=why, preintegrated_samples_per_step=factor,
             align_rate_hz=rate, steps_per_update=1, gnss_delay_s=self.delay,
+            mag_delay_s=self.mag_delay if mag is not None else None,
         )
         t_first = ti[0]
         self._decide("IMU", imu, t_first,
@@ -891,6 +926,10 @@ class NavStream:
         self._decide("GNSS delay", f"{self.delay:.3f} s", t_first, o.gnss_delay_why or (
             "option --gnss-delay" if o.gnss_delay is not None else "default"))
         self._decide("IMU delay", f"{self.imu_delay * 1e3:.1f} ms", t_first, dwhy)
+        if mag is not None:
+            self._decide("magnetometer delay", f"{self.mag_delay * 1e3:.0f} ms", t_first,
+                         o.mag_delay_why or ("option --mag-delay" if o.mag_delay is not None
+                                             else "default"))
         self._builder = _NavBuilder(integ, factor)
         med = float(np.median(np.diff(ti))) if len(ti) > 1 else 0.0
         self._builder.gap_s = max(GAP_MIN_S, GAP_MEDIANS * med)
