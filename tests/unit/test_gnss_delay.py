@@ -84,6 +84,36 @@ def test_too_few_fixes_give_no_estimate():
     assert p.estimate().delay is None and "too few" in p.estimate().why
 
 
+def test_a_known_magnetometer_age_is_found():
+    """Readings of a fixed field taken ``age`` s before their stamps while the vehicle
+    turns (yaw 0.8 rad/s, a roll/pitch wobble): the probe finds the age and the field's
+    inclination, and the scatter is the readings' noise."""
+    from uavest.geometry.rotation import euler_to_quat, quat_rotate_inv
+
+    rng = np.random.default_rng(3)
+    age, incl, noise = 0.06, np.deg2rad(63.0), 0.003
+    mref = np.array([np.cos(incl), 0.0, np.sin(incl)])
+
+    def att(t):
+        return euler_to_quat(0.2 * np.sin(0.9 * t), 0.15 * np.cos(1.3 * t), 0.8 * t)
+
+    p = DelayProbe()
+    p.start()
+    dt = 0.04
+    for k, t in enumerate(np.arange(dt, 60.0, dt)):
+        x = np.zeros(16)
+        x[:4] = att(t)
+        p.add_step(Step(k + 1, float(t), dt, _Model(), (), np.r_[np.zeros(3), 0, 0, -G]), x)
+    for t in np.arange(1.0, 59.0, 0.1):
+        b = quat_rotate_inv(att(t - age), mref) + noise * rng.standard_normal(3)
+        p.add_mag(float(t), b)
+    est = p.estimate_mag()
+    assert est.delay is not None, est.why
+    assert abs(est.delay - age) < 0.005
+    assert abs(est.inclination - incl) < np.deg2rad(0.1)
+    assert 0.5 * noise < est.scatter < 2.0 * noise
+
+
 def _shifted(samples, d):
     """The samples with every GNSS fix stamped ``d`` s later (a known added delay)."""
     buf: list = []

@@ -254,9 +254,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if args.gnss_delay is not None and not (math.isfinite(args.gnss_delay)
                                             and 0.0 <= args.gnss_delay <= 2.0):
         raise InputError(f"--gnss-delay must be from 0 to 2 s, got {args.gnss_delay}")
-    if args.mag_delay > 10.0:
+    if args.mag_delay is not None and args.mag_delay > 10.0:
         raise InputError(f"--mag-delay must be at most 10 s, got {args.mag_delay}")
-    if args.mag_delay < 0 or not math.isfinite(args.mag_delay):
+    if args.mag_delay is not None and (args.mag_delay < 0 or not math.isfinite(args.mag_delay)):
         raise InputError(
             f"--mag-delay must be a finite number of seconds >= 0, got {args.mag_delay}")
     if args.rate is not None and (args.rate < 0 or not math.isfinite(args.rate)):
@@ -346,8 +346,10 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
                    "(default auto: when the log has velocity)")
     p.add_argument("--mag-mode", default="field", choices=("field", "heading"),
                    help="magnetometer as 3-D field direction (default) or heading only")
-    p.add_argument("--mag-delay", type=float, default=0.0,
-                   help="magnetometer sample age in s, compensated with the gyro (default 0)")
+    p.add_argument("--mag-delay", type=float, default=None,
+                   help="magnetometer sample age in s, compensated with the gyro (default: "
+                   "0 for the attitude model; estimated from the log for the navigation "
+                   "model)")
     p.add_argument("--no-mag", action="store_true", help="do not use the magnetometer")
     p.add_argument("--model", default="auto", choices=("auto", "nav", "attitude"),
                    help="estimation model (default auto: navigation - attitude, velocity, "

@@ -40,15 +40,16 @@ from typing import Any
 
 import numpy as np
 
-from ..geometry.rotation import quat_rotate
-from ..ingest.types import GnssSample, ImuSample
+from ..geometry.rotation import quat_exp, quat_mul, quat_rotate, quat_slerp_interp
+from ..ingest.types import GnssSample, ImuSample, MagSample
 from .navigation import NavOptions, NavRunner, NavStream
 from .records import Start, Step
 
 Array = np.ndarray
 
-__all__ = ["GRID_S", "MAX_DELAY_S", "MAX_SD_S", "MIN_DELAY_S", "MIN_EXCITATION", "PAIR_S",
-           "PROBE_S", "DelayEstimate", "DelayProbe", "estimate_gnss_delay"]
+__all__ = ["GRID_S", "MAX_DELAY_S", "MAX_MAG_DELAY_S", "MAX_SD_S", "MIN_DELAY_S",
+           "MIN_EXCITATION", "PAIR_S", "PROBE_S", "DelayEstimate", "DelayProbe", "MagEstimate",
+           "estimate_gnss_delay"]
 
 #: The delays tried (s): MIN_DELAY_S to MAX_DELAY_S every GRID_S (a negative delay, the
 #: GNSS stamped before the IMU, is reported as found and used as 0).
@@ -63,6 +64,8 @@ MAX_SD_S = 0.01
 #: ... and the GNSS velocity changed enough: the sum of |dv_i|^2 over the pairs, (m/s)^2
 #: (a hover with 2 cm/s of noise over 10 min gives ~1).
 MIN_EXCITATION = 20.0
+#: The magnetometer ages tried (s): 0 to this.
+MAX_MAG_DELAY_S = 0.3
 #: The replay's pre-pass looks at the first this many seconds of IMU data (s).
 PROBE_S = 240.0
 
@@ -82,6 +85,26 @@ class DelayEstimate:
     cost: Array = field(default_factory=lambda: np.zeros(0))
 
 
+@dataclass
+class MagEstimate:
+    """The magnetometer's age ``delay`` (s, against the IMU-delay-corrected steps; None:
+    not estimated, ``why`` says why), its standard error ``sd`` (s), the ``scatter``
+    (rad, per axis of the field direction, with the filter's attitude error in it), the
+    field's ``inclination`` (rad, down positive: the mean direction at that age) and the
+    ``readings`` it rests on, with the spread curve ``grid`` (s) / ``cost``."""
+
+    delay: float | None
+    sd: float | None
+    readings: int
+    why: str
+    scatter: float | None = None
+    inclination: float | None = None
+    #: the magnetometer noise (rad) the probe's stream took for its IMU source
+    noise_default: float | None = None
+    grid: Array = field(default_factory=lambda: np.zeros(0))
+    cost: Array = field(default_factory=lambda: np.zeros(0))
+
+
 class DelayProbe:
     """What the estimate needs from a navigation run: per step the time (s, the step's
     end), its length (s) and the NED acceleration ``a_n`` (m/s^2) from a filter's
@@ -97,6 +120,9 @@ class DelayProbe:
         self._segment = 0
         self._gt: list[float] = []
         self._gv: list[Array] = []
+        self._q: list[Array] = []
+        self._mt: list[float] = []
+        self._mf: list[Array] = []
 
     def start(self) -> None:
         """The filters restarted (alignment, re-alignment)."""
@@ -107,9 +133,12 @@ class DelayProbe:
         gravity ``g``) and the filter's state ``x`` after it (q, ..., b_a)."""
         if st.u is None or not np.isfinite(x).all():
             return
-        f = np.asarray(st.u, float)[3:6] - x[13:16]
-        a = quat_rotate(x[:4], f)
+        u = np.asarray(st.u, float)
+        f = u[3:6] - x[13:16]
+        q_mid = quat_mul(x[:4], quat_exp(-0.5 * st.dt * (u[:3] - x[10:13])))
+        a = quat_rotate(q_mid, f)
         a[2] += float(getattr(st.transition, "g", 0.0))
+        self._q.append(np.array(x[:4], float))
         self._t.append(float(st.t))
         self._dt.append(float(st.dt))
         self._a.append(a)
@@ -121,6 +150,66 @@ class DelayProbe:
         if s.fix_type >= 2 and np.isfinite(v[:2]).all():
             self._gt.append(float(s.t))
             self._gv.append(v)
+
+    def add_mag(self, t: float, field: Array) -> None:
+        """One new magnetometer reading at ``t`` (s, its stamp) of ``field`` (body FRD,
+        any unit)."""
+        f = np.asarray(field, float)
+        n = float(np.linalg.norm(f))
+        if np.isfinite(n) and n > 0:
+            self._mt.append(float(t))
+            self._mf.append(f / n)
+
+    def estimate_mag(self, max_delay: float = MAX_MAG_DELAY_S, grid_s: float = GRID_S
+                     ) -> MagEstimate:
+        """The magnetometer's age (s) and scatter (rad): the ``L`` of a grid (0 to
+        ``max_delay``) with the least spread of the readings turned into NED with the
+        filter's attitude at ``t - L`` (the field is the same everywhere in a flight: what
+        the rotation of the vehicle during ``L`` adds to the spread, the right ``L`` takes
+        out); the spread there, per axis of the direction, is the scatter."""
+        est = MagEstimate(None, None, len(self._mt), "")
+        if len(self._mt) < 50 or len(self._t) < 10:
+            est.why = f"{len(self._mt)} magnetometer readings"
+            return est
+        t = np.array(self._t)
+        q = np.array(self._q)
+        mt = np.array(self._mt)
+        mf = np.array(self._mf)
+        keep = (mt - max_delay >= t[0]) & (mt <= t[-1])
+        mt, mf = mt[keep], mf[keep]
+        n = mt.size
+        if n < 50:
+            est.why = f"{n} magnetometer readings inside the steps"
+            return est
+        grid = np.arange(0.0, max_delay + 0.5 * grid_s, grid_s)
+        cost = np.empty(grid.size)
+        for k, lag in enumerate(grid):
+            qi, _ = quat_slerp_interp(t, q, mt - lag)
+            u = quat_rotate(qi, mf)
+            cost[k] = float(np.sum((u - u.mean(axis=0)) ** 2))
+        est.grid, est.cost = grid, cost
+        k = int(np.argmin(cost))
+        est.scatter = float(np.sqrt(cost[k] / (2 * n)))
+        qi, _ = quat_slerp_interp(t, q, mt - grid[k])
+        um = quat_rotate(qi, mf).mean(axis=0)
+        est.inclination = float(np.arcsin(np.clip(um[2] / np.linalg.norm(um), -1.0, 1.0)))
+        if k == 0:
+            est.delay, est.sd = 0.0, None
+            return est
+        if k == grid.size - 1:
+            est.why = (f"the least spread is at the end of the range searched "
+                       f"({max_delay:g} s)")
+            return est
+        c0, c1, c2 = cost[k - 1], cost[k], cost[k + 1]
+        curv = (c0 - 2 * c1 + c2) / grid_s**2
+        d = float(grid[k] + 0.5 * grid_s * (c0 - c2) / (c0 - 2 * c1 + c2))
+        est.sd = float(np.sqrt(2.0 * (c1 / max(2 * n - 1, 1)) / curv))
+        if est.sd > MAX_SD_S:
+            est.why = (f"the least spread is not sharp ({d * 1e3:.0f} ms, standard error "
+                       f"{est.sd * 1e3:.0f} ms)")
+            return est
+        est.delay = d
+        return est
 
     def estimate(self, max_delay: float = MAX_DELAY_S, grid_s: float = GRID_S,
                  pair_s: float = PAIR_S) -> DelayEstimate:
@@ -215,17 +304,21 @@ def _cost_on(t0: Array, t1: Array, V: Array, dv: Array, seg: Array, gt: Array, i
 
 
 def estimate_gnss_delay(samples: Iterable[Any], opts: NavOptions, params: dict[str, Any],
-                        runner: NavRunner, probe_s: float = PROBE_S, prior: float = 0.0
-                        ) -> tuple[DelayEstimate, list[Any], Iterator[Any]]:
-    """Run ``runner`` (one navigation filter) on a :class:`NavStream` with ``opts`` over
-    the first ``probe_s`` s of IMU data of ``samples`` and estimate the GNSS delay from
-    it. Returns the estimate, the samples read (to be replayed in front of the rest) and
-    the iterator of the rest."""
+                        runner: NavRunner, probe_s: float = PROBE_S, prior: float = 0.0,
+                        prior_mag: float = 0.0
+                        ) -> tuple[DelayEstimate, MagEstimate, list[Any], Iterator[Any]]:
+    """Run ``runner`` (one navigation filter) on a :class:`NavStream` with ``opts`` and
+    the delays ``prior`` (GNSS) and ``prior_mag`` (magnetometer, s) over the first
+    ``probe_s`` s of IMU data of ``samples``, and estimate both delays from it (and the
+    magnetometer's scatter). Returns the two estimates, the samples read (to be replayed
+    in front of the rest) and the iterator of the rest."""
     it = iter(samples)
     held: list[Any] = []
-    stream = NavStream(opts=replace(opts, gnss_delay=prior), params=params)
+    stream = NavStream(opts=replace(opts, gnss_delay=prior, mag_delay=prior_mag),
+                       params=params)
     probe = DelayProbe()
     t_imu0: float | None = None
+    last_mag: Array | None = None
 
     def feed(items: Iterable[Start | Step]) -> None:
         for item in items:
@@ -246,7 +339,15 @@ def estimate_gnss_delay(samples: Iterable[Any], opts: NavOptions, params: dict[s
             feed(stream.push(s))
             if isinstance(s, GnssSample) and s.source == stream.gnss_source:
                 probe.add_gnss(s)
+            elif isinstance(s, MagSample) and s.source == stream.mag_source:
+                f = np.asarray(s.field, float)
+                if last_mag is None or not np.array_equal(f, last_mag):  # new readings only
+                    probe.add_mag(s.t, f)
+                    last_mag = f
         feed(stream.flush())
     except Exception as e:  # noqa: BLE001 - the probe never fails the run itself
-        return DelayEstimate(None, None, 0, 0.0, f"the probe run failed ({e})"), held, it
-    return probe.estimate(), held, it
+        why = f"the probe run failed ({e})"
+        return DelayEstimate(None, None, 0, 0.0, why), MagEstimate(None, None, 0, why), held, it
+    mest = probe.estimate_mag()
+    mest.noise_default = float(stream.noise.mag_noise)
+    return probe.estimate(), mest, held, it

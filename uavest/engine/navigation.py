@@ -103,6 +103,9 @@ _CHI2: dict[int, float] = {}  # GATE_PROB quantile by dimension
 #: (``mag_noise`` describes one update per reference step; a 200 Hz magnetometer at
 #: ``--rate 0`` would otherwise carry 8 times the information and pull the tilt).
 MAG_MIN_INTERVAL_S = 1.0 / DEFAULT_MAX_RATE_HZ - 1e-6
+#: A start (or re-alignment) levels from at least this share of ``NavOptions.align_s`` of
+#: IMU data (the steps seen while waiting for the fix).
+ALIGN_SPAN = 0.95
 #: Without a good GNSS fix this many alignment windows (``NavOptions.align_s``) into the
 #: IMU data, the stream starts unaided (``NavOptions.before_fix``).
 UNAIDED_WAIT_ALIGNS = 2.0
@@ -139,7 +142,10 @@ class NavOptions:
     or None (the stream's choice); ``use_mag``, ``use_baro``; ``mag_mode`` field or
     heading; ``gnss_delay`` s (None: ``NavNoise.gnss_delay``) and ``gnss_delay_why``
     where it came from (None: "option --gnss-delay" / "default"); ``mag_delay`` s, the
-    magnetometer sample's age (None: 0), and ``mag_delay_why``; ``align_s`` s;
+    magnetometer sample's age (None: 0), and ``mag_delay_why``; ``mag_noise_why``: where
+    the ``mag_noise`` of ``noise`` came from (None: an option or the default);
+    ``mag_inclination`` rad (None: from the alignment window's accelerometer and
+    magnetometer) and ``mag_inclination_why``; ``align_s`` s;
     ``yaw_speed`` m/s, the ground speed from which the GNSS course gives the start yaw
     without a magnetometer; ``imu_delay`` s, the lag of the IMU's samples behind the
     motion (None: :func:`imu_filter_delay` from the log's parameters); ``before_fix``:
@@ -165,6 +171,9 @@ class NavOptions:
     gnss_delay_why: str | None = None
     mag_delay: float | None = None
     mag_delay_why: str | None = None
+    mag_noise_why: str | None = None
+    mag_inclination: float | None = None
+    mag_inclination_why: str | None = None
     align_s: float = 1.0
     yaw_speed: float = 3.0
     imu_delay: float | None = None
@@ -301,7 +310,8 @@ class NavStream:
         self._hold = 0.0  # s the stream holds closed steps: max(GNSS, magnetometer delay)
         self._mag_last: Array | None = None  # the last magnetometer field queued
         self._recent: deque[_Raw] = deque()  # raws of the last align_s while waiting
-        self._vfix: deque[tuple[float, Array]] = deque(maxlen=2)  # last good GNSS (t, v NED)
+        # the good GNSS fixes while waiting (t, v NED), for the vehicle's acceleration
+        self._vfix: deque[tuple[float, Array]] = deque(maxlen=64)
         self._other_imu: dict[str, list[float]] = {}  # failover evidence per other IMU
         self._switched = False  # the IMU changed: the next start keeps no biases
         self._waiting = True
@@ -333,6 +343,11 @@ class NavStream:
     def gnss_source(self) -> str | None:
         """The GNSS receiver the stream uses (None: not chosen yet)."""
         return self._gnss
+
+    @property
+    def mag_source(self) -> str | None:
+        """The magnetometer the stream uses (None: none, or not chosen yet)."""
+        return self._mag
 
     # ------------------------------------------------------------------ bookkeeping
     def _decide(self, what: str, value: Any, t: float, why: str) -> None:
@@ -603,6 +618,14 @@ class NavStream:
             self._vfix.append((fix.t, np.asarray(fix.gnss.vel_ned, float)))
         mags = [x.mag for x in self._recent if x.mag is not None and np.any(x.mag)]
         use_mag = self._mag is not None and bool(mags)
+        if (fix is not None and self._recent
+                and r.t - self._recent[0].t0 < ALIGN_SPAN * o.align_s):
+            # the level needs the accelerometer's mean over the alignment window: one
+            # 200 Hz sample with the airframe's vibration in it left sim_200hz's pitch
+            # 2 deg off (seed 5) until the manoeuvres separated it from the accel bias
+            self._wait_why = (f"{r.t - self._recent[0].t0:.2f} s of IMU data for the level "
+                              f"(needs {ALIGN_SPAN * o.align_s:g} s)")
+            return []
         if fix is None and not self._started and self._recent and use_mag and o.before_fix \
                 and r.t - self._imu_n[1] >= UNAIDED_WAIT_ALIGNS * o.align_s:
             return self._start_unaided(r, mags)
@@ -624,11 +647,13 @@ class NavStream:
             return []
         if first:
             self._first_start(r)
-        # the vehicle's own acceleration (NED, m/s^2) from the last two GNSS velocities:
-        # in flight (a re-alignment after an IMU gap) the accelerometer is not gravity
+        # the vehicle's own mean acceleration (NED, m/s^2) over the alignment window from
+        # the GNSS velocities at its ends: in flight the accelerometer is not gravity (two
+        # consecutive fixes 0.2 s apart with 0.1 m/s of noise leave 0.7 m/s^2, 4 deg)
         a_ned = np.zeros(3)
-        if len(self._vfix) == 2:
-            (t1, v1), (t2, v2) = self._vfix
+        win = [(t, v) for t, v in self._vfix if t >= r.t - o.align_s - 0.25]
+        if len(win) >= 2:
+            (t1, v1), (t2, v2) = win[0], win[-1]
             if 0.05 < t2 - t1 < 2.0:
                 a_ned = np.nan_to_num((v2 - v1) / (t2 - t1))
         q, syaw, ywhy = self._level(a_ned, mags if use_mag else [], vh)
@@ -772,11 +797,17 @@ class NavStream:
                             else ""))
         if self._mag is not None and o.mag_mode == "field":
             pairs = [(x.a, x.mag) for x in self._recent if x.mag is not None and x.a is not None]
-            if pairs:
+            inc, why = None, o.mag_inclination_why or "option"
+            if o.mag_inclination is not None:
+                inc = float(o.mag_inclination)
+            elif pairs:
                 inc = inclination_from_samples(np.array([p[0] for p in pairs]),
                                                np.array([p[1] for p in pairs]))
+                why = "the angle between the accelerometer and the magnetometer at the start"
+            if inc is not None:
                 self._mref = mag_reference(self.declination, inc)
                 self.summary["inclination_rad"] = float(inc)
+                self._decide("inclination", f"{np.degrees(inc):.2f} deg", r.t, why)
 
     def _check_declination(self, t: float) -> None:
         key = (len(self.params), bool(getattr(self.params, "geo", None)))
@@ -930,6 +961,9 @@ class NavStream:
             self._decide("magnetometer delay", f"{self.mag_delay * 1e3:.0f} ms", t_first,
                          o.mag_delay_why or ("option --mag-delay" if o.mag_delay is not None
                                              else "default"))
+            self._decide("magnetometer noise", f"{self.noise.mag_noise:.3f} rad", t_first,
+                         o.mag_noise_why or ("option --noise" if "mag_noise" in o.noise
+                                             else "default for the IMU source"))
         self._builder = _NavBuilder(integ, factor)
         med = float(np.median(np.diff(ti))) if len(ti) > 1 else 0.0
         self._builder.gap_s = max(GAP_MIN_S, GAP_MEDIANS * med)
