@@ -267,14 +267,6 @@ def cmd_replay(args: argparse.Namespace) -> int:
                          f"{args.update_rate}")
     reject_linear_only(args.filter_specs, "replay", "nonlinear attitude models")
     model, model_why = args.model, None
-    if getattr(args, "foxglove", None):
-        # the live view's layout is the attitude model's (MCAP and the report carry the
-        # navigation model's velocity and position too)
-        if model == "nav":
-            raise InputError("--model nav: --foxglove is built for the attitude model only "
-                             "(use --model attitude, or --mcap/--report)")
-        if model == "auto":
-            model, model_why = "attitude", "--foxglove is built for the attitude model only"
     cfg = ReplayConfig(
         filters=tuple(args.filter_specs), start=args.start, end=args.end, smooth=args.smooth,
         seed=args.seed, rate_hz=args.rate, update_hz=args.update_rate,
