@@ -110,6 +110,10 @@ PROBE_FLOORS = {"gnss_vel_floor": 1.0, "gnss_pos_floor": 2.0}
 #: A first estimate further than this (s) from the probe's assumed delay is refined by a
 #: second probe run assuming it (over the samples the first one held).
 PROBE_REFINE_S = 0.03
+#: The probe's estimates are used for an IMU at least this fast (Hz): between two samples
+#: of vtol.tlog's 3.8 Hz RAW_IMU the acceleration is not resolved, and the probe put its
+#: GNSS delay at 0.09 s where the replay is best at 0.25 s (docs/navigation.md).
+PROBE_MIN_IMU_HZ = 20.0
 #: The magnetometer noise taken from the probe's scatter is at least this (rad, 2.9 deg)
 #: and at most the model's default. The scatter sees the sensor, not the error of the
 #: reference field it is compared with: the inclination taken from the flight was 0.3
@@ -151,6 +155,11 @@ def probe_gnss_delay(samples: Iterable, cfg: ReplayConfig, params: dict | None
     prior_m = 0.0 if cfg.mag_delay is None else float(cfg.mag_delay)
     est, mest, held, rest = probe(samples, prior, prior_m)
     runs = 1
+    if est.imu_rate_hz < PROBE_MIN_IMU_HZ:
+        why = (f"the IMU at {est.imu_rate_hz:.1f} Hz is too coarse to time the aiding "
+               f"against (the probe needs {PROBE_MIN_IMU_HZ:g} Hz)")
+        est.delay = mest.delay = mest.scatter = mest.inclination = None
+        est.why = mest.why = why
     far_g = cfg.gnss_delay is None and est.delay is not None and abs(
         est.delay - prior) > PROBE_REFINE_S
     far_m = cfg.mag_delay is None and mest.delay is not None and abs(

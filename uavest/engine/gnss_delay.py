@@ -83,6 +83,7 @@ class DelayEstimate:
     why: str
     grid: Array = field(default_factory=lambda: np.zeros(0))
     cost: Array = field(default_factory=lambda: np.zeros(0))
+    imu_rate_hz: float = 0.0  # the probe run's IMU rate (Hz)
 
 
 @dataclass
@@ -101,6 +102,7 @@ class MagEstimate:
     inclination: float | None = None
     #: the magnetometer noise (rad) the probe's stream took for its IMU source
     noise_default: float | None = None
+    imu_rate_hz: float = 0.0  # the probe run's IMU rate (Hz)
     grid: Array = field(default_factory=lambda: np.zeros(0))
     cost: Array = field(default_factory=lambda: np.zeros(0))
 
@@ -350,4 +352,6 @@ def estimate_gnss_delay(samples: Iterable[Any], opts: NavOptions, params: dict[s
         return DelayEstimate(None, None, 0, 0.0, why), MagEstimate(None, None, 0, why), held, it
     mest = probe.estimate_mag()
     mest.noise_default = float(stream.noise.mag_noise)
-    return probe.estimate(), mest, held, it
+    est = probe.estimate()
+    est.imu_rate_hz = mest.imu_rate_hz = float(stream.summary.get("align_rate_hz") or 0.0)
+    return est, mest, held, it

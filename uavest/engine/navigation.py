@@ -307,7 +307,10 @@ class NavStream:
         self._aid: dict[str, deque[_Aid]] = {"gnss": deque(), "baro": deque(),
                                              "mag": deque()}
         self.mag_delay = 0.0  # s, the magnetometer sample's age (NavOptions.mag_delay)
-        self._hold = 0.0  # s the stream holds closed steps: max(GNSS, magnetometer delay)
+        #: s the stream holds closed steps: the larger delay and half a nominal step
+        self._hold = 0.0
+        #: half a nominal step (s): an aid goes to the step whose end is nearest to it
+        self._half_step = 0.0
         self._mag_last: Array | None = None  # the last magnetometer field queued
         self._recent: deque[_Raw] = deque()  # raws of the last align_s while waiting
         # the good GNSS fixes while waiting (t, v NED), for the vehicle's acceleration
@@ -580,13 +583,13 @@ class NavStream:
             r = self._queue.popleft()
             aids = []
             for q in self._aid.values():  # each sensor's aids are in time order
-                while q and q[0].t <= self._stamp(r):
+                while q and q[0].t <= self._stamp(r) + self._half_step:
                     a = q.popleft()
                     if self._t_out is not None and a.t <= self._t_out:
                         self._count(a.sensor, "late")
                         continue
                     aids.append(a)
-            self._t_out = self._stamp(r)
+            self._t_out = self._stamp(r) + self._half_step
             if self._waiting:
                 out += self._try_start(r, aids)
             elif self._unaided:
@@ -842,7 +845,7 @@ class NavStream:
                 sv = max(n.gnss_vel_floor, g.s_acc if np.isfinite(g.s_acc) else 0.0)
                 rows = (0, 1, 2) if np.isfinite(v[2]) else (0, 1)
                 ups.append((v[list(rows)], GnssVelocity(
-                    np.eye(len(rows)) * sv * sv, rows, back=max(dt, 0.0), f=r.a,
+                    np.eye(len(rows)) * sv * sv, rows, back=dt, f=r.a,
                     g=self._model.g)))
                 sensors.append("gnss_vel")
                 vx = np.where(np.isfinite(v), v, 0.0)
@@ -865,14 +868,14 @@ class NavStream:
             if self._baro_offset is not None:
                 ups.append((np.array([baro.height]),
                             BaroHeight(np.array([[n.baro_noise**2]]), self._baro_offset,
-                                       back=max(self._stamp(r) - baro.t, 0.0))))
+                                       back=self._stamp(r) - baro.t)))
                 sensors.append("baro")
                 self._count("baro", "used")
         mag = next((a for a in reversed(aids) if a.sensor == "mag"), None)
         if mag is not None and mag.vec is not None and mag.t - self._t_mag >= MAG_MIN_INTERVAL_S:
             self._t_mag = mag.t
             f = mag.vec
-            back = max(self._stamp(r) - mag.t, 0.0)  # s the sample is older than the step
+            back = self._stamp(r) - mag.t  # s the sample is older than the step (< 0: newer)
             if self._mref is not None:
                 ups.append((f / np.linalg.norm(f), OnNav(
                     MagField(self._mref, np.eye(3) * n.mag_noise**2), back, r.w)))
@@ -935,7 +938,8 @@ class NavStream:
         self.noise = nav_noise_for_source(imu, rate).with_(**o.noise)
         self.delay = float(self.noise.gnss_delay if o.gnss_delay is None else o.gnss_delay)
         self.mag_delay = float(o.mag_delay or 0.0)
-        self._hold = max(self.delay, self.mag_delay)
+        self._half_step = 0.5 * (float(np.median(np.diff(ti))) if len(ti) > 1 else 0.0) * factor
+        self._hold = max(self.delay, self.mag_delay) + self._half_step
         if o.imu_delay is None:
             self.imu_delay, dwhy = imu_filter_delay(imu, self.params)
         else:
