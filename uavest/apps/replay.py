@@ -554,6 +554,7 @@ def replay(
                                               truth, nav, frame)
     if ref_name is not None:
         _add_autopilot_rows(doc["filters"], scorer, ref_name, ap_name)
+        _airborne_autopilot(doc["filters"], nsc, ref_name)
     _add_run_health(doc, src, runners, sm, out["wall_s"])
     return doc
 
@@ -683,6 +684,33 @@ def _add_autopilot_rows(rows: dict, scorer: AttitudeScorer, ref_name: str,
         row = scorer.scores(name, ref_name, False)
         row["source"] = name
         rows.setdefault(label, row)
+
+
+def _airborne_autopilot(rows: dict, nsc: NavScorer, ref_name: str) -> None:
+    """The ``airborne`` attitude RMSE (deg) of the autopilot's rows over the filters'
+    airborne span (the first filter's), against the same reference as the filters."""
+    from ..eval.attitude import euler_errors_deg
+
+    span = next((r["airborne"]["t"] for r in rows.values()
+                 if isinstance(r.get("airborne"), dict) and "t" in r["airborne"]), None)
+    if span is None or ref_name not in nsc.att:
+        return
+    tr, qr = (np.array(v) for v in nsc.att[ref_name])
+    for row in rows.values():
+        src = row.get("source")
+        if src is None or src not in nsc.att:
+            continue
+        t, q = (np.array(v) for v in nsc.att[src])
+        keep = (t >= span[0]) & (t <= span[1])
+        if keep.sum() < 2:
+            continue
+        qi, ok = quat_slerp_interp(tr, qr, t[keep])
+        e = euler_errors_deg(q[keep][ok], qi[ok])
+        if e.size:
+            r = np.sqrt(np.mean(e * e, axis=0))
+            row["airborne"] = {"t": [float(span[0]), float(span[1])], "n": int(ok.sum()),
+                               "roll_rmse_deg": float(r[0]), "pitch_rmse_deg": float(r[1]),
+                               "yaw_rmse_deg": float(r[2])}
 
 
 def _add_run_health(doc: dict, src, runners: list[FilterRunner], summary: dict,
