@@ -202,10 +202,7 @@ class DelayProbe:
             est.why = (f"the least spread is at the end of the range searched "
                        f"({max_delay:g} s)")
             return est
-        c0, c1, c2 = cost[k - 1], cost[k], cost[k + 1]
-        curv = (c0 - 2 * c1 + c2) / grid_s**2
-        d = float(grid[k] + 0.5 * grid_s * (c0 - c2) / (c0 - 2 * c1 + c2))
-        est.sd = float(np.sqrt(2.0 * (c1 / max(2 * n - 1, 1)) / curv))
+        d, est.sd = _least(grid, cost, k, 2 * n)
         if est.sd > MAX_SD_S:
             est.why = (f"the least spread is not sharp ({d * 1e3:.0f} ms, standard error "
                        f"{est.sd * 1e3:.0f} ms)")
@@ -258,11 +255,7 @@ class DelayProbe:
             est.why = (f"the least cost is at the end of the range searched "
                        f"({grid[k]:.3f} s of {MIN_DELAY_S:g} to {max_delay:g} s)")
             return est
-        c0, c1, c2 = cost[k - 1], cost[k], cost[k + 1]
-        curv = (c0 - 2 * c1 + c2) / grid_s**2
-        d = float(grid[k] + 0.5 * grid_s * (c0 - c2) / (c0 - 2 * c1 + c2))
-        s2 = float(c1) / max(m - 1, 1)
-        sd = float(np.sqrt(2.0 * s2 / curv))
+        d, sd = _least(grid, cost, k, m)
         est.sd = sd
         if exc < MIN_EXCITATION:
             est.why = (f"too little manoeuvring: the GNSS velocity changes add up to "
@@ -274,6 +267,19 @@ class DelayProbe:
         else:
             est.delay = d
         return est
+
+
+def _least(grid: Array, cost: Array, k: int, m: int) -> tuple[float, float]:
+    """(the least of the parabola through the grid points k-1, k, k+1 of ``cost``, its
+    standard error ``sqrt(2 s2 / J'')`` with ``s2 = J_min / (m - 1)``, ``m`` the residual
+    components; inf when the cost is not curved there)."""
+    h = float(grid[1] - grid[0])
+    c0, c1, c2 = float(cost[k - 1]), float(cost[k]), float(cost[k + 1])
+    den = c0 - 2.0 * c1 + c2
+    if not den > 0:
+        return float(grid[k]), float("inf")
+    d = float(grid[k]) + 0.5 * h * (c0 - c2) / den
+    return d, float(np.sqrt(2.0 * (c1 / max(m - 1, 1)) / (den / h**2)))
 
 
 def _segment_base(V: Array, dv: Array, first: Array) -> Array:
