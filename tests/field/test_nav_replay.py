@@ -130,3 +130,53 @@ def test_a_long_imu_interval_below_the_gap_threshold_is_predicted_in_sub_steps(t
     assert f["hybrid"]["resets"] == 0
     assert doc["imu_split_intervals"] >= 1 and doc["imu_split_longest_s"] > 3.0
     assert "long IMU intervals: " in r.stdout
+
+
+def _truth_lag(log: str) -> float:
+    """The lag (s) of the GNSS velocity behind the simulator's (SIM_STATE) in a log: the
+    shift of least RMS difference, every 5 ms from 0 to 0.3 s."""
+    import numpy as np
+
+    from uavest.ingest import open_source
+    from uavest.ingest.types import GnssSample, PositionSample
+
+    gt, gv, rt, rv = [], [], [], []
+    for smp in open_source(log):
+        if isinstance(smp, GnssSample):
+            gt.append(smp.t)
+            gv.append(smp.vel_ned[:2])
+        elif isinstance(smp, PositionSample) and smp.source == "SIM_STATE":
+            rt.append(smp.t)
+            rv.append(smp.vel_ned[:2])
+    gt, gv, rt, rv = map(np.array, (gt, gv, rt, rv))
+    lags = np.arange(0.0, 0.3, 0.005)
+    cost = [np.mean((gv - np.array([np.interp(gt - lag, rt, rv[:, k]) for k in (0, 1)]).T)
+                    ** 2) for lag in lags]
+    return float(lags[int(np.argmin(cost))])
+
+
+@pytest.mark.slow
+def test_sitl_copter_gnss_delay_is_estimated_and_pays(tmp_path):
+    """logs/sitl_copter.tlog: the replay estimates the GNSS delay (a decision line) to
+    within 10 ms of the lag of the GNSS velocity behind the simulator's own (SIM_STATE),
+    estimates the magnetometer's age, scores against SIM_STATE, and its run is closer to
+    the truth than the same replay told the GNSS delay is 0."""
+    log = str(REPO_ROOT / "logs" / "sitl_copter.tlog")
+    docs = {}
+    for name, extra in (("est", ()), ("zero", ("--gnss-delay", "0"))):
+        out = tmp_path / f"{name}.json"
+        r = _replay(log, "--filters", "ekf", "--json", str(out), *extra)
+        assert r.returncode == 0, r.stderr
+        line = next(ln for ln in r.stdout.splitlines()
+                    if ln.startswith("decision: GNSS delay:"))
+        assert ("estimated" in line) == (name == "est"), line
+        assert "decision: magnetometer delay:" in r.stdout
+        docs[name] = json.loads(out.read_text())
+    est = docs["est"]["gnss_delay_estimate"]
+    assert abs(est["delay"] - _truth_lag(log)) < 0.01 and est["sd"] < 0.005
+    assert est["mag"]["delay"] is not None and est["mag"]["delay_used"] > 0.0
+    assert docs["est"]["position_reference"] == "SIM_STATE"
+    assert "delay" not in docs["zero"]["gnss_delay_estimate"]  # not estimated: given
+    a, z = (docs[k]["filters"]["ekf"]["airborne"] for k in ("est", "zero"))
+    for k in ("roll_rmse_deg", "pitch_rmse_deg", "vel_rmse_ms", "hpos_rmse_m"):
+        assert a[k] < z[k], k

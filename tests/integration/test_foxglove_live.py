@@ -29,8 +29,17 @@ class Pace(Sink):
         time.sleep(0.002)
 
 
-async def _client(url: str, timeout: float = 60.0) -> dict:
-    got: dict = {"advertised": {}, "data": {}, "server_info": None, "resubscribed": 0}
+async def _client(url: str, timeout: float = 60.0, want: tuple[str, ...] = WANT,
+                  many: int = 1) -> dict:
+    """What a Foxglove client sees: the advertised channels, the server info, the first
+    message of each topic of ``want`` (and ``/run/info``) after subscribing (``data``)
+    and the first ``many`` of each (``all``: lists of (log_time, payload))."""
+    got: dict = {"advertised": {}, "data": {}, "all": {}, "server_info": None,
+                 "resubscribed": 0}
+
+    def done() -> bool:
+        return len(got["data"]) >= len(want) + 1 and all(
+            len(got["all"].get(t, ())) >= many for t in want)
     async with websockets.connect(url, subprotocols=["foxglove.sdk.v1"]) as ws:
         assert ws.subprotocol == "foxglove.sdk.v1"
         sub_of: dict[int, str] = {}
@@ -48,7 +57,7 @@ async def _client(url: str, timeout: float = 60.0) -> dict:
             await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
 
         end = time.monotonic() + timeout
-        while time.monotonic() < end and len(got["data"]) < len(WANT) + 1:
+        while time.monotonic() < end and not done():
             # the server can see a subscription before it has registered a channel it
             # has just advertised ("unknown channel" in its log): ask again after 1 s
             late = [t for t, w in asked.items()
@@ -68,7 +77,7 @@ async def _client(url: str, timeout: float = 60.0) -> dict:
                     new = []
                     for ch in m["channels"]:
                         got["advertised"][ch["topic"]] = ch
-                        if ch["topic"] in WANT + ("/run/info",):
+                        if ch["topic"] in want + ("/run/info",):
                             new.append(ch["topic"])
                     if new:
                         await subscribe(new)
@@ -76,6 +85,9 @@ async def _client(url: str, timeout: float = 60.0) -> dict:
                 op, sub, log_time = struct.unpack_from("<BIQ", msg)
                 assert op == 1  # message data
                 got["data"].setdefault(sub_of[sub], (log_time, bytes(msg[13:])))
+                lst = got["all"].setdefault(sub_of[sub], [])
+                if len(lst) < many:
+                    lst.append((log_time, bytes(msg[13:])))
     return got
 
 

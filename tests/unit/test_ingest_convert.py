@@ -125,6 +125,27 @@ def test_position_units():
     np.testing.assert_allclose(vel, [-1.88, 0.06, 0.0])
 
 
+def test_sim_state_is_attitude_and_position_truth():
+    q = euler_to_quat(0.1, -0.2, 1.0)
+    args = (*q, 0.1, -0.2, 1.0, 0, 0, -9.8, 0, 0, 0)
+    # ArduPilot fills the float lat/lon in degE7; the MAVLink 2 extension has the integers
+    m = ml.MAVLink_sim_state_message(*args, 473977472.0, 85454760.0, 433.09, 0, 0,
+                                     -0.5, 0.25, 1.5)
+    m.lat_int, m.lon_int = 473977462, 85454756  # (set: a MAVLink 1 dialect lacks them)
+    ref, pos = convert_mavlink(m)
+    assert (ref.cat, ref.kind, pos.cat, ref.source) == ("ref", "truth", "pos", "SIM_STATE")
+    np.testing.assert_allclose(ref.values[0], q, atol=1e-6)
+    ned, vel, lla = pos.values
+    assert ned is None and check(pos) is None
+    np.testing.assert_allclose(lla, [47.3977462, 8.5454756, 433.09], atol=1e-5)
+    np.testing.assert_allclose(vel, [-0.5, 0.25, 1.5], atol=1e-6)
+    # without the extension (0): the float fields, in degE7 or in degrees
+    for lat, lon in ((473977472.0, 85454760.0), (47.3977472, 8.545476)):
+        _, pos = convert_mavlink(ml.MAVLink_sim_state_message(*args, lat, lon, 433.09, 0, 0,
+                                                              0, 0, 0))
+        np.testing.assert_allclose(pos.values[2][:2], [47.3977472, 8.545476], atol=1e-5)
+
+
 class _DF:
     """Minimal stand-in for a pymavlink DataFlash record."""
 

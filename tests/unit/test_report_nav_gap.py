@@ -65,4 +65,4 @@ def test_figure_errors_are_the_ones_the_scorer_scores():
     want = sc.scores("ekf", None)["vel_rmse_ms"]
     drawn = m["ev"][np.isfinite(m["ev"]).all(axis=1)]
     assert drawn.shape[0] < len(t)  # the gap's steps are out
-    assert float(np.sqrt(np.mean(drawn ** 2))) == pytest.approx(want, rel=1e-12)
+    assert float(np.sqrt(np.mean(np.sum(drawn ** 2, axis=1)))) == pytest.approx(want, rel=1e-12)

@@ -40,6 +40,7 @@ from ..ingest.types import (
     NoSamplesError,
     PositionSample,
 )
+from ..models.navigation import NavNoise
 from ..presets import resolve_list, spec_labels
 from ..seeding import filter_stream, rng
 from ..sinks.base import Collector, Sink
@@ -79,20 +80,137 @@ class ReplayConfig:
     use_mag: bool = True
     accel_comp: str = "auto"
     mag_mode: str = "field"
-    mag_delay: float = 0.0
+    mag_delay: float | None = None  # s; None: estimated (navigation), 0 (attitude-only)
     #: the library default stays the attitude model (the one whose results the golden
     #: files and earlier tables hold); ``uavest replay`` defaults to "auto"
     model: str = "attitude"
-    gnss_delay: float | None = None  # s; None -> NavNoise.gnss_delay
+    gnss_delay: float | None = None  # s; None -> estimated (estimate_delay), else default
+    #: with ``gnss_delay`` None: estimate it from the log (:func:`probe_gnss_delay`)
+    estimate_delay: bool = True
     model_why: str | None = None  # why a fixed ``model`` (None: "option --model")
 
     def attitude_options(self) -> AttitudeOptions:
         names = {f.name for f in fields(AttitudeOptions)}
-        return AttitudeOptions(**{k: v for k, v in vars(self).items() if k in names})
+        kw = {k: v for k, v in vars(self).items() if k in names}
+        kw["mag_delay"] = kw.get("mag_delay") or 0.0
+        return AttitudeOptions(**kw)
 
     def nav_options(self) -> NavOptions:
         names = {f.name for f in fields(NavOptions)}
         return NavOptions(**{k: v for k, v in vars(self).items() if k in names})
+
+
+#: The filter of the GNSS delay probe (``attitude`` preset, navigation state).
+PROBE_FILTER = "ekf"
+#: The probe filter's GNSS floors (m/s, m; at least these): weak aiding, so that its
+#: attitude, fitted to GNSS velocities taken at the wrong time, pulls the estimate less
+#: away from the delay the probe assumes (about 2-6 % of the difference, against 5-10 %
+#: with the run's own floors, on the SITL flight and sim_200hz with 0.15 s injected).
+PROBE_FLOORS = {"gnss_vel_floor": 1.0, "gnss_pos_floor": 2.0}
+#: A first estimate further than this (s) from the probe's assumed delay is refined by a
+#: second probe run assuming it (over the samples the first one held).
+PROBE_REFINE_S = 0.03
+#: The probe's estimates are used for an IMU at least this fast (Hz): between two samples
+#: of vtol.tlog's 3.8 Hz RAW_IMU the acceleration is not resolved, and the probe put its
+#: GNSS delay at 0.09 s where the replay is best at 0.25 s (docs/navigation.md).
+PROBE_MIN_IMU_HZ = 20.0
+#: The magnetometer noise taken from the probe's scatter is at least this (rad, 2.9 deg)
+#: and at most the model's default. The scatter sees the sensor, not the error of the
+#: reference field it is compared with: the inclination taken from the flight was 0.3
+#: deg off on sim_200hz (63.82 against the simulator's 63.5 deg), and with 0.01-0.02 rad
+#: the magnetometer pulled the tilt after it (airborne 0.35-0.44 deg roll against 0.20 at
+#: 0.05; 0.066 with the true inclination at 0.01), while the SITL flight's (0.06 deg off)
+#: gained (yaw 0.22 deg at 0.02, 0.40 at 0.05).
+MAG_NOISE_MIN = 0.05
+
+
+def probe_gnss_delay(samples: Iterable, cfg: ReplayConfig, params: dict | None
+                     ) -> tuple[dict, Iterator]:
+    """The GNSS and magnetometer delays and the magnetometer's noise of a log, estimated
+    before the run where ``cfg`` leaves them open (``gnss_delay`` / ``mag_delay`` None,
+    no ``mag_noise`` in ``cfg.noise``): one navigation EKF over the first
+    :data:`~uavest.engine.gnss_delay.PROBE_S` s of IMU data
+    (:func:`~uavest.engine.gnss_delay.estimate_gnss_delay`), run again over the samples
+    it held when an estimate is far from the delay it assumed. Returns the document
+    (``delay``, ``sd`` s or None, ``pairs``, ``excitation`` (m/s)^2, ``why``,
+    ``delay_used`` s, ``why_used``; ``mag`` the same for the magnetometer with
+    ``scatter`` rad and ``noise_used`` rad / ``noise_why``; ``probe_runs``) and the same
+    samples (the held ones in front)."""
+    import itertools
+
+    from ..engine.gnss_delay import PROBE_S, estimate_gnss_delay
+
+    (sp, flt), = build_filters(resolve_list((PROBE_FILTER,), "attitude", dim=15))
+    opts = cfg.nav_options()  # checks the --noise names
+    noise = NavNoise().with_(**cfg.noise)
+    opts = replace(opts, noise={**cfg.noise, **{
+        k: max(v, float(getattr(noise, k))) for k, v in PROBE_FLOORS.items()}})
+
+    def probe(src: Iterable, prior: float, prior_mag: float):
+        runner = NavRunner("gnss delay probe", flt, rng(cfg.seed, 0, "probe:gnss_delay"))
+        return estimate_gnss_delay(src, opts, params or {}, runner, prior=prior,
+                                   prior_mag=prior_mag)
+
+    prior = 0.0 if cfg.gnss_delay is None else float(cfg.gnss_delay)
+    prior_m = 0.0 if cfg.mag_delay is None else float(cfg.mag_delay)
+    est, mest, held, rest = probe(samples, prior, prior_m)
+    runs = 1
+    if est.imu_rate_hz < PROBE_MIN_IMU_HZ:
+        why = (f"the IMU at {est.imu_rate_hz:.1f} Hz is too coarse to time the aiding "
+               f"against (the probe needs {PROBE_MIN_IMU_HZ:g} Hz)")
+        est.delay = mest.delay = mest.scatter = mest.inclination = None
+        est.why = mest.why = why
+    far_g = cfg.gnss_delay is None and est.delay is not None and abs(
+        est.delay - prior) > PROBE_REFINE_S
+    far_m = cfg.mag_delay is None and mest.delay is not None and abs(
+        mest.delay - prior_m) > PROBE_REFINE_S
+    if far_g or far_m:
+        prior = est.delay if far_g and est.delay is not None else prior
+        prior_m = mest.delay if far_m and mest.delay is not None else prior_m
+        est2, mest2, _, _ = probe(held, prior, prior_m)
+        runs = 2
+        est = est2 if est2.delay is not None or est.delay is None else est
+        mest = mest2 if mest2.delay is not None or mest.delay is None else mest
+    span = f"the first {PROBE_S:g} s of IMU data"
+    refined = ", refined once" if runs == 2 else ""
+    doc: dict = {"probe_runs": runs}
+    if cfg.gnss_delay is None:
+        if est.delay is not None:
+            used = float(np.clip(est.delay, 0.0, 2.0))
+            neg = " (negative: used as 0)" if est.delay < 0 else ""
+            why = (f"estimated{neg}: the lag of the GNSS velocity behind the IMU "
+                   f"({PROBE_FILTER}, {est.pairs} fix pairs in {span}, standard error "
+                   f"{est.sd * 1e3:.1f} ms{refined}; --gnss-delay S to set it)")
+        else:
+            used = float(noise.gnss_delay)
+            why = f"default (not estimated: {est.why})"
+        doc.update(delay=est.delay, sd=est.sd, pairs=est.pairs, excitation=est.excitation,
+                   why=est.why, delay_used=used, why_used=why)
+    m: dict = {"delay": mest.delay, "sd": mest.sd, "readings": mest.readings,
+               "why": mest.why, "scatter": mest.scatter}
+    if cfg.mag_delay is None and mest.readings:
+        if mest.delay is not None:
+            m["delay_used"] = float(mest.delay)
+            sd = "" if mest.sd is None else f", standard error {mest.sd * 1e3:.1f} ms"
+            m["why_used"] = (f"estimated: the age at which the readings, turned to NED with "
+                             f"the {PROBE_FILTER}'s attitude, spread least ({mest.readings} "
+                             f"new readings in {span}{sd}{refined}; --mag-delay S to set it)")
+        else:
+            m["delay_used"], m["why_used"] = 0.0, f"default (not estimated: {mest.why})"
+    if mest.inclination is not None and mest.delay is not None:
+        m["inclination"] = mest.inclination
+        m["inclination_why"] = (f"estimated: the mean direction of the readings turned to "
+                                f"NED with the {PROBE_FILTER}'s attitude ({mest.readings} new "
+                                f"readings in {span})")
+    if "mag_noise" not in cfg.noise and mest.scatter is not None and mest.delay is not None:
+        top = float(mest.noise_default or noise.mag_noise)
+        m["noise_used"] = float(np.clip(mest.scatter, MAG_NOISE_MIN, top))
+        m["noise_why"] = (f"estimated: the spread of the field direction at that age, "
+                          f"{np.degrees(mest.scatter):.2f} deg per axis, within "
+                          f"[{np.degrees(MAG_NOISE_MIN):.2f}, {np.degrees(top):.2f}] deg "
+                          "(--noise mag_noise=RAD to set it)")
+    doc["mag"] = m
+    return doc, itertools.chain(held, rest)
 
 
 def _good_fix(s) -> bool:
@@ -285,6 +403,16 @@ def replay_samples(
         if bad:
             raise InputError(f"--noise {bad[0]}: a parameter of the navigation model, not "
                              "of the attitude-only model that runs here")
+    wall0 = time.perf_counter()
+    delay_doc = None
+    if nav and cfg.estimate_delay and (cfg.gnss_delay is None or cfg.mag_delay is None
+                                       or "mag_noise" not in cfg.noise):
+        delay_doc, windowed = probe_gnss_delay(windowed, cfg, params)
+        md = delay_doc["mag"]
+        cfg = replace(cfg, gnss_delay=delay_doc.get("delay_used", cfg.gnss_delay),
+                      mag_delay=md.get("delay_used", cfg.mag_delay),
+                      noise={**cfg.noise, **({"mag_noise": md["noise_used"]}
+                                             if "noise_used" in md else {})})
     specs = build_filters(resolve_list(cfg.filters, "attitude", dim=15 if nav else 6))
     rng_for = rng_for or (lambda label: rng(cfg.seed, 0, filter_stream(label)))
     runner_cls = NavRunner if nav else FilterRunner
@@ -298,14 +426,23 @@ def replay_samples(
     coll = Collector() if cfg.smooth else None
     refs = _Refs() if cfg.smooth else None
     stream: AttitudeStream | NavStream = (
-        NavStream(opts=replace(cfg.nav_options(), before_fix=decision["fix_stream"]),
+        NavStream(opts=replace(cfg.nav_options(), before_fix=decision["fix_stream"],
+                               gnss_delay_why=(delay_doc or {}).get("why_used"),
+                               mag_delay_why=(delay_doc or {}).get("mag", {}).get("why_used"),
+                               mag_noise_why=(delay_doc or {}).get("mag", {}).get(
+                                   "noise_why"),
+                               mag_inclination=(delay_doc or {}).get("mag", {}).get(
+                                   "inclination"),
+                               mag_inclination_why=(delay_doc or {}).get("mag", {}).get(
+                                   "inclination_why")),
                   params=params) if nav
         else AttitudeStream(opts=opts, params=params))
+    if delay_doc is not None:
+        stream.summary["gnss_delay_estimate"] = delay_doc
     info = info or RunInfo("", "", cfg.seed)
     info.filters = {sp.label: sp.as_dict() for sp, _ in specs}
     all_sinks = ([score, _NavScore(nav_scorer), gaps] + ([refs] if refs else [])
                  + ([coll] if coll else []) + list(sinks))
-    wall0 = time.perf_counter()
     run_lanes(windowed, [Lane(stream, runners)], all_sinks, info)
     wall = time.perf_counter() - wall0 - sum(r.smooth_seconds for r in runners)
     scorer.finish()
@@ -417,6 +554,7 @@ def replay(
                                               truth, nav, frame)
     if ref_name is not None:
         _add_autopilot_rows(doc["filters"], scorer, ref_name, ap_name)
+        _airborne_autopilot(doc["filters"], nsc, ref_name)
     _add_run_health(doc, src, runners, sm, out["wall_s"])
     return doc
 
@@ -484,7 +622,7 @@ def _doc_header(path: str | Path, cfg: ReplayConfig, src, stream, info: RunInfo,
         "accel_compensation_from_t": sm.get("accel_compensation_from_t"),
         "decisions": list(sm.get("decisions") or []),
         "mag_mode": cfg.mag_mode if sm.get("mag_source") else None,
-        "mag_delay_s": cfg.mag_delay,
+        "mag_delay_s": sm.get("mag_delay_s", cfg.mag_delay or 0.0),
         "seed": cfg.seed,
         "noise": {k: float(getattr(stream.noise, k)) for k in stream.noise.__dataclass_fields__},
         "filters": {},
@@ -501,7 +639,8 @@ def _position_fields(nsc: NavScorer, params: dict, summary: dict, nav: bool) -> 
         got["position_reference_kind"] = position_ref_kind(pref, params)
     if nav:
         got.update({k: summary.get(k) for k in ("gnss_source", "gnss_sources", "baro_source",
-                                                "gnss_delay_s", "baro_offset_m", "origin",
+                                                "gnss_delay_s", "gnss_delay_estimate",
+                                                "baro_offset_m", "origin",
                                                 "aiding", "fix_from_t")})
     return got
 
@@ -545,6 +684,33 @@ def _add_autopilot_rows(rows: dict, scorer: AttitudeScorer, ref_name: str,
         row = scorer.scores(name, ref_name, False)
         row["source"] = name
         rows.setdefault(label, row)
+
+
+def _airborne_autopilot(rows: dict, nsc: NavScorer, ref_name: str) -> None:
+    """The ``airborne`` attitude RMSE (deg) of the autopilot's rows over the filters'
+    airborne span (the first filter's), against the same reference as the filters."""
+    from ..eval.attitude import euler_errors_deg
+
+    span = next((r["airborne"]["t"] for r in rows.values()
+                 if isinstance(r.get("airborne"), dict) and "t" in r["airborne"]), None)
+    if span is None or ref_name not in nsc.att:
+        return
+    tr, qr = (np.array(v) for v in nsc.att[ref_name])
+    for row in rows.values():
+        src = row.get("source")
+        if src is None or src not in nsc.att:
+            continue
+        t, q = (np.array(v) for v in nsc.att[src])
+        keep = (t >= span[0]) & (t <= span[1])
+        if keep.sum() < 2:
+            continue
+        qi, ok = quat_slerp_interp(tr, qr, t[keep])
+        e = euler_errors_deg(q[keep][ok], qi[ok])
+        if e.size:
+            r = np.sqrt(np.mean(e * e, axis=0))
+            row["airborne"] = {"t": [float(span[0]), float(span[1])], "n": int(ok.sum()),
+                               "roll_rmse_deg": float(r[0]), "pitch_rmse_deg": float(r[1]),
+                               "yaw_rmse_deg": float(r[2])}
 
 
 def _add_run_health(doc: dict, src, runners: list[FilterRunner], summary: dict,

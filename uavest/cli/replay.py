@@ -279,9 +279,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if args.gnss_delay is not None and not (math.isfinite(args.gnss_delay)
                                             and 0.0 <= args.gnss_delay <= 2.0):
         raise InputError(f"--gnss-delay must be from 0 to 2 s, got {args.gnss_delay}")
-    if args.mag_delay > 10.0:
+    if args.mag_delay is not None and args.mag_delay > 10.0:
         raise InputError(f"--mag-delay must be at most 10 s, got {args.mag_delay}")
-    if args.mag_delay < 0 or not math.isfinite(args.mag_delay):
+    if args.mag_delay is not None and (args.mag_delay < 0 or not math.isfinite(args.mag_delay)):
         raise InputError(
             f"--mag-delay must be a finite number of seconds >= 0, got {args.mag_delay}")
     if args.rate is not None and (args.rate < 0 or not math.isfinite(args.rate)):
@@ -292,14 +292,6 @@ def cmd_replay(args: argparse.Namespace) -> int:
                          f"{args.update_rate}")
     reject_linear_only(args.filter_specs, "replay", "nonlinear attitude models")
     model, model_why = args.model, None
-    if getattr(args, "foxglove", None):
-        # the live view's layout is the attitude model's (MCAP and the report carry the
-        # navigation model's velocity and position too)
-        if model == "nav":
-            raise InputError("--model nav: --foxglove is built for the attitude model only "
-                             "(use --model attitude, or --mcap/--report)")
-        if model == "auto":
-            model, model_why = "attitude", "--foxglove is built for the attitude model only"
     cfg = ReplayConfig(
         filters=tuple(args.filter_specs), start=args.start, end=args.end, smooth=args.smooth,
         seed=args.seed, rate_hz=args.rate, update_hz=args.update_rate,
@@ -371,8 +363,10 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
                    "(default auto: when the log has velocity)")
     p.add_argument("--mag-mode", default="field", choices=("field", "heading"),
                    help="magnetometer as 3-D field direction (default) or heading only")
-    p.add_argument("--mag-delay", type=float, default=0.0,
-                   help="magnetometer sample age in s, compensated with the gyro (default 0)")
+    p.add_argument("--mag-delay", type=float, default=None,
+                   help="magnetometer sample age in s, compensated with the gyro (default: "
+                   "0 for the attitude model; estimated from the log for the navigation "
+                   "model)")
     p.add_argument("--no-mag", action="store_true", help="do not use the magnetometer")
     p.add_argument("--model", default="auto", choices=("auto", "nav", "attitude"),
                    help="estimation model (default auto: navigation - attitude, velocity, "
@@ -380,7 +374,9 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
                    "the log carries a GNSS fix stream, attitude-only otherwise; "
                    "docs/navigation.md)")
     p.add_argument("--gnss-delay", type=float, default=None, metavar="S",
-                   help="navigation model: GNSS measurement delay in s (default 0)")
+                   help="navigation model: GNSS measurement delay in s (default: estimated "
+                   "from the log, the lag of the GNSS velocity behind the IMU; 0 when the "
+                   "log has too little manoeuvring)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_recording_options(p)
     p.add_argument("--speed", type=float, default=1.0,

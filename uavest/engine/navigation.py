@@ -104,6 +104,9 @@ _CHI2: dict[int, float] = {}  # GATE_PROB quantile by dimension
 #: (``mag_noise`` describes one update per reference step; a 200 Hz magnetometer at
 #: ``--rate 0`` would otherwise carry 8 times the information and pull the tilt).
 MAG_MIN_INTERVAL_S = 1.0 / DEFAULT_MAX_RATE_HZ - 1e-6
+#: A start (or re-alignment) levels from at least this share of ``NavOptions.align_s`` of
+#: IMU data (the steps seen while waiting for the fix).
+ALIGN_SPAN = 0.95
 #: Without a good GNSS fix this many alignment windows (``NavOptions.align_s``) into the
 #: IMU data, the stream starts unaided (``NavOptions.before_fix``).
 UNAIDED_WAIT_ALIGNS = 2.0
@@ -138,7 +141,12 @@ class NavOptions:
     log's parameters, else 0); ``noise`` overrides of
     :class:`~uavest.models.navigation.NavNoise`; ``imu``/``gnss``/``baro`` source names
     or None (the stream's choice); ``use_mag``, ``use_baro``; ``mag_mode`` field or
-    heading; ``gnss_delay`` s (None: ``NavNoise.gnss_delay``); ``align_s`` s;
+    heading; ``gnss_delay`` s (None: ``NavNoise.gnss_delay``) and ``gnss_delay_why``
+    where it came from (None: "option --gnss-delay" / "default"); ``mag_delay`` s, the
+    magnetometer sample's age (None: 0), and ``mag_delay_why``; ``mag_noise_why``: where
+    the ``mag_noise`` of ``noise`` came from (None: an option or the default);
+    ``mag_inclination`` rad (None: from the alignment window's accelerometer and
+    magnetometer) and ``mag_inclination_why``; ``align_s`` s;
     ``yaw_speed`` m/s, the ground speed from which the GNSS course gives the start yaw
     without a magnetometer; ``imu_delay`` s, the lag of the IMU's samples behind the
     motion (None: :func:`imu_filter_delay` from the log's parameters); ``before_fix``:
@@ -165,6 +173,12 @@ class NavOptions:
     use_baro: bool = True
     mag_mode: str = "field"
     gnss_delay: float | None = None
+    gnss_delay_why: str | None = None
+    mag_delay: float | None = None
+    mag_delay_why: str | None = None
+    mag_noise_why: str | None = None
+    mag_inclination: float | None = None
+    mag_inclination_why: str | None = None
     align_s: float = 1.0
     yaw_speed: float = 3.0
     imu_delay: float | None = None
@@ -189,6 +203,10 @@ class NavOptions:
         d = self.gnss_delay
         if d is not None and not (np.isfinite(d) and 0.0 <= d <= 2.0):
             raise InputError(f"--gnss-delay must be from 0 to 2 s, got {d}")
+        d = self.mag_delay
+        if d is not None and not (np.isfinite(d) and 0.0 <= d <= 2.0):
+            raise InputError(f"--mag-delay must be from 0 to 2 s for the navigation model, "
+                             f"got {d}")
 
 
 def imu_filter_delay(source: str, params: dict[str, Any]) -> tuple[float, str]:
@@ -229,6 +247,7 @@ class _Aid:
     gnss: GnssSample | None = None
     ned: Array | None = None
     height: float = float("nan")
+    vec: Array | None = None  # a magnetometer sample's field (gauss, body FRD)
 
 
 class _NavBuilder(_StepBuilder):
@@ -291,9 +310,18 @@ class NavStream(StreamSnapshots):
         self._baro: str | None = self.opts.baro
         self._model: ImuTransition | None = None
         self._queue: deque[_Raw] = deque()
-        self._aid: dict[str, deque[_Aid]] = {"gnss": deque(), "baro": deque()}
+        self._aid: dict[str, deque[_Aid]] = {"gnss": deque(), "baro": deque(),
+                                             "mag": deque()}
+        self.mag_delay = 0.0  # s, the magnetometer sample's age (NavOptions.mag_delay)
+        #: s the stream holds closed steps: the larger delay and half a nominal step
+        self._hold = 0.0
+        #: s after a step's end whose aids it takes: half a nominal step (an aid goes to
+        #: the step whose end is nearest to it), or 0 on arrival
+        self._aid_window = 0.0
+        self._mag_last: Array | None = None  # the last magnetometer field queued
         self._recent: deque[_Raw] = deque()  # raws of the last align_s while waiting
-        self._vfix: deque[tuple[float, Array]] = deque(maxlen=2)  # last good GNSS (t, v NED)
+        # the good GNSS fixes while waiting (t, v NED), for the vehicle's acceleration
+        self._vfix: deque[tuple[float, Array]] = deque(maxlen=64)
         self._other_imu: dict[str, list[float]] = {}  # failover evidence per other IMU
         self._switched = False  # the IMU changed: the next start keeps no biases
         self._waiting = True
@@ -321,6 +349,16 @@ class NavStream(StreamSnapshots):
         self._baro_srcs: dict[str, int] = {}
         self.aiding: dict[str, dict[str, int]] = {}
 
+    @property
+    def gnss_source(self) -> str | None:
+        """The GNSS receiver the stream uses (None: not chosen yet)."""
+        return self._gnss
+
+    @property
+    def mag_source(self) -> str | None:
+        """The magnetometer the stream uses (None: none, or not chosen yet)."""
+        return self._mag
+
     # ------------------------------------------------------------------ bookkeeping
     def _decide(self, what: str, value: Any, t: float, why: str) -> None:
         """Record a decision ``what`` = ``value`` from ``t`` (s) because ``why``."""
@@ -340,9 +378,11 @@ class NavStream(StreamSnapshots):
     # (the engine's history, :mod:`uavest.engine.history`: samples on arrival)
     @property
     def committed(self) -> float:
-        """End (s) of the last step released, plus the GNSS delay (a fix stamped t is
-        applied at t - delay): an aid at or before it may be late."""
-        return -np.inf if self._t_out is None else self._t_out + self.delay
+        """End (s) of the last step released, plus the larger of the GNSS delay and the
+        magnetometer's age (a fix stamped t is applied at t - delay, a magnetometer
+        sample at t - its age): an aid at or before it may be late."""
+        return (-np.inf if self._t_out is None
+                else self._t_out + max(self.delay, self.mag_delay))
 
     def order_sensitive(self, s: Any) -> bool:
         """The chosen IMU and magnetometer, the GNSS receiver (any before one is chosen)
@@ -416,6 +456,7 @@ class NavStream(StreamSnapshots):
             if s.source != self._mag:
                 return []
             raws = b.push_nav(s)
+            self._mag_sample(s)
         elif isinstance(s, GnssSample):
             self._gnss_sample(s)
         elif isinstance(s, BaroSample):
@@ -536,6 +577,20 @@ class NavStream(StreamSnapshots):
             ned[2] = np.nan
         self._aid["gnss"].append(_Aid(s.t - self.delay, "gnss", gnss=s, ned=ned))
 
+    def _mag_sample(self, s: MagSample) -> None:
+        """Queue a magnetometer sample as an aid at its time less the magnetometer delay
+        (s), when it is a new reading: a field equal to the previous one is the same
+        reading held (MAVLink's IMU messages repeat the last compass value: the ArduCopter
+        SITL's changes 10 times a second in a 200 Hz RAW_IMU), not a new measurement."""
+        f = np.asarray(s.field, float)
+        if not (np.isfinite(f).all() and np.any(f)):
+            return
+        if self._mag_last is not None and np.array_equal(f, self._mag_last):
+            self._count("mag", "held")
+            return
+        self._mag_last = f
+        self._aid["mag"].append(_Aid(s.t - self.mag_delay, "mag", vec=f))
+
     def _baro_sample(self, s: BaroSample) -> None:
         if not self.opts.use_baro:
             return
@@ -554,19 +609,19 @@ class NavStream(StreamSnapshots):
     # ------------------------------------------------------------------ releasing steps
     def _release(self, upto: float | None = None) -> list[Start | Step]:
         out: list[Start | Step] = []
-        lim = self._now - self.delay if upto is None else upto
-        incl = upto is not None or (self.opts.on_arrival and not self.delay > 0)
+        lim = self._now - self._hold if upto is None else upto
+        incl = upto is not None or (self.opts.on_arrival and not self._hold > 0)
         while self._queue and (self._queue[0].t < lim or (incl and self._queue[0].t <= lim)):
             r = self._queue.popleft()
             aids = []
             for q in self._aid.values():  # each sensor's aids are in time order
-                while q and q[0].t <= r.t:
+                while q and q[0].t <= self._stamp(r) + self._aid_window:
                     a = q.popleft()
                     if self._t_out is not None and a.t <= self._t_out:
                         self._count(a.sensor, "late")
                         continue
                     aids.append(a)
-            self._t_out = r.t
+            self._t_out = self._stamp(r) + self._aid_window
             if self._waiting:
                 out += self._try_start(r, aids)
             elif self._unaided:
@@ -598,6 +653,14 @@ class NavStream(StreamSnapshots):
             self._vfix.append((fix.t, np.asarray(fix.gnss.vel_ned, float)))
         mags = [x.mag for x in self._recent if x.mag is not None and np.any(x.mag)]
         use_mag = self._mag is not None and bool(mags)
+        if (fix is not None and self._recent
+                and r.t - self._recent[0].t0 < ALIGN_SPAN * o.align_s):
+            # the level needs the accelerometer's mean over the alignment window: one
+            # 200 Hz sample with the airframe's vibration in it left sim_200hz's pitch
+            # 2 deg off (seed 5) until the manoeuvres separated it from the accel bias
+            self._wait_why = (f"{r.t - self._recent[0].t0:.2f} s of IMU data for the level "
+                              f"(needs {ALIGN_SPAN * o.align_s:g} s)")
+            return []
         if fix is None and not self._started and self._recent and use_mag and o.before_fix \
                 and r.t - self._imu_n[1] >= UNAIDED_WAIT_ALIGNS * o.align_s:
             return self._start_unaided(r, mags)
@@ -619,11 +682,13 @@ class NavStream(StreamSnapshots):
             return []
         if first:
             self._first_start(r)
-        # the vehicle's own acceleration (NED, m/s^2) from the last two GNSS velocities:
-        # in flight (a re-alignment after an IMU gap) the accelerometer is not gravity
+        # the vehicle's own mean acceleration (NED, m/s^2) over the alignment window from
+        # the GNSS velocities at its ends: in flight the accelerometer is not gravity (two
+        # consecutive fixes 0.2 s apart with 0.1 m/s of noise leave 0.7 m/s^2, 4 deg)
         a_ned = np.zeros(3)
-        if len(self._vfix) == 2:
-            (t1, v1), (t2, v2) = self._vfix
+        win = [(t, v) for t, v in self._vfix if t >= r.t - o.align_s - 0.25]
+        if len(win) >= 2:
+            (t1, v1), (t2, v2) = win[0], win[-1]
             if 0.05 < t2 - t1 < 2.0:
                 a_ned = np.nan_to_num((v2 - v1) / (t2 - t1))
         q, syaw, ywhy = self._level(a_ned, mags if use_mag else [], vh)
@@ -767,11 +832,17 @@ class NavStream(StreamSnapshots):
                             else ""))
         if self._mag is not None and o.mag_mode == "field":
             pairs = [(x.a, x.mag) for x in self._recent if x.mag is not None and x.a is not None]
-            if pairs:
+            inc, why = None, o.mag_inclination_why or "option"
+            if o.mag_inclination is not None:
+                inc = float(o.mag_inclination)
+            elif pairs:
                 inc = inclination_from_samples(np.array([p[0] for p in pairs]),
                                                np.array([p[1] for p in pairs]))
+                why = "the angle between the accelerometer and the magnetometer at the start"
+            if inc is not None:
                 self._mref = mag_reference(self.declination, inc)
                 self.summary["inclination_rad"] = float(inc)
+                self._decide("inclination", f"{np.degrees(inc):.2f} deg", r.t, why)
 
     def _check_declination(self, t: float) -> None:
         key = (len(self.params), bool(getattr(self.params, "geo", None)))
@@ -805,7 +876,9 @@ class NavStream(StreamSnapshots):
             if np.isfinite(v[:2]).all():
                 sv = max(n.gnss_vel_floor, g.s_acc if np.isfinite(g.s_acc) else 0.0)
                 rows = (0, 1, 2) if np.isfinite(v[2]) else (0, 1)
-                ups.append((v[list(rows)], GnssVelocity(np.eye(len(rows)) * sv * sv, rows)))
+                ups.append((v[list(rows)], GnssVelocity(
+                    np.eye(len(rows)) * sv * sv, rows, back=dt, f=r.a,
+                    g=self._model.g)))
                 sensors.append("gnss_vel")
                 vx = np.where(np.isfinite(v), v, 0.0)
             else:
@@ -826,20 +899,23 @@ class NavStream(StreamSnapshots):
                 self._offset_pair(baro.height - self._h_fix[1], r.t)
             if self._baro_offset is not None:
                 ups.append((np.array([baro.height]),
-                            BaroHeight(np.array([[n.baro_noise**2]]), self._baro_offset)))
+                            BaroHeight(np.array([[n.baro_noise**2]]), self._baro_offset,
+                                       back=self._stamp(r) - baro.t)))
                 sensors.append("baro")
                 self._count("baro", "used")
-        if (r.mag is not None and np.isfinite(r.mag).all() and np.any(r.mag)
-                and r.t - self._t_mag >= MAG_MIN_INTERVAL_S):
-            self._t_mag = r.t
-            f = np.asarray(r.mag, float)
+        mag = next((a for a in reversed(aids) if a.sensor == "mag"), None)
+        if mag is not None and mag.vec is not None and mag.t - self._t_mag >= MAG_MIN_INTERVAL_S:
+            self._t_mag = mag.t
+            f = mag.vec
+            back = self._stamp(r) - mag.t  # s the sample is older than the step (< 0: newer)
             if self._mref is not None:
-                ups.append((f / np.linalg.norm(f),
-                            OnNav(MagField(self._mref, np.eye(3) * n.mag_noise**2))))
+                ups.append((f / np.linalg.norm(f), OnNav(
+                    MagField(self._mref, np.eye(3) * n.mag_noise**2), back, r.w)))
             else:
-                ups.append((np.array([self.declination]),
-                            OnNav(MagHeading(f, np.array([[n.mag_noise**2]])))))
+                ups.append((np.array([self.declination]), OnNav(
+                    MagHeading(f, np.array([[n.mag_noise**2]])), back, r.w)))
             sensors.append("mag")
+            self._count("mag", "used")
         if self._unaided and r.t - self._t_hold >= HOLD_INTERVAL_S:
             self._t_hold = r.t
             ups.append((np.zeros(3), GnssPosition(np.eye(3) * n.nofix_pos_noise**2)))
@@ -895,6 +971,12 @@ class NavStream(StreamSnapshots):
         integ, why, factor = step_plan(imu, rate, o.integration, o.rate_hz)
         self.noise = nav_noise_for_source(imu, rate).with_(**o.noise)
         self.delay = float(self.noise.gnss_delay if o.gnss_delay is None else o.gnss_delay)
+        self.mag_delay = float(o.mag_delay or 0.0)
+        half_step = 0.5 * (float(np.median(np.diff(ti))) if len(ti) > 1 else 0.0) * factor
+        # on arrival a step goes out at the IMU sample that ends it (no half-step wait):
+        # an aid after its end goes to the next step; the history re-steps a late one
+        self._aid_window = 0.0 if o.on_arrival else half_step
+        self._hold = max(self.delay, self.mag_delay) + self._aid_window
         if o.imu_delay is None:
             self.imu_delay, dwhy = imu_filter_delay(imu, self.params)
         else:
@@ -905,6 +987,7 @@ class NavStream(StreamSnapshots):
             imu_source=imu, imu_sources=imu_counts, mag_source=mag, accel_compensation=None,
             integration=integ, integration_why=why, preintegrated_samples_per_step=factor,
             align_rate_hz=rate, steps_per_update=1, gnss_delay_s=self.delay,
+            mag_delay_s=self.mag_delay if mag is not None else None,
         )
         t_first = ti[0]
         self._decide("IMU", imu, t_first,
@@ -912,9 +995,16 @@ class NavStream(StreamSnapshots):
                      f"most samples in the first {2 * o.align_s:g} s ("
                      + ", ".join(f"{k} {v}" for k, v in sorted(imu_counts.items())) + ")")
         self._decide("integration", integ, t_first, "option" if o.integration != "auto" else why)
-        self._decide("GNSS delay", f"{self.delay:g} s", t_first,
-                     "option --gnss-delay" if o.gnss_delay is not None else "default")
+        self._decide("GNSS delay", f"{self.delay:.3f} s", t_first, o.gnss_delay_why or (
+            "option --gnss-delay" if o.gnss_delay is not None else "default"))
         self._decide("IMU delay", f"{self.imu_delay * 1e3:.1f} ms", t_first, dwhy)
+        if mag is not None:
+            self._decide("magnetometer delay", f"{self.mag_delay * 1e3:.0f} ms", t_first,
+                         o.mag_delay_why or ("option --mag-delay" if o.mag_delay is not None
+                                             else "default"))
+            self._decide("magnetometer noise", f"{self.noise.mag_noise:.3f} rad", t_first,
+                         o.mag_noise_why or ("option --noise" if "mag_noise" in o.noise
+                                             else "default for the IMU source"))
         self._builder = _NavBuilder(integ, factor, o.on_arrival)
         med = float(np.median(np.diff(ti))) if len(ti) > 1 else 0.0
         self._builder.gap_s = max(GAP_MIN_S, GAP_MEDIANS * med)

@@ -5,9 +5,10 @@ navigation state v NED m/s, p NED m with their covariance blocks) and the refere
 (attitude truth quaternions; velocities and positions of position sources), and scores
 them at the end (:meth:`NavScorer.scores`):
 
-* velocity RMSE (m/s, 3-D, or horizontal when the reference has no vertical speed),
-  horizontal and vertical position RMSE (m; the reference's lat/lon/alt moved into the
-  estimate's local NED frame);
+* velocity RMSE (m/s: the root mean square of the error vector's length, 3-D, or
+  horizontal when the reference has no vertical speed), horizontal position RMSE (m:
+  of the horizontal error's length) and vertical (m; the reference's lat/lon/alt moved
+  into the estimate's local NED frame);
 * NEES per block against the reference: attitude (3 dof, ``Log(q_est^-1 q_ref)``),
   velocity (3 dof), position (3 dof): the mean and the share of steps inside the
   two-sided 95 % chi-square band [chi2(0.025), chi2(0.975)] (a consistent filter: 0.95;
@@ -91,7 +92,9 @@ def _block(ne: Array, d: int) -> dict[str, Any]:
 
 
 def _rms(e: Array) -> float | None:
-    return float(np.sqrt(np.mean(e * e))) if e.size else None
+    """Root mean square of the lengths of the error rows ``e`` (N, d) (d = 1: of the
+    values); None when there are none."""
+    return float(np.sqrt(np.mean(np.sum(e * e, axis=-1)))) if e.size else None
 
 
 class NavScorer:
@@ -208,7 +211,7 @@ class NavScorer:
                 e = p_ref[okp] - x[okp, 7:10]
                 errs["pos"], masks["position"] = e, okp
                 out["hpos_rmse_m"] = _rms(e[:, :2])
-                out["vpos_rmse_m"] = _rms(e[:, 2])
+                out["vpos_rmse_m"] = _rms(e[:, 2:3])
                 nees["position"] = _nees(e, P[okp, 6:9, 6:9])
         if nav:
             v_ref, okv = interp_reference(tr, vel, t)
@@ -240,6 +243,6 @@ def _airborne(t: Array, air: Array, nees: dict[str, Array], masks: dict[str, Arr
     if "position" in masks:
         ep = errs["pos"][air[masks["position"]]]
         a["hpos_rmse_m"] = _rms(ep[:, :2])
-        a["vpos_rmse_m"] = _rms(ep[:, 2])
+        a["vpos_rmse_m"] = _rms(ep[:, 2:3])
     a["nees"] = {k: _block(v[air[masks[k]]], dof[k]) for k, v in nees.items()}
     return a

@@ -268,6 +268,25 @@ def _simstate(m, name: str) -> list[Raw]:
     return [_ref_from_euler(name, "truth", m.roll, m.pitch, m.yaw)]
 
 
+def _sim_state(m, name: str) -> list[Raw]:
+    """SIM_STATE (a simulator's truth, ArduPilot SITL): the attitude quaternion q1..q4
+    (body FRD -> NED) and the position (lat_int/lon_int degE7 when the MAVLink 2
+    extension is there, else the float lat/lon, which ArduPilot fills in degE7 and the
+    message definition in deg; alt m AMSL) and velocity (vn, ve, vd m/s NED), both
+    truth."""
+    ref = _ref_from_quat(name, "truth", m.q1, m.q2, m.q3, m.q4)
+    lat_i, lon_i = getattr(m, "lat_int", 0) or 0, getattr(m, "lon_int", 0) or 0
+    if lat_i or lon_i:
+        lat, lon = lat_i * 1e-7, lon_i * 1e-7
+    else:
+        lat, lon = float(m.lat), float(m.lon)
+        if abs(lat) > 90.0 or abs(lon) > 180.0:  # degE7 in a float field
+            lat, lon = lat * 1e-7, lon * 1e-7
+    lla = np.array([lat, lon, float(m.alt)])
+    vel = np.array([m.vn, m.ve, m.vd], dtype=float)
+    return [ref, Raw("pos", name, 0, (None, vel, lla), primary=False)]
+
+
 def _ahrs2(m, name: str) -> list[Raw]:
     return [_ref_from_euler(name, "ahrs2", m.roll, m.pitch, m.yaw)]
 
@@ -426,6 +445,7 @@ MAVLINK_CONVERTERS = {
     "ATTITUDE": _attitude,
     "ATTITUDE_QUATERNION": _attitude_q,
     "SIMSTATE": _simstate,
+    "SIM_STATE": _sim_state,
     "AHRS2": _ahrs2,
     "GLOBAL_POSITION_INT": _global_pos,
     "LOCAL_POSITION_NED": _local_pos,

@@ -37,7 +37,7 @@ from .types import (
 _SENSOR_CATS = ("imu", "mag", "baro", "gnss")
 
 # Messages without a time field: timed from receive time (see docs/ingest.md).
-_UNTIMED = {"SIMSTATE", "AHRS2", "ADSB_VEHICLE"}
+_UNTIMED = {"SIMSTATE", "SIM_STATE", "AHRS2", "ADSB_VEHICLE"}
 _GNSS_MESSAGES = {"GPS_RAW_INT", "GPS2_RAW", "GPS_INPUT"}  # time_usec 0: no GNSS time yet
 _MAX_STALL = 1000  # reads without file progress before giving up (hang guard)
 _SKIPPED_RE = re.compile(r"Skipped (\d+) bad bytes")

@@ -300,6 +300,8 @@ class AttitudeChannels:
         ln.buf.append(rec)
         if rec.reset:
             self.reset_event(rec)
+        if len(rec.x) == NAV_SIZE:
+            self.frames.nav_position(lab, rec.x[7:10])
         if self.frames.frame_dt:
             last = ln.last_frame
             if last is None or t - last >= self.frames.frame_dt:

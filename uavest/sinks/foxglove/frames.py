@@ -146,6 +146,19 @@ class Frames:
                     altitude=lla[2]))
         self.chans.json(f"/position/{s.source}", "uavest.Position", s.t, msg)
 
+    def nav_position(self, label: str, p_ned) -> None:
+        """A navigation estimate's position (NED m, its local frame): the first navigation
+        filter's own position places the bodies (the 3-D view follows its trajectory;
+        position samples then no longer move it)."""
+        src = "nav:" + label
+        if self.pos_source is not None and self.pos_source.startswith("nav:") \
+                and self.pos_source != src:
+            return
+        n, e, d = (float(v) for v in p_ned)
+        if math.isfinite(n + e + d):
+            self.pos_source = src
+            self.pos_enu = (e, n, -d)
+
     def frame(self, name: str, frame: str, t: float, q, offset_east: float, key: str) -> None:
         """``/tf/<name>`` and ``/attitude/<name>/pose`` of attitude ``q`` (NED/FRD, a
         tuple) at ``t``; estimators' records check the rate limit themselves, the

@@ -1,0 +1,363 @@
+"""The GNSS measurement delay estimated from a flight: the lag of the GNSS velocity behind
+the IMU.
+
+A fix stamped ``t`` measures the vehicle's velocity at ``t - d``. Between a fix ``i`` and
+the first fix ``j`` at least :data:`PAIR_S` later the GNSS velocity changes by
+``dv_ij = v_j - v_i``; the IMU says that the velocity changed by
+
+    dV_ij(d) = V(t_j - d) - V(t_i - d),   V(t) = integral of a_n,
+    a_n = R(q) (f - b_a) + (0, 0, g)                     (NED, m/s^2)
+
+with ``f`` each step's mean specific force (body FRD), ``q`` and ``b_a`` a navigation
+filter's attitude and accelerometer bias at that step (``V`` linear inside a step).
+:class:`DelayProbe` collects ``a_n`` per step and the GNSS velocities;
+:meth:`DelayProbe.estimate` picks the ``d`` of a grid (:data:`MIN_DELAY_S` to
+:data:`MAX_DELAY_S`, every :data:`GRID_S`) that minimises
+``J(d) = sum |dv_ij - dV_ij(d)|^2`` over the components the receiver gives (horizontal
+for MAVLink's ground speed and course), refined by a parabola through the three grid
+points round the least cost. Velocity *changes* make the estimate blind to a constant
+velocity error and to slow attitude errors; what fixes ``d`` is the timing of the
+manoeuvres (the change of acceleration across the pair), so a hover gives no estimate
+(:data:`MIN_EXCITATION`). Pairs 1 s apart rather than consecutive fixes: across 0.2 s
+the acceleration hardly changes, and the receiver's velocity noise dominated (standard
+error 15 ms on sim_200hz with 0.2 s, 4 ms with 1 s).
+
+Its standard error comes from the curvature of ``J`` at the least cost:
+``sd = sqrt(2 s2 / J'')`` with ``s2 = J_min / (n_components - 1)``; the estimate is
+taken when ``sd`` is at most :data:`MAX_SD_S`.
+
+:func:`estimate_gnss_delay` runs one navigation filter over a stretch of samples (the
+replay's probe, :func:`uavest.apps.replay.probe_gnss_delay`: at most :data:`PROBE_S` s
+of the log, held and handed back for the run itself) and returns the estimate with the
+held samples.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from ..geometry.rotation import quat_exp, quat_mul, quat_rotate, quat_slerp_interp
+from ..ingest.types import GnssSample, ImuSample, MagSample
+from .navigation import NavOptions, NavRunner, NavStream
+from .records import Start, Step
+
+Array = np.ndarray
+
+__all__ = ["GRID_S", "MAX_DELAY_S", "MAX_MAG_DELAY_S", "MAX_SD_S", "MIN_DELAY_S",
+           "MIN_EXCITATION", "PAIR_S", "PROBE_S", "DelayEstimate", "DelayProbe", "MagEstimate",
+           "estimate_gnss_delay"]
+
+#: The delays tried (s): MIN_DELAY_S to MAX_DELAY_S every GRID_S (a negative delay, the
+#: GNSS stamped before the IMU, is reported as found and used as 0).
+MIN_DELAY_S = -0.1
+MAX_DELAY_S = 0.6
+GRID_S = 0.005
+#: The velocity changes compared span this long (s): fix i with the first fix at least
+#: this much later (within 1.5 times this).
+PAIR_S = 1.0
+#: The estimate is taken when its standard error is at most this (s) ...
+MAX_SD_S = 0.01
+#: ... and the GNSS velocity changed enough: the sum of |dv_i|^2 over the pairs, (m/s)^2
+#: (a hover with 2 cm/s of noise over 10 min gives ~1).
+MIN_EXCITATION = 20.0
+#: The magnetometer ages tried (s): 0 to this.
+MAX_MAG_DELAY_S = 0.3
+#: The replay's pre-pass looks at the first this many seconds of IMU data (s).
+PROBE_S = 240.0
+
+
+@dataclass
+class DelayEstimate:
+    """The GNSS delay ``delay`` (s; None: not estimated, ``why`` says why), its standard
+    error ``sd`` (s), the fix pairs ``pairs`` and ``excitation`` ((m/s)^2) it rests
+    on, and the cost curve ``grid`` (s) / ``cost`` ((m/s)^2)."""
+
+    delay: float | None
+    sd: float | None
+    pairs: int
+    excitation: float
+    why: str
+    grid: Array = field(default_factory=lambda: np.zeros(0))
+    cost: Array = field(default_factory=lambda: np.zeros(0))
+    imu_rate_hz: float = 0.0  # the probe run's IMU rate (Hz)
+
+
+@dataclass
+class MagEstimate:
+    """The magnetometer's age ``delay`` (s, against the IMU-delay-corrected steps; None:
+    not estimated, ``why`` says why), its standard error ``sd`` (s), the ``scatter``
+    (rad, per axis of the field direction, with the filter's attitude error in it), the
+    field's ``inclination`` (rad, down positive: the mean direction at that age) and the
+    ``readings`` it rests on, with the spread curve ``grid`` (s) / ``cost``."""
+
+    delay: float | None
+    sd: float | None
+    readings: int
+    why: str
+    scatter: float | None = None
+    inclination: float | None = None
+    #: the magnetometer noise (rad) the probe's stream took for its IMU source
+    noise_default: float | None = None
+    imu_rate_hz: float = 0.0  # the probe run's IMU rate (Hz)
+    grid: Array = field(default_factory=lambda: np.zeros(0))
+    cost: Array = field(default_factory=lambda: np.zeros(0))
+
+
+class DelayProbe:
+    """What the estimate needs from a navigation run: per step the time (s, the step's
+    end), its length (s) and the NED acceleration ``a_n`` (m/s^2) from a filter's
+    estimate; per GNSS fix its time (s) and NED velocity (m/s, NaN where the receiver
+    gives none). A restart of the filters (:meth:`start`) begins a new segment: the
+    integral does not run across it."""
+
+    def __init__(self) -> None:
+        self._t: list[float] = []
+        self._dt: list[float] = []
+        self._a: list[Array] = []
+        self._seg: list[int] = []
+        self._segment = 0
+        self._gt: list[float] = []
+        self._gv: list[Array] = []
+        self._q: list[Array] = []
+        self._mt: list[float] = []
+        self._mf: list[Array] = []
+
+    def start(self) -> None:
+        """The filters restarted (alignment, re-alignment)."""
+        self._segment += 1
+
+    def add_step(self, st: Step, x: Array) -> None:
+        """One navigation step ``st`` (its ``u`` = [rate, specific force], its model's
+        gravity ``g``) and the filter's state ``x`` after it (q, ..., b_a)."""
+        if st.u is None or not np.isfinite(x).all():
+            return
+        u = np.asarray(st.u, float)
+        f = u[3:6] - x[13:16]
+        q_mid = quat_mul(x[:4], quat_exp(-0.5 * st.dt * (u[:3] - x[10:13])))
+        a = quat_rotate(q_mid, f)
+        a[2] += float(getattr(st.transition, "g", 0.0))
+        self._q.append(np.array(x[:4], float))
+        self._t.append(float(st.t))
+        self._dt.append(float(st.dt))
+        self._a.append(a)
+        self._seg.append(self._segment)
+
+    def add_gnss(self, s: GnssSample) -> None:
+        """One GNSS fix (3-D or 2-D: its horizontal velocity; NaN vertical stays NaN)."""
+        v = np.asarray(s.vel_ned, float)
+        if s.fix_type >= 2 and np.isfinite(v[:2]).all():
+            self._gt.append(float(s.t))
+            self._gv.append(v)
+
+    def add_mag(self, t: float, field: Array) -> None:
+        """One new magnetometer reading at ``t`` (s, its stamp) of ``field`` (body FRD,
+        any unit)."""
+        f = np.asarray(field, float)
+        n = float(np.linalg.norm(f))
+        if np.isfinite(n) and n > 0:
+            self._mt.append(float(t))
+            self._mf.append(f / n)
+
+    def estimate_mag(self, max_delay: float = MAX_MAG_DELAY_S, grid_s: float = GRID_S
+                     ) -> MagEstimate:
+        """The magnetometer's age (s) and scatter (rad): the ``L`` of a grid (0 to
+        ``max_delay``) with the least spread of the readings turned into NED with the
+        filter's attitude at ``t - L`` (the field is the same everywhere in a flight: what
+        the rotation of the vehicle during ``L`` adds to the spread, the right ``L`` takes
+        out); the spread there, per axis of the direction, is the scatter."""
+        est = MagEstimate(None, None, len(self._mt), "")
+        if len(self._mt) < 50 or len(self._t) < 10:
+            est.why = f"{len(self._mt)} magnetometer readings"
+            return est
+        t = np.array(self._t)
+        q = np.array(self._q)
+        mt = np.array(self._mt)
+        mf = np.array(self._mf)
+        keep = (mt - max_delay >= t[0]) & (mt <= t[-1])
+        mt, mf = mt[keep], mf[keep]
+        n = mt.size
+        if n < 50:
+            est.why = f"{n} magnetometer readings inside the steps"
+            return est
+        grid = np.arange(0.0, max_delay + 0.5 * grid_s, grid_s)
+        cost = np.empty(grid.size)
+        for k, lag in enumerate(grid):
+            qi, _ = quat_slerp_interp(t, q, mt - lag)
+            u = quat_rotate(qi, mf)
+            cost[k] = float(np.sum((u - u.mean(axis=0)) ** 2))
+        est.grid, est.cost = grid, cost
+        k = int(np.argmin(cost))
+        est.scatter = float(np.sqrt(cost[k] / (2 * n)))
+        qi, _ = quat_slerp_interp(t, q, mt - grid[k])
+        um = quat_rotate(qi, mf).mean(axis=0)
+        est.inclination = float(np.arcsin(np.clip(um[2] / np.linalg.norm(um), -1.0, 1.0)))
+        if k == 0:
+            est.delay, est.sd = 0.0, None
+            return est
+        if k == grid.size - 1:
+            est.why = (f"the least spread is at the end of the range searched "
+                       f"({max_delay:g} s)")
+            return est
+        d, est.sd = _least(grid, cost, k, 2 * n)
+        if est.sd > MAX_SD_S:
+            est.why = (f"the least spread is not sharp ({d * 1e3:.0f} ms, standard error "
+                       f"{est.sd * 1e3:.0f} ms)")
+            return est
+        est.delay = d
+        return est
+
+    def estimate(self, max_delay: float = MAX_DELAY_S, grid_s: float = GRID_S,
+                 pair_s: float = PAIR_S) -> DelayEstimate:
+        """The delay minimising the cost over the grid (module docstring)."""
+        none = DelayEstimate(None, None, 0, 0.0, "")
+        if len(self._t) < 10 or len(self._gt) < 10:
+            none.why = "too few steps or GNSS fixes"
+            return none
+        t = np.array(self._t)
+        dt = np.array(self._dt)
+        a = np.array(self._a)
+        seg = np.array(self._seg)
+        t0 = t - dt
+        # V at every step's end, from 0 at the start of each segment; linear inside a step
+        dv = a * dt[:, None]
+        V = np.cumsum(dv, axis=0)
+        V -= _segment_base(V, dv, np.r_[True, seg[1:] != seg[:-1]])
+        gt = np.array(self._gt)
+        gv = np.array(self._gv)
+        # pairs (i, j): j the first fix at least pair_s after i, if within 1.5 pair_s
+        j = np.searchsorted(gt, gt + pair_s - 1e-6)
+        i0 = np.flatnonzero(j < len(gt))
+        i1 = j[i0]
+        keep = gt[i1] - gt[i0] <= 1.5 * pair_s
+        i0, i1 = i0[keep], i1[keep]
+        dz = gv[i1] - gv[i0]  # (n, 3), NaN where a component is missing
+        comp = np.isfinite(dz)
+        # the pairs every delay of the grid can use: both shifted ends in one segment
+        _, sa = _v_at(t0, t, V, dv, seg, gt[i0] - max_delay)
+        _, sb = _v_at(t0, t, V, dv, seg, gt[i1] - MIN_DELAY_S)
+        use = (sa >= 0) & (sa == sb)
+        n = int(use.sum())
+        m = int(comp[use].sum())
+        exc = float(np.sum(np.where(comp[use], dz[use], 0.0) ** 2))
+        grid = np.arange(MIN_DELAY_S, max_delay + 0.5 * grid_s, grid_s)
+        est = DelayEstimate(None, None, n, exc, "", grid, np.zeros(0))
+        if n < 10:
+            est.why = f"{n} GNSS fix pairs inside the IMU data"
+            return est
+        cost = np.array([_cost_on(t0, t, V, dv, seg, gt, i0, i1, dz, comp, d, use) for d in grid])
+        est.cost = cost
+        k = int(np.argmin(cost))
+        if not 0 < k < grid.size - 1:
+            est.why = (f"the least cost is at the end of the range searched "
+                       f"({grid[k]:.3f} s of {MIN_DELAY_S:g} to {max_delay:g} s)")
+            return est
+        d, sd = _least(grid, cost, k, m)
+        est.sd = sd
+        if exc < MIN_EXCITATION:
+            est.why = (f"too little manoeuvring: the GNSS velocity changes add up to "
+                       f"{np.sqrt(exc):.1f} m/s (root sum of squares over {n} fix pairs; "
+                       f"needs {np.sqrt(MIN_EXCITATION):.1f})")
+        elif sd > MAX_SD_S:
+            est.why = (f"the least cost is not sharp ({d * 1e3:.0f} ms, standard error "
+                       f"{sd * 1e3:.0f} ms > {MAX_SD_S * 1e3:.0f} ms)")
+        else:
+            est.delay = d
+        return est
+
+
+def _least(grid: Array, cost: Array, k: int, m: int) -> tuple[float, float]:
+    """(the least of the parabola through the grid points k-1, k, k+1 of ``cost``, its
+    standard error ``sqrt(2 s2 / J'')`` with ``s2 = J_min / (m - 1)``, ``m`` the residual
+    components; inf when the cost is not curved there)."""
+    h = float(grid[1] - grid[0])
+    c0, c1, c2 = float(cost[k - 1]), float(cost[k]), float(cost[k + 1])
+    den = c0 - 2.0 * c1 + c2
+    if not den > 0:
+        return float(grid[k]), float("inf")
+    d = float(grid[k]) + 0.5 * h * (c0 - c2) / den
+    return d, float(np.sqrt(2.0 * (c1 / max(m - 1, 1)) / (den / h**2)))
+
+
+def _segment_base(V: Array, dv: Array, first: Array) -> Array:
+    """The value to take from the running sum ``V`` so that it starts at 0 at the start
+    of every segment (the sum before the segment's first step)."""
+    start = np.maximum.accumulate(np.where(first, np.arange(len(V)), 0))
+    out: Array = (V - dv)[start]
+    return out
+
+
+def _v_at(t0: Array, t1: Array, V: Array, dv: Array, seg: Array, tq: Array
+          ) -> tuple[Array, Array]:
+    """V at the times ``tq`` (linear inside the step holding each) and the segment of
+    that step (-1: outside every step)."""
+    i = np.searchsorted(t1, tq)  # first step ending at or after tq
+    inside = (i < len(t1))
+    i = np.minimum(i, len(t1) - 1)
+    inside &= tq >= t0[i]
+    frac = np.clip((tq - t0[i]) / np.maximum(t1[i] - t0[i], 1e-12), 0.0, 1.0)
+    v = V[i] - (1.0 - frac)[:, None] * dv[i]
+    return v, np.where(inside, seg[i], -1)
+
+
+def _cost_on(t0: Array, t1: Array, V: Array, dv: Array, seg: Array, gt: Array, i0: Array,
+             i1: Array, dz: Array, comp: Array, d: float, use: Array) -> float:
+    va, _ = _v_at(t0, t1, V, dv, seg, gt[i0] - d)
+    vb, _ = _v_at(t0, t1, V, dv, seg, gt[i1] - d)
+    r = np.where(comp & use[:, None], dz - (vb - va), 0.0)
+    return float(np.sum(r * r))
+
+
+def estimate_gnss_delay(samples: Iterable[Any], opts: NavOptions, params: dict[str, Any],
+                        runner: NavRunner, probe_s: float = PROBE_S, prior: float = 0.0,
+                        prior_mag: float = 0.0
+                        ) -> tuple[DelayEstimate, MagEstimate, list[Any], Iterator[Any]]:
+    """Run ``runner`` (one navigation filter) on a :class:`NavStream` with ``opts`` and
+    the delays ``prior`` (GNSS) and ``prior_mag`` (magnetometer, s) over the first
+    ``probe_s`` s of IMU data of ``samples``, and estimate both delays from it (and the
+    magnetometer's scatter). Returns the two estimates, the samples read (to be replayed
+    in front of the rest) and the iterator of the rest."""
+    it = iter(samples)
+    held: list[Any] = []
+    stream = NavStream(opts=replace(opts, gnss_delay=prior, mag_delay=prior_mag),
+                       params=params)
+    probe = DelayProbe()
+    t_imu0: float | None = None
+    last_mag: Array | None = None
+
+    def feed(items: Iterable[Start | Step]) -> None:
+        for item in items:
+            if isinstance(item, Start):
+                runner.start(item)
+                probe.start()
+            else:
+                rec = runner.step(item)
+                probe.add_step(item, np.asarray(rec.x, float))
+
+    try:
+        for s in it:
+            held.append(s)
+            if isinstance(s, ImuSample):
+                t_imu0 = s.t if t_imu0 is None else t_imu0
+                if s.t - t_imu0 > probe_s:
+                    break
+            feed(stream.push(s))
+            if isinstance(s, GnssSample) and s.source == stream.gnss_source:
+                probe.add_gnss(s)
+            elif isinstance(s, MagSample) and s.source == stream.mag_source:
+                f = np.asarray(s.field, float)
+                if last_mag is None or not np.array_equal(f, last_mag):  # new readings only
+                    probe.add_mag(s.t, f)
+                    last_mag = f
+        feed(stream.flush())
+    except Exception as e:  # noqa: BLE001 - the probe never fails the run itself
+        why = f"the probe run failed ({e})"
+        return DelayEstimate(None, None, 0, 0.0, why), MagEstimate(None, None, 0, why), held, it
+    mest = probe.estimate_mag()
+    mest.noise_default = float(stream.noise.mag_noise)
+    est = probe.estimate()
+    est.imu_rate_hz = mest.imu_rate_hz = float(stream.summary.get("align_rate_hz") or 0.0)
+    return est, mest, held, it
