@@ -261,8 +261,8 @@ def test_a_program_that_imported_mavutil_first_reads_mavlink2_messages(tmp_path)
     code = (
         "from pymavlink import mavutil\n"  # before uavest, MAVLINK20 unset
         "from uavest.ingest import open_source\n"
-        "g = [s for s in open_source(%r) if type(s).__name__ == 'GnssSample']\n"
-        "print(len(g), sum(s.h_acc == s.h_acc for s in g))\n" % str(p))
+        f"g = [s for s in open_source({str(p)!r}) if type(s).__name__ == 'GnssSample']\n"
+        "print(len(g), sum(s.h_acc == s.h_acc for s in g))\n")
     env = {k: v for k, v in os.environ.items() if k != "MAVLINK20"}
     env["PYTHONPATH"] = str(root) + os.pathsep + env.get("PYTHONPATH", "")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
