@@ -28,12 +28,15 @@ DT = 0.01  # 100 Hz IMU
 
 
 def flight(seed: int, T: float = 40.0, mag: bool = True, gnss_every: int = 20,
-           delay: float = 0.0, v0: float = 6.0, vd: float = 0.0, gnss_from: float = 1.5):
+           delay: float = 0.0, v0: float = 6.0, vd: float = 0.0, gnss_from: float = 1.5,
+           baro_delay: float = 0.0, heave: float = 0.0):
     """(samples, truth t (K,), truth states (K, 16)): 10 s straight, then a turn (down
     speed ``vd`` m/s throughout), with
     IMU (interval means, 'sensor_combined'), GNSS 5 Hz from ``gnss_from`` s (before it,
     when later than 1.5 s, the receiver's no-fix messages; stamped ``delay`` s after the
-    state it measures), baro 10 Hz, magnetometer 10 Hz. Biases bg, ba constant."""
+    state it measures), baro 10 Hz (stamped ``baro_delay`` s late), magnetometer 10 Hz;
+    ``heave`` m/s^2, the amplitude of a down acceleration of period 4 pi s. Biases bg, ba
+    constant."""
     rng = np.random.default_rng(seed)
     fr = LocalFrame(*ORIGIN)
     tr = ImuTransition(NavNoise(), lat=np.deg2rad(ORIGIN[0]), h=ORIGIN[2])
@@ -49,7 +52,8 @@ def flight(seed: int, T: float = 40.0, mag: bool = True, gnss_every: int = 20,
         wz = 0.0 if k * DT < 10 else 0.15
         w = np.array([0.02 * np.sin(0.5 * k * DT), 0.01 * np.cos(0.3 * k * DT), wz])
         v_b = quat_rotate_inv(x[:4], x[4:7])
-        f = np.cross(w, v_b) - quat_rotate_inv(x[:4], np.array([0, 0, tr.g]))
+        f = np.cross(w, v_b) - quat_rotate_inv(
+            x[:4], np.array([0, 0, tr.g - heave * np.cos(0.5 * k * DT)]))
         if 1 <= k:
             x = tr.f(x[None], t, DT, np.concatenate([w, f]))[0]
         ts.append(t)
@@ -61,7 +65,7 @@ def flight(seed: int, T: float = 40.0, mag: bool = True, gnss_every: int = 20,
             fb = quat_rotate_inv(x[:4], mref) + rng.normal(size=3) * 0.005
             out.append(MagSample(t, fb, "sensor_combined"))
         if k % 10 == 5:
-            out.append(BaroSample(t, np.nan, 20.0, -x[9] + 50.0 + rng.normal() * 0.3,
+            out.append(BaroSample(t + baro_delay, np.nan, 20.0, -x[9] + 50.0 + rng.normal() * 0.3,
                                   "sensor_baro"))
         if k % gnss_every == 0 and k * DT < gnss_from and gnss_from > 1.5:  # no fix yet
             out.append(GnssSample(t, np.zeros(3), np.full(3, np.nan), 1, np.nan, np.nan,
@@ -173,6 +177,21 @@ def test_gnss_delay_compensated():
     e0, _ = errors(s0, c0, r0[0].label, ts, xs, 110.0)
     e1, _ = errors(s1, c1, r1[0].label, ts, xs, 110.0)
     assert rms(e1[:, 6:8]) < 0.6 * rms(e0[:, 6:8])  # a 0.2 s lag at 6 m/s is 1.2 m
+
+
+@pytest.mark.slow
+def test_baro_delay_compensated():
+    samples, ts, xs = flight(3, heave=1.5, baro_delay=0.3)  # climbs at up to 3 m/s: 0.9 m
+    s0, r0, c0 = run_nav(samples)
+    s1, r1, c1 = run_nav(samples, opts=NavOptions(integration="hold", baro_delay=0.3))
+    e0, _ = errors(s0, c0, r0[0].label, ts, xs, 110.0)
+    e1, _ = errors(s1, c1, r1[0].label, ts, xs, 110.0)
+    assert rms(e1[:, 8]) < 0.6 * rms(e0[:, 8])
+    assert s1.summary["baro_delay_s"] == 0.3
+    assert any(d["what"] == "baro delay" and "option" in d["why"]
+               for d in s1.summary["decisions"])
+    with pytest.raises(InputError):
+        NavOptions(baro_delay=-0.1)
 
 
 @pytest.mark.slow

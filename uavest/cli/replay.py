@@ -279,6 +279,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if args.gnss_delay is not None and not (math.isfinite(args.gnss_delay)
                                             and 0.0 <= args.gnss_delay <= 2.0):
         raise InputError(f"--gnss-delay must be from 0 to 2 s, got {args.gnss_delay}")
+    if args.baro_delay is not None and not (math.isfinite(args.baro_delay)
+                                            and 0.0 <= args.baro_delay <= 2.0):
+        raise InputError(f"--baro-delay must be from 0 to 2 s, got {args.baro_delay}")
     if args.mag_delay is not None and args.mag_delay > 10.0:
         raise InputError(f"--mag-delay must be at most 10 s, got {args.mag_delay}")
     if args.mag_delay is not None and (args.mag_delay < 0 or not math.isfinite(args.mag_delay)):
@@ -300,6 +303,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         noise=_parse_noise(args.noise), imu=args.imu, use_mag=not args.no_mag,
         accel_comp=args.accel_comp, mag_mode=args.mag_mode, mag_delay=args.mag_delay,
         model=model, gnss_delay=args.gnss_delay, model_why=model_why,
+        baro_delay=args.baro_delay,
     )
     bar = _Progress(False if args.no_progress else None, args.log)
     sinks = [bar, ResetLog(), *recording_sinks(args)]
@@ -377,6 +381,10 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
                    help="navigation model: GNSS measurement delay in s (default: estimated "
                    "from the log, the lag of the GNSS velocity behind the IMU; 0 when the "
                    "log has too little manoeuvring)")
+    p.add_argument("--baro-delay", type=float, default=None, metavar="S",
+                   help="navigation model: barometer measurement delay in s (default: "
+                   "estimated from the log, the lag of the baro height's curvature behind "
+                   "the IMU's vertical acceleration; 0 when the log has too little climbing)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_recording_options(p)
     p.add_argument("--speed", type=float, default=1.0,

@@ -143,7 +143,8 @@ class NavOptions:
     or None (the stream's choice); ``use_mag``, ``use_baro``; ``mag_mode`` field or
     heading; ``gnss_delay`` s (None: ``NavNoise.gnss_delay``) and ``gnss_delay_why``
     where it came from (None: "option --gnss-delay" / "default"); ``mag_delay`` s, the
-    magnetometer sample's age (None: 0), and ``mag_delay_why``; ``mag_noise_why``: where
+    magnetometer sample's age (None: 0), and ``mag_delay_why``; ``baro_delay`` s, the
+    barometer sample's age (None: 0), and ``baro_delay_why``; ``mag_noise_why``: where
     the ``mag_noise`` of ``noise`` came from (None: an option or the default);
     ``mag_inclination`` rad (None: from the alignment window's accelerometer and
     magnetometer) and ``mag_inclination_why``; ``align_s`` s;
@@ -176,6 +177,8 @@ class NavOptions:
     gnss_delay_why: str | None = None
     mag_delay: float | None = None
     mag_delay_why: str | None = None
+    baro_delay: float | None = None
+    baro_delay_why: str | None = None
     mag_noise_why: str | None = None
     mag_inclination: float | None = None
     mag_inclination_why: str | None = None
@@ -207,6 +210,9 @@ class NavOptions:
         if d is not None and not (np.isfinite(d) and 0.0 <= d <= 2.0):
             raise InputError(f"--mag-delay must be from 0 to 2 s for the navigation model, "
                              f"got {d}")
+        d = self.baro_delay
+        if d is not None and not (np.isfinite(d) and 0.0 <= d <= 2.0):
+            raise InputError(f"--baro-delay must be from 0 to 2 s, got {d}")
 
 
 def imu_filter_delay(source: str, params: dict[str, Any]) -> tuple[float, str]:
@@ -313,6 +319,7 @@ class NavStream(StreamSnapshots):
         self._aid: dict[str, deque[_Aid]] = {"gnss": deque(), "baro": deque(),
                                              "mag": deque()}
         self.mag_delay = 0.0  # s, the magnetometer sample's age (NavOptions.mag_delay)
+        self.baro_delay = 0.0  # s, the barometer sample's age (NavOptions.baro_delay)
         #: s the stream holds closed steps: the larger delay and half a nominal step
         self._hold = 0.0
         #: s after a step's end whose aids it takes: half a nominal step (an aid goes to
@@ -378,11 +385,11 @@ class NavStream(StreamSnapshots):
     # (the engine's history, :mod:`uavest.engine.history`: samples on arrival)
     @property
     def committed(self) -> float:
-        """End (s) of the last step released, plus the larger of the GNSS delay and the
-        magnetometer's age (a fix stamped t is applied at t - delay, a magnetometer
-        sample at t - its age): an aid at or before it may be late."""
+        """End (s) of the last step released, plus the largest of the GNSS delay and the
+        magnetometer's and barometer's ages (a fix stamped t is applied at t - delay, a
+        magnetometer or baro sample at t - its age): an aid at or before it may be late."""
         return (-np.inf if self._t_out is None
-                else self._t_out + max(self.delay, self.mag_delay))
+                else self._t_out + max(self.delay, self.mag_delay, self.baro_delay))
 
     def order_sensitive(self, s: Any) -> bool:
         """The chosen IMU and magnetometer, the GNSS receiver (any before one is chosen)
@@ -598,13 +605,18 @@ class NavStream(StreamSnapshots):
             self._baro = s.source
             self._decide("baro", s.source, s.t, "option --baro" if self.opts.baro else
                          "first barometer in the stream")
+            o = self.opts
+            self._decide("baro delay", f"{self.baro_delay * 1e3:.0f} ms", s.t,
+                         o.baro_delay_why or ("option --baro-delay" if o.baro_delay is not None
+                                              else "default"))
+            self.summary["baro_delay_s"] = self.baro_delay
         if s.source != self._baro:
             return
         h = baro_height(s)
         if not np.isfinite(h):
             self._count("baro", "nan")
             return
-        self._aid["baro"].append(_Aid(s.t, "baro", height=h))
+        self._aid["baro"].append(_Aid(s.t - self.baro_delay, "baro", height=h))
 
     # ------------------------------------------------------------------ releasing steps
     def _release(self, upto: float | None = None) -> list[Start | Step]:
@@ -972,11 +984,12 @@ class NavStream(StreamSnapshots):
         self.noise = nav_noise_for_source(imu, rate).with_(**o.noise)
         self.delay = float(self.noise.gnss_delay if o.gnss_delay is None else o.gnss_delay)
         self.mag_delay = float(o.mag_delay or 0.0)
+        self.baro_delay = float(o.baro_delay or 0.0)
         half_step = 0.5 * (float(np.median(np.diff(ti))) if len(ti) > 1 else 0.0) * factor
         # on arrival a step goes out at the IMU sample that ends it (no half-step wait):
         # an aid after its end goes to the next step; the history re-steps a late one
         self._aid_window = 0.0 if o.on_arrival else half_step
-        self._hold = max(self.delay, self.mag_delay) + self._aid_window
+        self._hold = max(self.delay, self.mag_delay, self.baro_delay) + self._aid_window
         if o.imu_delay is None:
             self.imu_delay, dwhy = imu_filter_delay(imu, self.params)
         else:
