@@ -14,8 +14,15 @@ from uavest.errors import InputError
 from uavest.geometry.geodesy import LocalFrame
 from uavest.geometry.navigation import NavSpace
 from uavest.geometry.rotation import euler_to_quat, quat_rotate_inv
-from uavest.ingest.types import BaroSample, GnssSample, ImuSample, MagSample, NoSamplesError
-from uavest.models.attitude import mag_reference
+from uavest.ingest.types import (
+    BaroSample,
+    GnssSample,
+    ImuSample,
+    LogParams,
+    MagSample,
+    NoSamplesError,
+)
+from uavest.models.attitude import inclination_from_params, mag_reference
 from uavest.models.navigation import ImuTransition, NavNoise
 from uavest.presets import resolve_list
 from uavest.sinks.base import Collector
@@ -29,21 +36,22 @@ DT = 0.01  # 100 Hz IMU
 
 def flight(seed: int, T: float = 40.0, mag: bool = True, gnss_every: int = 20,
            delay: float = 0.0, v0: float = 6.0, vd: float = 0.0, gnss_from: float = 1.5,
-           baro_delay: float = 0.0, heave: float = 0.0):
+           baro_delay: float = 0.0, heave: float = 0.0, incl: float = np.deg2rad(63.0),
+           ba: tuple = (0.1, -0.05, 0.08)):
     """(samples, truth t (K,), truth states (K, 16)): 10 s straight, then a turn (down
     speed ``vd`` m/s throughout), with
     IMU (interval means, 'sensor_combined'), GNSS 5 Hz from ``gnss_from`` s (before it,
     when later than 1.5 s, the receiver's no-fix messages; stamped ``delay`` s after the
     state it measures), baro 10 Hz (stamped ``baro_delay`` s late), magnetometer 10 Hz;
     ``heave`` m/s^2, the amplitude of a down acceleration of period 4 pi s. Biases bg, ba
-    constant."""
+    constant (``ba`` m/s^2); the field's inclination ``incl`` rad."""
     rng = np.random.default_rng(seed)
     fr = LocalFrame(*ORIGIN)
     tr = ImuTransition(NavNoise(), lat=np.deg2rad(ORIGIN[0]), h=ORIGIN[2])
-    bg, ba = np.array([0.01, -0.005, 0.003]), np.array([0.1, -0.05, 0.08])
+    bg, ba = np.array([0.01, -0.005, 0.003]), np.array(ba)
     x = np.concatenate([euler_to_quat(0.0, 0.0, 0.3), [v0 * np.cos(0.3), v0 * np.sin(0.3), vd],
                         np.zeros(3), bg, ba])
-    mref = mag_reference(np.deg2rad(2.0), np.deg2rad(63.0)) * 0.48
+    mref = mag_reference(np.deg2rad(2.0), incl) * 0.48
     t0 = 100.0
     out, ts, xs = [], [], []
     n = int(T / DT)
@@ -80,8 +88,8 @@ def flight(seed: int, T: float = 40.0, mag: bool = True, gnss_every: int = 20,
     return out, np.array(ts), np.array(xs)
 
 
-def run_nav(samples, specs=("ekf",), opts=None, seed=0):
-    stream = NavStream(opts=opts or NavOptions(integration="hold"))
+def run_nav(samples, specs=("ekf",), opts=None, seed=0, params=None):
+    stream = NavStream(opts=opts or NavOptions(integration="hold"), params=params)
     runners = [NavRunner(sp.label, flt, np.random.default_rng(seed))
                for sp, flt in build_filters(resolve_list(list(specs), "attitude", dim=15))]
     coll = Collector()
@@ -258,3 +266,40 @@ def test_a_held_magnetometer_reading_is_used_once():
     assert s1.aiding["mag"]["held"] > 5 * n_new
     assert s1.aiding["mag"]["used"] == s0.aiding["mag"]["used"]
     np.testing.assert_allclose(a1["x"], a0["x"], atol=1e-9)
+
+
+def _geo_params() -> LogParams:
+    p = LogParams()
+    p.set_geo(*ORIGIN, 1767225600.0)  # 2026-01-01
+    return p
+
+
+def test_the_start_takes_the_magnetic_models_inclination_over_the_accelerometers():
+    """The alignment window's angle between accelerometer and magnetometer is off by the
+    level's error (here a hover with the accel bias and noise: 0.3-1 deg); where the field is
+    the World Magnetic Model's, the model's inclination is taken, and the tilt after the
+    start is better than the same run's with the window's angle (no position known)."""
+    params = _geo_params()
+    wmm, _ = inclination_from_params(params)
+    assert wmm is not None
+    samples, ts, xs = flight(2, T=20.0, v0=0.0, incl=wmm, ba=(0.06, -0.03, 0.05))
+    got = {}
+    for name, prm in (("model", params), ("window", None)):
+        stream, _, coll = run_nav(samples, params=prm)
+        err, _ = errors(stream, coll, "ekf", ts, xs, 105.0)
+        got[name] = (stream.summary["inclination_rad"], rms(err[:, :2]))
+    assert got["model"][0] == pytest.approx(wmm, abs=1e-9)
+    assert abs(got["window"][0] - wmm) > np.deg2rad(0.1)
+    assert got["model"][1] < 0.8 * got["window"][1]
+
+
+def test_a_field_far_from_the_magnetic_model_keeps_the_accelerometers_inclination():
+    """A local field 3 deg from the model's inclination (an anomaly, a simulator's own
+    table) is measured at the start, not replaced by the model."""
+    params = _geo_params()
+    wmm, _ = inclination_from_params(params)
+    samples, _, _ = flight(2, T=4.0, incl=wmm + np.deg2rad(3.0))
+    stream, _, _ = run_nav(samples, params=params)
+    assert abs(stream.summary["inclination_rad"] - wmm) > np.deg2rad(1.0)
+    assert "accelerometer" in next(d["why"] for d in stream.decisions
+                                   if d["what"] == "inclination")

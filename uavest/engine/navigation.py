@@ -61,6 +61,7 @@ from ..models.attitude import (
     MagField,
     MagHeading,
     declination_and_source,
+    inclination_from_params,
     inclination_from_samples,
     mag_reference,
 )
@@ -107,6 +108,14 @@ MAG_MIN_INTERVAL_S = 1.0 / DEFAULT_MAX_RATE_HZ - 1e-6
 #: A start (or re-alignment) levels from at least this share of ``NavOptions.align_s`` of
 #: IMU data (the steps seen while waiting for the fix).
 ALIGN_SPAN = 0.95
+#: The start takes the World Magnetic Model's inclination (rad) at the first fix when the
+#: alignment window's angle between accelerometer and magnetometer is within this of it:
+#: that angle is off by the level's error (the vehicle's acceleration in the window, the
+#: accel bias / g; 0.3-0.6 deg on sim_default, whose field is the model's within 0.02
+#: deg), and the 3-D field then holds the tilt at that error for the run (pitch 0.30 deg
+#: against 0.10). Further apart, the local field is not the model's (the ArduPilot SITL's
+#: table field on vtol.tlog: 1.2 deg off it, the window 0.7) and the window is taken.
+WMM_INCLINATION_TOL = np.deg2rad(1.0)
 #: Without a good GNSS fix this many alignment windows (``NavOptions.align_s``) into the
 #: IMU data, the stream starts unaided (``NavOptions.before_fix``).
 UNAIDED_WAIT_ALIGNS = 2.0
@@ -146,8 +155,10 @@ class NavOptions:
     magnetometer sample's age (None: 0), and ``mag_delay_why``; ``baro_delay`` s, the
     barometer sample's age (None: 0), and ``baro_delay_why``; ``mag_noise_why``: where
     the ``mag_noise`` of ``noise`` came from (None: an option or the default);
-    ``mag_inclination`` rad (None: from the alignment window's accelerometer and
-    magnetometer) and ``mag_inclination_why``; ``align_s`` s;
+    ``mag_inclination`` rad (None: the World Magnetic Model's within
+    :data:`WMM_INCLINATION_TOL` of the alignment window's accelerometer-magnetometer
+    angle, else that angle; ``inclination_wmm`` False: always that angle) and
+    ``mag_inclination_why``; ``align_s`` s;
     ``yaw_speed`` m/s, the ground speed from which the GNSS course gives the start yaw
     without a magnetometer; ``imu_delay`` s, the lag of the IMU's samples behind the
     motion (None: :func:`imu_filter_delay` from the log's parameters); ``before_fix``:
@@ -182,6 +193,7 @@ class NavOptions:
     mag_noise_why: str | None = None
     mag_inclination: float | None = None
     mag_inclination_why: str | None = None
+    inclination_wmm: bool = True
     align_s: float = 1.0
     yaw_speed: float = 3.0
     imu_delay: float | None = None
@@ -851,6 +863,12 @@ class NavStream(StreamSnapshots):
                 inc = inclination_from_samples(np.array([p[0] for p in pairs]),
                                                np.array([p[1] for p in pairs]))
                 why = "the angle between the accelerometer and the magnetometer at the start"
+                wmm, wwhy = (inclination_from_params(self.params) if o.inclination_wmm
+                             else (None, ""))
+                if (o.inclination_wmm and wmm is not None
+                        and abs(wmm - inc) <= WMM_INCLINATION_TOL):
+                    inc, why = wmm, (f"the magnetic model ({wwhy}; the accelerometer's angle "
+                                     f"{np.degrees(abs(inc - wmm)):.2f} deg from it)")
             if inc is not None:
                 self._mref = mag_reference(self.declination, inc)
                 self.summary["inclination_rad"] = float(inc)

@@ -63,6 +63,7 @@ __all__ = [
     "MagHeading",
     "Stacked",
     "inclination_from_samples",
+    "inclination_from_params",
     "mag_reference",
     "declination_from_params",
     "initial_attitude",
@@ -225,6 +226,17 @@ def wmm_declination(lat: float, lon: float, alt: float, utc_s: float | None
     2020, 2025, each valid 5 years); dates outside 2010-2030 use the nearest epoch's end
     and say so; ``utc_s`` None (no date known): the newest model at its epoch. For
     2025-2030 this is :func:`uavest.geometry.magnetic.declination`."""
+    return _wmm_angle("d", lat, lon, alt, utc_s)
+
+
+def wmm_inclination(lat: float, lon: float, alt: float, utc_s: float | None
+                    ) -> tuple[float, str]:
+    """World Magnetic Model inclination (rad, positive down) as :func:`wmm_declination`."""
+    return _wmm_angle("i", lat, lon, alt, utc_s)
+
+
+def _wmm_angle(key: str, lat: float, lon: float, alt: float, utc_s: float | None
+               ) -> tuple[float, str]:
     from datetime import UTC, datetime
 
     from ..geometry.magnetic import decimal_year
@@ -235,7 +247,7 @@ def wmm_declination(lat: float, lon: float, alt: float, utc_s: float | None
         epoch = _WMM_EPOCHS[-1]
         r = _geomag(epoch).calculate(glat=float(lat), glon=float(lon),
                                      alt=float(alt) / 1000.0, time=float(epoch))
-        d = float(np.deg2rad(r.d))
+        d = float(np.deg2rad(getattr(r, key)))
         return d, (f"World Magnetic Model WMM{epoch} at {lat:.4f}, {lon:.4f} at its epoch "
                    f"{epoch}.0: {np.rad2deg(d):.2f} deg")
     if not np.isfinite(utc_s):
@@ -249,9 +261,31 @@ def wmm_declination(lat: float, lon: float, alt: float, utc_s: float | None
     epoch = max(e for e in _WMM_EPOCHS if e <= y)
     r = _geomag(epoch).calculate(glat=float(lat), glon=float(lon), alt=float(alt) / 1000.0,
                                  time=y)
-    d = float(np.deg2rad(r.d))
+    d = float(np.deg2rad(getattr(r, key)))
     return d, (f"World Magnetic Model WMM{epoch} at {lat:.4f}, {lon:.4f} on "
                f"{when:%Y-%m-%d}{note}: {np.rad2deg(d):.2f} deg")
+
+
+def inclination_from_params(params: dict) -> tuple[float | None, str]:
+    """Magnetic inclination (rad, positive down) of the World Magnetic Model at the log's
+    first GPS fix and its date (``params.geo``), else at a fix without a GNSS date
+    (``params.fix``) on the log's own date (``params.date``) or the model's epoch (the
+    inclination changes by about 0.1 deg a year), with where it came from; (None, why)
+    without a fix or when the model cannot be evaluated."""
+    geo = getattr(params, "geo", None)
+    fix = geo or getattr(params, "fix", None)
+    if not fix:
+        return None, "no GPS fix in the log yet"
+    date = getattr(params, "date", None)
+    utc = geo["utc"] if geo else (date["utc"] if date else None)
+    try:
+        inc, what = wmm_inclination(fix["lat"], fix["lon"], fix.get("alt", 0.0), utc)
+    except (ValueError, ImportError) as e:
+        return None, str(e)
+    if not geo:
+        what += (f" (no GNSS date: the date of the {date['what']})" if date
+                 else " (no date in the log: the model's epoch)")
+    return inc, what
 
 
 _GEOMAG: dict = {}
