@@ -85,6 +85,7 @@ from .attitude import (
     failover_rate,
     step_plan,
 )
+from .nav_aiding import AidQueues, _Aid, baro_height, good_fix
 from .records import NavAnchor, Start, Step
 from .runner import FilterRunner
 
@@ -98,8 +99,6 @@ GATE_PROB = 0.999
 #: Consecutive rejections of one sensor for this long (s) and its next update is taken
 #: with R scaled to put it on the gate (one re-anchoring, counted; not a reset).
 REANCHOR_S = 10.0
-#: Pairs of (baro, GNSS) heights the baro offset averages over (then its memory).
-BARO_OFFSET_PAIRS = 200
 _CHI2: dict[int, float] = {}  # GATE_PROB quantile by dimension
 #: Magnetometer updates at most this often (s): the attitude path's reference rate
 #: (``mag_noise`` describes one update per reference step; a 200 Hz magnetometer at
@@ -243,31 +242,6 @@ def imu_filter_delay(source: str, params: dict[str, Any]) -> tuple[float, str]:
         f"group delay of the autopilot's {fc:g} Hz IMU low-pass (INS_GYRO_FILTER)")
 
 
-def baro_height(s: BaroSample) -> float:
-    """Height up (m) of a barometer sample: the logged pressure altitude when there is
-    one, else the ISA barometric formula from the pressure (Pa); NaN if neither is
-    usable. Only differences matter (the offset to the GNSS height is estimated)."""
-    if np.isfinite(s.alt):
-        return float(s.alt)
-    p = float(s.pressure)
-    if not (np.isfinite(p) and 1.0e3 < p < 2.0e5):
-        return float("nan")
-    return float(44330.77 * (1.0 - (p / 101325.0) ** 0.190263))
-
-
-@dataclass
-class _Aid:
-    """One validated aiding sample waiting for its step: effective time ``t`` (s, the
-    stamp minus the delay), ``sensor`` name and its payload."""
-
-    t: float
-    sensor: str
-    gnss: GnssSample | None = None
-    ned: Array | None = None
-    height: float = float("nan")
-    vec: Array | None = None  # a magnetometer sample's field (gauss, body FRD)
-
-
 class _NavBuilder(_StepBuilder):
     """The attitude path's step builder with the specific force of every step (the
     time-weighted trapezoid mean for snapshot IMUs, the plain mean for integrated ones)."""
@@ -324,12 +298,11 @@ class NavStream(StreamSnapshots):
         self._builder: _NavBuilder | None = None
         self._imu: str | None = None
         self._mag: str | None = None
-        self._gnss: str | None = self.opts.gnss
-        self._baro: str | None = self.opts.baro
         self._model: ImuTransition | None = None
         self._queue: deque[_Raw] = deque()
-        self._aid: dict[str, deque[_Aid]] = {"gnss": deque(), "baro": deque(),
-                                             "mag": deque()}
+        #: the aiding samples waiting for their steps, the GNSS and baro choice, the
+        #: per-sensor counts and the baro offset
+        self._aids = AidQueues(self.opts.gnss, self.opts.baro)
         self.mag_delay = 0.0  # s, the magnetometer sample's age (NavOptions.mag_delay)
         self.baro_delay = 0.0  # s, the barometer sample's age (NavOptions.baro_delay)
         #: s the stream holds closed steps: the larger delay and half a nominal step
@@ -337,7 +310,6 @@ class NavStream(StreamSnapshots):
         #: s after a step's end whose aids it takes: half a nominal step (an aid goes to
         #: the step whose end is nearest to it), or 0 on arrival
         self._aid_window = 0.0
-        self._mag_last: Array | None = None  # the last magnetometer field queued
         self._recent: deque[_Raw] = deque()  # raws of the last align_s while waiting
         # the good GNSS fixes while waiting (t, v NED), for the vehicle's acceleration
         self._vfix: deque[tuple[float, Array]] = deque(maxlen=64)
@@ -358,20 +330,20 @@ class NavStream(StreamSnapshots):
         self._k = 0
         self._imu_n = [0, 0.0, 0.0]
         self._mref: Array | None = None
-        self._baro_offset: float | None = None
-        self._off_n = 0  # (baro, GNSS) height pairs seen
         self._t_mag = -np.inf  # time of the last magnetometer update
-        self._h_fix: tuple[float, float] | None = None  # last GNSS (t s, height up m)
         self._decl_pending = False
         self._decl_seen: tuple[int, bool] | None = None
-        self._gnss_srcs: dict[str, int] = {}
-        self._baro_srcs: dict[str, int] = {}
-        self.aiding: dict[str, dict[str, int]] = {}
 
     @property
     def gnss_source(self) -> str | None:
         """The GNSS receiver the stream uses (None: not chosen yet)."""
-        return self._gnss
+        return self._aids.gnss
+
+    @property
+    def aiding(self) -> dict[str, dict[str, int]]:
+        """Per sensor, the counts of what was used and skipped (``used``, ``late``,
+        ``held``, ``nan``...)."""
+        return self._aids.counts
 
     @property
     def mag_source(self) -> str | None:
@@ -383,10 +355,6 @@ class NavStream(StreamSnapshots):
         """Record a decision ``what`` = ``value`` from ``t`` (s) because ``why``."""
         self.decisions.append({"what": what, "value": value, "t": float(t), "why": why})
         self.summary["decisions"] = self.decisions
-
-    def _count(self, sensor: str, what: str) -> None:
-        d = self.aiding.setdefault(sensor, {})
-        d[what] = d.get(what, 0) + 1
 
     def __iter__(self) -> Iterator[Start | Step]:
         for s in self.samples:
@@ -413,9 +381,10 @@ class NavStream(StreamSnapshots):
         if isinstance(s, MagSample):
             return s.source == self._mag
         if isinstance(s, GnssSample):
-            return self._gnss is None or s.source == self._gnss
+            return self._aids.gnss is None or s.source == self._aids.gnss
         if isinstance(s, BaroSample):
-            return self.opts.use_baro and (self._baro is None or s.source == self._baro)
+            return self.opts.use_baro and (self._aids.baro is None
+                                           or s.source == self._aids.baro)
         return False
 
     # ------------------------------------------------------------------ pushing
@@ -424,10 +393,7 @@ class NavStream(StreamSnapshots):
         o = self.opts
         if not o.in_window(s.t):
             return []
-        if isinstance(s, GnssSample):
-            self._gnss_srcs[s.source] = self._gnss_srcs.get(s.source, 0) + 1
-        elif isinstance(s, BaroSample):
-            self._baro_srcs[s.source] = self._baro_srcs.get(s.source, 0) + 1
+        self._aids.seen(s)
         if self._held is not None:
             self._held.append(s)
             if isinstance(s, ImuSample):
@@ -454,7 +420,7 @@ class NavStream(StreamSnapshots):
         if not self._started:
             raise NavNotStarted(
                 "the navigation model could not start: " + self._wait_why
-                + " (GNSS sources seen: " + (", ".join(sorted(self._gnss_srcs)) or "none")
+                + " (GNSS sources seen: " + (", ".join(sorted(self._aids.gnss_srcs)) or "none")
                 + "; use --model attitude)")
         return out
 
@@ -466,7 +432,7 @@ class NavStream(StreamSnapshots):
             if s.source != self._imu:
                 return self._failover(s) if self.opts.imu is None else []
             if not (np.isfinite(s.gyro).all() and np.isfinite(s.accel).all()):
-                self._count("imu", "nan")
+                self._aids.count("imu", "nan")
                 return []
             self._imu_n[0] += 1
             self._imu_n[2] = s.t
@@ -475,7 +441,7 @@ class NavStream(StreamSnapshots):
             if s.source != self._mag:
                 return []
             raws = b.push_nav(s)
-            self._mag_sample(s)
+            self._aids.add_mag(s, self.mag_delay)
         elif isinstance(s, GnssSample):
             self._gnss_sample(s)
         elif isinstance(s, BaroSample):
@@ -563,24 +529,15 @@ class NavStream(StreamSnapshots):
 
     # ------------------------------------------------------------------ aiding input
     def _gnss_sample(self, s: GnssSample) -> None:
-        if self._gnss is None:
-            if s.fix_type < 3:
-                return
-            self._gnss = s.source
+        """Queue a fix of the GNSS receiver (chosen at its first 3-D fix); the first
+        3-D fix with a height sets the local frame's origin."""
+        if self._aids.choose_gnss(s):
             self._decide("GNSS", s.source, s.t, "option --gnss" if self.opts.gnss else
                          "first receiver with a 3-D fix (raw, not the autopilot's fused "
                          "position)")
-        if s.source != self._gnss:
+        lla = self._aids.gnss_lla(s)
+        if lla is None:
             return
-        if s.fix_type < 2:
-            self._count("gnss", "no_fix")
-            return
-        lla = np.asarray(s.lat_lon_alt, float)
-        if not np.isfinite(lla[:2]).all() or abs(lla[0]) > 90 or abs(lla[1]) > 180:
-            self._count("gnss", "nan")
-            return
-        if s.fix_type == 2:
-            self._count("gnss", "fix_2d")
         if self.frame is None:
             if s.fix_type < 3 or not np.isfinite(lla[2]):
                 return
@@ -589,32 +546,12 @@ class NavStream(StreamSnapshots):
                                       "alt": float(lla[2])}
             lat = np.deg2rad(lla[0])
             self._model = ImuTransition(self.noise, lat=lat, h=float(lla[2]))
-        alt = lla[2] if np.isfinite(lla[2]) else self.frame.h0
-        ned = np.asarray(self.frame.geodetic_to_ned(np.array(lla[0]), np.array(lla[1]),
-                                                     np.array(alt)), dtype=float)
-        if s.fix_type == 2 or not np.isfinite(lla[2]):
-            ned[2] = np.nan
-        self._aid["gnss"].append(_Aid(s.t - self.delay, "gnss", gnss=s, ned=ned))
-
-    def _mag_sample(self, s: MagSample) -> None:
-        """Queue a magnetometer sample as an aid at its time less the magnetometer delay
-        (s), when it is a new reading: a field equal to the previous one is the same
-        reading held (MAVLink's IMU messages repeat the last compass value: the ArduCopter
-        SITL's changes 10 times a second in a 200 Hz RAW_IMU), not a new measurement."""
-        f = np.asarray(s.field, float)
-        if not (np.isfinite(f).all() and np.any(f)):
-            return
-        if self._mag_last is not None and np.array_equal(f, self._mag_last):
-            self._count("mag", "held")
-            return
-        self._mag_last = f
-        self._aid["mag"].append(_Aid(s.t - self.mag_delay, "mag", vec=f))
+        self._aids.add_gnss(s, lla, self.frame, self.delay)
 
     def _baro_sample(self, s: BaroSample) -> None:
         if not self.opts.use_baro:
             return
-        if self._baro is None:
-            self._baro = s.source
+        if self._aids.choose_baro(s):
             self._decide("baro", s.source, s.t, "option --baro" if self.opts.baro else
                          "first barometer in the stream")
             o = self.opts
@@ -622,13 +559,7 @@ class NavStream(StreamSnapshots):
                          o.baro_delay_why or ("option --baro-delay" if o.baro_delay is not None
                                               else "default"))
             self.summary["baro_delay_s"] = self.baro_delay
-        if s.source != self._baro:
-            return
-        h = baro_height(s)
-        if not np.isfinite(h):
-            self._count("baro", "nan")
-            return
-        self._aid["baro"].append(_Aid(s.t - self.baro_delay, "baro", height=h))
+        self._aids.add_baro(s, self.baro_delay)
 
     # ------------------------------------------------------------------ releasing steps
     def _release(self, upto: float | None = None) -> list[Start | Step]:
@@ -637,19 +568,12 @@ class NavStream(StreamSnapshots):
         incl = upto is not None or (self.opts.on_arrival and not self._hold > 0)
         while self._queue and (self._queue[0].t < lim or (incl and self._queue[0].t <= lim)):
             r = self._queue.popleft()
-            aids = []
-            for q in self._aid.values():  # each sensor's aids are in time order
-                while q and q[0].t <= self._stamp(r) + self._aid_window:
-                    a = q.popleft()
-                    if self._t_out is not None and a.t <= self._t_out:
-                        self._count(a.sensor, "late")
-                        continue
-                    aids.append(a)
+            aids = self._aids.take(self._stamp(r) + self._aid_window, self._t_out)
             self._t_out = self._stamp(r) + self._aid_window
             if self._waiting:
                 out += self._try_start(r, aids)
             elif self._unaided:
-                fix = self._good_fix(aids)
+                fix = good_fix(aids)
                 if fix is not None:
                     out += self._anchor(r, fix)
                 else:
@@ -658,21 +582,13 @@ class NavStream(StreamSnapshots):
                 out.append(self._step(r, aids))
         return out
 
-    def _good_fix(self, aids: list[_Aid]) -> _Aid | None:
-        for a in reversed(aids):
-            g = a.gnss
-            if (g is not None and a.ned is not None and g.fix_type >= 3
-                    and np.isfinite(a.ned).all() and np.isfinite(g.vel_ned[:2]).all()):
-                return a
-        return None
-
     def _try_start(self, r: _Raw, aids: list[_Aid]) -> list[Start | Step]:
         o = self.opts
         if r.a is not None:
             self._recent.append(r)
             while self._recent and self._recent[0].t < r.t - o.align_s:
                 self._recent.popleft()
-        fix = self._good_fix(aids)
+        fix = good_fix(aids)
         if fix is not None and fix.gnss is not None:
             self._vfix.append((fix.t, np.asarray(fix.gnss.vel_ned, float)))
         mags = [x.mag for x in self._recent if x.mag is not None and np.any(x.mag)]
@@ -733,7 +649,7 @@ class NavStream(StreamSnapshots):
         comp = (f" less the GNSS acceleration ({np.linalg.norm(a_ned):.1f} m/s^2)"
                 if np.any(a_ned) else "")
         why = (f"roll/pitch from the accelerometer{comp}, yaw from {ywhy}, velocity and "
-               f"position from the {self._gnss} fix at t={g.t:.1f} s")
+               f"position from the {self._aids.gnss} fix at t={g.t:.1f} s")
         self._decide("alignment", "done" if first else "re-aligned", r.t, why)
         keep = 0 if first or self._switched else 6
         self._switched = False
@@ -822,7 +738,7 @@ class NavStream(StreamSnapshots):
         o = self.summary.get("origin")
         if o is not None:
             self._anchor_sample = NavAnchor(self._stamp(r), o["lat"], o["lon"], o["alt"],
-                                            str(self._gnss), reason)
+                                            str(self._aids.gnss), reason)
 
     def _anchor(self, r: _Raw, fix: _Aid) -> list[Start | Step]:
         """The first good fix after an unaided start: velocity and position from it, the
@@ -836,7 +752,7 @@ class NavStream(StreamSnapshots):
         self._anchored(r)
         self._vfix.clear()
         self._decide("alignment", "velocity and position from the first fix", r.t,
-                     f"the {self._gnss} fix at t={g.t:.1f} s; attitude and biases kept "
+                     f"the {self._aids.gnss} fix at t={g.t:.1f} s; attitude and biases kept "
                      "from the unaided start")
         return [Start(self._stamp(r), Gaussian(x, P), self.space, reason="first fix",
                       keep_x=KEEP_ATT_BIAS_X, keep_P=KEEP_ATT_BIAS_P)]
@@ -912,27 +828,28 @@ class NavStream(StreamSnapshots):
                 sensors.append("gnss_vel")
                 vx = np.where(np.isfinite(v), v, 0.0)
             else:
-                self._count("gnss", "vel_nan")
+                self._aids.count("gnss", "vel_nan")
                 vx = np.zeros(3)
             ned = fix.ned + vx * dt
             if np.isfinite(fix.ned[2]):  # the GNSS height (up, m) for the baro offset
-                self._h_fix = (fix.t, -float(fix.ned[2]))
+                self._aids.h_fix = (fix.t, -float(fix.ned[2]))
             pf = GnssPosition.from_fix(ned, 3 if np.isfinite(ned[2]) else 2,
                                        g.h_acc, g.v_acc, n)
             if pf is not None:
                 ups.append(pf)
                 sensors.append("gnss_pos")
-            self._count("gnss", "used")
+            self._aids.count("gnss", "used")
         baro = next((a for a in reversed(aids) if a.sensor == "baro"), None)
         if baro is not None:
-            if self._h_fix is not None and baro.t - self._h_fix[0] <= 0.5:
-                self._offset_pair(baro.height - self._h_fix[1], r.t)
-            if self._baro_offset is not None:
+            h_fix = self._aids.h_fix
+            if h_fix is not None and baro.t - h_fix[0] <= 0.5:
+                self._offset_pair(baro.height - h_fix[1], r.t)
+            if self._aids.baro_offset is not None:
                 ups.append((np.array([baro.height]),
-                            BaroHeight(np.array([[n.baro_noise**2]]), self._baro_offset,
+                            BaroHeight(np.array([[n.baro_noise**2]]), self._aids.baro_offset,
                                        back=self._stamp(r) - baro.t)))
                 sensors.append("baro")
-                self._count("baro", "used")
+                self._aids.count("baro", "used")
         mag = next((a for a in reversed(aids) if a.sensor == "mag"), None)
         if mag is not None and mag.vec is not None and mag.t - self._t_mag >= MAG_MIN_INTERVAL_S:
             self._t_mag = mag.t
@@ -945,7 +862,7 @@ class NavStream(StreamSnapshots):
                 ups.append((np.array([self.declination]), OnNav(
                     MagHeading(f, np.array([[n.mag_noise**2]])), back, r.w)))
             sensors.append("mag")
-            self._count("mag", "used")
+            self._aids.count("mag", "used")
         if self._unaided and r.t - self._t_hold >= HOLD_INTERVAL_S:
             self._t_hold = r.t
             ups.append((np.zeros(3), GnssPosition(np.eye(3) * n.nofix_pos_noise**2)))
@@ -959,18 +876,12 @@ class NavStream(StreamSnapshots):
         return Step(self._k, self._stamp(r), r.t - r.t0, self._model, tuple(ups), u, info)
 
     def _offset_pair(self, d: float, t: float) -> None:
-        """One (baro height - GNSS height) pair (m): the offset is their running mean
-        over the first :data:`BARO_OFFSET_PAIRS` pairs, then an exponential mean with
-        that many pairs' memory (slow baro drift follows the GNSS height)."""
-        self._off_n += 1
-        if self._baro_offset is None:
-            self._baro_offset = d
+        """One (baro height - GNSS height) pair (m) for the offset
+        (:meth:`AidQueues.offset_pair`)."""
+        if self._aids.offset_pair(d):
             self._decide("baro offset", f"{d:.2f} m", t,
                          "baro height minus the GNSS height, running mean from here")
-        else:
-            a = 1.0 / min(self._off_n, BARO_OFFSET_PAIRS)
-            self._baro_offset += a * (d - self._baro_offset)
-        self.summary["baro_offset_m"] = self._baro_offset
+        self.summary["baro_offset_m"] = self._aids.baro_offset
 
     # ------------------------------------------------------------------ setup
     def _setup(self) -> list[Start | Step]:
@@ -1062,8 +973,8 @@ class NavStream(StreamSnapshots):
             imu_gap_list=[[a, b] for a, b in gaps], duration_s=span,
             imu_rate_hz=(n - 1) / span if span > 0 else 0.0,
             filter_rate_hz=self._k / span if span > 0 else 0.0,
-            gnss_source=self._gnss, gnss_sources=dict(self._gnss_srcs),
-            baro_source=self._baro if self.opts.use_baro else None,
+            gnss_source=self._aids.gnss, gnss_sources=dict(self._aids.gnss_srcs),
+            baro_source=self._aids.baro if self.opts.use_baro else None,
             aiding={k: dict(v) for k, v in self.aiding.items()},
         )
 
