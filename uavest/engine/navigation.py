@@ -54,15 +54,12 @@ from ..core.guard import nis_gate
 from ..errors import InputError
 from ..geometry.geodesy import LocalFrame
 from ..geometry.navigation import NavSpace
-from ..geometry.rotation import euler_to_quat, quat_rotate, quat_rotate_inv, wrap_pi
 from ..ingest.api import choose_source
 from ..ingest.types import BaroSample, GnssSample, ImuSample, MagSample, NoSamplesError
 from ..models.attitude import (
     MagField,
     MagHeading,
     declination_and_source,
-    inclination_from_params,
-    inclination_from_samples,
     mag_reference,
 )
 from ..models.navigation import (
@@ -86,6 +83,7 @@ from .attitude import (
     step_plan,
 )
 from .nav_aiding import AidQueues, _Aid, baro_height, good_fix
+from .nav_align import fix_prior, gnss_acceleration, level, start_inclination
 from .records import NavAnchor, Start, Step
 from .runner import FilterRunner
 
@@ -107,14 +105,6 @@ MAG_MIN_INTERVAL_S = 1.0 / DEFAULT_MAX_RATE_HZ - 1e-6
 #: A start (or re-alignment) levels from at least this share of ``NavOptions.align_s`` of
 #: IMU data (the steps seen while waiting for the fix).
 ALIGN_SPAN = 0.95
-#: The start takes the World Magnetic Model's inclination (rad) at the first fix when the
-#: alignment window's angle between accelerometer and magnetometer is within this of it:
-#: that angle is off by the level's error (the vehicle's acceleration in the window, the
-#: accel bias / g; 0.3-0.6 deg on sim_default, whose field is the model's within 0.02
-#: deg), and the 3-D field then holds the tilt at that error for the run (pitch 0.30 deg
-#: against 0.10). Further apart, the local field is not the model's (the ArduPilot SITL's
-#: table field on vtol.tlog: 1.2 deg off it, the window 0.7) and the window is taken.
-WMM_INCLINATION_TOL = np.deg2rad(1.0)
 #: Without a good GNSS fix this many alignment windows (``NavOptions.align_s``) into the
 #: IMU data, the stream starts unaided (``NavOptions.before_fix``).
 UNAIDED_WAIT_ALIGNS = 2.0
@@ -155,8 +145,9 @@ class NavOptions:
     barometer sample's age (None: 0), and ``baro_delay_why``; ``mag_noise_why``: where
     the ``mag_noise`` of ``noise`` came from (None: an option or the default);
     ``mag_inclination`` rad (None: the World Magnetic Model's within
-    :data:`WMM_INCLINATION_TOL` of the alignment window's accelerometer-magnetometer
-    angle, else that angle; ``inclination_wmm`` False: always that angle) and
+    :data:`~uavest.engine.nav_align.WMM_INCLINATION_TOL` of the alignment window's
+    accelerometer-magnetometer angle, else that angle; ``inclination_wmm`` False: always
+    that angle) and
     ``mag_inclination_why``; ``align_s`` s;
     ``yaw_speed`` m/s, the ground speed from which the GNSS course gives the start yaw
     without a magnetometer; ``imu_delay`` s, the lag of the IMU's samples behind the
@@ -622,20 +613,14 @@ class NavStream(StreamSnapshots):
             return []
         if first:
             self._first_start(r)
-        # the vehicle's own mean acceleration (NED, m/s^2) over the alignment window from
-        # the GNSS velocities at its ends: in flight the accelerometer is not gravity (two
-        # consecutive fixes 0.2 s apart with 0.1 m/s of noise leave 0.7 m/s^2, 4 deg)
-        a_ned = np.zeros(3)
-        win = [(t, v) for t, v in self._vfix if t >= r.t - o.align_s - 0.25]
-        if len(win) >= 2:
-            (t1, v1), (t2, v2) = win[0], win[-1]
-            if 0.05 < t2 - t1 < 2.0:
-                a_ned = np.nan_to_num((v2 - v1) / (t2 - t1))
-        q, syaw, ywhy = self._level(a_ned, mags if use_mag else [], vh)
+        # the vehicle's own acceleration over the window, out of the accelerometer
+        a_ned = gnss_acceleration(self._vfix, r.t - o.align_s - 0.25)
+        q, syaw, ywhy = level(self._recent, a_ned, mags if use_mag else [], vh, self.noise,
+                              self.declination)
         n = self.noise
         # moving, the compensation rests on a differenced GNSS velocity: a wider tilt prior
         tilt = n.init_tilt if speed < o.yaw_speed else 3.0 * n.init_tilt
-        v, p, pv = self._fix_prior(r, fix)
+        v, p, pv = fix_prior(fix, self._stamp(r) - fix.t, self.noise)
         x = np.concatenate([q, v, p, np.zeros(6)])
         P = np.diag([tilt**2] * 2 + [syaw**2] + pv
                     + [n.init_gyro_bias**2] * 3 + [n.init_accel_bias**2] * 3)
@@ -656,48 +641,6 @@ class NavStream(StreamSnapshots):
         return [Start(self._stamp(r), Gaussian(x, P), self.space,
                       reason="start" if first else "gap", keep_tail=keep)]
 
-    def _level(self, a_ned: Array, mags: list[Any], vh: Array) -> tuple[Array, float, str]:
-        """(quaternion, yaw prior std rad, where the yaw came from) from the accelerometer
-        mean of the alignment window less the vehicle's acceleration ``a_ned`` (NED,
-        m/s^2), and the last magnetometer sample of ``mags`` (none: the GNSS course of the
-        horizontal velocity ``vh``, m/s)."""
-        n = self.noise
-        acc = np.mean([x.a for x in self._recent if x.a is not None], axis=0)
-        q = np.array([1.0, 0.0, 0.0, 0.0])
-        roll = pitch = yaw = 0.0
-        syaw, ywhy = n.init_yaw, "the magnetometer"
-        for _ in range(3 if np.any(a_ned) else 1):  # tilt <-> body acceleration, refined
-            a = quat_rotate_inv(q, a_ned) - acc  # gravity direction in the body
-            roll = float(np.arctan2(a[1], a[2]))
-            pitch = float(np.arctan2(-a[0], np.hypot(a[1], a[2])))
-            if mags:
-                q0 = euler_to_quat(np.array(roll), np.array(pitch), np.array(0.0))
-                m = quat_rotate(q0, np.asarray(mags[-1], float))
-                yaw = float(wrap_pi(self.declination - np.arctan2(m[1], m[0])))
-            else:
-                yaw = float(np.arctan2(vh[1], vh[0]))
-                speed = float(np.hypot(vh[0], vh[1]))
-                syaw, ywhy = n.init_yaw_course, f"the GNSS course at {speed:.1f} m/s"
-            q = euler_to_quat(np.array(roll), np.array(pitch), np.array(yaw))
-        return q, syaw, ywhy
-
-    def _fix_prior(self, r: _Raw, fix: _Aid) -> tuple[Array, Array, list[float]]:
-        """Velocity (NED m/s), position (NED m, moved to the step's time) and their six
-        prior variances from a good fix."""
-        n, g = self.noise, fix.gnss
-        assert g is not None and fix.ned is not None
-        dt = self._stamp(r) - fix.t
-        v = np.asarray(g.vel_ned, float).copy()
-        vz_ok = bool(np.isfinite(v[2]))
-        if not vz_ok:
-            v[2] = 0.0
-        p = fix.ned + v * dt
-        sh = max(n.gnss_pos_floor, g.h_acc if np.isfinite(g.h_acc) else 0.0)
-        sv = max(n.gnss_vpos_floor, g.v_acc if np.isfinite(g.v_acc) else 0.0)
-        svel = max(n.gnss_vel_floor, g.s_acc if np.isfinite(g.s_acc) else 0.0)
-        return v, p, ([svel**2] * 2 + [(svel if vz_ok else n.init_vel) ** 2]
-                      + [sh**2] * 2 + [sv**2])
-
     def _start_unaided(self, r: _Raw, mags: list[Any]) -> list[Start | Step]:
         """The first start without a GNSS fix (``NavOptions.before_fix``): level from the
         accelerometer, yaw from the magnetometer, velocity 0 +- ``init_vel``, position at
@@ -706,7 +649,8 @@ class NavStream(StreamSnapshots):
         self._first_start(r)
         if self._model is None:
             self._model = ImuTransition(self.noise, lat=UNAIDED_LAT, h=0.0)
-        q, syaw, ywhy = self._level(np.zeros(3), mags, np.zeros(2))
+        q, syaw, ywhy = level(self._recent, np.zeros(3), mags, np.zeros(2), self.noise,
+                              self.declination)
         x = np.concatenate([q, np.zeros(12)])
         P = np.diag([n.init_tilt**2] * 2 + [syaw**2] + [n.init_vel**2] * 3
                     + [n.nofix_pos_noise**2] * 3
@@ -745,7 +689,7 @@ class NavStream(StreamSnapshots):
         running attitude and biases kept (:data:`KEEP_ATT_BIAS_X`)."""
         n, g = self.noise, fix.gnss
         assert g is not None
-        v, p, pv = self._fix_prior(r, fix)
+        v, p, pv = fix_prior(fix, self._stamp(r) - fix.t, self.noise)
         x = np.concatenate([[1.0, 0.0, 0.0, 0.0], v, p, np.zeros(6)])
         P = np.diag([n.init_tilt**2] * 3 + pv + [n.init_gyro_bias**2] * 3
                     + [n.init_accel_bias**2] * 3)
@@ -771,20 +715,8 @@ class NavStream(StreamSnapshots):
                      src + (" (taken later if the log gives one)" if self._decl_pending
                             else ""))
         if self._mag is not None and o.mag_mode == "field":
-            pairs = [(x.a, x.mag) for x in self._recent if x.mag is not None and x.a is not None]
-            inc, why = None, o.mag_inclination_why or "option"
-            if o.mag_inclination is not None:
-                inc = float(o.mag_inclination)
-            elif pairs:
-                inc = inclination_from_samples(np.array([p[0] for p in pairs]),
-                                               np.array([p[1] for p in pairs]))
-                why = "the angle between the accelerometer and the magnetometer at the start"
-                wmm, wwhy = (inclination_from_params(self.params) if o.inclination_wmm
-                             else (None, ""))
-                if (o.inclination_wmm and wmm is not None
-                        and abs(wmm - inc) <= WMM_INCLINATION_TOL):
-                    inc, why = wmm, (f"the magnetic model ({wwhy}; the accelerometer's angle "
-                                     f"{np.degrees(abs(inc - wmm)):.2f} deg from it)")
+            inc, why = start_inclination(self._recent, self.params, o.mag_inclination,
+                                         o.mag_inclination_why, o.inclination_wmm)
             if inc is not None:
                 self._mref = mag_reference(self.declination, inc)
                 self.summary["inclination_rad"] = float(inc)
