@@ -19,6 +19,7 @@ import numpy as np
 
 from ..geometry.geodesy import LocalFrame
 from ..ingest.types import BaroSample, GnssSample, MagSample
+from ..models.navigation import GnssPosition, GnssVelocity, NavNoise
 from .history import restore_vars, snapshot_vars
 
 Array = np.ndarray
@@ -181,6 +182,38 @@ class AidQueues:
         a = 1.0 / min(self.off_n, BARO_OFFSET_PAIRS)
         self.baro_offset += a * (d - self.baro_offset)
         return False
+
+    def gnss_updates(self, fix: _Aid, back: float, f: Array, g: float, noise: NavNoise,
+                     ups: list[tuple[Array, Any]], sensors: list[str]) -> None:
+        """Append the updates of a fix taken by a step (counted ``used``) to ``ups`` and
+        their names to ``sensors``: the velocity (:class:`GnssVelocity`, std
+        max(s_acc, floor); horizontal only without a vertical speed; NaN counted
+        ``vel_nan``) ``back`` s before the step's end (the specific force ``f`` m/s^2
+        and gravity ``g`` carry it there), the position carried to the step's end with
+        the fix's velocity (:meth:`GnssPosition.from_fix`); the fix's height is kept
+        for the baro offset (``h_fix``)."""
+        gs, n = fix.gnss, noise
+        assert gs is not None and fix.ned is not None
+        v = np.asarray(gs.vel_ned, float)
+        if np.isfinite(v[:2]).all():
+            sv = max(n.gnss_vel_floor, gs.s_acc if np.isfinite(gs.s_acc) else 0.0)
+            rows = (0, 1, 2) if np.isfinite(v[2]) else (0, 1)
+            ups.append((v[list(rows)], GnssVelocity(
+                np.eye(len(rows)) * sv * sv, rows, back=back, f=f, g=g)))
+            sensors.append("gnss_vel")
+            vx = np.where(np.isfinite(v), v, 0.0)
+        else:
+            self.count("gnss", "vel_nan")
+            vx = np.zeros(3)
+        ned = fix.ned + vx * back
+        if np.isfinite(fix.ned[2]):  # the GNSS height (up, m) for the baro offset
+            self.h_fix = (fix.t, -float(fix.ned[2]))
+        pf = GnssPosition.from_fix(ned, 3 if np.isfinite(ned[2]) else 2,
+                                   gs.h_acc, gs.v_acc, n)
+        if pf is not None:
+            ups.append(pf)
+            sensors.append("gnss_pos")
+        self.count("gnss", "used")
 
     # ------------------------------------------------------------------ release
     def take(self, upto: float, t_out: float | None) -> list[_Aid]:

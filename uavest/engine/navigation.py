@@ -65,7 +65,6 @@ from ..models.attitude import (
 from ..models.navigation import (
     BaroHeight,
     GnssPosition,
-    GnssVelocity,
     ImuTransition,
     NavNoise,
     OnNav,
@@ -264,6 +263,49 @@ class _NavBuilder(_StepBuilder):
         return r
 
 
+def choose_imu(held: list[Any], imu: str | None, use_mag: bool
+               ) -> tuple[str, str | None, dict[str, int]]:
+    """(IMU, magnetometer or None, samples per IMU source) of the alignment window
+    ``held``: the option ``imu``, else the source with the most samples; the IMU's own
+    magnetometer when it has one, else the magnetometer with the most samples (none
+    without ``use_mag``)."""
+    imu_counts: dict[str, int] = {}
+    mag_counts: dict[str, int] = {}
+    for s in held:
+        if isinstance(s, ImuSample):
+            imu_counts[s.source] = imu_counts.get(s.source, 0) + 1
+        elif isinstance(s, MagSample):
+            mag_counts[s.source] = mag_counts.get(s.source, 0) + 1
+    if imu is None:
+        imu = choose_source(imu_counts, slack=1)
+    if imu is None or imu not in imu_counts:
+        have = ", ".join(sorted(imu_counts)) or "none"
+        if not imu:
+            raise NoSamplesError(f"no IMU samples (IMU sources seen: {have})")
+        raise InputError(f"IMU source {imu!r} not in the stream (IMU sources seen: {have})")
+    mag = None
+    if use_mag and mag_counts:
+        mag = imu if imu in mag_counts else choose_source(mag_counts, slack=1)
+    return imu, mag, imu_counts
+
+
+def split_step(r: _Raw, max_step: float) -> list[_Raw]:
+    """A step longer than ``max_step`` (s; an IMU interval below the gap threshold but
+    several nominal steps long) as equal sub-steps with the same rate and specific force,
+    the magnetometer on the last: aiding measurements inside the interval then update at
+    their own times and each prediction stays short (one 3.4 s prediction left the
+    sigma-point filters' attitude 30-160 deg off on vtol.tlog)."""
+    dt = r.t - r.t0
+    if not dt > max_step:
+        return [r]
+    k = int(np.ceil(dt / max_step))
+    ts = r.t0 + dt * np.arange(k + 1) / k
+    out = [_Raw(float(ts[i + 1]), float(ts[i]), r.w, r.a, 0, None, r.accel_ned)
+           for i in range(k - 1)]
+    out.append(_Raw(r.t, float(ts[k - 1]), r.w, r.a, r.n, r.mag, r.accel_ned))
+    return out
+
+
 class NavStream(StreamSnapshots):
     """One :class:`Start` then navigation :class:`Step` s from a sample stream (module
     docstring). :meth:`push` / :meth:`flush` return the items they completed; iterating
@@ -452,22 +494,14 @@ class NavStream(StreamSnapshots):
         return out + self._release()
 
     def _split(self, r: _Raw) -> list[_Raw]:
-        """A step longer than :attr:`max_step` (s; an IMU interval below the gap threshold
-        but several nominal steps long) as equal sub-steps with the same rate and specific
-        force, the magnetometer on the last: aiding measurements inside the interval then
-        update at their own times and each prediction stays short (one 3.4 s prediction
-        left the sigma-point filters' attitude 30-160 deg off on vtol.tlog)."""
-        dt = r.t - r.t0
-        if not dt > self.max_step:
-            return [r]
-        k = int(np.ceil(dt / self.max_step))
-        ts = r.t0 + dt * np.arange(k + 1) / k
-        out = [_Raw(float(ts[i + 1]), float(ts[i]), r.w, r.a, 0, None, r.accel_ned)
-               for i in range(k - 1)]
-        out.append(_Raw(r.t, float(ts[k - 1]), r.w, r.a, r.n, r.mag, r.accel_ned))
-        self.summary["imu_split_intervals"] = self.summary.get("imu_split_intervals", 0) + 1
-        self.summary["imu_split_longest_s"] = max(self.summary.get("imu_split_longest_s", 0.0),
-                                                  dt)
+        """:func:`split_step` of ``r`` at :attr:`max_step`, counted in the summary."""
+        out = split_step(r, self.max_step)
+        if len(out) > 1:
+            dt = r.t - r.t0
+            self.summary["imu_split_intervals"] = self.summary.get("imu_split_intervals",
+                                                                   0) + 1
+            self.summary["imu_split_longest_s"] = max(
+                self.summary.get("imu_split_longest_s", 0.0), dt)
         return out
 
     def _failover(self, s: ImuSample) -> list[Start | Step]:
@@ -748,29 +782,8 @@ class NavStream(StreamSnapshots):
         sensors: list[str] = []
         fix = next((a for a in reversed(aids) if a.sensor == "gnss"), None)
         if fix is not None and fix.gnss is not None and fix.ned is not None:
-            g = fix.gnss
-            v = np.asarray(g.vel_ned, float)
-            dt = self._stamp(r) - fix.t
-            if np.isfinite(v[:2]).all():
-                sv = max(n.gnss_vel_floor, g.s_acc if np.isfinite(g.s_acc) else 0.0)
-                rows = (0, 1, 2) if np.isfinite(v[2]) else (0, 1)
-                ups.append((v[list(rows)], GnssVelocity(
-                    np.eye(len(rows)) * sv * sv, rows, back=dt, f=r.a,
-                    g=self._model.g)))
-                sensors.append("gnss_vel")
-                vx = np.where(np.isfinite(v), v, 0.0)
-            else:
-                self._aids.count("gnss", "vel_nan")
-                vx = np.zeros(3)
-            ned = fix.ned + vx * dt
-            if np.isfinite(fix.ned[2]):  # the GNSS height (up, m) for the baro offset
-                self._aids.h_fix = (fix.t, -float(fix.ned[2]))
-            pf = GnssPosition.from_fix(ned, 3 if np.isfinite(ned[2]) else 2,
-                                       g.h_acc, g.v_acc, n)
-            if pf is not None:
-                ups.append(pf)
-                sensors.append("gnss_pos")
-            self._aids.count("gnss", "used")
+            self._aids.gnss_updates(fix, self._stamp(r) - fix.t, r.a, self._model.g, n,
+                                    ups, sensors)
         baro = next((a for a in reversed(aids) if a.sensor == "baro"), None)
         if baro is not None:
             h_fix = self._aids.h_fix
@@ -823,22 +836,7 @@ class NavStream(StreamSnapshots):
         self._held = None
         if o.on_arrival:  # time order (an IMU sample after the rest of its message)
             held.sort(key=lambda s: (s.t, isinstance(s, ImuSample)))
-        imu_counts: dict[str, int] = {}
-        mag_counts: dict[str, int] = {}
-        for s in held:
-            if isinstance(s, ImuSample):
-                imu_counts[s.source] = imu_counts.get(s.source, 0) + 1
-            elif isinstance(s, MagSample):
-                mag_counts[s.source] = mag_counts.get(s.source, 0) + 1
-        imu = o.imu if o.imu is not None else choose_source(imu_counts, slack=1)
-        if imu is None or imu not in imu_counts:
-            have = ", ".join(sorted(imu_counts)) or "none"
-            if not imu:
-                raise NoSamplesError(f"no IMU samples (IMU sources seen: {have})")
-            raise InputError(f"IMU source {imu!r} not in the stream (IMU sources seen: {have})")
-        mag = None
-        if o.use_mag and mag_counts:
-            mag = imu if imu in mag_counts else choose_source(mag_counts, slack=1)
+        imu, mag, imu_counts = choose_imu(held, o.imu, o.use_mag)
         ti = [s.t for s in held if isinstance(s, ImuSample) and s.source == imu]
         rate = (len(ti) - 1) / max(ti[-1] - ti[0], 1e-9) if len(ti) > 1 else 0.0
         integ, why, factor = step_plan(imu, rate, o.integration, o.rate_hz)
