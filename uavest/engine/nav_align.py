@@ -6,6 +6,7 @@ the stream keeps the state (the window, the waiting) and records the decisions."
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterable
 from typing import Any
 
@@ -15,7 +16,8 @@ from ..geometry.rotation import euler_to_quat, quat_rotate, quat_rotate_inv, wra
 from ..models.attitude import inclination_from_params, inclination_from_samples
 from ..models.navigation import NavNoise
 from .attitude import _Raw
-from .nav_aiding import _Aid
+from .history import restore_vars, snapshot_vars
+from .nav_aiding import _Aid, good_fix
 
 Array = np.ndarray
 
@@ -27,6 +29,60 @@ Array = np.ndarray
 #: against 0.10). Further apart, the local field is not the model's (the ArduPilot SITL's
 #: table field on vtol.tlog: 1.2 deg off it, the window 0.7) and the window is taken.
 WMM_INCLINATION_TOL = np.deg2rad(1.0)
+
+
+class AlignWindow:
+    """Where the stream's alignment stands (``waiting`` for a start or a re-alignment,
+    ``started`` once, ``unaided``: running before the first fix, ``switched``: the IMU
+    changed, so the next start keeps no biases) and what it holds while waiting: the
+    steps of the last ``align_s`` s (``recent``), the good fixes' times and velocities
+    (``vfix``, for the vehicle's acceleration), and ``why`` it waits. Its state is part of
+    the stream's snapshot (:meth:`snapshot`)."""
+
+    def __init__(self) -> None:
+        self.recent: deque[_Raw] = deque()
+        self.vfix: deque[tuple[float, Array]] = deque(maxlen=64)
+        self.switched = False
+        self.waiting = True
+        self.started = False
+        self.unaided = False
+        self.why = "no good GNSS fix yet"
+
+    def snapshot(self) -> dict[str, Any]:
+        """This moment, for :meth:`restore` (:mod:`uavest.engine.history`)."""
+        return snapshot_vars(self)
+
+    def restore(self, snap: dict[str, Any]) -> None:
+        restore_vars(self, snap)
+
+    def wait(self, why: str) -> None:
+        """Wait (again) for a good fix: the window and the fixes start over."""
+        self.waiting = True
+        self.recent.clear()
+        self.vfix.clear()
+        self.why = why
+
+    def add(self, r: _Raw, aids: list[_Aid], align_s: float) -> _Aid | None:
+        """Hold the step ``r`` (the window keeps the last ``align_s`` s) and the velocity
+        of its last good fix, which is returned (None: no good fix in ``aids``)."""
+        if r.a is not None:
+            self.recent.append(r)
+            while self.recent and self.recent[0].t < r.t - align_s:
+                self.recent.popleft()
+        fix = good_fix(aids)
+        if fix is not None and fix.gnss is not None:
+            self.vfix.append((fix.t, np.asarray(fix.gnss.vel_ned, float)))
+        return fix
+
+    def mags(self) -> list[Any]:
+        """The magnetometer samples of the window (non-zero)."""
+        return [x.mag for x in self.recent if x.mag is not None and np.any(x.mag)]
+
+    def done(self) -> None:
+        """The start (or re-alignment) is made: no longer waiting, the window emptied."""
+        self.waiting = False
+        self.started = True
+        self.recent.clear()
 
 
 def level(recent: Iterable[_Raw], a_ned: Array, mags: list[Any], vh: Array,
@@ -109,3 +165,39 @@ def start_inclination(recent: Iterable[_Raw], params: dict[str, Any],
             inc, why = wmm, (f"the magnetic model ({wwhy}; the accelerometer's angle "
                              f"{np.degrees(abs(inc - wmm)):.2f} deg from it)")
     return inc, why
+
+
+def fix_start(q: Array, tilt: float, syaw: float, v: Array, p: Array, pv: list[float],
+              noise: NavNoise) -> tuple[Array, Array]:
+    """(x, P) of a start at a fix: attitude ``q`` (roll/pitch std ``tilt``, yaw std
+    ``syaw`` rad), velocity ``v`` and position ``p`` with their variances ``pv``
+    (:func:`fix_prior`), biases zero."""
+    n = noise
+    x = np.concatenate([q, v, p, np.zeros(6)])
+    P = np.diag([tilt**2] * 2 + [syaw**2] + pv
+                + [n.init_gyro_bias**2] * 3 + [n.init_accel_bias**2] * 3)
+    return x, P
+
+
+def unaided_start(q: Array, syaw: float, noise: NavNoise) -> tuple[Array, Array]:
+    """(x, P) of a start without a fix: attitude ``q`` (yaw std ``syaw`` rad), velocity
+    0 +- ``init_vel``, position at the provisional origin +- ``nofix_pos_noise``, biases
+    zero."""
+    n = noise
+    x = np.concatenate([q, np.zeros(12)])
+    P = np.diag([n.init_tilt**2] * 2 + [syaw**2] + [n.init_vel**2] * 3
+                + [n.nofix_pos_noise**2] * 3
+                + [n.init_gyro_bias**2] * 3 + [n.init_accel_bias**2] * 3)
+    return x, P
+
+
+def anchor_start(v: Array, p: Array, pv: list[float], noise: NavNoise
+                 ) -> tuple[Array, Array]:
+    """(x, P) of the first fix after an unaided start: velocity ``v`` and position ``p``
+    with their variances ``pv`` (:func:`fix_prior`); attitude and biases placeholders
+    (the running ones are kept)."""
+    n = noise
+    x = np.concatenate([[1.0, 0.0, 0.0, 0.0], v, p, np.zeros(6)])
+    P = np.diag([n.init_tilt**2] * 3 + pv + [n.init_gyro_bias**2] * 3
+                + [n.init_accel_bias**2] * 3)
+    return x, P

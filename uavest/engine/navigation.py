@@ -82,7 +82,16 @@ from .attitude import (
     step_plan,
 )
 from .nav_aiding import AidQueues, _Aid, baro_height, good_fix
-from .nav_align import fix_prior, gnss_acceleration, level, start_inclination
+from .nav_align import (
+    AlignWindow,
+    anchor_start,
+    fix_prior,
+    fix_start,
+    gnss_acceleration,
+    level,
+    start_inclination,
+    unaided_start,
+)
 from .records import NavAnchor, Start, Step
 from .runner import FilterRunner
 
@@ -311,7 +320,12 @@ class NavStream(StreamSnapshots):
     docstring). :meth:`push` / :meth:`flush` return the items they completed; iterating
     runs over ``samples``. :attr:`summary` has the keys of the attitude stream's summary
     (sources, rates, integration, steps, decisions...) plus ``gnss_source``,
-    ``baro_source``, ``origin`` and ``aiding`` (per sensor: used and skipped counts)."""
+    ``baro_source``, ``origin`` and ``aiding`` (per sensor: used and skipped counts).
+
+    Its parts: the aiding samples waiting for their steps (:class:`AidQueues`,
+    :mod:`~uavest.engine.nav_aiding`), the alignment's state and window
+    (:class:`AlignWindow`) and arithmetic (:mod:`~uavest.engine.nav_align`); the stream
+    makes the steps, the starts and the decisions."""
 
     def __init__(self, samples: Iterable[Any] = (), opts: NavOptions | None = None,
                  params: dict[str, Any] | None = None) -> None:
@@ -343,21 +357,15 @@ class NavStream(StreamSnapshots):
         #: s after a step's end whose aids it takes: half a nominal step (an aid goes to
         #: the step whose end is nearest to it), or 0 on arrival
         self._aid_window = 0.0
-        self._recent: deque[_Raw] = deque()  # raws of the last align_s while waiting
-        # the good GNSS fixes while waiting (t, v NED), for the vehicle's acceleration
-        self._vfix: deque[tuple[float, Array]] = deque(maxlen=64)
+        #: the alignment's state and the window it levels from
+        self._align = AlignWindow()
         self._other_imu: dict[str, list[float]] = {}  # failover evidence per other IMU
-        self._switched = False  # the IMU changed: the next start keeps no biases
-        self._waiting = True
-        self._started = False
-        self._unaided = False  # running before the first fix (NavOptions.before_fix)
         self._t_hold = -np.inf
         #: vehicle time (s) from which positions are in :attr:`frame` (the first-fix
         #: re-anchoring); None when the stream started at a fix
         self.fix_from: float | None = None
         self.max_step = np.inf  # s, set from the IMU's rate (_split)
         self._anchor_sample: NavAnchor | None = None  # for the sinks, with the next step
-        self._wait_why = "no good GNSS fix yet"
         self._t_out: float | None = None  # end of the last released step
         self._now = -np.inf
         self._k = 0
@@ -450,9 +458,9 @@ class NavStream(StreamSnapshots):
         self._now = np.inf
         out += self._release()
         self._finish_summary()
-        if not self._started:
+        if not self._align.started:
             raise NavNotStarted(
-                "the navigation model could not start: " + self._wait_why
+                "the navigation model could not start: " + self._align.why
                 + " (GNSS sources seen: " + (", ".join(sorted(self._aids.gnss_srcs)) or "none")
                 + "; use --model attitude)")
         return out
@@ -530,7 +538,7 @@ class NavStream(StreamSnapshots):
         nb.gap_s = max(GAP_MIN_S, GAP_MEDIANS / max(rate, 1e-9))
         nb.gaps.append((last, s.t))
         self._builder = nb
-        self._imu, self._switched = s.source, True
+        self._imu, self._align.switched = s.source, True
         if self._mag == old:  # that sensor's magnetometer went with it
             self._mag = s.source if self._mag is not None else None
         self.noise = nav_noise_for_source(s.source, rate).with_(**o.noise)
@@ -546,10 +554,7 @@ class NavStream(StreamSnapshots):
         return out + self._feed(s)
 
     def _go_wait(self, why: str, t: float) -> None:
-        self._waiting = True
-        self._recent.clear()
-        self._vfix.clear()
-        self._wait_why = why
+        self._align.wait(why)
         self._decide("navigation", "waiting for a good GNSS fix", t, why)
 
     # ------------------------------------------------------------------ aiding input
@@ -595,9 +600,9 @@ class NavStream(StreamSnapshots):
             r = self._queue.popleft()
             aids = self._aids.take(self._stamp(r) + self._aid_window, self._t_out)
             self._t_out = self._stamp(r) + self._aid_window
-            if self._waiting:
+            if self._align.waiting:
                 out += self._try_start(r, aids)
-            elif self._unaided:
+            elif self._align.unaided:
                 fix = good_fix(aids)
                 if fix is not None:
                     out += self._anchor(r, fix)
@@ -608,60 +613,50 @@ class NavStream(StreamSnapshots):
         return out
 
     def _try_start(self, r: _Raw, aids: list[_Aid]) -> list[Start | Step]:
-        o = self.opts
-        if r.a is not None:
-            self._recent.append(r)
-            while self._recent and self._recent[0].t < r.t - o.align_s:
-                self._recent.popleft()
-        fix = good_fix(aids)
-        if fix is not None and fix.gnss is not None:
-            self._vfix.append((fix.t, np.asarray(fix.gnss.vel_ned, float)))
-        mags = [x.mag for x in self._recent if x.mag is not None and np.any(x.mag)]
+        o, al = self.opts, self._align
+        fix = al.add(r, aids, o.align_s)
+        mags = al.mags()
         use_mag = self._mag is not None and bool(mags)
-        if (fix is not None and self._recent
-                and r.t - self._recent[0].t0 < ALIGN_SPAN * o.align_s):
+        if (fix is not None and al.recent
+                and r.t - al.recent[0].t0 < ALIGN_SPAN * o.align_s):
             # the level needs the accelerometer's mean over the alignment window: one
             # 200 Hz sample with the airframe's vibration in it left sim_200hz's pitch
             # 2 deg off (seed 5) until the manoeuvres separated it from the accel bias
-            self._wait_why = (f"{r.t - self._recent[0].t0:.2f} s of IMU data for the level "
-                              f"(needs {ALIGN_SPAN * o.align_s:g} s)")
+            al.why = (f"{r.t - al.recent[0].t0:.2f} s of IMU data for the level "
+                      f"(needs {ALIGN_SPAN * o.align_s:g} s)")
             return []
-        if fix is None and not self._started and self._recent and use_mag and o.before_fix \
+        if fix is None and not al.started and al.recent and use_mag and o.before_fix \
                 and r.t - self._imu_n[1] >= UNAIDED_WAIT_ALIGNS * o.align_s:
             return self._start_unaided(r, mags)
-        if fix is None or fix.gnss is None or fix.ned is None or not self._recent:
+        if fix is None or fix.gnss is None or fix.ned is None or not al.recent:
             return []
         g = fix.gnss
         vh = np.asarray(g.vel_ned[:2], float)
         speed = float(np.hypot(vh[0], vh[1]))
         if not use_mag and speed < o.yaw_speed:
-            self._wait_why = (f"no magnetometer: waiting for a GNSS ground speed of "
-                              f"{o.yaw_speed:g} m/s for the course (fastest so far "
-                              f"{max(speed, self.summary.get('_vmax', 0.0)):.1f} m/s)")
+            al.why = (f"no magnetometer: waiting for a GNSS ground speed of "
+                      f"{o.yaw_speed:g} m/s for the course (fastest so far "
+                      f"{max(speed, self.summary.get('_vmax', 0.0)):.1f} m/s)")
             self.summary["_vmax"] = max(speed, self.summary.get("_vmax", 0.0))
             return []
-        first = not self._started
-        if not first and speed >= o.yaw_speed and len(self._vfix) < 2:
-            self._wait_why = ("moving after an IMU gap: waiting for a second GNSS velocity "
-                              "(the acceleration to take out of the accelerometer)")
+        first = not al.started
+        if not first and speed >= o.yaw_speed and len(al.vfix) < 2:
+            al.why = ("moving after an IMU gap: waiting for a second GNSS velocity "
+                      "(the acceleration to take out of the accelerometer)")
             return []
         if first:
             self._first_start(r)
         # the vehicle's own acceleration over the window, out of the accelerometer
-        a_ned = gnss_acceleration(self._vfix, r.t - o.align_s - 0.25)
-        q, syaw, ywhy = level(self._recent, a_ned, mags if use_mag else [], vh, self.noise,
+        a_ned = gnss_acceleration(al.vfix, r.t - o.align_s - 0.25)
+        q, syaw, ywhy = level(al.recent, a_ned, mags if use_mag else [], vh, self.noise,
                               self.declination)
         n = self.noise
         # moving, the compensation rests on a differenced GNSS velocity: a wider tilt prior
         tilt = n.init_tilt if speed < o.yaw_speed else 3.0 * n.init_tilt
         v, p, pv = fix_prior(fix, self._stamp(r) - fix.t, self.noise)
-        x = np.concatenate([q, v, p, np.zeros(6)])
-        P = np.diag([tilt**2] * 2 + [syaw**2] + pv
-                    + [n.init_gyro_bias**2] * 3 + [n.init_accel_bias**2] * 3)
-        self._waiting = False
-        self._started = True
-        self._recent.clear()
-        if self._unaided:
+        x, P = fix_start(q, tilt, syaw, v, p, pv, n)
+        al.done()
+        if al.unaided:
             self._anchored(r)
         elif first:
             self._announce(r, "start at a GNSS fix")
@@ -670,8 +665,8 @@ class NavStream(StreamSnapshots):
         why = (f"roll/pitch from the accelerometer{comp}, yaw from {ywhy}, velocity and "
                f"position from the {self._aids.gnss} fix at t={g.t:.1f} s")
         self._decide("alignment", "done" if first else "re-aligned", r.t, why)
-        keep = 0 if first or self._switched else 6
-        self._switched = False
+        keep = 0 if first or al.switched else 6
+        al.switched = False
         return [Start(self._stamp(r), Gaussian(x, P), self.space,
                       reason="start" if first else "gap", keep_tail=keep)]
 
@@ -683,15 +678,11 @@ class NavStream(StreamSnapshots):
         self._first_start(r)
         if self._model is None:
             self._model = ImuTransition(self.noise, lat=UNAIDED_LAT, h=0.0)
-        q, syaw, ywhy = level(self._recent, np.zeros(3), mags, np.zeros(2), self.noise,
+        q, syaw, ywhy = level(self._align.recent, np.zeros(3), mags, np.zeros(2), self.noise,
                               self.declination)
-        x = np.concatenate([q, np.zeros(12)])
-        P = np.diag([n.init_tilt**2] * 2 + [syaw**2] + [n.init_vel**2] * 3
-                    + [n.nofix_pos_noise**2] * 3
-                    + [n.init_gyro_bias**2] * 3 + [n.init_accel_bias**2] * 3)
-        self._waiting = False
-        self._started = self._unaided = True
-        self._recent.clear()
+        x, P = unaided_start(q, syaw, n)
+        self._align.done()
+        self._align.unaided = True
         wait = UNAIDED_WAIT_ALIGNS * self.opts.align_s
         self._decide("alignment", "done without a GNSS fix", r.t,
                      f"no good GNSS fix {wait:g} s into the IMU data: roll/pitch from the "
@@ -706,7 +697,7 @@ class NavStream(StreamSnapshots):
 
     def _anchored(self, r: _Raw) -> None:
         """The unaided run ends at ``r``: positions are in :attr:`frame` from here."""
-        self._unaided = False
+        self._align.unaided = False
         self.fix_from = self.summary["fix_from_t"] = self._stamp(r)
         self._announce(r, "first fix after an unaided start")
 
@@ -724,11 +715,9 @@ class NavStream(StreamSnapshots):
         n, g = self.noise, fix.gnss
         assert g is not None
         v, p, pv = fix_prior(fix, self._stamp(r) - fix.t, self.noise)
-        x = np.concatenate([[1.0, 0.0, 0.0, 0.0], v, p, np.zeros(6)])
-        P = np.diag([n.init_tilt**2] * 3 + pv + [n.init_gyro_bias**2] * 3
-                    + [n.init_accel_bias**2] * 3)
+        x, P = anchor_start(v, p, pv, n)
         self._anchored(r)
-        self._vfix.clear()
+        self._align.vfix.clear()
         self._decide("alignment", "velocity and position from the first fix", r.t,
                      f"the {self._aids.gnss} fix at t={g.t:.1f} s; attitude and biases kept "
                      "from the unaided start")
@@ -749,7 +738,7 @@ class NavStream(StreamSnapshots):
                      src + (" (taken later if the log gives one)" if self._decl_pending
                             else ""))
         if self._mag is not None and o.mag_mode == "field":
-            inc, why = start_inclination(self._recent, self.params, o.mag_inclination,
+            inc, why = start_inclination(self._align.recent, self.params, o.mag_inclination,
                                          o.mag_inclination_why, o.inclination_wmm)
             if inc is not None:
                 self._mref = mag_reference(self.declination, inc)
@@ -808,7 +797,7 @@ class NavStream(StreamSnapshots):
                     MagHeading(f, np.array([[n.mag_noise**2]])), back, r.w)))
             sensors.append("mag")
             self._aids.count("mag", "used")
-        if self._unaided and r.t - self._t_hold >= HOLD_INTERVAL_S:
+        if self._align.unaided and r.t - self._t_hold >= HOLD_INTERVAL_S:
             self._t_hold = r.t
             ups.append((np.zeros(3), GnssPosition(np.eye(3) * n.nofix_pos_noise**2)))
             sensors.append("hold")
