@@ -19,13 +19,19 @@ import numpy as np
 
 from ..geometry.geodesy import LocalFrame
 from ..ingest.types import BaroSample, GnssSample, MagSample
-from ..models.navigation import GnssPosition, GnssVelocity, NavNoise
+from ..models.attitude import MagField, MagHeading
+from ..models.navigation import BaroHeight, GnssPosition, GnssVelocity, NavNoise, OnNav
+from .attitude import DEFAULT_MAX_RATE_HZ
 from .history import restore_vars, snapshot_vars
 
 Array = np.ndarray
 
 #: Pairs of (baro, GNSS) heights the baro offset averages over (then its memory).
 BARO_OFFSET_PAIRS = 200
+#: Magnetometer updates at most this often (s): the attitude path's reference rate
+#: (``mag_noise`` describes one update per reference step; a 200 Hz magnetometer at
+#: ``--rate 0`` would otherwise carry 8 times the information and pull the tilt).
+MAG_MIN_INTERVAL_S = 1.0 / DEFAULT_MAX_RATE_HZ - 1e-6
 
 
 def baro_height(s: BaroSample) -> float:
@@ -80,6 +86,7 @@ class AidQueues:
         self.baro_offset: float | None = None
         self.off_n = 0  # (baro, GNSS) height pairs seen
         self.h_fix: tuple[float, float] | None = None  # last GNSS (t s, height up m)
+        self.t_mag = -np.inf  # time of the last magnetometer update
         self.counts: dict[str, dict[str, int]] = {}
 
     def snapshot(self) -> dict[str, Any]:
@@ -214,6 +221,38 @@ class AidQueues:
             ups.append(pf)
             sensors.append("gnss_pos")
         self.count("gnss", "used")
+
+    def baro_updates(self, baro: _Aid, stamp: float, noise: NavNoise,
+                     ups: list[tuple[Array, Any]], sensors: list[str]) -> None:
+        """Append the height update of a baro aid taken by the step ending at ``stamp``
+        (s) to ``ups`` (counted ``used``), once the offset has started."""
+        if self.baro_offset is not None:
+            ups.append((np.array([baro.height]),
+                        BaroHeight(np.array([[noise.baro_noise**2]]), self.baro_offset,
+                                   back=stamp - baro.t)))
+            sensors.append("baro")
+            self.count("baro", "used")
+
+    def mag_updates(self, mag: _Aid, stamp: float, w: Array, mref: Array | None,
+                    declination: float, noise: NavNoise, ups: list[tuple[Array, Any]],
+                    sensors: list[str]) -> None:
+        """Append the update of a magnetometer aid taken by the step ending at ``stamp``
+        (s) with the rate ``w`` (rad/s) to ``ups`` (counted ``used``), at most every
+        :data:`MAG_MIN_INTERVAL_S`: the 3-D field direction against the unit reference
+        ``mref`` (NED), or without one the heading against ``declination`` (rad)."""
+        if mag.vec is None or mag.t - self.t_mag < MAG_MIN_INTERVAL_S:
+            return
+        self.t_mag = mag.t
+        f, n = mag.vec, noise
+        back = stamp - mag.t  # s the sample is older than the step (< 0: newer)
+        if mref is not None:
+            ups.append((f / np.linalg.norm(f), OnNav(
+                MagField(mref, np.eye(3) * n.mag_noise**2), back, w)))
+        else:
+            ups.append((np.array([declination]), OnNav(
+                MagHeading(f, np.array([[n.mag_noise**2]])), back, w)))
+        sensors.append("mag")
+        self.count("mag", "used")
 
     # ------------------------------------------------------------------ release
     def take(self, upto: float, t_out: float | None) -> list[_Aid]:

@@ -17,7 +17,8 @@ force of its IMU samples), and the updates are raw aiding measurements:
   the first baro sample after the start, and held);
 * the magnetometer through :class:`OnNav` (3-D field direction, or heading), declination
   as the attitude path (option, then the log's parameters, taken later if they arrive),
-  at most at the attitude path's reference rate (:data:`MAG_MIN_INTERVAL_S`).
+  at most at the attitude path's reference rate
+  (:data:`~uavest.engine.nav_aiding.MAG_MIN_INTERVAL_S`).
 
 Each update is tagged with its sensor (``Step.info["sensors"]``) so that
 :class:`NavRunner` gates it per filter on its own innovation (chi-square 99.9 %)
@@ -57,21 +58,16 @@ from ..geometry.navigation import NavSpace
 from ..ingest.api import choose_source
 from ..ingest.types import BaroSample, GnssSample, ImuSample, MagSample, NoSamplesError
 from ..models.attitude import (
-    MagField,
-    MagHeading,
     declination_and_source,
     mag_reference,
 )
 from ..models.navigation import (
-    BaroHeight,
     GnssPosition,
     ImuTransition,
     NavNoise,
-    OnNav,
     nav_noise_for_source,
 )
 from .attitude import (
-    DEFAULT_MAX_RATE_HZ,
     GAP_MEDIANS,
     GAP_MIN_S,
     StreamSnapshots,
@@ -106,10 +102,6 @@ GATE_PROB = 0.999
 #: with R scaled to put it on the gate (one re-anchoring, counted; not a reset).
 REANCHOR_S = 10.0
 _CHI2: dict[int, float] = {}  # GATE_PROB quantile by dimension
-#: Magnetometer updates at most this often (s): the attitude path's reference rate
-#: (``mag_noise`` describes one update per reference step; a 200 Hz magnetometer at
-#: ``--rate 0`` would otherwise carry 8 times the information and pull the tilt).
-MAG_MIN_INTERVAL_S = 1.0 / DEFAULT_MAX_RATE_HZ - 1e-6
 #: A start (or re-alignment) levels from at least this share of ``NavOptions.align_s`` of
 #: IMU data (the steps seen while waiting for the fix).
 ALIGN_SPAN = 0.95
@@ -371,7 +363,6 @@ class NavStream(StreamSnapshots):
         self._k = 0
         self._imu_n = [0, 0.0, 0.0]
         self._mref: Array | None = None
-        self._t_mag = -np.inf  # time of the last magnetometer update
         self._decl_pending = False
         self._decl_seen: tuple[int, bool] | None = None
 
@@ -778,25 +769,11 @@ class NavStream(StreamSnapshots):
             h_fix = self._aids.h_fix
             if h_fix is not None and baro.t - h_fix[0] <= 0.5:
                 self._offset_pair(baro.height - h_fix[1], r.t)
-            if self._aids.baro_offset is not None:
-                ups.append((np.array([baro.height]),
-                            BaroHeight(np.array([[n.baro_noise**2]]), self._aids.baro_offset,
-                                       back=self._stamp(r) - baro.t)))
-                sensors.append("baro")
-                self._aids.count("baro", "used")
+            self._aids.baro_updates(baro, self._stamp(r), n, ups, sensors)
         mag = next((a for a in reversed(aids) if a.sensor == "mag"), None)
-        if mag is not None and mag.vec is not None and mag.t - self._t_mag >= MAG_MIN_INTERVAL_S:
-            self._t_mag = mag.t
-            f = mag.vec
-            back = self._stamp(r) - mag.t  # s the sample is older than the step (< 0: newer)
-            if self._mref is not None:
-                ups.append((f / np.linalg.norm(f), OnNav(
-                    MagField(self._mref, np.eye(3) * n.mag_noise**2), back, r.w)))
-            else:
-                ups.append((np.array([self.declination]), OnNav(
-                    MagHeading(f, np.array([[n.mag_noise**2]])), back, r.w)))
-            sensors.append("mag")
-            self._aids.count("mag", "used")
+        if mag is not None:
+            self._aids.mag_updates(mag, self._stamp(r), r.w, self._mref, self.declination, n,
+                                   ups, sensors)
         if self._align.unaided and r.t - self._t_hold >= HOLD_INTERVAL_S:
             self._t_hold = r.t
             ups.append((np.zeros(3), GnssPosition(np.eye(3) * n.nofix_pos_noise**2)))
