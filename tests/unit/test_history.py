@@ -214,24 +214,34 @@ def _canon(v, seen=None):
     return ("o", type(v).__name__, id(v) if hasattr(v, "__dict__") else repr(v))
 
 
-@pytest.mark.parametrize("kind", ["attitude", "nav", "obstacle", "adsb"])
+@pytest.mark.parametrize("kind", ["attitude", "nav", "nav_waiting", "obstacle", "adsb"])
 def test_a_builder_restored_is_what_it_was(log, kind):
     samples, params = log
     if kind == "attitude":
         b = AttitudeStream(opts=AttitudeOptions(on_arrival=True), params=dict(params))
     elif kind == "nav":
         b = NavStream(opts=NavOptions(on_arrival=True), params=dict(params))
+    elif kind == "nav_waiting":  # no fix ever: the alignment window moves with every step
+        samples = [s for s in samples if not isinstance(s, GnssSample)]
+        b = NavStream(opts=NavOptions(on_arrival=True, before_fix=False), params=dict(params))
     else:  # the tracking lane on the vehicle's detections or the virtual radar
         b = TrackLane(LiveConfig(radar_source=kind), 0)
+    # the parts a stream owns (moved out of it): each must change and be restored too
+    parts = {"nav": ("_aids",), "nav_waiting": ("_aids", "_align")}.get(kind, ())
     n = len(samples)
     for s in samples[: n // 2]:
         b.push(s)
     snap = b.snapshot()
     before = _canon(b)
+    part_before = {a: _canon(getattr(b, a)) for a in parts}
     for _ in range(2):  # a snapshot can be restored more than once
         for s in samples[n // 2: 3 * n // 4]:
             b.push(s)
         assert _canon(b) != before
+        for a in parts:
+            assert _canon(getattr(b, a)) != part_before[a], a
         b.restore(snap)
         assert _canon(b) == before
+        for a in parts:
+            assert _canon(getattr(b, a)) == part_before[a], a
 

@@ -16,6 +16,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -44,6 +45,9 @@ from ..models.navigation import NavNoise
 from ..presets import resolve_list, spec_labels
 from ..seeding import filter_stream, rng
 from ..sinks.base import Collector, Sink
+
+if TYPE_CHECKING:
+    from ..engine.gnss_delay import DelayEstimate, MagEstimate
 
 Array = np.ndarray
 
@@ -139,13 +143,32 @@ def probe_gnss_delay(samples: Iterable, cfg: ReplayConfig, params: dict | None
     samples (the held ones in front)."""
     import itertools
 
-    from ..engine.gnss_delay import PROBE_S, estimate_gnss_delay
+    from ..engine.gnss_delay import PROBE_S
 
-    (sp, flt), = build_filters(resolve_list((PROBE_FILTER,), "attitude", dim=15))
     opts = cfg.nav_options()  # checks the --noise names
     noise = NavNoise().with_(**cfg.noise)
     opts = replace(opts, noise={**cfg.noise, **{
         k: max(v, float(getattr(noise, k))) for k, v in PROBE_FLOORS.items()}})
+    est, mest, held, rest, runs = _run_probes(samples, cfg, params, opts)
+    span = f"the first {PROBE_S:g} s of IMU data"
+    refined = ", refined once" if runs == 2 else ""
+    doc: dict = {"probe_runs": runs}
+    if cfg.gnss_delay is None:
+        doc.update(_gnss_delay_doc(est, noise, span, refined))
+    doc["mag"] = _mag_doc(cfg, mest, noise, span, refined)
+    return doc, itertools.chain(held, rest)
+
+
+def _run_probes(samples: Iterable, cfg: ReplayConfig, params: dict | None,
+                opts: NavOptions) -> tuple[DelayEstimate, MagEstimate, list, Iterator, int]:
+    """The probe (:data:`PROBE_FILTER` on the stream options ``opts``) over the first
+    samples, run a second time over the held ones from the estimated delays when either
+    is more than :data:`PROBE_REFINE_S` from the one it assumed: (GNSS estimate,
+    magnetometer estimate, held samples, the rest, runs). An IMU slower than
+    :data:`PROBE_MIN_IMU_HZ` leaves both estimates None."""
+    from ..engine.gnss_delay import estimate_gnss_delay
+
+    (sp, flt), = build_filters(resolve_list((PROBE_FILTER,), "attitude", dim=15))
 
     def probe(src: Iterable, prior: float, prior_mag: float):
         runner = NavRunner("gnss delay probe", flt, rng(cfg.seed, 0, "probe:gnss_delay"))
@@ -172,21 +195,31 @@ def probe_gnss_delay(samples: Iterable, cfg: ReplayConfig, params: dict | None
         runs = 2
         est = est2 if est2.delay is not None or est.delay is None else est
         mest = mest2 if mest2.delay is not None or mest.delay is None else mest
-    span = f"the first {PROBE_S:g} s of IMU data"
-    refined = ", refined once" if runs == 2 else ""
-    doc: dict = {"probe_runs": runs}
-    if cfg.gnss_delay is None:
-        if est.delay is not None:
-            used = float(np.clip(est.delay, 0.0, 2.0))
-            neg = " (negative: used as 0)" if est.delay < 0 else ""
-            why = (f"estimated{neg}: the lag of the GNSS velocity behind the IMU "
-                   f"({PROBE_FILTER}, {est.pairs} fix pairs in {span}, standard error "
-                   f"{est.sd * 1e3:.1f} ms{refined}; --gnss-delay S to set it)")
-        else:
-            used = float(noise.gnss_delay)
-            why = f"default (not estimated: {est.why})"
-        doc.update(delay=est.delay, sd=est.sd, pairs=est.pairs, excitation=est.excitation,
-                   why=est.why, delay_used=used, why_used=why)
+    return est, mest, held, rest, runs
+
+
+def _gnss_delay_doc(est: DelayEstimate, noise: NavNoise, span: str, refined: str) -> dict:
+    """The GNSS part of the probe's document: the estimate and the delay the run takes
+    (the estimate clipped to [0, 2] s, else the model's default) with why."""
+    if est.delay is not None:
+        used = float(np.clip(est.delay, 0.0, 2.0))
+        neg = " (negative: used as 0)" if est.delay < 0 else ""
+        why = (f"estimated{neg}: the lag of the GNSS velocity behind the IMU "
+               f"({PROBE_FILTER}, {est.pairs} fix pairs in {span}, standard error "
+               f"{est.sd * 1e3:.1f} ms{refined}; --gnss-delay S to set it)")
+    else:
+        used = float(noise.gnss_delay)
+        why = f"default (not estimated: {est.why})"
+    return {"delay": est.delay, "sd": est.sd, "pairs": est.pairs,
+            "excitation": est.excitation, "why": est.why, "delay_used": used,
+            "why_used": why}
+
+
+def _mag_doc(cfg: ReplayConfig, mest: MagEstimate, noise: NavNoise, span: str, refined: str
+             ) -> dict:
+    """The magnetometer part of the probe's document: the estimate, and what the run
+    takes from it where ``cfg`` leaves it open (the delay, the inclination, the noise
+    clipped to [:data:`MAG_NOISE_MIN`, the IMU source's default]) with why."""
     m: dict = {"delay": mest.delay, "sd": mest.sd, "readings": mest.readings,
                "why": mest.why, "scatter": mest.scatter}
     if cfg.mag_delay is None and mest.readings:
@@ -210,8 +243,7 @@ def probe_gnss_delay(samples: Iterable, cfg: ReplayConfig, params: dict | None
                           f"{np.degrees(mest.scatter):.2f} deg per axis, within "
                           f"[{np.degrees(MAG_NOISE_MIN):.2f}, {np.degrees(top):.2f}] deg "
                           "(--noise mag_noise=RAD to set it)")
-    doc["mag"] = m
-    return doc, itertools.chain(held, rest)
+    return m
 
 
 def _good_fix(s) -> bool:

@@ -17,7 +17,8 @@ force of its IMU samples), and the updates are raw aiding measurements:
   the first baro sample after the start, and held);
 * the magnetometer through :class:`OnNav` (3-D field direction, or heading), declination
   as the attitude path (option, then the log's parameters, taken later if they arrive),
-  at most at the attitude path's reference rate (:data:`MAG_MIN_INTERVAL_S`).
+  at most at the attitude path's reference rate
+  (:data:`~uavest.engine.nav_aiding.MAG_MIN_INTERVAL_S`).
 
 Each update is tagged with its sensor (``Step.info["sensors"]``) so that
 :class:`NavRunner` gates it per filter on its own innovation (chi-square 99.9 %)
@@ -54,28 +55,19 @@ from ..core.guard import nis_gate
 from ..errors import InputError
 from ..geometry.geodesy import LocalFrame
 from ..geometry.navigation import NavSpace
-from ..geometry.rotation import euler_to_quat, quat_rotate, quat_rotate_inv, wrap_pi
 from ..ingest.api import choose_source
 from ..ingest.types import BaroSample, GnssSample, ImuSample, MagSample, NoSamplesError
 from ..models.attitude import (
-    MagField,
-    MagHeading,
     declination_and_source,
-    inclination_from_params,
-    inclination_from_samples,
     mag_reference,
 )
 from ..models.navigation import (
-    BaroHeight,
     GnssPosition,
-    GnssVelocity,
     ImuTransition,
     NavNoise,
-    OnNav,
     nav_noise_for_source,
 )
 from .attitude import (
-    DEFAULT_MAX_RATE_HZ,
     GAP_MEDIANS,
     GAP_MIN_S,
     StreamSnapshots,
@@ -84,6 +76,17 @@ from .attitude import (
     _StepBuilder,
     failover_rate,
     step_plan,
+)
+from .nav_aiding import AidQueues, _Aid, baro_height, good_fix
+from .nav_align import (
+    AlignWindow,
+    anchor_start,
+    fix_prior,
+    fix_start,
+    gnss_acceleration,
+    level,
+    start_inclination,
+    unaided_start,
 )
 from .records import NavAnchor, Start, Step
 from .runner import FilterRunner
@@ -98,24 +101,10 @@ GATE_PROB = 0.999
 #: Consecutive rejections of one sensor for this long (s) and its next update is taken
 #: with R scaled to put it on the gate (one re-anchoring, counted; not a reset).
 REANCHOR_S = 10.0
-#: Pairs of (baro, GNSS) heights the baro offset averages over (then its memory).
-BARO_OFFSET_PAIRS = 200
 _CHI2: dict[int, float] = {}  # GATE_PROB quantile by dimension
-#: Magnetometer updates at most this often (s): the attitude path's reference rate
-#: (``mag_noise`` describes one update per reference step; a 200 Hz magnetometer at
-#: ``--rate 0`` would otherwise carry 8 times the information and pull the tilt).
-MAG_MIN_INTERVAL_S = 1.0 / DEFAULT_MAX_RATE_HZ - 1e-6
 #: A start (or re-alignment) levels from at least this share of ``NavOptions.align_s`` of
 #: IMU data (the steps seen while waiting for the fix).
 ALIGN_SPAN = 0.95
-#: The start takes the World Magnetic Model's inclination (rad) at the first fix when the
-#: alignment window's angle between accelerometer and magnetometer is within this of it:
-#: that angle is off by the level's error (the vehicle's acceleration in the window, the
-#: accel bias / g; 0.3-0.6 deg on sim_default, whose field is the model's within 0.02
-#: deg), and the 3-D field then holds the tilt at that error for the run (pitch 0.30 deg
-#: against 0.10). Further apart, the local field is not the model's (the ArduPilot SITL's
-#: table field on vtol.tlog: 1.2 deg off it, the window 0.7) and the window is taken.
-WMM_INCLINATION_TOL = np.deg2rad(1.0)
 #: Without a good GNSS fix this many alignment windows (``NavOptions.align_s``) into the
 #: IMU data, the stream starts unaided (``NavOptions.before_fix``).
 UNAIDED_WAIT_ALIGNS = 2.0
@@ -156,8 +145,9 @@ class NavOptions:
     barometer sample's age (None: 0), and ``baro_delay_why``; ``mag_noise_why``: where
     the ``mag_noise`` of ``noise`` came from (None: an option or the default);
     ``mag_inclination`` rad (None: the World Magnetic Model's within
-    :data:`WMM_INCLINATION_TOL` of the alignment window's accelerometer-magnetometer
-    angle, else that angle; ``inclination_wmm`` False: always that angle) and
+    :data:`~uavest.engine.nav_align.WMM_INCLINATION_TOL` of the alignment window's
+    accelerometer-magnetometer angle, else that angle; ``inclination_wmm`` False: always
+    that angle) and
     ``mag_inclination_why``; ``align_s`` s;
     ``yaw_speed`` m/s, the ground speed from which the GNSS course gives the start yaw
     without a magnetometer; ``imu_delay`` s, the lag of the IMU's samples behind the
@@ -243,31 +233,6 @@ def imu_filter_delay(source: str, params: dict[str, Any]) -> tuple[float, str]:
         f"group delay of the autopilot's {fc:g} Hz IMU low-pass (INS_GYRO_FILTER)")
 
 
-def baro_height(s: BaroSample) -> float:
-    """Height up (m) of a barometer sample: the logged pressure altitude when there is
-    one, else the ISA barometric formula from the pressure (Pa); NaN if neither is
-    usable. Only differences matter (the offset to the GNSS height is estimated)."""
-    if np.isfinite(s.alt):
-        return float(s.alt)
-    p = float(s.pressure)
-    if not (np.isfinite(p) and 1.0e3 < p < 2.0e5):
-        return float("nan")
-    return float(44330.77 * (1.0 - (p / 101325.0) ** 0.190263))
-
-
-@dataclass
-class _Aid:
-    """One validated aiding sample waiting for its step: effective time ``t`` (s, the
-    stamp minus the delay), ``sensor`` name and its payload."""
-
-    t: float
-    sensor: str
-    gnss: GnssSample | None = None
-    ned: Array | None = None
-    height: float = float("nan")
-    vec: Array | None = None  # a magnetometer sample's field (gauss, body FRD)
-
-
 class _NavBuilder(_StepBuilder):
     """The attitude path's step builder with the specific force of every step (the
     time-weighted trapezoid mean for snapshot IMUs, the plain mean for integrated ones)."""
@@ -299,12 +264,60 @@ class _NavBuilder(_StepBuilder):
         return r
 
 
+def choose_imu(held: list[Any], imu: str | None, use_mag: bool
+               ) -> tuple[str, str | None, dict[str, int]]:
+    """(IMU, magnetometer or None, samples per IMU source) of the alignment window
+    ``held``: the option ``imu``, else the source with the most samples; the IMU's own
+    magnetometer when it has one, else the magnetometer with the most samples (none
+    without ``use_mag``)."""
+    imu_counts: dict[str, int] = {}
+    mag_counts: dict[str, int] = {}
+    for s in held:
+        if isinstance(s, ImuSample):
+            imu_counts[s.source] = imu_counts.get(s.source, 0) + 1
+        elif isinstance(s, MagSample):
+            mag_counts[s.source] = mag_counts.get(s.source, 0) + 1
+    if imu is None:
+        imu = choose_source(imu_counts, slack=1)
+    if imu is None or imu not in imu_counts:
+        have = ", ".join(sorted(imu_counts)) or "none"
+        if not imu:
+            raise NoSamplesError(f"no IMU samples (IMU sources seen: {have})")
+        raise InputError(f"IMU source {imu!r} not in the stream (IMU sources seen: {have})")
+    mag = None
+    if use_mag and mag_counts:
+        mag = imu if imu in mag_counts else choose_source(mag_counts, slack=1)
+    return imu, mag, imu_counts
+
+
+def split_step(r: _Raw, max_step: float) -> list[_Raw]:
+    """A step longer than ``max_step`` (s; an IMU interval below the gap threshold but
+    several nominal steps long) as equal sub-steps with the same rate and specific force,
+    the magnetometer on the last: aiding measurements inside the interval then update at
+    their own times and each prediction stays short (one 3.4 s prediction left the
+    sigma-point filters' attitude 30-160 deg off on vtol.tlog)."""
+    dt = r.t - r.t0
+    if not dt > max_step:
+        return [r]
+    k = int(np.ceil(dt / max_step))
+    ts = r.t0 + dt * np.arange(k + 1) / k
+    out = [_Raw(float(ts[i + 1]), float(ts[i]), r.w, r.a, 0, None, r.accel_ned)
+           for i in range(k - 1)]
+    out.append(_Raw(r.t, float(ts[k - 1]), r.w, r.a, r.n, r.mag, r.accel_ned))
+    return out
+
+
 class NavStream(StreamSnapshots):
     """One :class:`Start` then navigation :class:`Step` s from a sample stream (module
     docstring). :meth:`push` / :meth:`flush` return the items they completed; iterating
     runs over ``samples``. :attr:`summary` has the keys of the attitude stream's summary
     (sources, rates, integration, steps, decisions...) plus ``gnss_source``,
-    ``baro_source``, ``origin`` and ``aiding`` (per sensor: used and skipped counts)."""
+    ``baro_source``, ``origin`` and ``aiding`` (per sensor: used and skipped counts).
+
+    Its parts: the aiding samples waiting for their steps (:class:`AidQueues`,
+    :mod:`~uavest.engine.nav_aiding`), the alignment's state and window
+    (:class:`AlignWindow`) and arithmetic (:mod:`~uavest.engine.nav_align`); the stream
+    makes the steps, the starts and the decisions."""
 
     def __init__(self, samples: Iterable[Any] = (), opts: NavOptions | None = None,
                  params: dict[str, Any] | None = None) -> None:
@@ -324,12 +337,11 @@ class NavStream(StreamSnapshots):
         self._builder: _NavBuilder | None = None
         self._imu: str | None = None
         self._mag: str | None = None
-        self._gnss: str | None = self.opts.gnss
-        self._baro: str | None = self.opts.baro
         self._model: ImuTransition | None = None
         self._queue: deque[_Raw] = deque()
-        self._aid: dict[str, deque[_Aid]] = {"gnss": deque(), "baro": deque(),
-                                             "mag": deque()}
+        #: the aiding samples waiting for their steps, the GNSS and baro choice, the
+        #: per-sensor counts and the baro offset
+        self._aids = AidQueues(self.opts.gnss, self.opts.baro)
         self.mag_delay = 0.0  # s, the magnetometer sample's age (NavOptions.mag_delay)
         self.baro_delay = 0.0  # s, the barometer sample's age (NavOptions.baro_delay)
         #: s the stream holds closed steps: the larger delay and half a nominal step
@@ -337,41 +349,33 @@ class NavStream(StreamSnapshots):
         #: s after a step's end whose aids it takes: half a nominal step (an aid goes to
         #: the step whose end is nearest to it), or 0 on arrival
         self._aid_window = 0.0
-        self._mag_last: Array | None = None  # the last magnetometer field queued
-        self._recent: deque[_Raw] = deque()  # raws of the last align_s while waiting
-        # the good GNSS fixes while waiting (t, v NED), for the vehicle's acceleration
-        self._vfix: deque[tuple[float, Array]] = deque(maxlen=64)
+        #: the alignment's state and the window it levels from
+        self._align = AlignWindow()
         self._other_imu: dict[str, list[float]] = {}  # failover evidence per other IMU
-        self._switched = False  # the IMU changed: the next start keeps no biases
-        self._waiting = True
-        self._started = False
-        self._unaided = False  # running before the first fix (NavOptions.before_fix)
         self._t_hold = -np.inf
         #: vehicle time (s) from which positions are in :attr:`frame` (the first-fix
         #: re-anchoring); None when the stream started at a fix
         self.fix_from: float | None = None
         self.max_step = np.inf  # s, set from the IMU's rate (_split)
         self._anchor_sample: NavAnchor | None = None  # for the sinks, with the next step
-        self._wait_why = "no good GNSS fix yet"
         self._t_out: float | None = None  # end of the last released step
         self._now = -np.inf
         self._k = 0
         self._imu_n = [0, 0.0, 0.0]
         self._mref: Array | None = None
-        self._baro_offset: float | None = None
-        self._off_n = 0  # (baro, GNSS) height pairs seen
-        self._t_mag = -np.inf  # time of the last magnetometer update
-        self._h_fix: tuple[float, float] | None = None  # last GNSS (t s, height up m)
         self._decl_pending = False
         self._decl_seen: tuple[int, bool] | None = None
-        self._gnss_srcs: dict[str, int] = {}
-        self._baro_srcs: dict[str, int] = {}
-        self.aiding: dict[str, dict[str, int]] = {}
 
     @property
     def gnss_source(self) -> str | None:
         """The GNSS receiver the stream uses (None: not chosen yet)."""
-        return self._gnss
+        return self._aids.gnss
+
+    @property
+    def aiding(self) -> dict[str, dict[str, int]]:
+        """Per sensor, the counts of what was used and skipped (``used``, ``late``,
+        ``held``, ``nan``...)."""
+        return self._aids.counts
 
     @property
     def mag_source(self) -> str | None:
@@ -383,10 +387,6 @@ class NavStream(StreamSnapshots):
         """Record a decision ``what`` = ``value`` from ``t`` (s) because ``why``."""
         self.decisions.append({"what": what, "value": value, "t": float(t), "why": why})
         self.summary["decisions"] = self.decisions
-
-    def _count(self, sensor: str, what: str) -> None:
-        d = self.aiding.setdefault(sensor, {})
-        d[what] = d.get(what, 0) + 1
 
     def __iter__(self) -> Iterator[Start | Step]:
         for s in self.samples:
@@ -413,9 +413,10 @@ class NavStream(StreamSnapshots):
         if isinstance(s, MagSample):
             return s.source == self._mag
         if isinstance(s, GnssSample):
-            return self._gnss is None or s.source == self._gnss
+            return self._aids.gnss is None or s.source == self._aids.gnss
         if isinstance(s, BaroSample):
-            return self.opts.use_baro and (self._baro is None or s.source == self._baro)
+            return self.opts.use_baro and (self._aids.baro is None
+                                           or s.source == self._aids.baro)
         return False
 
     # ------------------------------------------------------------------ pushing
@@ -424,10 +425,7 @@ class NavStream(StreamSnapshots):
         o = self.opts
         if not o.in_window(s.t):
             return []
-        if isinstance(s, GnssSample):
-            self._gnss_srcs[s.source] = self._gnss_srcs.get(s.source, 0) + 1
-        elif isinstance(s, BaroSample):
-            self._baro_srcs[s.source] = self._baro_srcs.get(s.source, 0) + 1
+        self._aids.seen(s)
         if self._held is not None:
             self._held.append(s)
             if isinstance(s, ImuSample):
@@ -451,10 +449,10 @@ class NavStream(StreamSnapshots):
         self._now = np.inf
         out += self._release()
         self._finish_summary()
-        if not self._started:
+        if not self._align.started:
             raise NavNotStarted(
-                "the navigation model could not start: " + self._wait_why
-                + " (GNSS sources seen: " + (", ".join(sorted(self._gnss_srcs)) or "none")
+                "the navigation model could not start: " + self._align.why
+                + " (GNSS sources seen: " + (", ".join(sorted(self._aids.gnss_srcs)) or "none")
                 + "; use --model attitude)")
         return out
 
@@ -466,7 +464,7 @@ class NavStream(StreamSnapshots):
             if s.source != self._imu:
                 return self._failover(s) if self.opts.imu is None else []
             if not (np.isfinite(s.gyro).all() and np.isfinite(s.accel).all()):
-                self._count("imu", "nan")
+                self._aids.count("imu", "nan")
                 return []
             self._imu_n[0] += 1
             self._imu_n[2] = s.t
@@ -475,7 +473,7 @@ class NavStream(StreamSnapshots):
             if s.source != self._mag:
                 return []
             raws = b.push_nav(s)
-            self._mag_sample(s)
+            self._aids.add_mag(s, self.mag_delay)
         elif isinstance(s, GnssSample):
             self._gnss_sample(s)
         elif isinstance(s, BaroSample):
@@ -495,22 +493,14 @@ class NavStream(StreamSnapshots):
         return out + self._release()
 
     def _split(self, r: _Raw) -> list[_Raw]:
-        """A step longer than :attr:`max_step` (s; an IMU interval below the gap threshold
-        but several nominal steps long) as equal sub-steps with the same rate and specific
-        force, the magnetometer on the last: aiding measurements inside the interval then
-        update at their own times and each prediction stays short (one 3.4 s prediction
-        left the sigma-point filters' attitude 30-160 deg off on vtol.tlog)."""
-        dt = r.t - r.t0
-        if not dt > self.max_step:
-            return [r]
-        k = int(np.ceil(dt / self.max_step))
-        ts = r.t0 + dt * np.arange(k + 1) / k
-        out = [_Raw(float(ts[i + 1]), float(ts[i]), r.w, r.a, 0, None, r.accel_ned)
-               for i in range(k - 1)]
-        out.append(_Raw(r.t, float(ts[k - 1]), r.w, r.a, r.n, r.mag, r.accel_ned))
-        self.summary["imu_split_intervals"] = self.summary.get("imu_split_intervals", 0) + 1
-        self.summary["imu_split_longest_s"] = max(self.summary.get("imu_split_longest_s", 0.0),
-                                                  dt)
+        """:func:`split_step` of ``r`` at :attr:`max_step`, counted in the summary."""
+        out = split_step(r, self.max_step)
+        if len(out) > 1:
+            dt = r.t - r.t0
+            self.summary["imu_split_intervals"] = self.summary.get("imu_split_intervals",
+                                                                   0) + 1
+            self.summary["imu_split_longest_s"] = max(
+                self.summary.get("imu_split_longest_s", 0.0), dt)
         return out
 
     def _failover(self, s: ImuSample) -> list[Start | Step]:
@@ -539,7 +529,7 @@ class NavStream(StreamSnapshots):
         nb.gap_s = max(GAP_MIN_S, GAP_MEDIANS / max(rate, 1e-9))
         nb.gaps.append((last, s.t))
         self._builder = nb
-        self._imu, self._switched = s.source, True
+        self._imu, self._align.switched = s.source, True
         if self._mag == old:  # that sensor's magnetometer went with it
             self._mag = s.source if self._mag is not None else None
         self.noise = nav_noise_for_source(s.source, rate).with_(**o.noise)
@@ -555,32 +545,20 @@ class NavStream(StreamSnapshots):
         return out + self._feed(s)
 
     def _go_wait(self, why: str, t: float) -> None:
-        self._waiting = True
-        self._recent.clear()
-        self._vfix.clear()
-        self._wait_why = why
+        self._align.wait(why)
         self._decide("navigation", "waiting for a good GNSS fix", t, why)
 
     # ------------------------------------------------------------------ aiding input
     def _gnss_sample(self, s: GnssSample) -> None:
-        if self._gnss is None:
-            if s.fix_type < 3:
-                return
-            self._gnss = s.source
+        """Queue a fix of the GNSS receiver (chosen at its first 3-D fix); the first
+        3-D fix with a height sets the local frame's origin."""
+        if self._aids.choose_gnss(s):
             self._decide("GNSS", s.source, s.t, "option --gnss" if self.opts.gnss else
                          "first receiver with a 3-D fix (raw, not the autopilot's fused "
                          "position)")
-        if s.source != self._gnss:
+        lla = self._aids.gnss_lla(s)
+        if lla is None:
             return
-        if s.fix_type < 2:
-            self._count("gnss", "no_fix")
-            return
-        lla = np.asarray(s.lat_lon_alt, float)
-        if not np.isfinite(lla[:2]).all() or abs(lla[0]) > 90 or abs(lla[1]) > 180:
-            self._count("gnss", "nan")
-            return
-        if s.fix_type == 2:
-            self._count("gnss", "fix_2d")
         if self.frame is None:
             if s.fix_type < 3 or not np.isfinite(lla[2]):
                 return
@@ -589,32 +567,12 @@ class NavStream(StreamSnapshots):
                                       "alt": float(lla[2])}
             lat = np.deg2rad(lla[0])
             self._model = ImuTransition(self.noise, lat=lat, h=float(lla[2]))
-        alt = lla[2] if np.isfinite(lla[2]) else self.frame.h0
-        ned = np.asarray(self.frame.geodetic_to_ned(np.array(lla[0]), np.array(lla[1]),
-                                                     np.array(alt)), dtype=float)
-        if s.fix_type == 2 or not np.isfinite(lla[2]):
-            ned[2] = np.nan
-        self._aid["gnss"].append(_Aid(s.t - self.delay, "gnss", gnss=s, ned=ned))
-
-    def _mag_sample(self, s: MagSample) -> None:
-        """Queue a magnetometer sample as an aid at its time less the magnetometer delay
-        (s), when it is a new reading: a field equal to the previous one is the same
-        reading held (MAVLink's IMU messages repeat the last compass value: the ArduCopter
-        SITL's changes 10 times a second in a 200 Hz RAW_IMU), not a new measurement."""
-        f = np.asarray(s.field, float)
-        if not (np.isfinite(f).all() and np.any(f)):
-            return
-        if self._mag_last is not None and np.array_equal(f, self._mag_last):
-            self._count("mag", "held")
-            return
-        self._mag_last = f
-        self._aid["mag"].append(_Aid(s.t - self.mag_delay, "mag", vec=f))
+        self._aids.add_gnss(s, lla, self.frame, self.delay)
 
     def _baro_sample(self, s: BaroSample) -> None:
         if not self.opts.use_baro:
             return
-        if self._baro is None:
-            self._baro = s.source
+        if self._aids.choose_baro(s):
             self._decide("baro", s.source, s.t, "option --baro" if self.opts.baro else
                          "first barometer in the stream")
             o = self.opts
@@ -622,13 +580,7 @@ class NavStream(StreamSnapshots):
                          o.baro_delay_why or ("option --baro-delay" if o.baro_delay is not None
                                               else "default"))
             self.summary["baro_delay_s"] = self.baro_delay
-        if s.source != self._baro:
-            return
-        h = baro_height(s)
-        if not np.isfinite(h):
-            self._count("baro", "nan")
-            return
-        self._aid["baro"].append(_Aid(s.t - self.baro_delay, "baro", height=h))
+        self._aids.add_baro(s, self.baro_delay)
 
     # ------------------------------------------------------------------ releasing steps
     def _release(self, upto: float | None = None) -> list[Start | Step]:
@@ -637,19 +589,12 @@ class NavStream(StreamSnapshots):
         incl = upto is not None or (self.opts.on_arrival and not self._hold > 0)
         while self._queue and (self._queue[0].t < lim or (incl and self._queue[0].t <= lim)):
             r = self._queue.popleft()
-            aids = []
-            for q in self._aid.values():  # each sensor's aids are in time order
-                while q and q[0].t <= self._stamp(r) + self._aid_window:
-                    a = q.popleft()
-                    if self._t_out is not None and a.t <= self._t_out:
-                        self._count(a.sensor, "late")
-                        continue
-                    aids.append(a)
+            aids = self._aids.take(self._stamp(r) + self._aid_window, self._t_out)
             self._t_out = self._stamp(r) + self._aid_window
-            if self._waiting:
+            if self._align.waiting:
                 out += self._try_start(r, aids)
-            elif self._unaided:
-                fix = self._good_fix(aids)
+            elif self._align.unaided:
+                fix = good_fix(aids)
                 if fix is not None:
                     out += self._anchor(r, fix)
                 else:
@@ -658,129 +603,63 @@ class NavStream(StreamSnapshots):
                 out.append(self._step(r, aids))
         return out
 
-    def _good_fix(self, aids: list[_Aid]) -> _Aid | None:
-        for a in reversed(aids):
-            g = a.gnss
-            if (g is not None and a.ned is not None and g.fix_type >= 3
-                    and np.isfinite(a.ned).all() and np.isfinite(g.vel_ned[:2]).all()):
-                return a
-        return None
-
     def _try_start(self, r: _Raw, aids: list[_Aid]) -> list[Start | Step]:
-        o = self.opts
-        if r.a is not None:
-            self._recent.append(r)
-            while self._recent and self._recent[0].t < r.t - o.align_s:
-                self._recent.popleft()
-        fix = self._good_fix(aids)
-        if fix is not None and fix.gnss is not None:
-            self._vfix.append((fix.t, np.asarray(fix.gnss.vel_ned, float)))
-        mags = [x.mag for x in self._recent if x.mag is not None and np.any(x.mag)]
+        o, al = self.opts, self._align
+        fix = al.add(r, aids, o.align_s)
+        mags = al.mags()
         use_mag = self._mag is not None and bool(mags)
-        if (fix is not None and self._recent
-                and r.t - self._recent[0].t0 < ALIGN_SPAN * o.align_s):
+        if (fix is not None and al.recent
+                and r.t - al.recent[0].t0 < ALIGN_SPAN * o.align_s):
             # the level needs the accelerometer's mean over the alignment window: one
             # 200 Hz sample with the airframe's vibration in it left sim_200hz's pitch
             # 2 deg off (seed 5) until the manoeuvres separated it from the accel bias
-            self._wait_why = (f"{r.t - self._recent[0].t0:.2f} s of IMU data for the level "
-                              f"(needs {ALIGN_SPAN * o.align_s:g} s)")
+            al.why = (f"{r.t - al.recent[0].t0:.2f} s of IMU data for the level "
+                      f"(needs {ALIGN_SPAN * o.align_s:g} s)")
             return []
-        if fix is None and not self._started and self._recent and use_mag and o.before_fix \
+        if fix is None and not al.started and al.recent and use_mag and o.before_fix \
                 and r.t - self._imu_n[1] >= UNAIDED_WAIT_ALIGNS * o.align_s:
             return self._start_unaided(r, mags)
-        if fix is None or fix.gnss is None or fix.ned is None or not self._recent:
+        if fix is None or fix.gnss is None or fix.ned is None or not al.recent:
             return []
         g = fix.gnss
         vh = np.asarray(g.vel_ned[:2], float)
         speed = float(np.hypot(vh[0], vh[1]))
         if not use_mag and speed < o.yaw_speed:
-            self._wait_why = (f"no magnetometer: waiting for a GNSS ground speed of "
-                              f"{o.yaw_speed:g} m/s for the course (fastest so far "
-                              f"{max(speed, self.summary.get('_vmax', 0.0)):.1f} m/s)")
+            al.why = (f"no magnetometer: waiting for a GNSS ground speed of "
+                      f"{o.yaw_speed:g} m/s for the course (fastest so far "
+                      f"{max(speed, self.summary.get('_vmax', 0.0)):.1f} m/s)")
             self.summary["_vmax"] = max(speed, self.summary.get("_vmax", 0.0))
             return []
-        first = not self._started
-        if not first and speed >= o.yaw_speed and len(self._vfix) < 2:
-            self._wait_why = ("moving after an IMU gap: waiting for a second GNSS velocity "
-                              "(the acceleration to take out of the accelerometer)")
+        first = not al.started
+        if not first and speed >= o.yaw_speed and len(al.vfix) < 2:
+            al.why = ("moving after an IMU gap: waiting for a second GNSS velocity "
+                      "(the acceleration to take out of the accelerometer)")
             return []
         if first:
             self._first_start(r)
-        # the vehicle's own mean acceleration (NED, m/s^2) over the alignment window from
-        # the GNSS velocities at its ends: in flight the accelerometer is not gravity (two
-        # consecutive fixes 0.2 s apart with 0.1 m/s of noise leave 0.7 m/s^2, 4 deg)
-        a_ned = np.zeros(3)
-        win = [(t, v) for t, v in self._vfix if t >= r.t - o.align_s - 0.25]
-        if len(win) >= 2:
-            (t1, v1), (t2, v2) = win[0], win[-1]
-            if 0.05 < t2 - t1 < 2.0:
-                a_ned = np.nan_to_num((v2 - v1) / (t2 - t1))
-        q, syaw, ywhy = self._level(a_ned, mags if use_mag else [], vh)
+        # the vehicle's own acceleration over the window, out of the accelerometer
+        a_ned = gnss_acceleration(al.vfix, r.t - o.align_s - 0.25)
+        q, syaw, ywhy = level(al.recent, a_ned, mags if use_mag else [], vh, self.noise,
+                              self.declination)
         n = self.noise
         # moving, the compensation rests on a differenced GNSS velocity: a wider tilt prior
         tilt = n.init_tilt if speed < o.yaw_speed else 3.0 * n.init_tilt
-        v, p, pv = self._fix_prior(r, fix)
-        x = np.concatenate([q, v, p, np.zeros(6)])
-        P = np.diag([tilt**2] * 2 + [syaw**2] + pv
-                    + [n.init_gyro_bias**2] * 3 + [n.init_accel_bias**2] * 3)
-        self._waiting = False
-        self._started = True
-        self._recent.clear()
-        if self._unaided:
+        v, p, pv = fix_prior(fix, self._stamp(r) - fix.t, self.noise)
+        x, P = fix_start(q, tilt, syaw, v, p, pv, n)
+        al.done()
+        if al.unaided:
             self._anchored(r)
         elif first:
             self._announce(r, "start at a GNSS fix")
         comp = (f" less the GNSS acceleration ({np.linalg.norm(a_ned):.1f} m/s^2)"
                 if np.any(a_ned) else "")
         why = (f"roll/pitch from the accelerometer{comp}, yaw from {ywhy}, velocity and "
-               f"position from the {self._gnss} fix at t={g.t:.1f} s")
+               f"position from the {self._aids.gnss} fix at t={g.t:.1f} s")
         self._decide("alignment", "done" if first else "re-aligned", r.t, why)
-        keep = 0 if first or self._switched else 6
-        self._switched = False
+        keep = 0 if first or al.switched else 6
+        al.switched = False
         return [Start(self._stamp(r), Gaussian(x, P), self.space,
                       reason="start" if first else "gap", keep_tail=keep)]
-
-    def _level(self, a_ned: Array, mags: list[Any], vh: Array) -> tuple[Array, float, str]:
-        """(quaternion, yaw prior std rad, where the yaw came from) from the accelerometer
-        mean of the alignment window less the vehicle's acceleration ``a_ned`` (NED,
-        m/s^2), and the last magnetometer sample of ``mags`` (none: the GNSS course of the
-        horizontal velocity ``vh``, m/s)."""
-        n = self.noise
-        acc = np.mean([x.a for x in self._recent if x.a is not None], axis=0)
-        q = np.array([1.0, 0.0, 0.0, 0.0])
-        roll = pitch = yaw = 0.0
-        syaw, ywhy = n.init_yaw, "the magnetometer"
-        for _ in range(3 if np.any(a_ned) else 1):  # tilt <-> body acceleration, refined
-            a = quat_rotate_inv(q, a_ned) - acc  # gravity direction in the body
-            roll = float(np.arctan2(a[1], a[2]))
-            pitch = float(np.arctan2(-a[0], np.hypot(a[1], a[2])))
-            if mags:
-                q0 = euler_to_quat(np.array(roll), np.array(pitch), np.array(0.0))
-                m = quat_rotate(q0, np.asarray(mags[-1], float))
-                yaw = float(wrap_pi(self.declination - np.arctan2(m[1], m[0])))
-            else:
-                yaw = float(np.arctan2(vh[1], vh[0]))
-                speed = float(np.hypot(vh[0], vh[1]))
-                syaw, ywhy = n.init_yaw_course, f"the GNSS course at {speed:.1f} m/s"
-            q = euler_to_quat(np.array(roll), np.array(pitch), np.array(yaw))
-        return q, syaw, ywhy
-
-    def _fix_prior(self, r: _Raw, fix: _Aid) -> tuple[Array, Array, list[float]]:
-        """Velocity (NED m/s), position (NED m, moved to the step's time) and their six
-        prior variances from a good fix."""
-        n, g = self.noise, fix.gnss
-        assert g is not None and fix.ned is not None
-        dt = self._stamp(r) - fix.t
-        v = np.asarray(g.vel_ned, float).copy()
-        vz_ok = bool(np.isfinite(v[2]))
-        if not vz_ok:
-            v[2] = 0.0
-        p = fix.ned + v * dt
-        sh = max(n.gnss_pos_floor, g.h_acc if np.isfinite(g.h_acc) else 0.0)
-        sv = max(n.gnss_vpos_floor, g.v_acc if np.isfinite(g.v_acc) else 0.0)
-        svel = max(n.gnss_vel_floor, g.s_acc if np.isfinite(g.s_acc) else 0.0)
-        return v, p, ([svel**2] * 2 + [(svel if vz_ok else n.init_vel) ** 2]
-                      + [sh**2] * 2 + [sv**2])
 
     def _start_unaided(self, r: _Raw, mags: list[Any]) -> list[Start | Step]:
         """The first start without a GNSS fix (``NavOptions.before_fix``): level from the
@@ -790,14 +669,11 @@ class NavStream(StreamSnapshots):
         self._first_start(r)
         if self._model is None:
             self._model = ImuTransition(self.noise, lat=UNAIDED_LAT, h=0.0)
-        q, syaw, ywhy = self._level(np.zeros(3), mags, np.zeros(2))
-        x = np.concatenate([q, np.zeros(12)])
-        P = np.diag([n.init_tilt**2] * 2 + [syaw**2] + [n.init_vel**2] * 3
-                    + [n.nofix_pos_noise**2] * 3
-                    + [n.init_gyro_bias**2] * 3 + [n.init_accel_bias**2] * 3)
-        self._waiting = False
-        self._started = self._unaided = True
-        self._recent.clear()
+        q, syaw, ywhy = level(self._align.recent, np.zeros(3), mags, np.zeros(2), self.noise,
+                              self.declination)
+        x, P = unaided_start(q, syaw, n)
+        self._align.done()
+        self._align.unaided = True
         wait = UNAIDED_WAIT_ALIGNS * self.opts.align_s
         self._decide("alignment", "done without a GNSS fix", r.t,
                      f"no good GNSS fix {wait:g} s into the IMU data: roll/pitch from the "
@@ -812,7 +688,7 @@ class NavStream(StreamSnapshots):
 
     def _anchored(self, r: _Raw) -> None:
         """The unaided run ends at ``r``: positions are in :attr:`frame` from here."""
-        self._unaided = False
+        self._align.unaided = False
         self.fix_from = self.summary["fix_from_t"] = self._stamp(r)
         self._announce(r, "first fix after an unaided start")
 
@@ -822,21 +698,19 @@ class NavStream(StreamSnapshots):
         o = self.summary.get("origin")
         if o is not None:
             self._anchor_sample = NavAnchor(self._stamp(r), o["lat"], o["lon"], o["alt"],
-                                            str(self._gnss), reason)
+                                            str(self._aids.gnss), reason)
 
     def _anchor(self, r: _Raw, fix: _Aid) -> list[Start | Step]:
         """The first good fix after an unaided start: velocity and position from it, the
         running attitude and biases kept (:data:`KEEP_ATT_BIAS_X`)."""
         n, g = self.noise, fix.gnss
         assert g is not None
-        v, p, pv = self._fix_prior(r, fix)
-        x = np.concatenate([[1.0, 0.0, 0.0, 0.0], v, p, np.zeros(6)])
-        P = np.diag([n.init_tilt**2] * 3 + pv + [n.init_gyro_bias**2] * 3
-                    + [n.init_accel_bias**2] * 3)
+        v, p, pv = fix_prior(fix, self._stamp(r) - fix.t, self.noise)
+        x, P = anchor_start(v, p, pv, n)
         self._anchored(r)
-        self._vfix.clear()
+        self._align.vfix.clear()
         self._decide("alignment", "velocity and position from the first fix", r.t,
-                     f"the {self._gnss} fix at t={g.t:.1f} s; attitude and biases kept "
+                     f"the {self._aids.gnss} fix at t={g.t:.1f} s; attitude and biases kept "
                      "from the unaided start")
         return [Start(self._stamp(r), Gaussian(x, P), self.space, reason="first fix",
                       keep_x=KEEP_ATT_BIAS_X, keep_P=KEEP_ATT_BIAS_P)]
@@ -855,20 +729,8 @@ class NavStream(StreamSnapshots):
                      src + (" (taken later if the log gives one)" if self._decl_pending
                             else ""))
         if self._mag is not None and o.mag_mode == "field":
-            pairs = [(x.a, x.mag) for x in self._recent if x.mag is not None and x.a is not None]
-            inc, why = None, o.mag_inclination_why or "option"
-            if o.mag_inclination is not None:
-                inc = float(o.mag_inclination)
-            elif pairs:
-                inc = inclination_from_samples(np.array([p[0] for p in pairs]),
-                                               np.array([p[1] for p in pairs]))
-                why = "the angle between the accelerometer and the magnetometer at the start"
-                wmm, wwhy = (inclination_from_params(self.params) if o.inclination_wmm
-                             else (None, ""))
-                if (o.inclination_wmm and wmm is not None
-                        and abs(wmm - inc) <= WMM_INCLINATION_TOL):
-                    inc, why = wmm, (f"the magnetic model ({wwhy}; the accelerometer's angle "
-                                     f"{np.degrees(abs(inc - wmm)):.2f} deg from it)")
+            inc, why = start_inclination(self._align.recent, self.params, o.mag_inclination,
+                                         o.mag_inclination_why, o.inclination_wmm)
             if inc is not None:
                 self._mref = mag_reference(self.declination, inc)
                 self.summary["inclination_rad"] = float(inc)
@@ -900,53 +762,19 @@ class NavStream(StreamSnapshots):
         sensors: list[str] = []
         fix = next((a for a in reversed(aids) if a.sensor == "gnss"), None)
         if fix is not None and fix.gnss is not None and fix.ned is not None:
-            g = fix.gnss
-            v = np.asarray(g.vel_ned, float)
-            dt = self._stamp(r) - fix.t
-            if np.isfinite(v[:2]).all():
-                sv = max(n.gnss_vel_floor, g.s_acc if np.isfinite(g.s_acc) else 0.0)
-                rows = (0, 1, 2) if np.isfinite(v[2]) else (0, 1)
-                ups.append((v[list(rows)], GnssVelocity(
-                    np.eye(len(rows)) * sv * sv, rows, back=dt, f=r.a,
-                    g=self._model.g)))
-                sensors.append("gnss_vel")
-                vx = np.where(np.isfinite(v), v, 0.0)
-            else:
-                self._count("gnss", "vel_nan")
-                vx = np.zeros(3)
-            ned = fix.ned + vx * dt
-            if np.isfinite(fix.ned[2]):  # the GNSS height (up, m) for the baro offset
-                self._h_fix = (fix.t, -float(fix.ned[2]))
-            pf = GnssPosition.from_fix(ned, 3 if np.isfinite(ned[2]) else 2,
-                                       g.h_acc, g.v_acc, n)
-            if pf is not None:
-                ups.append(pf)
-                sensors.append("gnss_pos")
-            self._count("gnss", "used")
+            self._aids.gnss_updates(fix, self._stamp(r) - fix.t, r.a, self._model.g, n,
+                                    ups, sensors)
         baro = next((a for a in reversed(aids) if a.sensor == "baro"), None)
         if baro is not None:
-            if self._h_fix is not None and baro.t - self._h_fix[0] <= 0.5:
-                self._offset_pair(baro.height - self._h_fix[1], r.t)
-            if self._baro_offset is not None:
-                ups.append((np.array([baro.height]),
-                            BaroHeight(np.array([[n.baro_noise**2]]), self._baro_offset,
-                                       back=self._stamp(r) - baro.t)))
-                sensors.append("baro")
-                self._count("baro", "used")
+            h_fix = self._aids.h_fix
+            if h_fix is not None and baro.t - h_fix[0] <= 0.5:
+                self._offset_pair(baro.height - h_fix[1], r.t)
+            self._aids.baro_updates(baro, self._stamp(r), n, ups, sensors)
         mag = next((a for a in reversed(aids) if a.sensor == "mag"), None)
-        if mag is not None and mag.vec is not None and mag.t - self._t_mag >= MAG_MIN_INTERVAL_S:
-            self._t_mag = mag.t
-            f = mag.vec
-            back = self._stamp(r) - mag.t  # s the sample is older than the step (< 0: newer)
-            if self._mref is not None:
-                ups.append((f / np.linalg.norm(f), OnNav(
-                    MagField(self._mref, np.eye(3) * n.mag_noise**2), back, r.w)))
-            else:
-                ups.append((np.array([self.declination]), OnNav(
-                    MagHeading(f, np.array([[n.mag_noise**2]])), back, r.w)))
-            sensors.append("mag")
-            self._count("mag", "used")
-        if self._unaided and r.t - self._t_hold >= HOLD_INTERVAL_S:
+        if mag is not None:
+            self._aids.mag_updates(mag, self._stamp(r), r.w, self._mref, self.declination, n,
+                                   ups, sensors)
+        if self._align.unaided and r.t - self._t_hold >= HOLD_INTERVAL_S:
             self._t_hold = r.t
             ups.append((np.zeros(3), GnssPosition(np.eye(3) * n.nofix_pos_noise**2)))
             sensors.append("hold")
@@ -959,18 +787,12 @@ class NavStream(StreamSnapshots):
         return Step(self._k, self._stamp(r), r.t - r.t0, self._model, tuple(ups), u, info)
 
     def _offset_pair(self, d: float, t: float) -> None:
-        """One (baro height - GNSS height) pair (m): the offset is their running mean
-        over the first :data:`BARO_OFFSET_PAIRS` pairs, then an exponential mean with
-        that many pairs' memory (slow baro drift follows the GNSS height)."""
-        self._off_n += 1
-        if self._baro_offset is None:
-            self._baro_offset = d
+        """One (baro height - GNSS height) pair (m) for the offset
+        (:meth:`AidQueues.offset_pair`)."""
+        if self._aids.offset_pair(d):
             self._decide("baro offset", f"{d:.2f} m", t,
                          "baro height minus the GNSS height, running mean from here")
-        else:
-            a = 1.0 / min(self._off_n, BARO_OFFSET_PAIRS)
-            self._baro_offset += a * (d - self._baro_offset)
-        self.summary["baro_offset_m"] = self._baro_offset
+        self.summary["baro_offset_m"] = self._aids.baro_offset
 
     # ------------------------------------------------------------------ setup
     def _setup(self) -> list[Start | Step]:
@@ -980,22 +802,7 @@ class NavStream(StreamSnapshots):
         self._held = None
         if o.on_arrival:  # time order (an IMU sample after the rest of its message)
             held.sort(key=lambda s: (s.t, isinstance(s, ImuSample)))
-        imu_counts: dict[str, int] = {}
-        mag_counts: dict[str, int] = {}
-        for s in held:
-            if isinstance(s, ImuSample):
-                imu_counts[s.source] = imu_counts.get(s.source, 0) + 1
-            elif isinstance(s, MagSample):
-                mag_counts[s.source] = mag_counts.get(s.source, 0) + 1
-        imu = o.imu if o.imu is not None else choose_source(imu_counts, slack=1)
-        if imu is None or imu not in imu_counts:
-            have = ", ".join(sorted(imu_counts)) or "none"
-            if not imu:
-                raise NoSamplesError(f"no IMU samples (IMU sources seen: {have})")
-            raise InputError(f"IMU source {imu!r} not in the stream (IMU sources seen: {have})")
-        mag = None
-        if o.use_mag and mag_counts:
-            mag = imu if imu in mag_counts else choose_source(mag_counts, slack=1)
+        imu, mag, imu_counts = choose_imu(held, o.imu, o.use_mag)
         ti = [s.t for s in held if isinstance(s, ImuSample) and s.source == imu]
         rate = (len(ti) - 1) / max(ti[-1] - ti[0], 1e-9) if len(ti) > 1 else 0.0
         integ, why, factor = step_plan(imu, rate, o.integration, o.rate_hz)
@@ -1062,8 +869,8 @@ class NavStream(StreamSnapshots):
             imu_gap_list=[[a, b] for a, b in gaps], duration_s=span,
             imu_rate_hz=(n - 1) / span if span > 0 else 0.0,
             filter_rate_hz=self._k / span if span > 0 else 0.0,
-            gnss_source=self._gnss, gnss_sources=dict(self._gnss_srcs),
-            baro_source=self._baro if self.opts.use_baro else None,
+            gnss_source=self._aids.gnss, gnss_sources=dict(self._aids.gnss_srcs),
+            baro_source=self._aids.baro if self.opts.use_baro else None,
             aiding={k: dict(v) for k, v in self.aiding.items()},
         )
 

@@ -1,0 +1,203 @@
+"""The navigation stream's alignment arithmetic (:class:`~uavest.engine.navigation.NavStream`,
+its module docstring's "Alignment"): the level and yaw from the alignment window, the
+vehicle's acceleration from the GNSS velocities, velocity and position priors from a fix,
+and the magnetic inclination the start takes. Pure functions of what the stream holds;
+the stream keeps the state (the window, the waiting) and records the decisions."""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+
+from ..geometry.rotation import euler_to_quat, quat_rotate, quat_rotate_inv, wrap_pi
+from ..models.attitude import inclination_from_params, inclination_from_samples
+from ..models.navigation import NavNoise
+from .attitude import _Raw
+from .history import restore_vars, snapshot_vars
+from .nav_aiding import _Aid, good_fix
+
+Array = np.ndarray
+
+#: The start takes the World Magnetic Model's inclination (rad) at the first fix when the
+#: alignment window's angle between accelerometer and magnetometer is within this of it:
+#: that angle is off by the level's error (the vehicle's acceleration in the window, the
+#: accel bias / g; 0.3-0.6 deg on sim_default, whose field is the model's within 0.02
+#: deg), and the 3-D field then holds the tilt at that error for the run (pitch 0.30 deg
+#: against 0.10). Further apart, the local field is not the model's (the ArduPilot SITL's
+#: table field on vtol.tlog: 1.2 deg off it, the window 0.7) and the window is taken.
+WMM_INCLINATION_TOL = np.deg2rad(1.0)
+
+
+class AlignWindow:
+    """Where the stream's alignment stands (``waiting`` for a start or a re-alignment,
+    ``started`` once, ``unaided``: running before the first fix, ``switched``: the IMU
+    changed, so the next start keeps no biases) and what it holds while waiting: the
+    steps of the last ``align_s`` s (``recent``), the good fixes' times and velocities
+    (``vfix``, for the vehicle's acceleration), and ``why`` it waits. Its state is part of
+    the stream's snapshot (:meth:`snapshot`)."""
+
+    def __init__(self) -> None:
+        self.recent: deque[_Raw] = deque()
+        self.vfix: deque[tuple[float, Array]] = deque(maxlen=64)
+        self.switched = False
+        self.waiting = True
+        self.started = False
+        self.unaided = False
+        self.why = "no good GNSS fix yet"
+
+    def snapshot(self) -> dict[str, Any]:
+        """This moment, for :meth:`restore` (:mod:`uavest.engine.history`)."""
+        return snapshot_vars(self)
+
+    def restore(self, snap: dict[str, Any]) -> None:
+        restore_vars(self, snap)
+
+    def wait(self, why: str) -> None:
+        """Wait (again) for a good fix: the window and the fixes start over."""
+        self.waiting = True
+        self.recent.clear()
+        self.vfix.clear()
+        self.why = why
+
+    def add(self, r: _Raw, aids: list[_Aid], align_s: float) -> _Aid | None:
+        """Hold the step ``r`` (the window keeps the last ``align_s`` s) and the velocity
+        of its last good fix, which is returned (None: no good fix in ``aids``)."""
+        if r.a is not None:
+            self.recent.append(r)
+            while self.recent and self.recent[0].t < r.t - align_s:
+                self.recent.popleft()
+        fix = good_fix(aids)
+        if fix is not None and fix.gnss is not None:
+            self.vfix.append((fix.t, np.asarray(fix.gnss.vel_ned, float)))
+        return fix
+
+    def mags(self) -> list[Any]:
+        """The magnetometer samples of the window (non-zero)."""
+        return [x.mag for x in self.recent if x.mag is not None and np.any(x.mag)]
+
+    def done(self) -> None:
+        """The start (or re-alignment) is made: no longer waiting, the window emptied."""
+        self.waiting = False
+        self.started = True
+        self.recent.clear()
+
+
+def level(recent: Iterable[_Raw], a_ned: Array, mags: list[Any], vh: Array,
+          noise: NavNoise, declination: float) -> tuple[Array, float, str]:
+    """(quaternion, yaw prior std rad, where the yaw came from) from the accelerometer
+    mean of the alignment window ``recent`` less the vehicle's acceleration ``a_ned``
+    (NED, m/s^2), and the last magnetometer sample of ``mags`` with ``declination`` (rad;
+    none: the GNSS course of the horizontal velocity ``vh``, m/s)."""
+    n = noise
+    acc = np.mean([x.a for x in recent if x.a is not None], axis=0)
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    roll = pitch = yaw = 0.0
+    syaw, ywhy = n.init_yaw, "the magnetometer"
+    for _ in range(3 if np.any(a_ned) else 1):  # tilt <-> body acceleration, refined
+        a = quat_rotate_inv(q, a_ned) - acc  # gravity direction in the body
+        roll = float(np.arctan2(a[1], a[2]))
+        pitch = float(np.arctan2(-a[0], np.hypot(a[1], a[2])))
+        if mags:
+            q0 = euler_to_quat(np.array(roll), np.array(pitch), np.array(0.0))
+            m = quat_rotate(q0, np.asarray(mags[-1], float))
+            yaw = float(wrap_pi(declination - np.arctan2(m[1], m[0])))
+        else:
+            yaw = float(np.arctan2(vh[1], vh[0]))
+            speed = float(np.hypot(vh[0], vh[1]))
+            syaw, ywhy = n.init_yaw_course, f"the GNSS course at {speed:.1f} m/s"
+        q = euler_to_quat(np.array(roll), np.array(pitch), np.array(yaw))
+    return q, syaw, ywhy
+
+
+def gnss_acceleration(vfix: Iterable[tuple[float, Array]], t_from: float) -> Array:
+    """The vehicle's own mean acceleration (NED, m/s^2) over the alignment window from
+    the GNSS velocities ``vfix`` ((t s, v NED m/s) in time order) at its ends, those from
+    ``t_from`` (s) on; zero without two of them 0.05 to 2 s apart. In flight the
+    accelerometer is not gravity (two consecutive fixes 0.2 s apart with 0.1 m/s of noise
+    leave 0.7 m/s^2, 4 deg)."""
+    a_ned = np.zeros(3)
+    win = [(t, v) for t, v in vfix if t >= t_from]
+    if len(win) >= 2:
+        (t1, v1), (t2, v2) = win[0], win[-1]
+        if 0.05 < t2 - t1 < 2.0:
+            a_ned = np.nan_to_num((v2 - v1) / (t2 - t1))
+    return a_ned
+
+
+def fix_prior(fix: _Aid, dt: float, noise: NavNoise) -> tuple[Array, Array, list[float]]:
+    """Velocity (NED m/s), position (NED m, moved ``dt`` s on to the step's time) and
+    their six prior variances from a good fix."""
+    n, g = noise, fix.gnss
+    assert g is not None and fix.ned is not None
+    v = np.asarray(g.vel_ned, float).copy()
+    vz_ok = bool(np.isfinite(v[2]))
+    if not vz_ok:
+        v[2] = 0.0
+    p = fix.ned + v * dt
+    sh = max(n.gnss_pos_floor, g.h_acc if np.isfinite(g.h_acc) else 0.0)
+    sv = max(n.gnss_vpos_floor, g.v_acc if np.isfinite(g.v_acc) else 0.0)
+    svel = max(n.gnss_vel_floor, g.s_acc if np.isfinite(g.s_acc) else 0.0)
+    return v, p, ([svel**2] * 2 + [(svel if vz_ok else n.init_vel) ** 2]
+                  + [sh**2] * 2 + [sv**2])
+
+
+def start_inclination(recent: Iterable[_Raw], params: dict[str, Any],
+                      inclination: float | None, why: str | None, use_wmm: bool
+                      ) -> tuple[float | None, str]:
+    """(inclination rad or None, why) at the first start: ``inclination`` when given
+    (with ``why``, else "option"), else the angle between the accelerometer and the
+    magnetometer over the alignment window ``recent``, replaced by the World Magnetic
+    Model's (from ``params``) when ``use_wmm`` and within :data:`WMM_INCLINATION_TOL` of
+    it; None without magnetometer samples in the window."""
+    pairs = [(x.a, x.mag) for x in recent if x.mag is not None and x.a is not None]
+    inc, why = None, why or "option"
+    if inclination is not None:
+        inc = float(inclination)
+    elif pairs:
+        inc = inclination_from_samples(np.array([p[0] for p in pairs]),
+                                       np.array([p[1] for p in pairs]))
+        why = "the angle between the accelerometer and the magnetometer at the start"
+        wmm, wwhy = (inclination_from_params(params) if use_wmm else (None, ""))
+        if use_wmm and wmm is not None and abs(wmm - inc) <= WMM_INCLINATION_TOL:
+            inc, why = wmm, (f"the magnetic model ({wwhy}; the accelerometer's angle "
+                             f"{np.degrees(abs(inc - wmm)):.2f} deg from it)")
+    return inc, why
+
+
+def fix_start(q: Array, tilt: float, syaw: float, v: Array, p: Array, pv: list[float],
+              noise: NavNoise) -> tuple[Array, Array]:
+    """(x, P) of a start at a fix: attitude ``q`` (roll/pitch std ``tilt``, yaw std
+    ``syaw`` rad), velocity ``v`` and position ``p`` with their variances ``pv``
+    (:func:`fix_prior`), biases zero."""
+    n = noise
+    x = np.concatenate([q, v, p, np.zeros(6)])
+    P = np.diag([tilt**2] * 2 + [syaw**2] + pv
+                + [n.init_gyro_bias**2] * 3 + [n.init_accel_bias**2] * 3)
+    return x, P
+
+
+def unaided_start(q: Array, syaw: float, noise: NavNoise) -> tuple[Array, Array]:
+    """(x, P) of a start without a fix: attitude ``q`` (yaw std ``syaw`` rad), velocity
+    0 +- ``init_vel``, position at the provisional origin +- ``nofix_pos_noise``, biases
+    zero."""
+    n = noise
+    x = np.concatenate([q, np.zeros(12)])
+    P = np.diag([n.init_tilt**2] * 2 + [syaw**2] + [n.init_vel**2] * 3
+                + [n.nofix_pos_noise**2] * 3
+                + [n.init_gyro_bias**2] * 3 + [n.init_accel_bias**2] * 3)
+    return x, P
+
+
+def anchor_start(v: Array, p: Array, pv: list[float], noise: NavNoise
+                 ) -> tuple[Array, Array]:
+    """(x, P) of the first fix after an unaided start: velocity ``v`` and position ``p``
+    with their variances ``pv`` (:func:`fix_prior`); attitude and biases placeholders
+    (the running ones are kept)."""
+    n = noise
+    x = np.concatenate([[1.0, 0.0, 0.0, 0.0], v, p, np.zeros(6)])
+    P = np.diag([n.init_tilt**2] * 3 + pv + [n.init_gyro_bias**2] * 3
+                + [n.init_accel_bias**2] * 3)
+    return x, P
