@@ -366,6 +366,33 @@ class StreamSnapshots:
             self.summary["decisions"] = self.decisions
 
 
+def choose_imu(held: Sequence[Sample], imu: str | None, use_mag: bool
+               ) -> tuple[str, dict[str, int], str | None, dict[str, int]]:
+    """``(imu, imu_counts, mag, mag_counts)`` of the alignment window ``held``: the IMU
+    ``imu`` (the option), else the source with the most samples; the IMU's own
+    magnetometer when it has one, else the magnetometer with the most samples (none
+    without ``use_mag``); samples per source name. No IMU: :class:`NoSamplesError`;
+    ``imu`` naming an absent one: :class:`InputError`."""
+    imu_counts: dict[str, int] = {}
+    mag_counts: dict[str, int] = {}
+    for s in held:
+        if isinstance(s, ImuSample):
+            imu_counts[s.source] = imu_counts.get(s.source, 0) + 1
+        elif isinstance(s, MagSample):
+            mag_counts[s.source] = mag_counts.get(s.source, 0) + 1
+    if imu is None:
+        imu = choose_source(imu_counts, slack=1)
+    if imu is None or imu not in imu_counts:
+        have = ", ".join(sorted(imu_counts)) or "none"
+        if not imu:
+            raise NoSamplesError(f"no IMU samples (IMU sources seen: {have})")
+        raise InputError(f"IMU source {imu!r} not in the stream (IMU sources seen: {have})")
+    mag = None
+    if use_mag and mag_counts:
+        mag = imu if imu in mag_counts else choose_source(mag_counts, slack=1)
+    return imu, imu_counts, mag, mag_counts
+
+
 class AttitudeStream(StreamSnapshots):
     """One :class:`Start` then :class:`Step` s from a sample stream (see the module
     docstring). Push samples one at a time (:meth:`push`, :meth:`flush`: each returns the
@@ -674,22 +701,7 @@ class AttitudeStream(StreamSnapshots):
         held window: ``(imu, imu_counts, mag, mag_counts, pos)``, counts per source name.
         No IMU: :class:`NoSamplesError`; ``--imu`` naming an absent one: :class:`InputError`."""
         o = self.opts
-        imu_counts: dict[str, int] = {}
-        mag_counts: dict[str, int] = {}
-        for s in held:
-            if isinstance(s, ImuSample):
-                imu_counts[s.source] = imu_counts.get(s.source, 0) + 1
-            elif isinstance(s, MagSample):
-                mag_counts[s.source] = mag_counts.get(s.source, 0) + 1
-        imu = o.imu if o.imu is not None else choose_source(imu_counts, slack=1)
-        if imu is None or imu not in imu_counts:
-            have = ", ".join(sorted(imu_counts)) or "none"
-            if not imu:
-                raise NoSamplesError(f"no IMU samples (IMU sources seen: {have})")
-            raise InputError(f"IMU source {imu!r} not in the stream (IMU sources seen: {have})")
-        mag = None
-        if o.use_mag and mag_counts:
-            mag = imu if imu in mag_counts else choose_source(mag_counts, slack=1)
+        imu, imu_counts, mag, mag_counts = choose_imu(held, o.imu, o.use_mag)
         pos = None
         if o.accel_comp == "auto":
             for s in held:

@@ -55,7 +55,6 @@ from ..core.guard import nis_gate
 from ..errors import InputError
 from ..geometry.geodesy import LocalFrame
 from ..geometry.navigation import NavSpace
-from ..ingest.api import choose_source
 from ..ingest.types import BaroSample, GnssSample, ImuSample, MagSample, NoSamplesError
 from ..models.attitude import (
     declination_and_source,
@@ -74,6 +73,7 @@ from .attitude import (
     _Gap,
     _Raw,
     _StepBuilder,
+    choose_imu,
     failover_rate,
     step_plan,
 )
@@ -262,32 +262,6 @@ class _NavBuilder(_StepBuilder):
             r.a = a
         self.a_edge = b[-1].accel
         return r
-
-
-def choose_imu(held: list[Any], imu: str | None, use_mag: bool
-               ) -> tuple[str, str | None, dict[str, int]]:
-    """(IMU, magnetometer or None, samples per IMU source) of the alignment window
-    ``held``: the option ``imu``, else the source with the most samples; the IMU's own
-    magnetometer when it has one, else the magnetometer with the most samples (none
-    without ``use_mag``)."""
-    imu_counts: dict[str, int] = {}
-    mag_counts: dict[str, int] = {}
-    for s in held:
-        if isinstance(s, ImuSample):
-            imu_counts[s.source] = imu_counts.get(s.source, 0) + 1
-        elif isinstance(s, MagSample):
-            mag_counts[s.source] = mag_counts.get(s.source, 0) + 1
-    if imu is None:
-        imu = choose_source(imu_counts, slack=1)
-    if imu is None or imu not in imu_counts:
-        have = ", ".join(sorted(imu_counts)) or "none"
-        if not imu:
-            raise NoSamplesError(f"no IMU samples (IMU sources seen: {have})")
-        raise InputError(f"IMU source {imu!r} not in the stream (IMU sources seen: {have})")
-    mag = None
-    if use_mag and mag_counts:
-        mag = imu if imu in mag_counts else choose_source(mag_counts, slack=1)
-    return imu, mag, imu_counts
 
 
 def split_step(r: _Raw, max_step: float) -> list[_Raw]:
@@ -802,7 +776,7 @@ class NavStream(StreamSnapshots):
         self._held = None
         if o.on_arrival:  # time order (an IMU sample after the rest of its message)
             held.sort(key=lambda s: (s.t, isinstance(s, ImuSample)))
-        imu, mag, imu_counts = choose_imu(held, o.imu, o.use_mag)
+        imu, imu_counts, mag, _ = choose_imu(held, o.imu, o.use_mag)
         ti = [s.t for s in held if isinstance(s, ImuSample) and s.source == imu]
         rate = (len(ti) - 1) / max(ti[-1] - ti[0], 1e-9) if len(ti) > 1 else 0.0
         integ, why, factor = step_plan(imu, rate, o.integration, o.rate_hz)
