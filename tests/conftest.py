@@ -3,6 +3,13 @@ filters do many small matrix operations and a multithreaded BLAS on 2 shared cor
 adds synchronisation (the suite ran 2-7x slower without it)."""
 
 import os
+import signal
+
+# A test run started in the background by a non-interactive shell (`cmd &`, nohup) inherits
+# SIGINT ignored, and every child a test starts would inherit that too (an exec keeps an
+# ignored signal, not a handler): the tests that stop a child with SIGINT need the default.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
