@@ -433,10 +433,15 @@ def test_tlog_complete_after_signal(tmp_path, sig):
     with FakeVehicle(port, auto_streams={"HIGHRES_IMU": 100.0}):
         p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
                              stderr=subprocess.PIPE)
-        assert p.stdout.readline().strip() == b"up"
-        time.sleep(0.8)
-        p.send_signal(getattr(signal, sig))
-        p.wait(timeout=10)
+        try:
+            assert p.stdout.readline().strip() == b"up"
+            time.sleep(0.8)
+            p.send_signal(getattr(signal, sig))
+            p.wait(timeout=10)
+        finally:
+            if p.poll() is None:  # failed: leave no live link running behind the test
+                p.kill()
+                p.wait(timeout=10)
     data = tl.read_bytes()
     assert len(data) > 1000
     src = open_source(tl)
