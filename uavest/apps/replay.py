@@ -85,7 +85,7 @@ class ReplayConfig:
     accel_comp: str = "auto"
     mag_mode: str = "field"
     mag_delay: float | None = None  # s; None: estimated (navigation), 0 (attitude-only)
-    baro_delay: float | None = None  # s; None: estimated (navigation)
+    baro_delay: float | None = None  # s; None: 0 (navigation; not estimated)
     #: the library default stays the attitude model (the one whose results the golden
     #: files and earlier tables hold); ``uavest replay`` defaults to "auto"
     model: str = "attitude"

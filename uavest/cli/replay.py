@@ -382,9 +382,8 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
                    "from the log, the lag of the GNSS velocity behind the IMU; 0 when the "
                    "log has too little manoeuvring)")
     p.add_argument("--baro-delay", type=float, default=None, metavar="S",
-                   help="navigation model: barometer measurement delay in s (default: "
-                   "estimated from the log, the lag of the baro height's curvature behind "
-                   "the IMU's vertical acceleration; 0 when the log has too little climbing)")
+                   help="navigation model: barometer measurement delay in s, a reading "
+                   "stamped t applied to the height at t - S (default 0; not estimated)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_recording_options(p)
     p.add_argument("--speed", type=float, default=1.0,

@@ -142,7 +142,7 @@ class NavOptions:
     heading; ``gnss_delay`` s (None: ``NavNoise.gnss_delay``) and ``gnss_delay_why``
     where it came from (None: "option --gnss-delay" / "default"); ``mag_delay`` s, the
     magnetometer sample's age (None: 0), and ``mag_delay_why``; ``baro_delay`` s, the
-    barometer sample's age (None: 0), and ``baro_delay_why``; ``mag_noise_why``: where
+    barometer sample's age (None: 0, not estimated); ``mag_noise_why``: where
     the ``mag_noise`` of ``noise`` came from (None: an option or the default);
     ``mag_inclination`` rad (None: the World Magnetic Model's within
     :data:`~uavest.engine.nav_align.WMM_INCLINATION_TOL` of the alignment window's
@@ -179,7 +179,6 @@ class NavOptions:
     mag_delay: float | None = None
     mag_delay_why: str | None = None
     baro_delay: float | None = None
-    baro_delay_why: str | None = None
     mag_noise_why: str | None = None
     mag_inclination: float | None = None
     mag_inclination_why: str | None = None
@@ -551,8 +550,7 @@ class NavStream(StreamSnapshots):
                          "first barometer in the stream")
             o = self.opts
             self._decide("baro delay", f"{self.baro_delay * 1e3:.0f} ms", s.t,
-                         o.baro_delay_why or ("option --baro-delay" if o.baro_delay is not None
-                                              else "default"))
+                         "option --baro-delay" if o.baro_delay is not None else "default")
             self.summary["baro_delay_s"] = self.baro_delay
         self._aids.add_baro(s, self.baro_delay)
 
