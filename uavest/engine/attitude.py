@@ -61,7 +61,14 @@ from ..errors import InputError
 from ..geometry.rotation import G0, AttitudeSpace, qexp_f, qlog_f, qmul_f, quat_exp, quat_rotate
 from ..ingest.api import choose_source
 from ..ingest.semantics import default_integration
-from ..ingest.types import ImuSample, MagSample, NoSamplesError, PositionSample, Sample
+from ..ingest.types import (
+    ImuSample,
+    MagSample,
+    NoSamplesError,
+    PositionSample,
+    Sample,
+    arrival_order,
+)
 from ..models.attitude import (
     AttitudeNoise,
     GravityDirection,
@@ -667,7 +674,7 @@ class AttitudeStream(StreamSnapshots):
         assert held is not None  # called once, while holding
         self._held = None
         if o.on_arrival:  # time order (an IMU sample after the rest of its message)
-            held.sort(key=lambda s: (s.t, isinstance(s, ImuSample)))
+            held.sort(key=arrival_order)
         imu, imu_counts, mag, mag_counts, pos = self._choose_sources(held)
         ti = [s.t for s in held if isinstance(s, ImuSample) and s.source == imu]
         n_mag = mag_counts.get(mag, 0) if mag else 0

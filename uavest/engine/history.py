@@ -47,7 +47,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from ..ingest.types import ImuSample
+from ..ingest.types import arrival_order
 from .records import Start, Step
 
 __all__ = ["HistoryStats", "LaneHistory", "Rewindable", "restore_vars", "snapshot_vars"]
@@ -245,9 +245,9 @@ def _item_t(it: Start | Step) -> float:
 
 
 def _order(e: tuple[float, int, Any]) -> tuple[float, bool, int]:
-    """Time order of the log's entries (t, seq, sample): an IMU sample after the other
-    samples of its time (as the link releases the items of a message), then arrival."""
-    return (e[0], type(e[2]) is ImuSample, e[1])
+    """Time order of the log's entries (t, seq, sample): :func:`arrival_order`, then
+    arrival."""
+    return (*arrival_order(e[2]), e[1])
 
 
 Dispatch = Callable[[Iterable[Start | Step], float], int]

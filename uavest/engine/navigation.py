@@ -55,7 +55,14 @@ from ..core.guard import nis_gate
 from ..errors import InputError
 from ..geometry.geodesy import LocalFrame
 from ..geometry.navigation import NavSpace
-from ..ingest.types import BaroSample, GnssSample, ImuSample, MagSample, NoSamplesError
+from ..ingest.types import (
+    BaroSample,
+    GnssSample,
+    ImuSample,
+    MagSample,
+    NoSamplesError,
+    arrival_order,
+)
 from ..models.attitude import (
     declination_and_source,
     mag_reference,
@@ -773,7 +780,7 @@ class NavStream(StreamSnapshots):
         assert held is not None
         self._held = None
         if o.on_arrival:  # time order (an IMU sample after the rest of its message)
-            held.sort(key=lambda s: (s.t, isinstance(s, ImuSample)))
+            held.sort(key=arrival_order)
         imu, imu_counts, mag, _ = choose_imu(held, o.imu, o.use_mag)
         ti = [s.t for s in held if isinstance(s, ImuSample) and s.source == imu]
         rate = (len(ti) - 1) / max(ti[-1] - ti[0], 1e-9) if len(ti) > 1 else 0.0

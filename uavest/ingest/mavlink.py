@@ -31,6 +31,7 @@ from .types import (
     MagSample,
     PositionSample,
     Sample,
+    arrival_order,
 )
 
 # categories whose all-zero records may mean "not fitted"
@@ -197,7 +198,7 @@ class _Reorder:
             if flush and self.ready:  # the end of a burst
                 out, self.ready = self.ready, []
                 if len(out) > 1:
-                    out.sort(key=_arrival_key)
+                    out.sort(key=arrival_order)
                 for m in out:
                     if m.t > self.last_out:
                         self.last_out = m.t
@@ -208,12 +209,6 @@ class _Reorder:
             t, _, m = heapq.heappop(self.heap)
             self.last_out = t
             yield m
-
-
-def _arrival_key(m: Sample) -> tuple[float, bool]:
-    """Order of the items of one message released on arrival: time, then an IMU sample
-    after the other items of its time."""
-    return (m.t, type(m) is ImuSample)
 
 
 def sample_key(m: Sample) -> str:

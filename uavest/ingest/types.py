@@ -47,6 +47,7 @@ __all__ = [
     "BAD_KINDS",
     "REF_KINDS",
     "Sample",
+    "arrival_order",
 ]
 
 
@@ -323,6 +324,14 @@ Sample = (
     ImuSample | MagSample | AttitudeRef | PositionSample | GnssSample | BaroSample
     | DetectionSample | AdsbSample
 )
+
+
+def arrival_order(s: Sample) -> tuple[float, bool]:
+    """Sort key of samples released on arrival (a live link, :mod:`uavest.engine.history`):
+    time (s), then an IMU sample after the other samples of its time, as the link
+    releases the items of one message (a step that ends at the IMU sample is then
+    complete when it comes). Sorts are stable: arrival breaks the remaining ties."""
+    return (s.t, type(s) is ImuSample)
 
 
 class LogParams(dict):
