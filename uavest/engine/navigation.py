@@ -211,16 +211,11 @@ class NavOptions:
         if bad:
             raise InputError(f"--noise {bad[0]}: not a parameter of the navigation model; "
                              f"known: {', '.join(sorted(known))}")
-        d = self.gnss_delay
-        if d is not None and not (np.isfinite(d) and 0.0 <= d <= 2.0):
-            raise InputError(f"--gnss-delay must be from 0 to 2 s, got {d}")
-        d = self.mag_delay
-        if d is not None and not (np.isfinite(d) and 0.0 <= d <= 2.0):
-            raise InputError(f"--mag-delay must be from 0 to 2 s for the navigation model, "
-                             f"got {d}")
-        d = self.baro_delay
-        if d is not None and not (np.isfinite(d) and 0.0 <= d <= 2.0):
-            raise InputError(f"--baro-delay must be from 0 to 2 s, got {d}")
+        for d, option, model in ((self.gnss_delay, "--gnss-delay", ""),
+                                 (self.mag_delay, "--mag-delay", " for the navigation model"),
+                                 (self.baro_delay, "--baro-delay", "")):
+            if d is not None and not (np.isfinite(d) and 0.0 <= d <= 2.0):
+                raise InputError(f"{option} must be from 0 to 2 s{model}, got {d}")
 
 
 def imu_filter_delay(source: str, params: dict[str, Any]) -> tuple[float, str]:
@@ -789,7 +784,8 @@ class NavStream(StreamSnapshots):
         self.delay = float(self.noise.gnss_delay if o.gnss_delay is None else o.gnss_delay)
         self.mag_delay = float(o.mag_delay or 0.0)
         self.baro_delay = float(o.baro_delay or 0.0)
-        half_step = 0.5 * (float(np.median(np.diff(ti))) if len(ti) > 1 else 0.0) * factor
+        med = float(np.median(np.diff(ti))) if len(ti) > 1 else 0.0  # s, IMU interval
+        half_step = 0.5 * med * factor
         # on arrival a step goes out at the IMU sample that ends it (no half-step wait):
         # an aid after its end goes to the next step; the history re-steps a late one
         self._aid_window = 0.0 if o.on_arrival else half_step
@@ -823,7 +819,6 @@ class NavStream(StreamSnapshots):
                          o.mag_noise_why or ("option --noise" if "mag_noise" in o.noise
                                              else "default for the IMU source"))
         self._builder = _NavBuilder(integ, factor, o.on_arrival)
-        med = float(np.median(np.diff(ti))) if len(ti) > 1 else 0.0
         self._builder.gap_s = max(GAP_MIN_S, GAP_MEDIANS * med)
         self.summary["imu_gap_threshold_s"] = self._builder.gap_s
         self.max_step = max(MAX_STEP_S, MAX_STEP_PERIODS * med * factor)
