@@ -458,16 +458,14 @@ def replay_samples(
     gaps = _ImuGaps()
     coll = Collector() if cfg.smooth else None
     refs = _Refs() if cfg.smooth else None
+    probe, probe_mag = delay_doc or {}, (delay_doc or {}).get("mag", {})
     stream: AttitudeStream | NavStream = (
         NavStream(opts=replace(cfg.nav_options(), before_fix=decision["fix_stream"],
-                               gnss_delay_why=(delay_doc or {}).get("why_used"),
-                               mag_delay_why=(delay_doc or {}).get("mag", {}).get("why_used"),
-                               mag_noise_why=(delay_doc or {}).get("mag", {}).get(
-                                   "noise_why"),
-                               mag_inclination=(delay_doc or {}).get("mag", {}).get(
-                                   "inclination"),
-                               mag_inclination_why=(delay_doc or {}).get("mag", {}).get(
-                                   "inclination_why")),
+                               gnss_delay_why=probe.get("why_used"),
+                               mag_delay_why=probe_mag.get("why_used"),
+                               mag_noise_why=probe_mag.get("noise_why"),
+                               mag_inclination=probe_mag.get("inclination"),
+                               mag_inclination_why=probe_mag.get("inclination_why")),
                   params=params) if nav
         else AttitudeStream(opts=opts, params=params))
     if delay_doc is not None:
@@ -722,7 +720,7 @@ def _add_autopilot_rows(rows: dict, scorer: AttitudeScorer, ref_name: str,
 def _airborne_autopilot(rows: dict, nsc: NavScorer, ref_name: str) -> None:
     """The ``airborne`` attitude RMSE (deg) of the autopilot's rows over the filters'
     airborne span (the first filter's), against the same reference as the filters."""
-    from ..eval.attitude import euler_errors_deg
+    from ..eval.attitude import rmse_deg
 
     span = next((r["airborne"]["t"] for r in rows.values()
                  if isinstance(r.get("airborne"), dict) and "t" in r["airborne"]), None)
@@ -738,12 +736,9 @@ def _airborne_autopilot(rows: dict, nsc: NavScorer, ref_name: str) -> None:
         if keep.sum() < 2:
             continue
         qi, ok = quat_slerp_interp(tr, qr, t[keep])
-        e = euler_errors_deg(q[keep][ok], qi[ok])
-        if e.size:
-            r = np.sqrt(np.mean(e * e, axis=0))
-            row["airborne"] = {"t": [float(span[0]), float(span[1])], "n": int(ok.sum()),
-                               "roll_rmse_deg": float(r[0]), "pitch_rmse_deg": float(r[1]),
-                               "yaw_rmse_deg": float(r[2])}
+        if ok.any():
+            row["airborne"] = {"t": [float(span[0]), float(span[1])],
+                               **rmse_deg(q[keep][ok], qi[ok])}
 
 
 def _add_run_health(doc: dict, src, runners: list[FilterRunner], summary: dict,
