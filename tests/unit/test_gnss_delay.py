@@ -145,3 +145,42 @@ def test_replay_probe_finds_an_injected_delay():
     shift = got[1]["delay"] - got[0]["delay"]
     sd = np.hypot(got[0]["sd"], got[1]["sd"])
     assert abs(shift - 0.15) < 3 * sd + 0.002, (shift, sd)
+
+
+def _first_samples(n: int):
+    from uavest.ingest import open_source
+
+    src = open_source(LOG)
+    it = iter(src)
+    return [next(it) for _ in range(n)], src.params
+
+
+def test_a_reader_error_inside_the_probe_reaches_the_caller():
+    """A reader that fails while the probe reads (a cut log) is not swallowed by the probe
+    (the run went on with the probe's samples only, the rest of the log silently lost)."""
+    from uavest.apps.replay import ReplayConfig, probe_gnss_delay
+    from uavest.ingest.types import IngestError
+
+    head, params = _first_samples(3000)
+
+    def failing():
+        yield from head
+        raise IngestError("the log is cut here")
+
+    with pytest.raises(IngestError, match="cut here"):
+        probe_gnss_delay(failing(), ReplayConfig(model="nav"), params)
+
+
+def test_a_probe_that_cannot_start_is_reported_and_gives_every_sample_back():
+    """Without GNSS fixes and without the magnetometer the probe's navigation stream
+    cannot start: the probe says so as its reason and hands every sample back for the
+    run."""
+    from uavest.apps.replay import ReplayConfig, probe_gnss_delay
+
+    head, params = _first_samples(3000)
+    no_fix = [s for s in head if not isinstance(s, GnssSample)]
+    doc, it = probe_gnss_delay(iter(no_fix), ReplayConfig(model="nav", use_mag=False),
+                               params)
+    assert doc["delay"] is None and "the probe run failed" in doc["why"], doc["why"]
+    assert "could not start" in doc["why"]
+    assert list(it) == no_fix

@@ -179,7 +179,7 @@ def _run_probes(samples: Iterable, cfg: ReplayConfig, params: dict | None,
     prior_m = 0.0 if cfg.mag_delay is None else float(cfg.mag_delay)
     est, mest, held, rest = probe(samples, prior, prior_m)
     runs = 1
-    if est.imu_rate_hz < PROBE_MIN_IMU_HZ:
+    if 0 < est.imu_rate_hz < PROBE_MIN_IMU_HZ:  # (0: the probe run failed, why says why)
         why = (f"the IMU at {est.imu_rate_hz:.1f} Hz is too coarse to time the aiding "
                f"against (the probe needs {PROBE_MIN_IMU_HZ:g} Hz)")
         est.delay = mest.delay = mest.scatter = mest.inclination = None

@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import InputError
 from ..geometry.rotation import quat_exp, quat_mul, quat_rotate, quat_slerp_interp
 from ..ingest.types import GnssSample, ImuSample, MagSample
 from .navigation import NavOptions, NavRunner, NavStream
@@ -340,24 +341,34 @@ def estimate_gnss_delay(samples: Iterable[Any], opts: NavOptions, params: dict[s
                 rec = runner.step(item)
                 probe.add_step(item, np.asarray(rec.x, float))
 
-    try:
-        for s in it:
-            held.append(s)
-            if isinstance(s, ImuSample):
-                t_imu0 = s.t if t_imu0 is None else t_imu0
-                if s.t - t_imu0 > probe_s:
-                    break
+    failed: InputError | None = None
+    # the reader's own errors are not caught: the run, reading the same samples, would
+    # meet them (caught here they ended the reading and the run went on with the probe's)
+    for s in it:
+        held.append(s)
+        if isinstance(s, ImuSample):
+            t_imu0 = s.t if t_imu0 is None else t_imu0
+            if s.t - t_imu0 > probe_s:
+                break
+        try:
             feed(stream.push(s))
-            if isinstance(s, GnssSample) and s.source == stream.gnss_source:
-                probe.add_gnss(s)
-            elif isinstance(s, MagSample) and s.source == stream.mag_source:
-                f = np.asarray(s.field, float)
-                if last_mag is None or not np.array_equal(f, last_mag):  # new readings only
-                    probe.add_mag(s.t, f)
-                    last_mag = f
-        feed(stream.flush())
-    except Exception as e:  # noqa: BLE001 - the probe never fails the run itself
-        why = f"the probe run failed ({e})"
+        except InputError as e:  # the probe's stream refused the data: the run may not
+            failed = e
+            break
+        if isinstance(s, GnssSample) and s.source == stream.gnss_source:
+            probe.add_gnss(s)
+        elif isinstance(s, MagSample) and s.source == stream.mag_source:
+            f = np.asarray(s.field, float)
+            if last_mag is None or not np.array_equal(f, last_mag):  # new readings only
+                probe.add_mag(s.t, f)
+                last_mag = f
+    if failed is None:
+        try:
+            feed(stream.flush())
+        except InputError as e:  # e.g. no start in the probe's span (NavNotStarted)
+            failed = e
+    if failed is not None:
+        why = f"the probe run failed ({failed})"
         return DelayEstimate(None, None, 0, 0.0, why), MagEstimate(None, None, 0, why), held, it
     mest = probe.estimate_mag()
     mest.noise_default = float(stream.noise.mag_noise)
