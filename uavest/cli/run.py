@@ -59,14 +59,15 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--update-rate", type=float, default=None, metavar="HZ",
                    help="above 25 Hz: accelerometer/magnetometer updates at most this often "
                    "(default 25; 0 = every step, weighted)")
-    p.add_argument("--reorder-window", type=float, default=0.0,
-                   help="s of vehicle time the link holds messages to order them; 0 "
-                   "(default): on arrival, each estimate made as soon as its last sample "
-                   "arrives, a late sample applied at its time within --history")
-    p.add_argument("--history", type=float, default=0.3, metavar="S",
+    p.add_argument("--reorder-window", type=float, default=LiveConfig.reorder_window,
+                   help="s of vehicle time the link holds messages to order them; "
+                   f"{LiveConfig.reorder_window:g} (default): on arrival, each estimate made "
+                   "as soon as its last sample arrives, a late sample applied at its time "
+                   "within --history")
+    p.add_argument("--history", type=float, default=LiveConfig.history_s, metavar="S",
                    help="on arrival: s of vehicle time kept to apply late samples at their "
                    "time (re-stepping the filters from before them; older ones are counted "
-                   "late and skipped; default 0.3)")
+                   f"late and skipped; default {LiveConfig.history_s:g})")
     p.add_argument("--no-status", action="store_true", help="no live status line")
     p.add_argument("--model", default="attitude", choices=("attitude", "nav"),
                    help="attitude: attitude + gyro bias (default); nav: the GNSS-aided "
