@@ -241,3 +241,37 @@ def test_live_commands_refuse_bad_input_with_one_line(argv, says):
     assert r.returncode == 2, r.stderr
     assert "Traceback" not in r.stderr
     assert says.lower() in r.stderr.strip().splitlines()[-1].lower(), r.stderr
+
+
+@pytest.mark.slow  # two subprocesses
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("connect", ["udpin", "tcp"])
+def test_a_signal_ends_the_wait_for_the_vehicle_at_once(sig, connect):
+    """Ctrl-C (or SIGTERM) while `uavest run` waits for a heartbeat (nothing sending) or
+    for a TCP connection (refused) ends it within a second, not at the 30-s timeout."""
+    port = _port()
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    p = subprocess.Popen(
+        [sys.executable, "-m", "uavest", "run", "--connect", f"{connect}:127.0.0.1:{port}",
+         "--no-status", "--heartbeat-timeout", "30"],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        seen = ""
+        t0 = time.monotonic()
+        while "(1 s)" not in seen and time.monotonic() - t0 < 20:  # waiting, said twice
+            r, _, _ = select.select([p.stderr], [], [], 1.0)
+            if r:
+                seen += p.stderr.readline()
+        assert "(1 s)" in seen, seen
+        p.send_signal(sig)
+        t_sig = time.monotonic()
+        _, stderr = p.communicate(timeout=25)
+        took = time.monotonic() - t_sig
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+    assert took < 5.0, f"stopped {took:.1f} s after the signal"
+    assert p.returncode == 130, stderr
+    assert "Traceback" not in stderr
+    assert stderr.strip().splitlines()[-1] == "uavest: interrupted"

@@ -833,7 +833,7 @@ def run_live(cfg: LiveConfig, *, sinks=(), stop: threading.Event | None = None,
     link = open_live(cfg.connect, sysid=cfg.sysid, signing_key=cfg.signing_key,
                      tlog=cfg.tlog, heartbeat_timeout=cfg.heartbeat_timeout,
                      reorder_window=cfg.reorder_window, streams=cfg.streams,
-                     on_wait=on_wait)
+                     on_wait=on_wait, stop=stop)
     events: list = []
     try:
         link.start()

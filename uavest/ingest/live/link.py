@@ -64,6 +64,8 @@ class LiveLink(MavlinkSource):
       read_declination: read COMPASS_DEC / COMPASS_AUTODEC and fall back to the WMM.
       ack_timeout, param_timeout: s to wait for a COMMAND_ACK / PARAM_VALUE.
       source_system, source_component: the identity of our requests (GCS-like, 250/190).
+      stop: an event (the CLI's SIGINT / SIGTERM) that, set while :meth:`start` waits for
+        the vehicle's heartbeat, ends the wait at once with ``KeyboardInterrupt``.
     """
 
     def __init__(
@@ -87,6 +89,7 @@ class LiveLink(MavlinkSource):
         source_system: int = 250,
         source_component: int = mavlink.MAV_COMP_ID_MISSIONPLANNER,
         flush_s: float = 0.2,
+        stop: threading.Event | None = None,
     ) -> None:
         super().__init__(conn, "mavlink-live", imu=imu, reorder_window=reorder_window,
                          sysid=sysid)
@@ -101,6 +104,7 @@ class LiveLink(MavlinkSource):
         self.ack_timeout = ack_timeout
         self.param_timeout = param_timeout
         self.flush_s = flush_s
+        self.stop = stop
         self.tlog_path = Path(tlog) if tlog is not None else None
         self._key = signing_key_bytes(signing_key) if signing_key is not None else None
         if split_conn(conn)[0] != "serial":
@@ -251,6 +255,8 @@ class LiveLink(MavlinkSource):
         next_note = t0
         who = f"system {self.sysid}" if self.sysid is not None else "a vehicle"
         while not self._hb.wait(0.05):
+            if self.stop is not None and self.stop.is_set():  # Ctrl-C / SIGTERM meanwhile
+                raise KeyboardInterrupt
             now = time.monotonic()
             refused = self._rx.connect_error if self._writer.transport is None else None
             if now - t0 > self.heartbeat_timeout:
