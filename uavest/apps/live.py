@@ -39,6 +39,7 @@ import numpy as np
 from ..core.spec import FilterSpec
 from ..engine.attitude import AttitudeOptions, AttitudeStream
 from ..engine.build import build_filters
+from ..engine.gnss_delay import LiveDelayLearner
 from ..engine.history import restore_vars, snapshot_vars
 from ..engine.loop import Lane, run_lanes
 from ..engine.navigation import NavOptions, NavRunner, NavStream
@@ -63,6 +64,7 @@ from ..ingest.types import (
     AdsbSample,
     AttitudeRef,
     DetectionSample,
+    GnssSample,
     ImuSample,
     LinkEvent,
     NoSamplesError,
@@ -498,10 +500,11 @@ class _GapAware:
     Start) after a link gap longer than ``bridge_s``; shorter gaps are bridged by the next
     step's prediction."""
 
-    def __init__(self, make: Callable[[], AttitudeStream | NavStream], bridge_s: float
-                 ) -> None:
+    def __init__(self, make: Callable[[], AttitudeStream | NavStream], bridge_s: float,
+                 learner: LiveDelayLearner | None = None) -> None:
         self.make = make
         self.bridge_s = bridge_s
+        self.learner = learner  # the live GNSS delay (navigation), kept out of snapshots
         self.stream = make()
         self.restarts = 0
         self._past: list[dict] = []  # the decisions of the streams before a restart
@@ -526,7 +529,7 @@ class _GapAware:
         return not isinstance(s, LinkEvent) and self.stream.order_sensitive(s)
 
     def snapshot(self) -> dict:
-        return snapshot_vars(self, skip=("make",), appended=("_past",))
+        return snapshot_vars(self, skip=("make", "learner"), appended=("_past",))
 
     def restore(self, snap: dict) -> None:
         restore_vars(self, snap)
@@ -543,6 +546,8 @@ class _GapAware:
                 self.restarts += 1
                 return out
             return []
+        if self.learner is not None:
+            self.learner.apply(self.stream)
         return self.stream.push(s)
 
     def flush(self) -> list:
@@ -550,6 +555,19 @@ class _GapAware:
             return self.stream.flush()
         except NoSamplesError:  # a stream stopped before any IMU sample
             return []
+
+
+class _LearnGnss(Sink):
+    """Hands each GNSS fix, once as it arrives, to the live GNSS delay's learner when it is
+    from the navigation stream's receiver."""
+
+    def __init__(self, learner: LiveDelayLearner, att: _GapAware) -> None:
+        self.learner = learner
+        self.att = att
+
+    def sample(self, s) -> None:
+        if isinstance(s, GnssSample):
+            self.learner.add_gnss(s, getattr(self.att.stream, "gnss_source", None))
 
 
 class _NoEvents:
@@ -697,10 +715,11 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
              if cfg.filters else [])
     tspecs = (build_filters(resolve_list(cfg.trackers, "radar", dim=TRACKER_DIM))
               if cfg.trackers else [])
-    att = _GapAware(_stream_factory(cfg, params, declination), cfg.bridge_s)
     runner_cls = NavRunner if nav else FilterRunner
     runners = [runner_cls(sp.label, f, rng(cfg.seed, 0, filter_stream(sp.label)))
                for sp, f in specs]
+    learner = LiveDelayLearner() if nav and cfg.gnss_delay is None and runners else None
+    att = _GapAware(_stream_factory(cfg, params, declination), cfg.bridge_s, learner)
     nav_scorer = NavScorer()
     lane = TrackLane(cfg, cfg.seed)
     trackers = _track_runners(cfg, lane, tspecs)
@@ -711,7 +730,8 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
     info.filters = {sp.label: sp.as_dict() for sp, _ in specs}
     info.filters.update({f"track:{sp.label}": sp.as_dict() for sp, _ in tspecs})
     hist = cfg.history_s if cfg.on_arrival else 0.0
-    lanes = [Lane(att, runners, hist)] + (
+    estimators = runners if learner is None else [learner.tap(runners[0]), *runners[1:]]
+    lanes = [Lane(att, estimators, hist)] + (
         [Lane(_NoEvents(lane), trackers, hist if lane.virtual is None else 0.0)]
         if trackers else [])
     stats = stats if stats is not None else getattr(samples, "stats", None)
@@ -722,8 +742,9 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
              for s in sinks]
     wall0 = time.perf_counter()
     late = None if stats is None else (lambda s: stats.bad("late", sample_key(s)))
+    learn = [] if learner is None else [_LearnGnss(learner, att)]
     steps = run_lanes(samples, lanes, [_Score(scorer), *([_NavScore(nav_scorer)] if nav else []),
-                                       tscore, st, *sinks], info, late)
+                                       *learn, tscore, st, *sinks], info, late)
     wall = time.perf_counter() - wall0
     scorer.finish()
     nav_scorer.pos_from = getattr(att.stream, "fix_from", None)
@@ -736,6 +757,7 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
            "targets_seen": len({i for _, tr in lane.truth for i in tr}),
            "attitude_restarts": att.restarts,
            "decisions": att.decisions, "t_first": att.t_first,
+           **({"gnss_delay_live": learner.as_dict()} if learner is not None else {}),
            "sink_failures": [f.as_dict() for f in failures],
            "history": _history_doc(cfg, lanes),
            "latency_ms": ({"p50": 1e3 * float(np.percentile(st.lat, 50)),

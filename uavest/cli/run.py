@@ -74,8 +74,9 @@ def _common(p: argparse.ArgumentParser) -> None:
                    "navigation model (attitude, velocity, position, gyro and accelerometer "
                    "biases) from the raw GNSS stream (docs/navigation.md)")
     p.add_argument("--gnss-delay", type=float, default=None, metavar="S",
-                   help="with --model nav: the GNSS measurement delay, s (default: the "
-                   "model's)")
+                   help="with --model nav: the GNSS measurement delay, s (default: "
+                   "estimated during the run from 60 s after its first step, the model's 0 "
+                   "until then)")
 
 
 def add_run_parser(sub) -> argparse.ArgumentParser:
@@ -146,6 +147,10 @@ def format_live(doc: dict) -> str:
         title = (f"navigation model; attitude against {what}, RMSE in degrees; velocity "
                  "(m/s) and position (m) against the position reference")
     lines += [title, table(doc["attitude"], cols)]
+    live = doc.get("gnss_delay_live")
+    if live and live["delay"] is None:
+        last = live["tries"][-1]["why"] if live["tries"] else "the run ended before the first try"
+        lines.append(f"GNSS delay: not estimated live ({last}); --gnss-delay S to set it")
     if doc["tracks"]:
         lines += ["", f"tracks against ADS-B truth ({doc['targets_seen']} aircraft seen, "
                   f"{doc['scans']} scans); GOSPA and position RMSE in m",

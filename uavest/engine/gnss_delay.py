@@ -48,8 +48,9 @@ from .records import Start, Step
 
 Array = np.ndarray
 
-__all__ = ["GRID_S", "MAX_DELAY_S", "MAX_MAG_DELAY_S", "MAX_SD_S", "MIN_DELAY_S",
-           "MIN_EXCITATION", "PAIR_S", "PROBE_S", "DelayEstimate", "DelayProbe", "MagEstimate",
+__all__ = ["GRID_S", "LIVE_CHECK_S", "LIVE_FIRST_S", "LIVE_MIN_IMU_HZ", "MAX_DELAY_S",
+           "MAX_MAG_DELAY_S", "MAX_SD_S", "MIN_DELAY_S", "MIN_EXCITATION", "PAIR_S", "PROBE_S",
+           "DelayEstimate", "DelayProbe", "LiveDelayLearner", "MagEstimate",
            "estimate_gnss_delay"]
 
 #: The delays tried (s): MIN_DELAY_S to MAX_DELAY_S every GRID_S (a negative delay, the
@@ -375,3 +376,173 @@ def estimate_gnss_delay(samples: Iterable[Any], opts: NavOptions, params: dict[s
     est = probe.estimate()
     est.imu_rate_hz = mest.imu_rate_hz = float(stream.summary.get("align_rate_hz") or 0.0)
     return est, mest, held, it
+
+
+# ------------------------------------------------------------------ live
+
+#: A live run first tries to estimate after this many seconds (vehicle time) of its
+#: navigation steps, then every :data:`LIVE_CHECK_S` until :data:`PROBE_S` (as the
+#: replay's probe, it looks at the start of the flight only).
+LIVE_FIRST_S = 60.0
+LIVE_CHECK_S = 30.0
+#: The live estimate is used for an IMU at least this fast (Hz), as the replay's.
+LIVE_MIN_IMU_HZ = 20.0
+
+
+class LiveDelayLearner:
+    """The GNSS delay estimated during a live navigation run, from the run's own first
+    filter (:class:`DelayProbe` fed through :meth:`tap`) and the fixes of the stream's
+    receiver (:meth:`add_gnss`): tried :data:`LIVE_FIRST_S` s after the first step and
+    every :data:`LIVE_CHECK_S` s up to :data:`PROBE_S` s; once found it is used from then
+    on (:meth:`NavStream.set_gnss_delay`, a decision line), and estimated once more over a
+    fresh stretch of the same length with the filter now running on it (the replay's
+    refinement: the filter's attitude, fitted to fixes taken at the wrong time, pulls a
+    first estimate towards the delay assumed). Unlike the replay's probe it runs on the
+    run's own filter and its GNSS floors, not a weakly aided one of its own.
+
+    The delay found is held here, outside the lane's history: a rewind of the stream to
+    a checkpoint before it (:mod:`uavest.engine.history`) gets it again from
+    :meth:`apply`. ``delay`` is None until found; ``decided`` (the why, time) for the
+    result document."""
+
+    def __init__(self, first_s: float = LIVE_FIRST_S, check_s: float = LIVE_CHECK_S,
+                 span_s: float = PROBE_S) -> None:
+        self.first_s, self.check_s, self.span_s = first_s, check_s, span_s
+        self.delay: float | None = None
+        self.why = ""
+        self.t_decided: float | None = None
+        self.estimates: list[dict[str, Any]] = []
+        self.label = ""
+        self.done = False
+        self._probe = DelayProbe()
+        self._gen = 0  # a new probe (the refinement) is a new generation
+        self._t0: float | None = None
+        self._next = 0.0
+        self._refining = False
+
+    # ---------------------------------------------------------------- feeding
+    def tap(self, runner: Any) -> _Tap:
+        """The estimator to put in the lane in place of ``runner`` (the run's first
+        navigation filter): the same records, its steps also fed to the probe."""
+        self.label = str(runner.label)
+        return _Tap(runner, self)
+
+    def add_gnss(self, s: GnssSample, source: str | None) -> None:
+        """A fix as it arrives (each once: the sinks' ``sample``), when it is from the
+        stream's receiver ``source`` (None: none chosen yet)."""
+        if not self.done and source is not None and s.source == source:
+            self._probe.add_gnss(s)
+
+    def _mark(self) -> tuple[int, int, int, int]:
+        p = self._probe
+        return self._gen, len(p._t), p._segment, len(p._gt)
+
+    def _rewind(self, mark: tuple[int, int, int, int]) -> None:
+        """Back to ``mark`` (the history restored the filter): the steps after it are made
+        again. GNSS fixes come once, from the sinks' side, and stay."""
+        gen, n, segment, _ = mark
+        p = self._probe
+        if gen != self._gen:  # the probe was made after the mark: all of it is re-made
+            n, segment = 0, 0
+        del p._t[n:], p._dt[n:], p._a[n:], p._seg[n:], p._q[n:]
+        p._segment = segment
+
+    def _step(self, st: Step, x: Array) -> None:
+        if self.done:
+            return
+        self._probe.add_step(st, x)
+        if self._t0 is None:
+            self._t0 = float(st.t)
+            self._next = self._t0 + self.first_s
+        if st.t >= self._next:
+            self._check(float(st.t))
+
+    # ---------------------------------------------------------------- deciding
+    def _check(self, t: float) -> None:
+        assert self._t0 is not None
+        span = t - self._t0
+        p = self._probe
+        order = np.argsort(p._gt, kind="stable")  # fixes as they arrived: in time order
+        p._gt = [p._gt[i] for i in order]
+        p._gv = [p._gv[i] for i in order]
+        est = p.estimate()
+        self.estimates.append({"t": t, "span_s": span, "delay": est.delay, "sd": est.sd,
+                               "pairs": est.pairs, "why": est.why,
+                               "refinement": self._refining})
+        last = span + self.check_s > self.span_s or (self._refining and est.delay is None)
+        if est.delay is not None:
+            d = float(np.clip(est.delay, 0.0, 2.0))
+            neg = " (negative: used as 0)" if est.delay < 0 else ""
+            assert est.sd is not None
+            self.delay, self.t_decided = d, t
+            self.why = (f"estimated live{neg}: the lag of the GNSS velocity behind the IMU "
+                        f"({self.label}, {est.pairs} fix pairs over {span:.0f} s of "
+                        f"{'the run with the first estimate' if self._refining else 'navigation'},"
+                        f" standard error {est.sd * 1e3:.1f} ms"
+                        f"{', refined' if self._refining else ''}; --gnss-delay S to set it)")
+            if self._refining:
+                self.done = True
+            else:  # once more, over a fresh stretch as long, with the delay in use
+                self._refining = True
+                self._gen += 1
+                self._probe = DelayProbe()
+                self._t0, self._next = t, t + span
+            return
+        if last:
+            self.done = True
+        else:
+            self._next = t + self.check_s
+
+    def apply(self, stream: Any) -> None:
+        """Give ``stream`` (a :class:`NavStream`) the delay found, if it does not have it
+        yet (after the decision, or after a rewind or a restart took it back)."""
+        if getattr(stream, "_builder", None) is None:
+            return
+        if self.delay is None:
+            rate = float(stream.summary.get("align_rate_hz") or 0.0)
+            if not self.done and 0 < rate < LIVE_MIN_IMU_HZ:
+                self.done = True
+                self.estimates.append({"t": None, "why": (
+                    f"the IMU at {rate:.1f} Hz is too coarse to time the aiding against "
+                    f"(needs {LIVE_MIN_IMU_HZ:g} Hz)")})
+            return
+        if stream.delay != self.delay:
+            assert self.t_decided is not None
+            stream.set_gnss_delay(self.delay, self.t_decided, self.why)
+
+    def as_dict(self) -> dict[str, Any]:
+        """For the result document: the delay used (None: not estimated) and every try."""
+        return {"delay": self.delay, "t": self.t_decided, "why": self.why or None,
+                "filter": self.label or None, "tries": self.estimates}
+
+
+class _Tap:
+    """A navigation filter runner whose steps also feed a :class:`LiveDelayLearner`; its
+    history snapshot carries the learner's place (:meth:`LiveDelayLearner._mark`)."""
+
+    def __init__(self, runner: Any, learner: LiveDelayLearner) -> None:
+        self.runner = runner
+        self.learner = learner
+
+    @property
+    def label(self) -> str:
+        return str(self.runner.label)
+
+    def start(self, st: Start) -> None:
+        self.runner.start(st)
+        if not self.learner.done:
+            self.learner._probe.start()
+
+    def step(self, st: Step) -> Any:
+        rec = self.runner.step(st)
+        if st.u is not None:
+            self.learner._step(st, np.asarray(rec.x, float))
+        return rec
+
+    def snapshot(self) -> Any:
+        return self.runner.snapshot(), self.learner._mark()
+
+    def restore(self, snap: Any) -> None:
+        base, mark = snap
+        self.runner.restore(base)
+        self.learner._rewind(mark)

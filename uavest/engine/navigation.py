@@ -363,6 +363,18 @@ class NavStream(StreamSnapshots):
         self.decisions.append({"what": what, "value": value, "t": float(t), "why": why})
         self.summary["decisions"] = self.decisions
 
+    def set_gnss_delay(self, delay: float, t: float, why: str) -> None:
+        """From now on a fix stamped t measures the state at t - ``delay`` (s; a live run's
+        estimate, :class:`~uavest.engine.gnss_delay.LiveDelayLearner`), decided at ``t``
+        (s) because ``why``; fixes already queued keep their time. Before the stream's
+        set-up (no IMU window yet) it waits: the options' delay is taken then."""
+        if self._builder is None:
+            return
+        self.delay = float(delay)
+        self._hold = max(self.delay, self.mag_delay, self.baro_delay) + self._aid_window
+        self.summary["gnss_delay_s"] = self.delay
+        self._decide("GNSS delay", f"{self.delay:.3f} s", t, why)
+
     def __iter__(self) -> Iterator[Start | Step]:
         for s in self.samples:
             yield from self.push(s)
