@@ -228,7 +228,8 @@ def _bad_data_lines(doc: dict) -> list[str]:
     bad = doc["bad_data"]
     parts = [f"{k} {bad[k]}" for k in bad
              if isinstance(bad[k], int) and bad[k]
-             and k not in ("bad_total", "absent_sensor", "non_mavlink", "no_fix", "retimed")]
+             and k not in ("bad_total", "absent_sensor", "unusable_sensor", "non_mavlink",
+                           "no_fix", "retimed")]
     lines = [f"bad data: {bad['bad_total']}" + (f" ({', '.join(parts)})" if parts else "")]
     skipped = bad.get("skipped") or {}
     if skipped:
@@ -239,6 +240,11 @@ def _bad_data_lines(doc: dict) -> list[str]:
     if absent:
         lines.append("absent sensors (all-zero records, not bad data, ignored): " + ", ".join(
             f"{k.split(':', 1)[-1]} x{n}" for k, n in absent.items()))
+    unusable = bad.get("unusable") or {}
+    if unusable:
+        lines.append("unusable sensors (every reading out of range, e.g. a wrong unit; not "
+                     "bad data, ignored): " + ", ".join(
+                         f"{k.split(':', 1)[-1]} x{n}" for k, n in unusable.items()))
     if bad.get("no_fix"):
         lines.append(f"no GNSS fix: {bad['no_fix']} position records with lat/lon 0 skipped "
                      "(not bad data)")

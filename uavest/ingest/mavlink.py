@@ -680,7 +680,8 @@ class MavlinkSource:
     def _checked(self, raws: list[Raw], fitted: set[str]) -> list[Raw]:
         """The items of the chosen IMU (``imu``; every other kind) that pass
         :func:`~uavest.ingest.convert.check`; the others counted by why: a sensor that is
-        not fitted (all zeros from an instance never seen otherwise: ``absent``), no GNSS
+        not fitted (all zeros from an instance never seen otherwise: ``absent``), a
+        magnetometer that never sent a field in range (``unusable``), no GNSS
         fix yet (``no_fix``), or bad data of the kind ``check`` names. ``fitted`` gathers
         the sensor instances that sent a good record."""
         st = self.stats
@@ -699,6 +700,12 @@ class MavlinkSource:
                 # that is not fitted, not bad data (one info line at the end)
                 st.absent_sensor += 1
                 st.absent[stat_key(r)] += 1
+            elif bad == "out_of_range" and r.cat == "mag" and stat_key(r) not in fitted:
+                # a field out of range from an instance never in range: a unit the
+                # sender gets wrong (the ArduCopter SITL's HIGHRES_IMU, 10^6 too large),
+                # not bad data; the record's IMU part is used (one info line at the end)
+                st.unusable_sensor += 1
+                st.unusable[stat_key(r)] += 1
             elif r.cat == "pos" and not r.primary:
                 pass  # GPS_RAW_INT's position: counted once, as its GNSS item
             elif bad == "empty" and r.cat in ("pos", "gnss"):

@@ -94,6 +94,8 @@ EVENT_KINDS = (
     "pre_heartbeat",  # live link: messages discarded before the vehicle heartbeat
     "absent_sensor",  # all-zero IMU/magnetometer records of an instance that never sent a
     # non-zero one (ArduPilot sends SCALED_IMU3 zeros when there is no third IMU): ignored
+    "unusable_sensor",  # magnetometer readings out of range from an instance that never
+    # sent one in range (the ArduCopter SITL's HIGHRES_IMU field, 10^6 too large): ignored
     "no_fix",  # GNSS position records without a fix (lat/lon 0, before the lock): skipped
     "retimed",  # records stamped with UNIX time (ArduPilot GPS_RAW_INT) mapped onto the
     # vehicle clock (timebase.retime_unix): kept, not late
@@ -425,10 +427,13 @@ class IngestStats:
     reconnect: int = 0  # live TCP reconnections
     pre_heartbeat: int = 0  # live messages discarded before the vehicle heartbeat
     absent_sensor: int = 0  # all-zero records of a sensor instance that is not fitted
+    unusable_sensor: int = 0  # out-of-range magnetometer readings of an instance never in range
     no_fix: int = 0  # GNSS position records without a fix (lat/lon 0): skipped, not bad
     retimed: int = 0  # UNIX-time stamped records mapped onto the vehicle clock (kept)
     #: the absent sensor instances (stat key, e.g. ``"imu:SCALED_IMU3"``) -> records ignored
     absent: Counter = field(default_factory=Counter)
+    #: the unusable sensor instances (stat key, e.g. ``"HIGHRES_IMU.mag"``) -> readings ignored
+    unusable: Counter = field(default_factory=Counter)
     #: what the tlog reader stepped over between good records, by kind
     #: (``uavest.ingest.skip.SKIP_KINDS``: text_bytes, bad_crc, partial_frame, ...)
     skipped: Counter = field(default_factory=Counter)
@@ -456,6 +461,7 @@ class IngestStats:
             d[k] = getattr(self, k)
         d["bad_total"] = self.bad_total
         d["absent"] = dict(sorted(self.absent.items()))
+        d["unusable"] = dict(sorted(self.unusable.items()))
         d["skipped"] = dict(sorted(self.skipped.items()))
         d["messages"] = dict(sorted(self.messages.items()))
         d["accepted"] = dict(sorted(self.accepted.items()))
