@@ -95,10 +95,15 @@ def sent_rate(fv: FakeVehicle, name: str, window: float = 5.0) -> float:
 @pytest.mark.slow
 def test_streams_requested_acked_and_rates_measured():
     port = free_port()
-    with FakeVehicle(port, params={"COMPASS_DEC": 0.21, "COMPASS_AUTODEC": 0}) as fv:
+    with FakeVehicle(port, params={"COMPASS_DEC": 0.21, "COMPASS_AUTODEC": 0,
+                                   "INS_GYRO_FILTER": 20.0}) as fv:
         with open_live(f"udpin:127.0.0.1:{port}", streams=STREAMS, ack_timeout=0.5) as link:
             got = take(link, 2.0)
             rates = link.rates()
+            # asked at the start, not awaited: the reply came through the stream (the
+            # navigation model's IMU low-pass delay)
+            assert "INS_GYRO_FILTER" in fv.param_reads
+            assert link.params.get("INS_GYRO_FILTER") == pytest.approx(20.0)
             truth = {n: sent_rate(fv, n) for n in STREAMS}
             assert link.vehicle_sysid == 1
             assert {s.method for s in link.stream_status.values()} == {"SET_MESSAGE_INTERVAL"}

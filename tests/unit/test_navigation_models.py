@@ -177,3 +177,17 @@ def test_noise_profile_follows_the_imu_rate() -> None:
     assert nav_noise_for_source("SCALED_IMU2", FAST_STREAM_HZ) == FAST_MAVLINK_PROFILE
     assert nav_noise_for_source("IMU[0]", 3.8) == NavNoise()
     assert MAVLINK_PROFILE.gyro_noise > NavNoise().gyro_noise
+
+
+def test_imu_filter_delay_of_every_streamed_ardupilot_imu() -> None:
+    """RAW_IMU, SCALED_IMU* and HIGHRES_IMU carry ArduPilot's filtered IMU alike (the live
+    link streams HIGHRES_IMU from the SITL): the group delay of its INS_GYRO_FILTER
+    low-pass, sqrt(2)/(2 pi f_c); none without the parameter or for another source."""
+    from uavest.engine.navigation import imu_filter_delay
+
+    want = np.sqrt(2.0) / (2.0 * np.pi * 20.0)
+    for src in ("RAW_IMU", "SCALED_IMU2", "HIGHRES_IMU"):
+        d, why = imu_filter_delay(src, {"INS_GYRO_FILTER": 20.0})
+        assert d == pytest.approx(want) and "INS_GYRO_FILTER" in why
+        assert imu_filter_delay(src, {})[0] == 0.0
+    assert imu_filter_delay("sensor_combined", {"INS_GYRO_FILTER": 20.0})[0] == 0.0

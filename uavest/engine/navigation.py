@@ -219,14 +219,15 @@ class NavOptions:
 
 
 def imu_filter_delay(source: str, params: dict[str, Any]) -> tuple[float, str]:
-    """(delay s, why) of a streamed ArduPilot IMU (RAW_IMU / SCALED_IMU*): those
-    messages carry the gyro and accelerometer after the autopilot's 2-pole Butterworth
-    low-pass (``INS_GYRO_FILTER`` Hz), whose group delay at low frequency is
+    """(delay s, why) of a streamed ArduPilot IMU (RAW_IMU / SCALED_IMU* / HIGHRES_IMU,
+    all sent from the same filtered sensor values; ``INS_GYRO_FILTER``, an ArduPilot
+    parameter, tells the autopilot): the gyro and accelerometer after its 2-pole
+    Butterworth low-pass (``INS_GYRO_FILTER`` Hz), whose group delay at low frequency is
     sqrt(2) / (2 pi f_c) (11.3 ms at 20 Hz; measured on the SITL copter flight: the
     airborne attitude RMSE is least with the estimate 10-15 ms earlier). 0 for other
     sources or without the parameter."""
     fc = params.get("INS_GYRO_FILTER")
-    if not source.upper().startswith(("RAW_IMU", "SCALED_IMU")):
+    if not source.upper().startswith(("RAW_IMU", "SCALED_IMU", "HIGHRES_IMU")):
         return 0.0, "not a streamed ArduPilot IMU"
     if not isinstance(fc, (int, float)) or not np.isfinite(fc) or fc <= 0:
         return 0.0, "no INS_GYRO_FILTER parameter in the log"

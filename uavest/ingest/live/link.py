@@ -39,6 +39,12 @@ class LinkTimeout(IngestError):
     """No vehicle heartbeat within the timeout (a one-line message)."""
 
 
+#: Parameters asked for at the start (not awaited) for the estimators: ArduPilot's IMU
+#: low-pass, whose group delay the navigation model takes off the IMU's time stamps
+#: (:func:`uavest.engine.navigation.imu_filter_delay`).
+ASKED_PARAMS = ("INS_GYRO_FILTER",)
+
+
 # ------------------------------------------------------------------ the link
 
 
@@ -189,6 +195,7 @@ class LiveLink(MavlinkSource):
             if self.streams:
                 self.request_streams()
             if self.read_declination:
+                self._ask_params(ASKED_PARAMS)
                 self._read_declination()
         except BaseException:
             self.close()
@@ -289,6 +296,14 @@ class LiveLink(MavlinkSource):
         self._requested_at = time.monotonic()
         self._rates_checked = False
         return self.stream_status
+
+    def _ask_params(self, names: tuple[str, ...]) -> None:
+        """Ask for the parameters ``names`` without waiting: each reply flows through the
+        sample stream into :attr:`params` (and the session tlog) like any PARAM_VALUE; an
+        autopilot without one does not answer."""
+        ts, tc = self._target()
+        for name in names:
+            self._mav.param_request_read_send(ts, tc, name.encode("ascii"), -1)
 
     def _read_param(self, name: str, timeout: float) -> float | None:
         self._replies.forget(name)
