@@ -15,7 +15,9 @@ from uavest.cli import main
 from uavest.ingest import open_source
 
 
-def _zero_imu3(src, dst, with_real: bool = False) -> int:
+def _after_each_raw_imu(src, dst, make) -> int:
+    """Copy the tlog ``src`` to ``dst`` with the message ``make(mav, n)`` after the n-th
+    RAW_IMU record (same receive time, as the autopilot sends its instances)."""
     from pymavlink.dialects.v20 import ardupilotmega as mav
 
     m = mav.MAVLink(None, srcSystem=1, srcComponent=1)
@@ -27,15 +29,19 @@ def _zero_imu3(src, dst, with_real: bool = False) -> int:
         if mid == 27:  # RAW_IMU
             (t_us,) = struct.unpack(">Q", rec[:8])
             n += 1
-            if with_real and 200 < n <= 400:
-                msg = mav.MAVLink_scaled_imu3_message(n, 0, 0, 1000, 1, 1, 1, 0, 0, 0)
-            else:
-                msg = mav.MAVLink_scaled_imu3_message(n, 0, 0, 0, 0, 0, 0, 0, 0, 0)
-            out += struct.pack(">Q", t_us) + msg.pack(m)
+            out += struct.pack(">Q", t_us) + make(mav, n).pack(m)
         last = off + ln
     out += data[last:]
     dst.write_bytes(bytes(out))
     return n
+
+
+def _zero_imu3(src, dst, with_real: bool = False) -> int:
+    def make(mav, n):
+        if with_real and 200 < n <= 400:
+            return mav.MAVLink_scaled_imu3_message(n, 0, 0, 1000, 1, 1, 1, 0, 0, 0)
+        return mav.MAVLink_scaled_imu3_message(n, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+    return _after_each_raw_imu(src, dst, make)
 
 
 def _stats(path):
@@ -76,24 +82,10 @@ def _imu3_mag(src, dst, mag_mgauss: int, good_from: int = 0, good_to: int = 0) -
     """A SCALED_IMU3 after every RAW_IMU: no IMU (zeros) and a magnetometer field of
     ``mag_mgauss`` on each axis (in range for the records ``good_from`` < n <= ``good_to``:
     500 mG)."""
-    from pymavlink.dialects.v20 import ardupilotmega as mav
-
-    m = mav.MAVLink(None, srcSystem=1, srcComponent=1)
-    data = src.read_bytes()
-    out, n, last = bytearray(), 0, 0
-    for off, ln, mid in tlog_records(data):
-        rec = data[off:off + ln]
-        out += rec
-        if mid == 27:  # RAW_IMU
-            (t_us,) = struct.unpack(">Q", rec[:8])
-            n += 1
-            f = 500 if good_from < n <= good_to else mag_mgauss
-            msg = mav.MAVLink_scaled_imu3_message(n, 0, 0, 0, 0, 0, 0, f, f, f)
-            out += struct.pack(">Q", t_us) + msg.pack(m)
-        last = off + ln
-    out += data[last:]
-    dst.write_bytes(bytes(out))
-    return n
+    def make(mav, n):
+        f = 500 if good_from < n <= good_to else mag_mgauss
+        return mav.MAVLink_scaled_imu3_message(n, 0, 0, 0, 0, 0, 0, f, f, f)
+    return _after_each_raw_imu(src, dst, make)
 
 
 @pytest.mark.slow
