@@ -43,6 +43,7 @@ import numpy as np
 from ..errors import InputError
 from ..geometry.rotation import quat_exp, quat_mul, quat_rotate, quat_slerp_interp
 from ..ingest.types import GnssSample, ImuSample, MagSample
+from .nav_aiding import NewReadings
 from .navigation import NavOptions, NavRunner, NavStream
 from .records import Start, Step
 
@@ -331,7 +332,7 @@ def estimate_gnss_delay(samples: Iterable[Any], opts: NavOptions, params: dict[s
                                     inclination_wmm=False), params=params)
     probe = DelayProbe()
     t_imu0: float | None = None
-    last_mag: Array | None = None
+    mag_new = NewReadings()
 
     def feed(items: Iterable[Start | Step]) -> None:
         for item in items:
@@ -360,9 +361,8 @@ def estimate_gnss_delay(samples: Iterable[Any], opts: NavOptions, params: dict[s
             probe.add_gnss(s)
         elif isinstance(s, MagSample) and s.source == stream.mag_source:
             f = np.asarray(s.field, float)
-            if last_mag is None or not np.array_equal(f, last_mag):  # new readings only
+            if mag_new.new(s.t, f):  # new readings only, as the stream's aiding
                 probe.add_mag(s.t, f)
-                last_mag = f
     if failed is None:
         try:
             feed(stream.flush())

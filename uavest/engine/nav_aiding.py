@@ -32,6 +32,30 @@ BARO_OFFSET_PAIRS = 200
 #: (``mag_noise`` describes one update per reference step; a 200 Hz magnetometer at
 #: ``--rate 0`` would otherwise carry 8 times the information and pull the tilt).
 MAG_MIN_INTERVAL_S = 1.0 / DEFAULT_MAX_RATE_HZ - 1e-6
+#: A magnetometer field equal to the last new one is that reading held (MAVLink's IMU
+#: messages repeat the last compass value between its updates, 10 Hz on ArduPilot) for
+#: this long (s); after it, the same field is read again: a vehicle at rest with a
+#: noise-free magnetometer (the ArduCopter SITL's) reads the same field for minutes, and
+#: taken as held it left yaw without its magnetometer on the ground (sigma 15-21 deg
+#: before takeoff, 3.5 deg of drift in 50 s after landing).
+MAG_HOLD_MAX_S = 0.5
+
+
+class NewReadings:
+    """Tells new magnetometer readings from held ones (:data:`MAG_HOLD_MAX_S`): the one
+    rule of the navigation stream's aiding and the replay's delay probe."""
+
+    def __init__(self) -> None:
+        self.last: Array | None = None  # the last new field
+        self.t_last = -np.inf  # s, its time
+
+    def new(self, t: float, field: Array) -> bool:
+        """Whether ``field`` at ``t`` (s) is a new reading (and then remember it)."""
+        if (self.last is not None and t - self.t_last < MAG_HOLD_MAX_S
+                and np.array_equal(field, self.last)):
+            return False
+        self.last, self.t_last = field, float(t)
+        return True
 
 
 def baro_height(s: BaroSample) -> float:
@@ -80,7 +104,7 @@ class AidQueues:
         self.baro = baro
         self.queues: dict[str, deque[_Aid]] = {"gnss": deque(), "baro": deque(),
                                                "mag": deque()}
-        self.mag_last: Array | None = None  # the last magnetometer field queued
+        self.mag_new = NewReadings()  # the magnetometer fields queued
         self.gnss_srcs: dict[str, int] = {}
         self.baro_srcs: dict[str, int] = {}
         self.baro_offset: float | None = None
@@ -146,16 +170,16 @@ class AidQueues:
     # ------------------------------------------------------------------ magnetometer
     def add_mag(self, s: MagSample, delay: float) -> None:
         """Queue a magnetometer sample as an aid at its time less the magnetometer delay
-        (s), when it is a new reading: a field equal to the previous one is the same
-        reading held (MAVLink's IMU messages repeat the last compass value: the ArduCopter
-        SITL's changes 10 times a second in a 200 Hz RAW_IMU), not a new measurement."""
+        (s), when it is a new reading (:class:`NewReadings`: a field equal to the previous
+        one within :data:`MAG_HOLD_MAX_S` is the same reading held; MAVLink's IMU messages
+        repeat the last compass value, the ArduCopter SITL's changes 10 times a second in
+        a 200 Hz RAW_IMU), not a new measurement."""
         f = np.asarray(s.field, float)
         if not (np.isfinite(f).all() and np.any(f)):
             return
-        if self.mag_last is not None and np.array_equal(f, self.mag_last):
+        if not self.mag_new.new(s.t, f):
             self.count("mag", "held")
             return
-        self.mag_last = f
         self.queues["mag"].append(_Aid(s.t - delay, "mag", vec=f))
 
     # ------------------------------------------------------------------ barometer
