@@ -41,13 +41,14 @@ MAG_MIN_INTERVAL_S = 1.0 / DEFAULT_MAX_RATE_HZ - 1e-6
 MAG_HOLD_MAX_S = 0.5
 
 
+@dataclass
 class NewReadings:
     """Tells new magnetometer readings from held ones (:data:`MAG_HOLD_MAX_S`): the one
-    rule of the navigation stream's aiding and the replay's delay probe."""
+    rule of the navigation stream's aiding and the replay's delay probe. A mutable
+    dataclass, so that the history's snapshots copy it (:mod:`uavest.engine.history`)."""
 
-    def __init__(self) -> None:
-        self.last: Array | None = None  # the last new field
-        self.t_last = -np.inf  # s, its time
+    last: Array | None = None  # the last new field
+    t_last: float = -np.inf  # s, its time
 
     def new(self, t: float, field: Array) -> bool:
         """Whether ``field`` at ``t`` (s) is a new reading (and then remember it)."""
