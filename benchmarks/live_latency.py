@@ -169,14 +169,6 @@ def _percentiles(x: np.ndarray) -> tuple[float, float, float]:
     return float(p[0]), float(p[1]), float(p[2])
 
 
-def _imu_delay(doc: dict) -> float:
-    """The IMU delay (s) the run's steps were stamped earlier by (0 without one)."""
-    for d in doc.get("decisions") or []:
-        if d["what"] == "IMU delay":
-            return float(str(d["value"]).split()[0]) * 1e-3
-    return 0.0
-
-
 def _measure(cfg: LiveConfig, settle_s: float, profile: bool):
     links: list[_TappedLink] = []
 
@@ -208,12 +200,10 @@ def _measure(cfg: LiveConfig, settle_s: float, profile: bool):
         t0 = rows[0, 1]
         keep = rows[:, 1] >= t0 + settle_s  # the alignment's start-up burst is not latency
         # a navigation step is stamped the IMU's low-pass delay before the IMU sample that
-        # ends it (decision "IMU delay"): that sample's message is the one it waited for
-        # (printed to 0.1 ms: matched within 0.5 ms, under the IMU's interval)
-        dly = _imu_delay(doc)
+        # ends it (imu_delay_s): that sample's message is the one it waited for
         att = ~rows[:, 2].astype(bool)
-        t_need = rows[:, 0] + np.where(att, dly, 0.0)
-        j = np.searchsorted(it, t_need - np.where(att & (dly > 0), 0.5e-3, 1e-7))
+        t_need = rows[:, 0] + np.where(att, doc.get("imu_delay_s") or 0.0, 0.0)
+        j = np.searchsorted(it, t_need - 1e-7)
         ok = keep & (j < len(it))
         d = rows[ok, 1] - irx[j[ok]]
         scan = rows[ok, 2].astype(bool)

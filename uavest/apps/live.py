@@ -757,6 +757,8 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
            "targets_seen": len({i for _, tr in lane.truth for i in tr}),
            "attitude_restarts": att.restarts,
            "decisions": att.decisions, "t_first": att.t_first,
+           # s the navigation steps are stamped before the IMU sample ending them
+           "imu_delay_s": att.stream.summary.get("imu_delay_s"),
            **({"gnss_delay_live": learner.as_dict()} if learner is not None else {}),
            "sink_failures": [f.as_dict() for f in failures],
            "history": _history_doc(cfg, lanes),

@@ -115,10 +115,6 @@ PROBE_FLOORS = {"gnss_vel_floor": 1.0, "gnss_pos_floor": 2.0}
 #: A first estimate further than this (s) from the probe's assumed delay is refined by a
 #: second probe run assuming it (over the samples the first one held).
 PROBE_REFINE_S = 0.03
-#: The probe's estimates are used for an IMU at least this fast (Hz): between two samples
-#: of vtol.tlog's 3.8 Hz RAW_IMU the acceleration is not resolved, and the probe put its
-#: GNSS delay at 0.09 s where the replay is best at 0.25 s (docs/navigation.md).
-PROBE_MIN_IMU_HZ = 20.0
 #: The magnetometer noise taken from the probe's scatter is at least this (rad, 2.9 deg)
 #: and at most the model's default. The scatter sees the sensor, not the error of the
 #: reference field it is compared with: the inclination taken from the flight was 0.3
@@ -165,8 +161,8 @@ def _run_probes(samples: Iterable, cfg: ReplayConfig, params: dict | None,
     samples, run a second time over the held ones from the estimated delays when either
     is more than :data:`PROBE_REFINE_S` from the one it assumed: (GNSS estimate,
     magnetometer estimate, held samples, the rest, runs). An IMU slower than
-    :data:`PROBE_MIN_IMU_HZ` leaves both estimates None."""
-    from ..engine.gnss_delay import estimate_gnss_delay
+    :data:`~uavest.engine.gnss_delay.PROBE_MIN_IMU_HZ` leaves both estimates None."""
+    from ..engine.gnss_delay import PROBE_MIN_IMU_HZ, estimate_gnss_delay
 
     (sp, flt), = build_filters(resolve_list((PROBE_FILTER,), "attitude", dim=15))
 
@@ -201,9 +197,10 @@ def _run_probes(samples: Iterable, cfg: ReplayConfig, params: dict | None,
 def _gnss_delay_doc(est: DelayEstimate, noise: NavNoise, span: str, refined: str) -> dict:
     """The GNSS part of the probe's document: the estimate and the delay the run takes
     (the estimate clipped to [0, 2] s, else the model's default) with why."""
+    from ..engine.gnss_delay import delay_used
+
     if est.delay is not None:
-        used = float(np.clip(est.delay, 0.0, 2.0))
-        neg = " (negative: used as 0)" if est.delay < 0 else ""
+        used, neg = delay_used(est.delay)
         why = (f"estimated{neg}: the lag of the GNSS velocity behind the IMU "
                f"({PROBE_FILTER}, {est.pairs} fix pairs in {span}, standard error "
                f"{est.sd * 1e3:.1f} ms{refined}; --gnss-delay S to set it)")

@@ -236,15 +236,13 @@ def _bad_data_lines(doc: dict) -> list[str]:
         lines.append("skipped between records: " + ", ".join(
             f"{k.replace('_', ' ')} {n}" for k, n in skipped.items())
             + " (text: not bad data)" * bool(skipped.get("text_bytes")))
-    absent = bad.get("absent") or {}
-    if absent:
-        lines.append("absent sensors (all-zero records, not bad data, ignored): " + ", ".join(
-            f"{k.split(':', 1)[-1]} x{n}" for k, n in absent.items()))
-    unusable = bad.get("unusable") or {}
-    if unusable:
-        lines.append("unusable sensors (every reading out of range, e.g. a wrong unit; not "
-                     "bad data, ignored): " + ", ".join(
-                         f"{k.split(':', 1)[-1]} x{n}" for k, n in unusable.items()))
+    for key, what in (("absent", "absent sensors (all-zero records"),
+                      ("unusable", "unusable sensors (every reading out of range: a wrong "
+                       "unit")):
+        per = bad.get(key) or {}
+        if per:
+            lines.append(f"{what}, not bad data, ignored): " + ", ".join(
+                f"{k.split(':', 1)[-1]} x{n}" for k, n in per.items()))
     if bad.get("no_fix"):
         lines.append(f"no GNSS fix: {bad['no_fix']} position records with lat/lon 0 skipped "
                      "(not bad data)")

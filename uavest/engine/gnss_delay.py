@@ -49,9 +49,9 @@ from .records import Start, Step
 
 Array = np.ndarray
 
-__all__ = ["GRID_S", "LIVE_CHECK_S", "LIVE_FIRST_S", "LIVE_MIN_IMU_HZ", "MAX_DELAY_S",
-           "MAX_MAG_DELAY_S", "MAX_SD_S", "MIN_DELAY_S", "MIN_EXCITATION", "PAIR_S", "PROBE_S",
-           "DelayEstimate", "DelayProbe", "LiveDelayLearner", "MagEstimate",
+__all__ = ["GRID_S", "LIVE_CHECK_S", "LIVE_FIRST_S", "MAX_DELAY_S", "MAX_MAG_DELAY_S",
+           "MAX_SD_S", "MIN_DELAY_S", "MIN_EXCITATION", "PAIR_S", "PROBE_MIN_IMU_HZ", "PROBE_S",
+           "DelayEstimate", "DelayProbe", "LiveDelayLearner", "MagEstimate", "delay_used",
            "estimate_gnss_delay"]
 
 #: The delays tried (s): MIN_DELAY_S to MAX_DELAY_S every GRID_S (a negative delay, the
@@ -71,6 +71,17 @@ MIN_EXCITATION = 20.0
 MAX_MAG_DELAY_S = 0.3
 #: The replay's pre-pass looks at the first this many seconds of IMU data (s).
 PROBE_S = 240.0
+#: The estimates are used for an IMU at least this fast (Hz), in a replay and live:
+#: between two samples of vtol.tlog's 3.8 Hz RAW_IMU the acceleration is not resolved,
+#: and the probe put its GNSS delay at 0.09 s where the replay is best at 0.25 s
+#: (docs/navigation.md).
+PROBE_MIN_IMU_HZ = 20.0
+
+
+def delay_used(delay: float) -> tuple[float, str]:
+    """The GNSS delay (s) a run takes from an estimate ``delay`` (s): clipped to [0, 2]
+    s, with the note saying so for a negative one (the GNSS stamped before the IMU)."""
+    return float(np.clip(delay, 0.0, 2.0)), " (negative: used as 0)" if delay < 0 else ""
 
 
 @dataclass
@@ -132,6 +143,16 @@ class DelayProbe:
     def start(self) -> None:
         """The filters restarted (alignment, re-alignment)."""
         self._segment += 1
+
+    def mark(self) -> tuple[int, int]:
+        """This moment of the steps (their number, the segment), for :meth:`rewind`."""
+        return len(self._t), self._segment
+
+    def rewind(self, mark: tuple[int, int]) -> None:
+        """Back to ``mark``: the steps after it are dropped (made again by the caller);
+        the GNSS fixes and magnetometer readings stay."""
+        n, self._segment = mark
+        del self._t[n:], self._dt[n:], self._a[n:], self._seg[n:], self._q[n:]
 
     def add_step(self, st: Step, x: Array) -> None:
         """One navigation step ``st`` (its ``u`` = [rate, specific force], its model's
@@ -229,8 +250,9 @@ class DelayProbe:
         dv = a * dt[:, None]
         V = np.cumsum(dv, axis=0)
         V -= _segment_base(V, dv, np.r_[True, seg[1:] != seg[:-1]])
-        gt = np.array(self._gt)
-        gv = np.array(self._gv)
+        order = np.argsort(self._gt, kind="stable")  # fixes as they arrived: time order
+        gt = np.array(self._gt)[order]
+        gv = np.array(self._gv)[order]
         # pairs (i, j): j the first fix at least pair_s after i, if within 1.5 pair_s
         j = np.searchsorted(gt, gt + pair_s - 1e-6)
         i0 = np.flatnonzero(j < len(gt))
@@ -385,8 +407,6 @@ def estimate_gnss_delay(samples: Iterable[Any], opts: NavOptions, params: dict[s
 #: replay's probe, it looks at the start of the flight only).
 LIVE_FIRST_S = 60.0
 LIVE_CHECK_S = 30.0
-#: The live estimate is used for an IMU at least this fast (Hz), as the replay's.
-LIVE_MIN_IMU_HZ = 20.0
 
 
 class LiveDelayLearner:
@@ -402,8 +422,8 @@ class LiveDelayLearner:
 
     The delay found is held here, outside the lane's history: a rewind of the stream to
     a checkpoint before it (:mod:`uavest.engine.history`) gets it again from
-    :meth:`apply`. ``delay`` is None until found; ``decided`` (the why, time) for the
-    result document."""
+    :meth:`apply`. ``delay`` (s) is None until found; ``t_decided`` (s) and ``why`` say
+    when and why, ``estimates`` every try (:meth:`as_dict`, the result document)."""
 
     def __init__(self, first_s: float = LIVE_FIRST_S, check_s: float = LIVE_CHECK_S,
                  span_s: float = PROBE_S) -> None:
@@ -433,19 +453,19 @@ class LiveDelayLearner:
         if not self.done and source is not None and s.source == source:
             self._probe.add_gnss(s)
 
-    def _mark(self) -> tuple[int, int, int, int]:
-        p = self._probe
-        return self._gen, len(p._t), p._segment, len(p._gt)
+    def _mark(self) -> tuple[int, tuple[int, int]]:
+        return self._gen, self._probe.mark()
 
-    def _rewind(self, mark: tuple[int, int, int, int]) -> None:
+    def _rewind(self, mark: tuple[int, tuple[int, int]]) -> None:
         """Back to ``mark`` (the history restored the filter): the steps after it are made
         again. GNSS fixes come once, from the sinks' side, and stay."""
-        gen, n, segment, _ = mark
-        p = self._probe
-        if gen != self._gen:  # the probe was made after the mark: all of it is re-made
-            n, segment = 0, 0
-        del p._t[n:], p._dt[n:], p._a[n:], p._seg[n:], p._q[n:]
-        p._segment = segment
+        gen, at = mark
+        # a probe made after the mark (the refinement's): all of its steps are re-made
+        self._probe.rewind(at if gen == self._gen else (0, 0))
+
+    def _start(self) -> None:
+        if not self.done:
+            self._probe.start()
 
     def _step(self, st: Step, x: Array) -> None:
         if self.done:
@@ -461,18 +481,13 @@ class LiveDelayLearner:
     def _check(self, t: float) -> None:
         assert self._t0 is not None
         span = t - self._t0
-        p = self._probe
-        order = np.argsort(p._gt, kind="stable")  # fixes as they arrived: in time order
-        p._gt = [p._gt[i] for i in order]
-        p._gv = [p._gv[i] for i in order]
-        est = p.estimate()
+        est = self._probe.estimate()
         self.estimates.append({"t": t, "span_s": span, "delay": est.delay, "sd": est.sd,
                                "pairs": est.pairs, "why": est.why,
                                "refinement": self._refining})
         last = span + self.check_s > self.span_s or (self._refining and est.delay is None)
         if est.delay is not None:
-            d = float(np.clip(est.delay, 0.0, 2.0))
-            neg = " (negative: used as 0)" if est.delay < 0 else ""
+            d, neg = delay_used(est.delay)
             assert est.sd is not None
             self.delay, self.t_decided = d, t
             self.why = (f"estimated live{neg}: the lag of the GNSS velocity behind the IMU "
@@ -500,11 +515,11 @@ class LiveDelayLearner:
             return
         if self.delay is None:
             rate = float(stream.summary.get("align_rate_hz") or 0.0)
-            if not self.done and 0 < rate < LIVE_MIN_IMU_HZ:
+            if not self.done and 0 < rate < PROBE_MIN_IMU_HZ:
                 self.done = True
                 self.estimates.append({"t": None, "why": (
                     f"the IMU at {rate:.1f} Hz is too coarse to time the aiding against "
-                    f"(needs {LIVE_MIN_IMU_HZ:g} Hz)")})
+                    f"(needs {PROBE_MIN_IMU_HZ:g} Hz)")})
             return
         if stream.delay != self.delay:
             assert self.t_decided is not None
@@ -530,8 +545,7 @@ class _Tap:
 
     def start(self, st: Start) -> None:
         self.runner.start(st)
-        if not self.learner.done:
-            self.learner._probe.start()
+        self.learner._start()
 
     def step(self, st: Step) -> Any:
         rec = self.runner.step(st)

@@ -320,8 +320,6 @@ class NavStream(StreamSnapshots):
         self._aids = AidQueues(self.opts.gnss, self.opts.baro)
         self.mag_delay = 0.0  # s, the magnetometer sample's age (NavOptions.mag_delay)
         self.baro_delay = 0.0  # s, the barometer sample's age (NavOptions.baro_delay)
-        #: s the stream holds closed steps: the larger delay and half a nominal step
-        self._hold = 0.0
         #: s after a step's end whose aids it takes: half a nominal step (an aid goes to
         #: the step whose end is nearest to it), or 0 on arrival
         self._aid_window = 0.0
@@ -372,7 +370,6 @@ class NavStream(StreamSnapshots):
         if self._builder is None:
             return
         self.delay = float(delay)
-        self._hold = max(self.delay, self.mag_delay, self.baro_delay) + self._aid_window
         self.summary["gnss_delay_s"] = self.delay
         self._decide("GNSS delay", f"{self.delay:.3f} s", t, why)
 
@@ -384,12 +381,22 @@ class NavStream(StreamSnapshots):
     # ------------------------------------------------------------------ history
     # (the engine's history, :mod:`uavest.engine.history`: samples on arrival)
     @property
+    def _aid_age(self) -> float:
+        """The largest of the GNSS delay and the magnetometer's and barometer's ages (s):
+        a fix stamped t is applied at t - delay, a magnetometer or baro sample at t - its
+        age."""
+        return max(self.delay, self.mag_delay, self.baro_delay)
+
+    @property
+    def _hold(self) -> float:
+        """s the stream holds closed steps: :attr:`_aid_age` and the aid window."""
+        return self._aid_age + self._aid_window
+
+    @property
     def committed(self) -> float:
-        """End (s) of the last step released, plus the largest of the GNSS delay and the
-        magnetometer's and barometer's ages (a fix stamped t is applied at t - delay, a
-        magnetometer or baro sample at t - its age): an aid at or before it may be late."""
-        return (-np.inf if self._t_out is None
-                else self._t_out + max(self.delay, self.mag_delay, self.baro_delay))
+        """End (s) of the last step released, plus :attr:`_aid_age`: an aid at or before
+        it may be late."""
+        return -np.inf if self._t_out is None else self._t_out + self._aid_age
 
     def order_sensitive(self, s: Any) -> bool:
         """The chosen IMU and magnetometer, the GNSS receiver (any before one is chosen)
@@ -802,7 +809,6 @@ class NavStream(StreamSnapshots):
         # on arrival a step goes out at the IMU sample that ends it (no half-step wait):
         # an aid after its end goes to the next step; the history re-steps a late one
         self._aid_window = 0.0 if o.on_arrival else half_step
-        self._hold = max(self.delay, self.mag_delay, self.baro_delay) + self._aid_window
         if o.imu_delay is None:
             self.imu_delay, dwhy = imu_filter_delay(imu, self.params)
         else:

@@ -307,8 +307,7 @@ class LiveLink(MavlinkSource):
 
     def _read_param(self, name: str, timeout: float) -> float | None:
         self._replies.forget(name)
-        ts, tc = self._target()
-        self._mav.param_request_read_send(ts, tc, name.encode("ascii"), -1)
+        self._ask_params((name,))
         return self._replies.wait_param(name, timeout)
 
     def _read_declination(self) -> None:
