@@ -140,6 +140,7 @@ class LiveConfig:
     #: cannot look ahead for a fix stream, so the model is an option, not a decision.
     model: str = "attitude"
     gnss_delay: float | None = None  # s; None: the navigation model's default
+    geodesy: str = "auto"  # navigation: the local frame's (NavOptions.geodesy)
 
     @property
     def on_arrival(self) -> bool:
@@ -787,7 +788,8 @@ def _stream_factory(cfg: LiveConfig, params: dict | None,
         if cfg.model == "nav":
             return NavStream(opts=NavOptions(rate_hz=cfg.rate_hz, declination=d,
                                              gnss_delay=cfg.gnss_delay,
-                                             on_arrival=cfg.on_arrival), params=params)
+                                             on_arrival=cfg.on_arrival,
+                                             geodesy=cfg.geodesy), params=params)
         return AttitudeStream(opts=AttitudeOptions(rate_hz=cfg.rate_hz, update_hz=cfg.update_hz,
                                                      declination=d,
                                                      on_arrival=cfg.on_arrival),

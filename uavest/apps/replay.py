@@ -86,6 +86,7 @@ class ReplayConfig:
     mag_mode: str = "field"
     mag_delay: float | None = None  # s; None: estimated (navigation), 0 (attitude-only)
     baro_delay: float | None = None  # s; None: 0 (navigation; not estimated)
+    geodesy: str = "auto"  # navigation: the local frame's (NavOptions.geodesy)
     #: the library default stays the attitude model (the one whose results the golden
     #: files and earlier tables hold); ``uavest replay`` defaults to "auto"
     model: str = "attitude"
@@ -669,7 +670,7 @@ def _position_fields(nsc: NavScorer, params: dict, summary: dict, nav: bool) -> 
         got.update({k: summary.get(k) for k in ("gnss_source", "gnss_sources", "baro_source",
                                                 "gnss_delay_s", "gnss_delay_estimate",
                                                 "baro_delay_s", "baro_offset_m", "origin",
-                                                "aiding", "fix_from_t")})
+                                                "geodesy", "aiding", "fix_from_t")})
     return got
 
 

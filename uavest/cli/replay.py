@@ -39,6 +39,16 @@ def reject_linear_only(specs, command: str, models: str) -> None:
                 f"uses {models} (use ekf, ukf, srukf, enkf, hybrid, pf...)")
 
 
+def add_geodesy_option(p: argparse.ArgumentParser) -> None:
+    """``--geodesy``: the navigation model's local frame (``NavOptions.geodesy``)."""
+    p.add_argument("--geodesy", choices=("auto", "wgs84", "sphere"), default="auto",
+                   help="navigation model: how GNSS lat/lon become local NED metres: wgs84 "
+                   "(a receiver's), sphere (ArduPilot's flat-Earth scaling, with which an "
+                   "ArduPilot SITL makes its lat/lon), or auto (default: sphere when the "
+                   "stream is an ArduPilot SITL's - SIM_STATE, or SIM_* parameters - else "
+                   "wgs84)")
+
+
 def _parse_noise(items: list[str]) -> dict:
     # the attitude and the navigation model's parameters (each model checks its own)
     known = set(AttitudeNoise.__dataclass_fields__) | set(NavNoise.__dataclass_fields__)
@@ -307,7 +317,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         noise=_parse_noise(args.noise), imu=args.imu, use_mag=not args.no_mag,
         accel_comp=args.accel_comp, mag_mode=args.mag_mode, mag_delay=args.mag_delay,
         model=model, gnss_delay=args.gnss_delay, model_why=model_why,
-        baro_delay=args.baro_delay,
+        baro_delay=args.baro_delay, geodesy=args.geodesy,
     )
     bar = _Progress(False if args.no_progress else None, args.log)
     sinks = [bar, ResetLog(), *recording_sinks(args)]
@@ -388,6 +398,7 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--baro-delay", type=float, default=None, metavar="S",
                    help="navigation model: barometer measurement delay in s, a reading "
                    "stamped t applied to the height at t - S (default 0; not estimated)")
+    add_geodesy_option(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_recording_options(p)
     p.add_argument("--speed", type=float, default=1.0,

@@ -16,7 +16,7 @@ from ..ingest.adsb_radar import RadarConfig
 from ..sinks.jsonout import write_json
 from ..sinks.table import table
 from .record import add_recording_options, finish_recording, recording_sinks
-from .replay import decision_lines
+from .replay import add_geodesy_option, decision_lines
 
 __all__ = ["add_demo_parser", "add_run_parser", "format_live"]
 
@@ -77,6 +77,7 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="with --model nav: the GNSS measurement delay, s (default: "
                    "estimated during the run from 60 s after its first step, the model's 0 "
                    "until then)")
+    add_geodesy_option(p)
 
 
 def add_run_parser(sub) -> argparse.ArgumentParser:
@@ -130,7 +131,7 @@ def _cfg(args, connect: str) -> LiveConfig:
         duration=args.duration, rate_hz=args.rate,
         update_hz=getattr(args, "update_rate", None),
         radar_source=args.radar_source, radar=_radar(args), model=args.model,
-        gnss_delay=args.gnss_delay)
+        gnss_delay=args.gnss_delay, geodesy=getattr(args, "geodesy", "auto"))
 
 
 def format_live(doc: dict) -> str:

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from ..geometry.geodesy import LocalFrame
+from ..geometry.geodesy import LocalFrame, SphereFrame
 from ..ingest.types import BaroSample, GnssSample, MagSample
 from ..models.attitude import MagField, MagHeading
 from ..models.navigation import BaroHeight, GnssPosition, GnssVelocity, NavNoise, OnNav
@@ -158,7 +158,8 @@ class AidQueues:
             self.count("gnss", "fix_2d")
         return lla
 
-    def add_gnss(self, s: GnssSample, lla: Array, frame: LocalFrame, delay: float) -> None:
+    def add_gnss(self, s: GnssSample, lla: Array, frame: LocalFrame | SphereFrame,
+                 delay: float) -> None:
         """Queue the fix ``s`` (``lla`` from :meth:`gnss_lla`) at its time less ``delay``
         (s), its position NED in ``frame`` (no height for a 2-D fix)."""
         alt = lla[2] if np.isfinite(lla[2]) else frame.h0

@@ -53,9 +53,10 @@ import numpy as np
 from ..core.gaussian import Gaussian
 from ..core.guard import nis_gate
 from ..errors import InputError
-from ..geometry.geodesy import LocalFrame
+from ..geometry.geodesy import GEODESIES, LocalFrame, SphereFrame, make_frame
 from ..geometry.navigation import NavSpace
 from ..ingest.types import (
+    AttitudeRef,
     BaroSample,
     GnssSample,
     ImuSample,
@@ -195,6 +196,7 @@ class NavOptions:
     imu_delay: float | None = None
     before_fix: bool = True
     on_arrival: bool = False
+    geodesy: str = "auto"
 
     def in_window(self, t: float) -> bool:
         """True if ``t`` (s) lies in [start, end]."""
@@ -204,6 +206,9 @@ class NavOptions:
         if self.integration not in ("auto", "hold", "trapezoid"):
             raise InputError(
                 f"integration must be auto, hold or trapezoid, not {self.integration!r}")
+        if self.geodesy not in ("auto", *GEODESIES):
+            raise InputError(f"--geodesy must be auto, {' or '.join(GEODESIES)}, not "
+                             f"{self.geodesy!r}")
         if self.mag_mode not in ("field", "heading"):
             raise InputError(f"mag_mode must be field or heading, not {self.mag_mode!r}")
         known = {f.name for f in fields(NavNoise)}
@@ -216,6 +221,20 @@ class NavOptions:
                                  (self.baro_delay, "--baro-delay", "")):
             if d is not None and not (np.isfinite(d) and 0.0 <= d <= 2.0):
                 raise InputError(f"{option} must be from 0 to 2 s{model}, got {d}")
+
+
+#: ArduPilot SITL parameters that uavest's own simulator also reports (it answers only
+#: ``SIM_SPEEDUP``, with WGS84 lat/lon): not evidence of an ArduPilot SITL.
+UAVEST_SIM_PARAMS = frozenset({"SIM_SPEEDUP"})
+
+
+def sitl_evidence(params: dict[str, Any]) -> str | None:
+    """Why the log's parameters are an ArduPilot SITL's (a ``SIM_*`` parameter, which only
+    its simulator has, but :data:`UAVEST_SIM_PARAMS`), or None."""
+    for k in params:
+        if isinstance(k, str) and k.startswith("SIM_") and k not in UAVEST_SIM_PARAMS:
+            return f"its parameter {k}"
+    return None
 
 
 def imu_filter_delay(source: str, params: dict[str, Any]) -> tuple[float, str]:
@@ -307,7 +326,10 @@ class NavStream(StreamSnapshots):
         self.declination = 0.0
         self.delay = 0.0
         self.imu_delay = 0.0
-        self.frame: LocalFrame | None = None
+        self.frame: LocalFrame | SphereFrame | None = None
+        #: why the stream is taken as an ArduPilot SITL's (its lat/lon on ArduPilot's
+        #: sphere, :func:`sitl_evidence`), None while nothing says so
+        self._sitl: str | None = None
         self._held: list[Any] | None = []
         self._imu_t0: float | None = None
         self._builder: _NavBuilder | None = None
@@ -418,6 +440,8 @@ class NavStream(StreamSnapshots):
     def push(self, s: Any) -> list[Start | Step]:
         """Feed one sample; returns the items (start, steps) it completed."""
         o = self.opts
+        if self._sitl is None and type(s) is AttitudeRef and s.source == "SIM_STATE":
+            self._sitl = "SIM_STATE, an ArduPilot SITL's truth, in the stream"
         if not o.in_window(s.t):
             return []
         self._aids.seen(s)
@@ -557,12 +581,28 @@ class NavStream(StreamSnapshots):
         if self.frame is None:
             if s.fix_type < 3 or not np.isfinite(lla[2]):
                 return
-            self.frame = LocalFrame(lla[0], lla[1], lla[2])
+            geo, why = self._geodesy()
+            self.frame = make_frame(lla[0], lla[1], lla[2], geo)
             self.summary["origin"] = {"lat": float(lla[0]), "lon": float(lla[1]),
                                       "alt": float(lla[2])}
+            self.summary["geodesy"] = geo
+            self._decide("geodesy", "ArduPilot's sphere" if geo == "sphere" else "WGS84",
+                         s.t, why)
             lat = np.deg2rad(lla[0])
             self._model = ImuTransition(self.noise, lat=lat, h=float(lla[2]))
         self._aids.add_gnss(s, lla, self.frame, self.delay)
+
+    def _geodesy(self) -> tuple[str, str]:
+        """(the local frame's geodesy, why): the option, else ArduPilot's sphere for an
+        ArduPilot SITL (:func:`sitl_evidence`), else WGS84."""
+        if self.opts.geodesy != "auto":
+            return self.opts.geodesy, "option --geodesy"
+        why = self._sitl or sitl_evidence(self.params)
+        if why is not None:
+            return "sphere", (f"an ArduPilot SITL ({why}): its GNSS lat/lon are made from "
+                              "its metric positions on ArduPilot's sphere; --geodesy wgs84 "
+                              "to override")
+        return "wgs84", "a receiver's lat/lon (no ArduPilot SITL seen; --geodesy to set it)"
 
     def _baro_sample(self, s: BaroSample) -> None:
         if not self.opts.use_baro:
@@ -692,7 +732,8 @@ class NavStream(StreamSnapshots):
         o = self.summary.get("origin")
         if o is not None:
             self._anchor_sample = NavAnchor(self._stamp(r), o["lat"], o["lon"], o["alt"],
-                                            str(self._aids.gnss), reason)
+                                            str(self._aids.gnss), reason,
+                                            self.summary.get("geodesy", "wgs84"))
 
     def _anchor(self, r: _Raw, fix: _Aid) -> list[Start | Step]:
         """The first good fix after an unaided start: velocity and position from it, the

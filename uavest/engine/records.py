@@ -93,11 +93,12 @@ class RadarScanSample:
 @dataclass(frozen=True, slots=True)
 class NavAnchor:
     """Where a navigation run's positions are: from time ``t`` (s) on, in the local NED
-    frame whose origin is ``lat``/``lon`` (deg, WGS-84) and ``alt`` (m) (the first raw
-    GNSS fix of ``source``). A run that starts before the first fix (unaided) has its
-    positions in no frame before ``t``. Handed to sinks through ``Step.info["samples"]``
-    with the first step at the anchor, so a recording carries it (``/navigation/anchor``)
-    and its report scores what the replay scored."""
+    frame whose origin is ``lat``/``lon`` (deg) and ``alt`` (m) (the first raw GNSS fix
+    of ``source``), made by :func:`uavest.geometry.geodesy.make_frame` with
+    ``geodesy``. A run that starts before the first fix (unaided) has its positions in no
+    frame before ``t``. Handed to sinks through ``Step.info["samples"]`` with the first
+    step at the anchor, so a recording carries it (``/navigation/anchor``) and its report
+    scores what the replay scored."""
 
     t: float
     lat: float
@@ -105,6 +106,7 @@ class NavAnchor:
     alt: float
     source: str
     reason: str
+    geodesy: str = "wgs84"  # the frame's: "wgs84" or "sphere" (make_frame)
 
 
 @dataclass(frozen=True, slots=True)

@@ -12,7 +12,8 @@ them at the end (:meth:`NavScorer.scores`):
 * NEES per block against the reference: attitude (3 dof, ``Log(q_est^-1 q_ref)``),
   velocity (3 dof), position (3 dof): the mean and the share of steps inside the
   two-sided 95 % chi-square band [chi2(0.025), chi2(0.975)] (a consistent filter: 0.95;
-  an over-confident one falls above it, an over-cautious one below);
+  an over-confident one falls above it, an over-cautious one below: the shares below and
+  above are kept too, 0.025 each for a consistent filter);
 * the same over the **airborne** steps: the reference height more than
   :data:`AIRBORNE_M` above its lowest value in the run (the ground the vehicle took off
   from or landed on), with roll/pitch/yaw RMSE (deg) there.
@@ -85,9 +86,11 @@ def _nees(e: Array, P: Array) -> Array:
 
 def _block(ne: Array, d: int) -> dict[str, Any]:
     if ne.size == 0:
-        return {"mean": None, "in_band95": None, "n": 0}
+        return {"mean": None, "in_band95": None, "below_band95": None, "above_band95": None,
+                "n": 0}
     lo, hi = nees_band(d)
     return {"mean": float(np.mean(ne)), "in_band95": float(np.mean((ne >= lo) & (ne <= hi))),
+            "below_band95": float(np.mean(ne < lo)), "above_band95": float(np.mean(ne > hi)),
             "n": int(ne.size)}
 
 

@@ -87,6 +87,60 @@ class LocalFrame:
         return res
 
 
+#: ArduPilot's metres per 1e-7 degree of latitude (``LOCATION_SCALING_FACTOR``, AP_Common
+#: Location): a sphere of radius 6,378,100 m.
+ARDUPILOT_LATLON_TO_M = 0.011131884502145034
+
+#: The local frames a navigation run can use (:func:`make_frame`).
+GEODESIES = ("wgs84", "sphere")
+
+
+class SphereFrame:
+    """ArduPilot's flat-Earth local frame at a geodetic origin (``Location::offset`` and
+    ``get_distance_NE``): north = dlat x :data:`ARDUPILOT_LATLON_TO_M` per 1e-7 deg,
+    east = dlon x the same x cos(the mean of the point's and the origin's latitudes),
+    down = -(h - h0). The lat/lon an ArduPilot SITL reports (its GPS and its truth,
+    SIM_STATE / SIMSTATE) are made this way from its metric positions: read through
+    WGS84 (:class:`LocalFrame`) their displacements are 0.13 % short north and 0.18 %
+    long east at 47 deg latitude against the SITL's metric velocities
+    (docs/navigation.md). Same interface as :class:`LocalFrame`."""
+
+    def __init__(self, lat_deg: float, lon_deg: float, alt_m: float) -> None:
+        self.lat0 = np.deg2rad(float(lat_deg))
+        self.lon0 = np.deg2rad(float(lon_deg))
+        self.h0 = float(alt_m)
+        self._lat0d, self._lon0d = float(lat_deg), float(lon_deg)
+        self._m_per_deg = ARDUPILOT_LATLON_TO_M * 1e7
+
+    def geodetic_to_ned(self, lat_deg: Array, lon_deg: Array, h: Array) -> Array:
+        """NED (..., 3) m of geodetic points (degrees, m)."""
+        lat, lon = np.asarray(lat_deg, float), np.asarray(lon_deg, float)
+        sc = np.cos(np.deg2rad(0.5 * (lat + self._lat0d)))
+        dlon = (lon - self._lon0d + 180.0) % 360.0 - 180.0
+        return np.stack([(lat - self._lat0d) * self._m_per_deg,
+                         dlon * self._m_per_deg * sc,
+                         self.h0 - np.asarray(h, float)], axis=-1)
+
+    def ned_to_geodetic(self, ned: Array) -> tuple[Array, Array, Array]:
+        """(lat deg, lon deg, h m) of NED points (..., 3) m."""
+        ned = np.asarray(ned, float)
+        lat = self._lat0d + ned[..., 0] / self._m_per_deg
+        sc = np.cos(np.deg2rad(0.5 * (lat + self._lat0d)))
+        lon = (self._lon0d + ned[..., 1] / (self._m_per_deg * sc) + 180.0) % 360.0 - 180.0
+        return lat, lon, self.h0 - ned[..., 2]
+
+
+def make_frame(lat_deg: float, lon_deg: float, alt_m: float,
+               geodesy: str = "wgs84") -> LocalFrame | SphereFrame:
+    """The local NED frame at the origin: ``geodesy`` "wgs84" (:class:`LocalFrame`) or
+    "sphere" (ArduPilot's, :class:`SphereFrame`)."""
+    if geodesy == "sphere":
+        return SphereFrame(lat_deg, lon_deg, alt_m)
+    if geodesy == "wgs84":
+        return LocalFrame(lat_deg, lon_deg, alt_m)
+    raise ValueError(f"geodesy must be one of {GEODESIES}, not {geodesy!r}")
+
+
 def geodetic_to_ned(lla_deg: Array, origin_deg: Array) -> Array:
     """NED (..., 3) m of geodetic points ``lla_deg`` (..., 3) (deg, deg, m) relative to the
     geodetic ``origin_deg`` (3,) (deg, deg, m)."""

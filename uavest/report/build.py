@@ -153,13 +153,13 @@ def navigation_data(rec: Recording) -> dict:
             "s3p": _stack(msgs, "sigma3_position_m", 3)}
     if not out["filters"]:
         return out
-    origin, out["pos_from"] = _nav_anchor(rec)
+    origin, out["pos_from"], out["geodesy"] = _nav_anchor(rec)
     for src in _NAV_REFS:
         msgs = [m for m in rec.json.get(f"/position/{src}", []) if m.get("vel_ned_m_s")
                 and None not in m["vel_ned_m_s"]]
         if msgs:
             lla = [m.get("lat_lon_alt") for m in msgs]
-            p = (lla_to_local_ned(np.array(lla, float), origin)
+            p = (lla_to_local_ned(np.array(lla, float), origin, out["geodesy"])
                  if origin is not None and all(x and None not in x for x in lla) else None)
             out["ref"] = (src, _stack(msgs, "t"), _stack(msgs, "vel_ned_m_s", 3), p)
             out["ref_lla"] = np.array(lla, float) if p is not None else None
@@ -168,21 +168,21 @@ def navigation_data(rec: Recording) -> dict:
     return out
 
 
-def _nav_anchor(rec: Recording) -> tuple[Array | None, float | None]:
-    """The navigation frame's origin [lat deg, lon deg, alt m] and the time (s) from which
-    positions are in it: the run's own ``/navigation/anchor`` (its last), else (a
-    recording without that channel) the first raw GNSS fix and no time."""
+def _nav_anchor(rec: Recording) -> tuple[Array | None, float | None, str]:
+    """The navigation frame's origin [lat deg, lon deg, alt m], the time (s) from which
+    positions are in it and its geodesy: the run's own ``/navigation/anchor`` (its last),
+    else (a recording without that channel) the first raw GNSS fix, no time, WGS84."""
     anchors = [m for m in rec.json.get("/navigation/anchor", [])
                if m.get("lat_lon_alt") and None not in m["lat_lon_alt"]]
     if anchors:
         a = anchors[-1]
-        return np.array(a["lat_lon_alt"], float), float(a["t"])
+        return np.array(a["lat_lon_alt"], float), float(a["t"]), a.get("geodesy", "wgs84")
     for src in _RAW_GNSS:
         fix = [m for m in rec.json.get(f"/position/{src}", []) if m.get("lat_lon_alt")
                and None not in m["lat_lon_alt"]]
         if fix:
-            return np.array(fix[0]["lat_lon_alt"], float), None
-    return None, None
+            return np.array(fix[0]["lat_lon_alt"], float), None, "wgs84"
+    return None, None, "wgs84"
 
 
 def navigation_metrics(nav: dict, att: dict) -> dict:
@@ -196,7 +196,7 @@ def navigation_metrics(nav: dict, att: dict) -> dict:
     ``hpos_rmse_m``, ``vpos_rmse_m`` and the share of steps in the 95 % NEES band per
     block (``nees_vel_in95``, ``nees_pos_in95``)."""
     from ..eval.navigation import NavScorer, interp_reference
-    from ..geometry.geodesy import LocalFrame
+    from ..geometry.geodesy import make_frame
 
     out: dict = {}
     if nav["ref"] is None:
@@ -223,7 +223,8 @@ def navigation_metrics(nav: dict, att: dict) -> dict:
             for k in range(len(tr)):
                 sc.add_position(src, float(tr[k]), None, vr[k], nav["ref_lla"][k]
                                 if nav.get("ref_lla") is not None else None)
-            r = sc.scores(lab, None, LocalFrame(*origin) if origin is not None else None)
+            r = sc.scores(lab, None, None if origin is None
+                          else make_frame(*origin, nav.get("geodesy", "wgs84")))
             for key in ("vel_rmse_ms", "hpos_rmse_m", "vpos_rmse_m"):
                 if r.get(key) is not None:
                     m[key] = r[key]
@@ -272,20 +273,23 @@ _LLA_ORDER = ("GLOBAL_POSITION_INT", "vehicle_global_position", "POS", "GPS_RAW_
               "GPS", "vehicle_gps_position")
 
 
-def lla_to_local_ned(lla: Array, origin: Array | None = None) -> Array:
+def lla_to_local_ned(lla: Array, origin: Array | None = None, geodesy: str = "wgs84"
+                     ) -> Array:
     """NED (K, 3) m of fixes ``lla`` (K, 3) [lat deg, lon deg, alt m] in the local
     tangent plane at ``origin`` [lat deg, lon deg, alt m] (default: the first fix), WGS84
     through ECEF (:class:`uavest.geometry.geodesy.LocalFrame`; the altitude is taken as the
-    ellipsoidal height, which moves only the origin's height). A tangent plane, not a
-    map projection: fine for a flight of a few km (at a distance d the plane's "down"
-    is d^2 / (2 R) below the sphere, 0.08 m at 1 km, 8 m at 10 km)."""
-    from ..geometry.geodesy import LocalFrame
+    ellipsoidal height, which moves only the origin's height), or with ``geodesy``
+    "sphere" ArduPilot's scaling (:class:`~uavest.geometry.geodesy.SphereFrame`). A
+    tangent plane, not a map projection: fine for a flight of a few km (at a distance d
+    the plane's "down" is d^2 / (2 R) below the sphere, 0.08 m at 1 km, 8 m at 10 km)."""
+    from ..geometry.geodesy import make_frame
 
     lla = np.asarray(lla, float).reshape(-1, 3)
     if not len(lla):
         return np.zeros((0, 3))
     o = lla[0] if origin is None else np.asarray(origin, float)
-    return LocalFrame(*o).geodetic_to_ned(lla[:, 0], lla[:, 1], lla[:, 2])
+    res: Array = make_frame(*o, geodesy).geodetic_to_ned(lla[:, 0], lla[:, 1], lla[:, 2])
+    return res
 
 
 class _Ref:

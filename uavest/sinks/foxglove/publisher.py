@@ -155,7 +155,7 @@ class FoxglovePublisher:
         elif name == "NavAnchor":
             self.chans.json("/navigation/anchor", "uavest.NavAnchor", s.t, {
                 "t": s.t, "lat_lon_alt": [s.lat, s.lon, s.alt], "source": s.source,
-                "reason": s.reason})
+                "reason": s.reason, "geodesy": s.geodesy})
 
     def _record(self, rec: StepRecord | ScanRecord) -> None:
         if type(rec) is not StepRecord:

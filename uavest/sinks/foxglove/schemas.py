@@ -74,12 +74,14 @@ SCHEMAS: dict[str, dict] = {
             "t": _NUM, "k": {"type": "integer"}, "z": {"type": "array", "items": _NUM}},
         ["t", "k", "z"]),
     "uavest.NavAnchor": _obj(
-        "uavest.NavAnchor", "a navigation run's local NED frame: its origin (lat, lon deg "
-        "WGS-84, alt m; the first raw GNSS fix of source) and the time t (s) from which "
-        "positions are in it (later than the first estimate when the run started before "
-        "the first fix)", {
+        "uavest.NavAnchor", "a navigation run's local NED frame: its origin (lat, lon deg, "
+        "alt m; the first raw GNSS fix of source), the time t (s) from which positions are "
+        "in it (later than the first estimate when the run started before the first fix) "
+        "and its geodesy (wgs84: tangent plane through ECEF; sphere: ArduPilot's flat-Earth "
+        "scaling, for an ArduPilot SITL)", {
             "t": _NUM, "lat_lon_alt": {"type": "array", "items": _NUM},
-            "source": {"type": "string"}, "reason": {"type": "string"}},
+            "source": {"type": "string"}, "reason": {"type": "string"},
+            "geodesy": {"type": "string", "enum": ["wgs84", "sphere"]}},
         ["t", "lat_lon_alt"]),
     "uavest.RunInfo": _obj("uavest.RunInfo", "the run (also in the MCAP metadata)", {
         "command": {"type": "string"}, "source": {"type": "string"},
