@@ -114,6 +114,57 @@ def test_a_known_magnetometer_age_is_found():
     assert 0.5 * noise < est.scatter < 2.0 * noise
 
 
+def test_the_inclination_is_corrected_for_the_filters_tilt_error():
+    """The filter's attitude carries a constant tilt error (0.5 deg about east, in NED)
+    while the vehicle turns and accelerates: the readings turned to NED with it put the
+    field's inclination 0.5 deg off; the mismatch between its NED acceleration and the
+    GNSS velocity changes measures that error, and the corrected inclination is within
+    0.05 deg."""
+    from uavest.geometry.rotation import (
+        euler_to_quat,
+        quat_exp,
+        quat_mul,
+        quat_rotate,
+        quat_rotate_inv,
+    )
+
+    incl, err = np.deg2rad(63.0), np.deg2rad(0.5)
+    mref = np.array([np.cos(incl), 0.0, np.sin(incl)])
+    q_err = quat_exp(np.array([0.0, err, 0.0]))  # about east (NED), left-multiplied
+    g_n = np.array([0.0, 0.0, G])
+    p = DelayProbe()
+    p.start()
+    dt, T = 0.04, 120.0
+    t = np.arange(dt, T, dt)
+    a = _accel(t - 0.5 * dt, 2.0)
+    for k, tk in enumerate(t):
+        q_true = euler_to_quat(0.1 * np.sin(0.9 * tk), 0.1 * np.cos(1.3 * tk), 0.3 * tk)
+        f_b = quat_rotate_inv(q_true, a[k] - g_n)  # the specific force, body FRD
+        x = np.zeros(16)
+        x[:4] = quat_mul(q_err, q_true)
+        p.add_step(Step(k + 1, float(tk), dt, _Model(), (), np.r_[np.zeros(3), f_b]), x)
+        if k % 3 == 0:
+            p.add_mag(float(tk), quat_rotate_inv(q_true, mref))
+    ts = np.linspace(0.0, T, 200001)
+    v = np.cumsum(_accel(ts, 2.0), axis=0) * (ts[1] - ts[0])
+    for tk in np.arange(1.0, T - 1.0, 0.2):
+        vk = np.array([np.interp(tk, ts, v[:, i]) for i in range(2)] + [np.nan])
+        p.add_gnss(GnssSample(float(tk), np.array([47.0, 8.0, 400.0]), vk, 3, np.nan,
+                              np.nan, np.nan, np.nan, np.nan, -1, "GPS_RAW_INT"))
+    est = p.estimate_mag()
+    assert est.inclination_uncorrected is not None and est.tilt_corrected > 900
+    off = abs(est.inclination_uncorrected - incl)
+    assert 0.8 * err < off < 1.2 * err  # the tilt error, uncorrected
+    assert abs(est.inclination - incl) < np.deg2rad(0.05)
+    # readings outside every fix pair keep the plain down direction: no GNSS, no change
+    q = DelayProbe()
+    q._t, q._dt, q._a, q._q, q._seg = p._t, p._dt, p._a, p._q, p._seg
+    q._mt, q._mf = p._mt, p._mf
+    plain = q.estimate_mag()
+    assert plain.tilt_corrected == 0 and plain.inclination == plain.inclination_uncorrected
+    assert abs(quat_rotate(q_err, mref)[2] - np.sin(plain.inclination)) < 1e-3
+
+
 def _shifted(samples, d):
     """The samples with every GNSS fix stamped ``d`` s later (a known added delay)."""
     buf: list = []

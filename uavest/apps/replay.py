@@ -231,9 +231,14 @@ def _mag_doc(cfg: ReplayConfig, mest: MagEstimate, noise: NavNoise, span: str, r
             m["delay_used"], m["why_used"] = 0.0, f"default (not estimated: {mest.why})"
     if mest.inclination is not None and mest.delay is not None:
         m["inclination"] = mest.inclination
+        m["inclination_uncorrected"] = mest.inclination_uncorrected
+        tilt = (f", against the down direction corrected for its tilt error by the GNSS "
+                f"velocity changes for {mest.tilt_corrected} of them (uncorrected "
+                f"{np.degrees(mest.inclination_uncorrected or 0.0):.2f} deg)"
+                if mest.tilt_corrected else "")
         m["inclination_why"] = (f"estimated: the mean direction of the readings turned to "
                                 f"NED with the {PROBE_FILTER}'s attitude ({mest.readings} new "
-                                f"readings in {span})")
+                                f"readings in {span}{tilt})")
     if "mag_noise" not in cfg.noise and mest.scatter is not None and mest.delay is not None:
         top = float(mest.noise_default or noise.mag_noise)
         m["noise_used"] = float(np.clip(mest.scatter, MAG_NOISE_MIN, top))
