@@ -119,7 +119,8 @@ PROBE_REFINE_S = 0.03
 #: The magnetometer noise taken from the probe's scatter is at least this (rad, 2.9 deg)
 #: and at most the model's default. The scatter sees the sensor, not the error of the
 #: reference field it is compared with: the inclination taken from the flight was 0.3
-#: deg off on sim_200hz (63.82 against the simulator's 63.5 deg), and with 0.01-0.02 rad
+#: deg off on sim_200hz (63.82 against the simulator's 63.5 deg, before the probe corrected
+#: it for its tilt error), and with 0.01-0.02 rad
 #: the magnetometer pulled the tilt after it (airborne 0.35-0.44 deg roll against 0.20 at
 #: 0.05; 0.066 with the true inclination at 0.01), while the SITL flight's (0.06 deg off)
 #: gained (yaw 0.22 deg at 0.02, 0.40 at 0.05).
