@@ -9,6 +9,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 from conftest import REPO_ROOT, shared_log
 
@@ -132,11 +133,47 @@ def test_a_long_imu_interval_below_the_gap_threshold_is_predicted_in_sub_steps(t
     assert "long IMU intervals: " in r.stdout
 
 
+def _sitl_copter_runs(tmp_path, runs: dict[str, tuple[str, ...]]
+                      ) -> tuple[dict[str, str], dict[str, dict]]:
+    """``uavest replay logs/sitl_copter.tlog --filters ekf`` with each run's extra options:
+    (stdout, JSON document) per run name."""
+    log = str(REPO_ROOT / "logs" / "sitl_copter.tlog")
+    outs, docs = {}, {}
+    for name, extra in runs.items():
+        out = tmp_path / f"{name}.json"
+        r = _replay(log, "--filters", "ekf", "--json", str(out), *extra)
+        assert r.returncode == 0, r.stderr
+        outs[name], docs[name] = r.stdout, json.loads(out.read_text())
+    return outs, docs
+
+
+def _truth_inclination(log: str, age: float) -> float:
+    """The field's inclination (deg) the simulator's own attitude (SIM_STATE) gives the
+    new magnetometer readings of ``log`` taken ``age`` s before their stamps: their mean
+    direction in NED."""
+    from uavest.geometry.rotation import quat_rotate, quat_slerp_interp
+    from uavest.ingest import open_source
+    from uavest.ingest.types import AttitudeRef, MagSample
+
+    rt, rq, mt, mf, last = [], [], [], [], None
+    for smp in open_source(log):
+        if isinstance(smp, AttitudeRef) and smp.source == "SIM_STATE":
+            rt.append(smp.t)
+            rq.append(smp.q)
+        elif isinstance(smp, MagSample):
+            f = np.asarray(smp.field, float)
+            if last is None or not np.array_equal(f, last):
+                mt.append(smp.t)
+                mf.append(f / np.linalg.norm(f))
+            last = f
+    q, ok = quat_slerp_interp(np.array(rt), np.array(rq), np.array(mt) - age)
+    u = quat_rotate(q[ok], np.array(mf)[ok]).mean(axis=0)
+    return float(np.degrees(np.arcsin(u[2] / np.linalg.norm(u))))
+
+
 def _truth_lag(log: str) -> float:
     """The lag (s) of the GNSS velocity behind the simulator's (SIM_STATE) in a log: the
     shift of least RMS difference, every 5 ms from 0 to 0.3 s."""
-    import numpy as np
-
     from uavest.ingest import open_source
     from uavest.ingest.types import GnssSample, PositionSample
 
@@ -162,20 +199,22 @@ def test_sitl_copter_gnss_delay_is_estimated_and_pays(tmp_path):
     estimates the magnetometer's age, scores against SIM_STATE, and its run is closer to
     the truth than the same replay told the GNSS delay is 0."""
     log = str(REPO_ROOT / "logs" / "sitl_copter.tlog")
-    docs = {}
-    for name, extra in (("est", ()), ("zero", ("--gnss-delay", "0"))):
-        out = tmp_path / f"{name}.json"
-        r = _replay(log, "--filters", "ekf", "--json", str(out), *extra)
-        assert r.returncode == 0, r.stderr
-        line = next(ln for ln in r.stdout.splitlines()
+    outs, docs = _sitl_copter_runs(tmp_path, {"est": (), "zero": ("--gnss-delay", "0")})
+    for name, stdout in outs.items():
+        line = next(ln for ln in stdout.splitlines()
                     if ln.startswith("decision: GNSS delay:"))
         assert ("estimated" in line) == (name == "est"), line
-        assert "decision: magnetometer delay:" in r.stdout
-        assert "decision: geodesy: ArduPilot's sphere" in r.stdout  # SIM_STATE: a SITL
-        docs[name] = json.loads(out.read_text())
+        assert "decision: magnetometer delay:" in stdout
+        assert "decision: geodesy: ArduPilot's sphere" in stdout  # SIM_STATE: a SITL
     est = docs["est"]["gnss_delay_estimate"]
     assert abs(est["delay"] - _truth_lag(log)) < 0.01 and est["sd"] < 0.005
     assert est["mag"]["delay"] is not None and est["mag"]["delay_used"] > 0.0
+    # the inclination, corrected for the probe's tilt error, against the one the
+    # simulator's attitude gives the same readings (63.13 deg): closer than uncorrected
+    truth = _truth_inclination(log, est["mag"]["delay_used"])
+    err, err0 = (abs(np.degrees(est["mag"][k]) - truth)
+                 for k in ("inclination", "inclination_uncorrected"))
+    assert err < 0.03 and err < err0, (err, err0)
     assert docs["est"]["position_reference"] == "SIM_STATE"
     assert "delay" not in docs["zero"]["gnss_delay_estimate"]  # not estimated: given
     a, z = (docs[k]["filters"]["ekf"]["airborne"] for k in ("est", "zero"))
@@ -188,8 +227,6 @@ def test_sitl_copter_lat_lon_are_on_ardupilots_sphere():
     velocity (SIM_STATE, metric), integrated over logs/sitl_copter.tlog's 290 m of flight,
     matches its lat/lon displacement read with ArduPilot's scaling to within 0.05 %, and
     read as WGS84 it is 0.13 % off north and 0.18 % east."""
-    import numpy as np
-
     from uavest.geometry.geodesy import LocalFrame, SphereFrame
     from uavest.ingest import open_source
     from uavest.ingest.types import PositionSample
@@ -218,13 +255,7 @@ def test_sitl_copter_positions_are_better_on_ardupilots_sphere(tmp_path):
     """The replay of logs/sitl_copter.tlog on ArduPilot's sphere (chosen: SIM_STATE in the
     stream) against the same replay told ``--geodesy wgs84``: the horizontal position is
     closer to the truth, the attitude the same."""
-    log = str(REPO_ROOT / "logs" / "sitl_copter.tlog")
-    docs = {}
-    for name, extra in (("auto", ()), ("wgs84", ("--geodesy", "wgs84"))):
-        out = tmp_path / f"{name}.json"
-        r = _replay(log, "--filters", "ekf", "--json", str(out), *extra)
-        assert r.returncode == 0, r.stderr
-        docs[name] = json.loads(out.read_text())
+    _, docs = _sitl_copter_runs(tmp_path, {"auto": (), "wgs84": ("--geodesy", "wgs84")})
     assert docs["auto"]["geodesy"] == "sphere" and docs["wgs84"]["geodesy"] == "wgs84"
     a, w = (docs[k]["filters"]["ekf"]["airborne"] for k in ("auto", "wgs84"))
     assert a["hpos_rmse_m"] < 0.7 * w["hpos_rmse_m"]
