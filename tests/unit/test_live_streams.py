@@ -76,3 +76,28 @@ def test_a_failing_sink_is_stopped_alone_and_kept(exc, internal):
     line = f.line()
     assert "\n" not in line and "the run went on without it" in line
     assert ("internal error" in line) is internal
+
+
+def test_a_refused_simulator_only_stream_is_not_warned_about(caplog):
+    """A vehicle (or uavest's own simulator, for SIM_STATE) refuses the simulator's truth
+    streams as a matter of course: no warning for those, one for any other stream that
+    has no data stream fallback; each is marked ``none`` (said as missing later)."""
+    import logging
+
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    from uavest.ingest.live.streams import request_streams
+
+    sent: list[tuple] = []
+    mav = SimpleNamespace(command_long_send=lambda *a: sent.append(a),
+                          request_data_stream_send=lambda *a: sent.append(a))
+    replies = SimpleNamespace(wait_ack=lambda *a: mavlink.MAV_RESULT_DENIED)
+    with caplog.at_level(logging.DEBUG, logger="uavest"):
+        st = request_streams(mav, (1, 1), {"SIM_STATE": 10.0, "OBSTACLE_DISTANCE_3D": 10.0},
+                             {}, replies, 0.1, conn="udp:x")
+    assert st["SIM_STATE"].method == st["OBSTACLE_DISTANCE_3D"].method == "none"
+    warned = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert any("OBSTACLE_DISTANCE_3D refused" in m for m in warned), warned
+    assert not any("SIM_STATE" in m for m in warned), warned
+    assert any("SIM_STATE refused" in r.getMessage() for r in caplog.records)  # debug
+    assert len(sent) == 2  # two SET_MESSAGE_INTERVAL, no data stream to fall back on

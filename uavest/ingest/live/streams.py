@@ -55,6 +55,10 @@ DATA_STREAM = {
     "SYSTEM_TIME": mavlink.MAV_DATA_STREAM_EXTRA3,
 }
 DATA_STREAM_MAX_HZ = 50
+#: Streams only a simulator sends (ArduPilot SITL's truth): a vehicle, or uavest's own
+#: simulator for SIM_STATE, refuses them as a matter of course, so the refusal is not
+#: warned about (the stream line still says ``missing``).
+SIMULATOR_ONLY = frozenset({"SIMSTATE", "SIM_STATE"})
 
 
 @dataclass
@@ -139,8 +143,9 @@ def request_streams(mav: Any, target: tuple[int, int], streams: dict[str, float]
                 st.method = "REQUEST_DATA_STREAM"
             else:
                 st.method = "none"
-                log.warning("%s: %s refused (result %s) and has no data stream fallback",
-                            conn, name, res)
+                (log.debug if name in SIMULATOR_ONLY else log.warning)(
+                    "%s: %s refused (result %s) and has no data stream fallback", conn, name,
+                    res)
     for ds, hz in fallback.items():
         rate = int(min(max(1, round(hz)), DATA_STREAM_MAX_HZ))
         mav.request_data_stream_send(ts, tc, ds, rate, 1)
