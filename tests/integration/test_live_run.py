@@ -275,3 +275,22 @@ def test_a_signal_ends_the_wait_for_the_vehicle_at_once(sig, connect):
     assert p.returncode == 130, stderr
     assert "Traceback" not in stderr
     assert stderr.strip().splitlines()[-1] == "uavest: interrupted"
+
+
+@pytest.mark.slow  # a 6-second live demo in a subprocess
+def test_the_demo_has_every_stream_it_asks_for(tmp_path):
+    """``uavest demo`` against uavest's own simulator: no stream refused or missing (it
+    does not ask for ArduPilot SITL's SIM_STATE, which the simulator does not send), and
+    the JSON's streams are the ones asked."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    out = tmp_path / "demo.json"
+    r = subprocess.run([sys.executable, "-m", "uavest", "demo", "--duration", "6",
+                        "--no-record", "--no-status", "--trackers", "none", "--json",
+                        str(out)], env=env, capture_output=True, text=True, timeout=120,
+                       cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "refused" not in r.stderr and "missing" not in r.stderr + r.stdout, r.stderr
+    doc = json.loads(out.read_text())
+    assert doc["link"]["missing_streams"] == []
+    assert "SIM_STATE" not in doc["run"]["config"]["streams"]
+    assert "SIMSTATE" in doc["link"]["streams"]

@@ -279,6 +279,9 @@ def demo(args) -> dict:
     th.start()
     cfg = _cfg(args, f"udpin:127.0.0.1:{port}")
     cfg.heartbeat_timeout = 15.0
+    # uavest's simulator sends SIMSTATE, not ArduPilot SITL's SIM_STATE (whose presence
+    # would put the navigation frame on ArduPilot's sphere): not asked, not "missing"
+    cfg.streams = {k: v for k, v in cfg.streams.items() if k != "SIM_STATE"}
     print(f"uavest demo: simulator '{args.scenario}' -> udp 127.0.0.1:{port} -> live "
           f"estimator, {args.duration:g} s", file=sys.stderr)
     try:
