@@ -137,6 +137,7 @@ class DelayProbe:
         self._t: list[float] = []
         self._dt: list[float] = []
         self._a: list[Array] = []
+        self._a_raw: list[Array] = []  # the same without the filter's accelerometer bias
         self._seg: list[int] = []
         self._segment = 0
         self._gt: list[float] = []
@@ -158,7 +159,8 @@ class DelayProbe:
         """Back to ``mark``: the steps after it are dropped (made again by the caller);
         the GNSS fixes and magnetometer readings stay."""
         n, self._segment = mark
-        del self._t[n:], self._dt[n:], self._a[n:], self._seg[n:], self._q[n:]
+        del self._t[n:], self._dt[n:], self._a[n:], self._a_raw[n:], self._seg[n:]
+        del self._q[n:]
 
     def add_step(self, st: Step, x: Array) -> None:
         """One navigation step ``st`` (its ``u`` = [rate, specific force], its model's
@@ -166,17 +168,18 @@ class DelayProbe:
         if st.u is None or not np.isfinite(x).all():
             return
         u = np.asarray(st.u, float)
-        f = u[3:6] - x[13:16]
         q_mid = quat_mul(x[:4], quat_exp(-0.5 * st.dt * (u[:3] - x[10:13])))
-        a = quat_rotate(q_mid, f)
+        a, a_raw = quat_rotate(q_mid, np.stack([u[3:6] - x[13:16], u[3:6]]))
         g = float(getattr(st.transition, "g", 0.0))
         a[2] += g
+        a_raw[2] += g
         if g > 0 and not self._g:
             self._g.append(g)
         self._q.append(np.array(x[:4], float))
         self._t.append(float(st.t))
         self._dt.append(float(st.dt))
         self._a.append(a)
+        self._a_raw.append(a_raw)
         self._seg.append(self._segment)
 
     def add_gnss(self, s: GnssSample) -> None:
@@ -208,14 +211,22 @@ class DelayProbe:
         e of the filter turns every ``u`` by e, and ``d = (0, 0, 1)`` would put the
         inclination off by e's component along the field's horizontal direction (0.2-0.5
         deg on the simulator's vibrating flights, where it pulled the tilt after it). The
-        same error turns the IMU's acceleration: the filter's NED acceleration ``a_n``
-        (:meth:`add_step`) differs from the GNSS's (velocity changes over the pairs of
-        :meth:`estimate`, taken ``gnss_delay`` s earlier) by ``g e x (0, 0, 1)``, so
-        ``d = (0, 0, 1) + (a_gnss - a_n) / g`` (normalised) over each pair's span, taken
-        for the readings inside one (the readings outside keep (0, 0, 1)). On
-        logs/sitl_copter.tlog the estimate came 0.06 -> 0.00-0.02 deg from the
-        inclination the simulator's own attitude gives the readings, on sim_200hz 0.30 ->
-        0.07 (25 Hz) and 0.14 -> 0.01 (every sample)."""
+        same error turns the IMU's acceleration: the specific force turned to NED with the
+        filter's attitude, plus gravity (:meth:`add_step`), differs from the GNSS's
+        acceleration (velocity changes over the pairs of :meth:`estimate`, taken
+        ``gnss_delay`` s earlier) by ``g e x (0, 0, 1)``, so ``d = (0, 0, 1) + (a_gnss -
+        a_imu) / g`` (normalised) over each pair's span, taken for the readings inside one
+        (the readings outside keep (0, 0, 1)). The specific force is taken without the
+        filter's accelerometer bias: a tilt error and a horizontal accelerometer bias look
+        alike to the filter, which puts part of its tilt error into its bias estimate,
+        where this correction would not see it (with the bias subtracted the estimates
+        below stayed up to 0.2 deg off). What the raw force carries instead is the true
+        bias turned to NED, which the vehicle's turns average out (a bias the autopilot's
+        calibration left, 0.05 m/s^2 along the field's horizontal direction on a flight
+        with one heading, would put it 0.3 deg off). Against the inclination the
+        simulator's own attitude gives the readings: logs/sitl_copter.tlog 0.06 deg off
+        uncorrected, 0.01 corrected; sim_200hz 0.30 -> 0.00 (25 Hz) and 0.14 -> 0.01
+        (every sample); the simulator's seed 2 0.24 -> 0.01 and 0.52 -> 0.00."""
         est = MagEstimate(None, None, len(self._mt), "")
         if len(self._mt) < 50 or len(self._t) < 10:
             est.why = f"{len(self._mt)} magnetometer readings"
@@ -307,14 +318,14 @@ class DelayProbe:
         return est
 
 
-    def _integral(self) -> tuple[Array, Array, Array, Array, Array]:
-        """(step starts, step ends (s), V (m/s) the integral of ``a_n`` at every step's
-        end from 0 at the start of each segment (linear inside a step), the steps'
-        velocity changes, their segments)."""
+    def _integral(self, raw: bool = False) -> tuple[Array, Array, Array, Array, Array]:
+        """(step starts, step ends (s), V (m/s) the integral of ``a_n`` (``raw``: without
+        the filter's accelerometer bias) at every step's end from 0 at the start of each
+        segment (linear inside a step), the steps' velocity changes, their segments)."""
         t = np.array(self._t)
         dt = np.array(self._dt)
         seg = np.array(self._seg)
-        dv = np.array(self._a) * dt[:, None]
+        dv = np.array(self._a_raw if raw else self._a) * dt[:, None]
         V = np.cumsum(dv, axis=0)
         V -= _segment_base(V, dv, np.r_[True, seg[1:] != seg[:-1]])
         return t - dt, t, V, dv, seg
@@ -338,7 +349,7 @@ class DelayProbe:
         d = np.tile([0.0, 0.0, 1.0], (len(mt), 1))
         if len(self._t) < 10 or len(self._gt) < 10:
             return d, 0
-        t0, t, V, dv, seg = self._integral()
+        t0, t, V, dv, seg = self._integral(raw=True)
         gt, gv, i0, i1 = self._pairs(pair_s)
         wa, wb = gt[i0] - gnss_delay, gt[i1] - gnss_delay  # the spans the pairs measure
         va, sa = _v_at(t0, t, V, dv, seg, wa)
