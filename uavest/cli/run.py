@@ -131,7 +131,7 @@ def _cfg(args, connect: str) -> LiveConfig:
         duration=args.duration, rate_hz=args.rate,
         update_hz=getattr(args, "update_rate", None),
         radar_source=args.radar_source, radar=_radar(args), model=args.model,
-        gnss_delay=args.gnss_delay, geodesy=getattr(args, "geodesy", "auto"))
+        gnss_delay=args.gnss_delay, geodesy=args.geodesy)
 
 
 def format_live(doc: dict) -> str:

@@ -145,7 +145,7 @@ class DelayProbe:
         self._q: list[Array] = []
         self._mt: list[float] = []
         self._mf: list[Array] = []
-        self._g: list[float] = []  # the model's gravity (m/s^2), once known
+        self._gravity: float | None = None  # m/s^2, the model's, from the first step
 
     def start(self) -> None:
         """The filters restarted (alignment, re-alignment)."""
@@ -173,8 +173,8 @@ class DelayProbe:
         g = float(getattr(st.transition, "g", 0.0))
         a[2] += g
         a_raw[2] += g
-        if g > 0 and not self._g:
-            self._g.append(g)
+        if g > 0 and self._gravity is None:
+            self._gravity = g
         self._q.append(np.array(x[:4], float))
         self._t.append(float(st.t))
         self._dt.append(float(st.dt))
@@ -317,7 +317,6 @@ class DelayProbe:
             est.delay = d
         return est
 
-
     def _integral(self, raw: bool = False) -> tuple[Array, Array, Array, Array, Array]:
         """(step starts, step ends (s), V (m/s) the integral of ``a_n`` (``raw``: without
         the filter's accelerometer bias) at every step's end from 0 at the start of each
@@ -352,17 +351,16 @@ class DelayProbe:
         t0, t, V, dv, seg = self._integral(raw=True)
         gt, gv, i0, i1 = self._pairs(pair_s)
         wa, wb = gt[i0] - gnss_delay, gt[i1] - gnss_delay  # the spans the pairs measure
+        if not len(wa):
+            return d, 0
         va, sa = _v_at(t0, t, V, dv, seg, wa)
         vb, sb = _v_at(t0, t, V, dv, seg, wb)
         da = ((gv[i1] - gv[i0]) - (vb - va)) / (wb - wa)[:, None]  # GNSS - IMU, m/s^2
         da[:, 2] = np.where(np.isfinite(da[:, 2]), da[:, 2], 0.0)  # no vertical speed
         ok = (sa >= 0) & (sa == sb) & np.isfinite(da).all(axis=1)
-        if not len(wa):
-            return d, 0
         k = np.clip(np.searchsorted(wa, mt, side="right") - 1, 0, len(wa) - 1)
         use = (mt >= wa[k]) & (mt <= wb[k]) & ok[k]
-        g = float(np.mean(self._g)) if self._g else 9.80665
-        d[use] += da[k[use]] / g
+        d[use] += da[k[use]] / (self._gravity or 9.80665)
         d /= np.linalg.norm(d, axis=1)[:, None]
         return d, int(use.sum())
 

@@ -733,7 +733,7 @@ class NavStream(StreamSnapshots):
         if o is not None:
             self._anchor_sample = NavAnchor(self._stamp(r), o["lat"], o["lon"], o["alt"],
                                             str(self._aids.gnss), reason,
-                                            self.summary.get("geodesy", "wgs84"))
+                                            self.summary["geodesy"])
 
     def _anchor(self, r: _Raw, fix: _Aid) -> list[Start | Step]:
         """The first good fix after an unaided start: velocity and position from it, the

@@ -90,6 +90,7 @@ class LocalFrame:
 #: ArduPilot's metres per 1e-7 degree of latitude (``LOCATION_SCALING_FACTOR``, AP_Common
 #: Location): a sphere of radius 6,378,100 m.
 ARDUPILOT_LATLON_TO_M = 0.011131884502145034
+_M_PER_DEG = ARDUPILOT_LATLON_TO_M * 1e7
 
 #: The local frames a navigation run can use (:func:`make_frame`).
 GEODESIES = ("wgs84", "sphere")
@@ -110,23 +111,22 @@ class SphereFrame:
         self.lon0 = np.deg2rad(float(lon_deg))
         self.h0 = float(alt_m)
         self._lat0d, self._lon0d = float(lat_deg), float(lon_deg)
-        self._m_per_deg = ARDUPILOT_LATLON_TO_M * 1e7
 
     def geodetic_to_ned(self, lat_deg: Array, lon_deg: Array, h: Array) -> Array:
         """NED (..., 3) m of geodetic points (degrees, m)."""
         lat, lon = np.asarray(lat_deg, float), np.asarray(lon_deg, float)
         sc = np.cos(np.deg2rad(0.5 * (lat + self._lat0d)))
         dlon = (lon - self._lon0d + 180.0) % 360.0 - 180.0
-        return np.stack([(lat - self._lat0d) * self._m_per_deg,
-                         dlon * self._m_per_deg * sc,
+        return np.stack([(lat - self._lat0d) * _M_PER_DEG,
+                         dlon * _M_PER_DEG * sc,
                          self.h0 - np.asarray(h, float)], axis=-1)
 
     def ned_to_geodetic(self, ned: Array) -> tuple[Array, Array, Array]:
         """(lat deg, lon deg, h m) of NED points (..., 3) m."""
         ned = np.asarray(ned, float)
-        lat = self._lat0d + ned[..., 0] / self._m_per_deg
+        lat = self._lat0d + ned[..., 0] / _M_PER_DEG
         sc = np.cos(np.deg2rad(0.5 * (lat + self._lat0d)))
-        lon = (self._lon0d + ned[..., 1] / (self._m_per_deg * sc) + 180.0) % 360.0 - 180.0
+        lon = (self._lon0d + ned[..., 1] / (_M_PER_DEG * sc) + 180.0) % 360.0 - 180.0
         return lat, lon, self.h0 - ned[..., 2]
 
 

@@ -288,8 +288,7 @@ def lla_to_local_ned(lla: Array, origin: Array | None = None, geodesy: str = "wg
     if not len(lla):
         return np.zeros((0, 3))
     o = lla[0] if origin is None else np.asarray(origin, float)
-    res: Array = make_frame(*o, geodesy).geodetic_to_ned(lla[:, 0], lla[:, 1], lla[:, 2])
-    return res
+    return make_frame(*o, geodesy).geodetic_to_ned(lla[:, 0], lla[:, 1], lla[:, 2])
 
 
 class _Ref:
