@@ -53,7 +53,7 @@ def test_gnss_H_matches_finite_differences():
 
 
 def test_measurements_moved_back_in_time_match_finite_differences():
-    """A GNSS velocity, a baro height and a magnetometer field older than the state
+    """A GNSS velocity and position, a baro height and a magnetometer field older than the state
     (``back`` s): analytic H (and the rows the hybrid reads) against finite differences."""
     rng = np.random.default_rng(2)
     f = np.array([0.8, -1.5, -9.3])
@@ -62,6 +62,8 @@ def test_measurements_moved_back_in_time_match_finite_differences():
     mref /= np.linalg.norm(mref)
     models = (GnssVelocity(np.eye(3), back=0.03, f=f, g=9.8),
               GnssVelocity(np.eye(2), rows=(0, 1), back=0.03, f=f, g=9.8),
+              GnssPosition(np.eye(3), back=0.2, k=0.02, f=f, g=9.8),
+              GnssPosition(np.eye(2), rows=(0, 1), back=0.2, k=0.02, f=f, g=9.8),
               BaroHeight(np.eye(1), offset=3.0, back=0.05),
               OnNav(MagField(mref, np.eye(3) * 1e-4), 0.05, w))
     for _ in range(3):
@@ -70,7 +72,7 @@ def test_measurements_moved_back_in_time_match_finite_differences():
             ref = fd_jacobian(m.h, SP, None, x)
             np.testing.assert_allclose(m.H(x), ref, atol=2e-7)
         X = np.array([_point(rng) for _ in range(4)])
-        for m in models[:2]:
+        for m in models[:4]:
             Hs = m.H_rows(X)
             for k in range(4):
                 np.testing.assert_allclose(Hs[k], m.H(X[k]), atol=1e-12)
@@ -191,3 +193,53 @@ def test_imu_filter_delay_of_every_streamed_ardupilot_imu() -> None:
         assert d == pytest.approx(want) and "INS_GYRO_FILTER" in why
         assert imu_filter_delay(src, {})[0] == 0.0
     assert imu_filter_delay("sensor_combined", {"INS_GYRO_FILTER": 20.0})[0] == 0.0
+
+
+def _turning_flight(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A turning, accelerating flight sampled at ``t`` (s): body rate (rad/s, constant),
+    specific force (m/s^2, body FRD) and attitude (body to NED)."""
+    from uavest.geometry.rotation import quat_exp, quat_mul
+    w = np.array([0.3, -0.5, 1.1])
+    q0 = euler_to_quat(0.2, -0.1, 0.7)
+    q = np.array([quat_mul(q0, quat_exp(w * tk)) for tk in t])
+    f = np.c_[2.0 * np.sin(3 * t), 1.5 * np.cos(2 * t), -9.8 + 1.0 * np.sin(5 * t)]
+    return np.broadcast_to(w, f.shape), f, q
+
+
+def test_window_and_carry_forces_match_the_integrated_flight():
+    """:func:`window_force` / :func:`carry_force` against the velocity and position of a
+    finely integrated turning flight: the mean velocity over a 0.35 s window 0.08 s back
+    and the position 0.26 s back, from the state at the end and 25 Hz steps."""
+    from uavest.engine.nav_aiding import carry_force, window_force
+    from uavest.geometry.rotation import quat_rotate
+    g = 9.8
+    t0, t_end, h = 0.0, 2.0, 1e-4
+    tt = np.arange(t0, t_end + h / 2, h)
+    w, f, q = _turning_flight(tt)
+    a = np.array([quat_rotate(qk, fk) for qk, fk in zip(q, f, strict=True)]) + [0.0, 0.0, g]
+    v = np.cumsum(a, axis=0) * h  # v(t0) = 0
+    p = np.cumsum(v, axis=0) * h
+    # 25 Hz steps: (end, length, rate, mean specific force over the step)
+    edges = np.arange(t0, t_end + 1e-9, 0.04)
+    steps = []
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        m = (tt > lo) & (tt <= hi)
+        # the mean force in the body frame at the step's end (a step's mean, as the IMU)
+        steps.append((float(hi), 0.04, w[0], f[m].mean(axis=0)))
+    qe = q[-1]
+    center, span = t_end - 0.08 - 0.175, 0.35
+    back, fw = window_force(steps, t_end, center, span)
+    win = (tt >= center - span / 2) & (tt <= center + span / 2)
+    v_mean = v[win].mean(axis=0)
+    model = v[-1] - back * (quat_rotate(qe, fw) + [0.0, 0.0, g])
+    assert back == pytest.approx(0.255)
+    np.testing.assert_allclose(model, v_mean, atol=2e-3)
+    # without the window's weighting (the step's force at the end) it is far worse
+    naive = v[-1] - back * (quat_rotate(qe, steps[-1][3]) + [0.0, 0.0, g])
+    assert np.linalg.norm(naive - v_mean) > 10 * np.linalg.norm(model - v_mean)
+    t_fix = t_end - 0.26
+    back, k, fp = carry_force(steps, t_end, t_fix)
+    i = int(np.argmin(abs(tt - t_fix)))
+    model_p = p[-1] - back * v[-1] + k * (quat_rotate(qe, fp) + [0.0, 0.0, g])
+    assert k == pytest.approx(0.5 * 0.26**2)
+    np.testing.assert_allclose(model_p, p[i], atol=1e-3)

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from ..geometry.geodesy import LocalFrame, SphereFrame
+from ..geometry.rotation import quat_exp, quat_mul, quat_rotate_inv
 from ..ingest.types import BaroSample, GnssSample, MagSample
 from ..models.attitude import MagField, MagHeading
 from ..models.navigation import BaroHeight, GnssPosition, GnssVelocity, NavNoise, OnNav
@@ -82,6 +83,80 @@ class _Aid:
     ned: Array | None = None
     height: float = float("nan")
     vec: Array | None = None  # a magnetometer sample's field (gauss, body FRD)
+    #: a fix's velocity window (s, NavNoise.gnss_vel_window): ``t`` is its end, its
+    #: centre (the time the position is of) ``t - span / 2``
+    span: float = 0.0
+
+
+Steps = list[tuple[float, float, Array, Array]]
+
+
+def _weighted_force(steps: Steps, t_end: float, W: Any, total: float) -> Array:
+    """The specific force (m/s^2, body FRD at ``t_end``) of ``steps`` (each ``(end s,
+    length s, rate rad/s, mean specific force m/s^2)``, oldest first, the last ending at
+    ``t_end``) weighted by ``w``, ``W`` its integral from -inf (``W(tau)`` = 0 before the
+    weighted span), divided by ``total`` (the integral of ``w`` up to ``t_end``); each
+    step's force turned into the body frame at ``t_end`` with the gyro (its bias
+    neglected). A span reaching before the first step takes the first step's force for
+    the part it lacks."""
+    acc = np.zeros(3)
+    q = np.array([1.0, 0.0, 0.0, 0.0])  # body at a step's end -> body at t_end
+    covered = 0.0
+    for end, dt, w, f in reversed(steps):
+        wt = W(min(end, t_end)) - W(end - dt)
+        if wt > 0:
+            q_mid = quat_mul(quat_exp(0.5 * dt * np.asarray(w, float)), q)
+            acc += wt * quat_rotate_inv(q_mid, np.asarray(f, float))
+            covered += wt
+        if W(end - dt) <= 0:
+            break
+        q = quat_mul(quat_exp(dt * np.asarray(w, float)), q)
+    if covered < total:
+        acc += (total - covered) * quat_rotate_inv(q, np.asarray(steps[0][3], float))
+    return acc / total
+
+
+def window_force(steps: Steps, t_end: float, center: float, span: float
+                 ) -> tuple[float, Array]:
+    """(``back`` s, ``f`` m/s^2 body FRD at ``t_end``) such that the velocity a fix
+    measures, the mean over ``[center - span / 2, center + span / 2]`` (s), is
+    ``v(t_end) - back (R(q) (f - b_a) + (0, 0, g))`` (:class:`GnssVelocity`), with ``q``
+    and ``v`` the state at ``t_end``.
+
+    ``steps``: the steps up to the one ending at ``t_end`` (:func:`_weighted_force`).
+    The mean over the window of ``v(t_end) - v(s)`` is the integral of the NED
+    acceleration ``a(tau)`` weighted by ``w(tau) = clip((tau - w0) / span, 0, 1)``,
+    ``w0 = center - span / 2``; so ``back`` is the integral of ``w`` up to ``t_end``
+    (``t_end - center``) and ``f`` the specific force weighted by ``w``."""
+    w0 = center - 0.5 * span
+
+    def W(tau: float) -> float:
+        x = tau - w0
+        if x <= 0:
+            return 0.0
+        return 0.5 * x * x / span if x <= span else x - 0.5 * span
+
+    back = t_end - center
+    if not back > 0:
+        return back, np.asarray(steps[-1][3], float)
+    return back, _weighted_force(steps, t_end, W, back)
+
+
+def carry_force(steps: Steps, t_end: float, t_fix: float) -> tuple[float, float, Array]:
+    """(``back`` s, ``k`` s^2, ``f`` m/s^2 body FRD at ``t_end``) carrying a position of
+    ``t_fix`` (s) to ``t_end`` by the state (:class:`GnssPosition`): ``p(t_fix) = p(t_end)
+    - back v(t_end) + k a``, with ``k f`` the integral of the specific force weighted by
+    ``tau - t_fix`` from ``t_fix`` to ``t_end``, ``k = back^2 / 2``."""
+    back = t_end - t_fix
+
+    def W(tau: float) -> float:
+        x = tau - t_fix
+        return 0.5 * x * x if x > 0 else 0.0
+
+    k = 0.5 * back * back
+    if not back > 0:
+        return back, k, np.asarray(steps[-1][3], float)
+    return back, k, _weighted_force(steps, t_end, W, k)
 
 
 def good_fix(aids: list[_Aid]) -> _Aid | None:
@@ -159,15 +234,18 @@ class AidQueues:
         return lla
 
     def add_gnss(self, s: GnssSample, lla: Array, frame: LocalFrame | SphereFrame,
-                 delay: float) -> None:
+                 delay: float, window: float = 0.0) -> None:
         """Queue the fix ``s`` (``lla`` from :meth:`gnss_lla`) at its time less ``delay``
-        (s), its position NED in ``frame`` (no height for a 2-D fix)."""
+        (s) plus half its velocity ``window`` (s: the step that takes it holds the end of
+        the window its velocity is the mean over), its position NED in ``frame`` (no
+        height for a 2-D fix)."""
         alt = lla[2] if np.isfinite(lla[2]) else frame.h0
         ned = np.asarray(frame.geodetic_to_ned(np.array(lla[0]), np.array(lla[1]),
                                                np.array(alt)), dtype=float)
         if s.fix_type == 2 or not np.isfinite(lla[2]):
             ned[2] = np.nan
-        self.queues["gnss"].append(_Aid(s.t - delay, "gnss", gnss=s, ned=ned))
+        self.queues["gnss"].append(_Aid(s.t - delay + 0.5 * window, "gnss", gnss=s,
+                                        ned=ned, span=window))
 
     # ------------------------------------------------------------------ magnetometer
     def add_mag(self, s: MagSample, delay: float) -> None:
@@ -217,14 +295,17 @@ class AidQueues:
         return False
 
     def gnss_updates(self, fix: _Aid, back: float, f: Array, g: float, noise: NavNoise,
-                     ups: list[tuple[Array, Any]], sensors: list[str]) -> None:
+                     ups: list[tuple[Array, Any]], sensors: list[str],
+                     carry: tuple[float, float, Array] | None = None) -> None:
         """Append the updates of a fix taken by a step (counted ``used``) to ``ups`` and
         their names to ``sensors``: the velocity (:class:`GnssVelocity`, std
         max(s_acc, floor); horizontal only without a vertical speed; NaN counted
         ``vel_nan``) ``back`` s before the step's end (the specific force ``f`` m/s^2
         and gravity ``g`` carry it there), the position carried to the step's end with
         the fix's velocity (:meth:`GnssPosition.from_fix`); the fix's height is kept
-        for the baro offset (``h_fix``)."""
+        for the baro offset (``h_fix``). ``carry`` (back s, k s^2, f m/s^2,
+        :func:`carry_force`): the position is carried by the state instead
+        (:class:`GnssPosition`; a fix with a velocity window)."""
         gs, n = fix.gnss, noise
         assert gs is not None and fix.ned is not None
         v = np.asarray(gs.vel_ned, float)
@@ -238,11 +319,12 @@ class AidQueues:
         else:
             self.count("gnss", "vel_nan")
             vx = np.zeros(3)
-        ned = fix.ned + vx * back
+        ned = fix.ned + vx * back if carry is None else fix.ned
         if np.isfinite(fix.ned[2]):  # the GNSS height (up, m) for the baro offset
-            self.h_fix = (fix.t, -float(fix.ned[2]))
+            self.h_fix = (fix.t - 0.5 * fix.span, -float(fix.ned[2]))
         pf = GnssPosition.from_fix(ned, 3 if np.isfinite(ned[2]) else 2,
-                                   gs.h_acc, gs.v_acc, n)
+                                   gs.h_acc, gs.v_acc, n,
+                                   None if carry is None else (*carry, g))
         if pf is not None:
             ups.append(pf)
             sensors.append("gnss_pos")

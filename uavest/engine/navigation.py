@@ -85,7 +85,7 @@ from .attitude import (
     failover_rate,
     step_plan,
 )
-from .nav_aiding import AidQueues, _Aid, baro_height, good_fix
+from .nav_aiding import AidQueues, _Aid, baro_height, carry_force, good_fix, window_force
 from .nav_align import (
     AlignWindow,
     anchor_start,
@@ -228,6 +228,16 @@ class NavOptions:
 UAVEST_SIM_PARAMS = frozenset({"SIM_SPEEDUP"})
 
 
+def _recent_baro(recent: tuple[tuple[float, ...], tuple[float, ...]], baro: _Aid,
+                 now: float, keep_s: float = 3.0
+                 ) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """``recent`` (times s, baro heights m) with ``baro`` added and those older than
+    ``keep_s`` before ``now`` (s) dropped."""
+    keep = [(t, h) for t, h in zip(*recent, strict=True) if t >= now - keep_s]
+    keep.append((baro.t, baro.height))
+    return tuple(t for t, _ in keep), tuple(h for _, h in keep)
+
+
 def sitl_evidence(params: dict[str, Any]) -> str | None:
     """Why the log's parameters are an ArduPilot SITL's (a ``SIM_*`` parameter, which only
     its simulator has, but :data:`UAVEST_SIM_PARAMS`), or None."""
@@ -325,6 +335,12 @@ class NavStream(StreamSnapshots):
         self.decisions: list[dict[str, Any]] = []
         self.declination = 0.0
         self.delay = 0.0
+        self.vel_window = 0.0  # s, NavNoise.gnss_vel_window
+        #: the last steps released (end s, length s, rate, specific force) while a
+        #: velocity window needs them (:func:`~uavest.engine.nav_aiding.window_force`)
+        self._recent: deque[tuple[float, float, Array, Array]] = deque()
+        #: the baro heights of the last few seconds (times s, heights m) with a window
+        self._baro_recent: tuple[tuple[float, ...], tuple[float, ...]] = ((), ())
         self.imu_delay = 0.0
         self.frame: LocalFrame | SphereFrame | None = None
         #: why the stream is taken as an ArduPilot SITL's (its lat/lon on ArduPilot's
@@ -590,7 +606,7 @@ class NavStream(StreamSnapshots):
                          s.t, why)
             lat = np.deg2rad(lla[0])
             self._model = ImuTransition(self.noise, lat=lat, h=float(lla[2]))
-        self._aids.add_gnss(s, lla, self.frame, self.delay)
+        self._aids.add_gnss(s, lla, self.frame, self.delay, self.vel_window)
 
     def _geodesy(self) -> tuple[str, str]:
         """(the local frame's geodesy, why): the option, else ArduPilot's sphere for an
@@ -678,7 +694,7 @@ class NavStream(StreamSnapshots):
         n = self.noise
         # moving, the compensation rests on a differenced GNSS velocity: a wider tilt prior
         tilt = n.init_tilt if speed < o.yaw_speed else 3.0 * n.init_tilt
-        v, p, pv = fix_prior(fix, self._stamp(r) - fix.t, self.noise)
+        v, p, pv = fix_prior(fix, self._stamp(r) - fix.t + 0.5 * fix.span, self.noise)
         x, P = fix_start(q, tilt, syaw, v, p, pv, n)
         al.done()
         if al.unaided:
@@ -740,7 +756,7 @@ class NavStream(StreamSnapshots):
         running attitude and biases kept (:data:`KEEP_ATT_BIAS_X`)."""
         n, g = self.noise, fix.gnss
         assert g is not None
-        v, p, pv = fix_prior(fix, self._stamp(r) - fix.t, self.noise)
+        v, p, pv = fix_prior(fix, self._stamp(r) - fix.t + 0.5 * fix.span, self.noise)
         x, P = anchor_start(v, p, pv, n)
         self._anchored(r)
         self._align.vfix.clear()
@@ -796,13 +812,35 @@ class NavStream(StreamSnapshots):
         ups: list[tuple[Array, Any]] = []
         sensors: list[str] = []
         fix = next((a for a in reversed(aids) if a.sensor == "gnss"), None)
+        stamp = self._stamp(r)
+        carry = None
+        if self.vel_window > 0:
+            self._recent.append((stamp, r.t - r.t0, r.w, r.a))
+            while self._recent[0][0] < stamp - self.vel_window - self.delay - 1.0:
+                self._recent.popleft()
         if fix is not None and fix.gnss is not None and fix.ned is not None:
-            self._aids.gnss_updates(fix, self._stamp(r) - fix.t, r.a, self._model.g, n,
-                                    ups, sensors)
+            if fix.span > 0:
+                steps = list(self._recent)
+                back, f = window_force(steps, stamp, fix.t - 0.5 * fix.span, fix.span)
+                carry = carry_force(steps, stamp, fix.t - 0.5 * fix.span)
+            else:
+                back, f = stamp - fix.t, r.a
+            self._aids.gnss_updates(fix, back, f, self._model.g, n, ups, sensors, carry)
+        if carry is not None and self._aids.h_fix is not None:
+            # a windowed fix is taken after its time: pair its height with the baro's
+            # at that time (the last baro after it, in a climb, is off by the climb)
+            tb, hb = self._baro_recent
+            t_h, h = self._aids.h_fix
+            i = int(np.searchsorted(tb, t_h))
+            if 0 < i < len(tb) and tb[i] - tb[i - 1] <= 0.5:
+                a = (t_h - tb[i - 1]) / (tb[i] - tb[i - 1])
+                self._offset_pair((1 - a) * hb[i - 1] + a * hb[i] - h, r.t)
         baro = next((a for a in reversed(aids) if a.sensor == "baro"), None)
         if baro is not None:
             h_fix = self._aids.h_fix
-            if h_fix is not None and baro.t - h_fix[0] <= 0.5:
+            if self.vel_window > 0:
+                self._baro_recent = _recent_baro(self._baro_recent, baro, stamp)
+            elif h_fix is not None and baro.t - h_fix[0] <= 0.5:
                 self._offset_pair(baro.height - h_fix[1], r.t)
             self._aids.baro_updates(baro, self._stamp(r), n, ups, sensors)
         mag = next((a for a in reversed(aids) if a.sensor == "mag"), None)
@@ -843,6 +881,7 @@ class NavStream(StreamSnapshots):
         integ, why, factor = step_plan(imu, rate, o.integration, o.rate_hz)
         self.noise = nav_noise_for_source(imu, rate).with_(**o.noise)
         self.delay = float(self.noise.gnss_delay if o.gnss_delay is None else o.gnss_delay)
+        self.vel_window = float(self.noise.gnss_vel_window)
         self.mag_delay = float(o.mag_delay or 0.0)
         self.baro_delay = float(o.baro_delay or 0.0)
         med = float(np.median(np.diff(ti))) if len(ti) > 1 else 0.0  # s, IMU interval

@@ -26,6 +26,7 @@ MagField, GravityDirection) onto the navigation state.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -65,6 +66,10 @@ class NavNoise:
     gnss_vel_floor: lower bound on the GNSS velocity std per axis, m/s.
     gnss_delay: GNSS measurement delay, s (the fix is applied to the state that far
         back; 0: none).
+    gnss_vel_window: the GNSS velocity is the mean velocity over this long a window, s,
+        centred ``gnss_delay`` before the fix's stamp (0: the velocity at that time).
+        An ArduPilot SITL's GPS_RAW_INT velocity is such a mean over about 0.35 s
+        (docs/navigation.md).
     baro_noise: barometric height std, m.
     mag_noise: heading / field-direction std, rad.
     gate_chi2: innovation gate, chi-square value per measurement dimension group
@@ -88,6 +93,7 @@ class NavNoise:
     gnss_vpos_floor: float = 1.0
     gnss_vel_floor: float = 0.1
     gnss_delay: float = 0.0
+    gnss_vel_window: float = 0.0
     baro_noise: float = 0.5
     mag_noise: float = 0.08
     init_tilt: float = np.deg2rad(5.0)
@@ -263,23 +269,70 @@ class _Block(Measurement):
 class GnssPosition(_Block):
     """GNSS position in NED, m (from lat/lon/alt through the LocalFrame). ``rows``
     (0, 1) for a 2-D fix (horizontal only). R from the receiver's eph/epv (or h_acc /
-    v_acc) with the floors of :class:`NavNoise` (:meth:`from_fix`)."""
+    v_acc) with the floors of :class:`NavNoise` (:meth:`from_fix`).
+
+    ``back`` (s) and ``k`` (s^2): the fix is of the position ``back`` before the state's
+    time, carried by the state: ``h = p - back v + k (R(q) (f - b_a) + (0, 0, g))``, with
+    ``k f`` the specific force (m/s^2, body FRD at the state's time) weighted by the time
+    since the fix over those ``back`` s (``k = back^2 / 2``;
+    :func:`uavest.engine.nav_aiding.carry_force`). Without ``f`` the position is taken at
+    the state's time (the stream carries it with the fix's velocity)."""
 
     _sl = slice(7, 10)
 
+    def __init__(self, R: Array, rows: tuple[int, ...] = (0, 1, 2), back: float = 0.0,
+                 k: float = 0.0, f: Array | None = None, g: float = 0.0) -> None:
+        super().__init__(R, rows)
+        self.back = float(back) if f is not None else 0.0
+        self.k = float(k)
+        self.f = None if f is None else np.asarray(f, float)
+        self.g = float(g)
+
+    def h(self, X: Array) -> Array:
+        if not self.back:
+            return super().h(X)
+        assert self.f is not None
+        a = quat_rotate(X[..., :4], self.f - X[..., 13:16])
+        a[..., 2] += self.g
+        p = X[..., 7:10] - self.back * X[..., 4:7] + self.k * a
+        return p[..., list(self.rows)]
+
+    def H(self, x: Array) -> Array:
+        if not self.back:
+            return self._H
+        return self.H_rows(x[None, :])[0]
+
+    def H_rows(self, X: Array) -> Array:
+        """Jacobians (M, m, 15) at every row of ``X`` (M, 16), vectorised."""
+        if not self.back:
+            return super().H_rows(X)
+        assert self.f is not None
+        R = quat_to_dcm(X[:, :4])
+        H = np.zeros((X.shape[0], 3, 15))
+        H[:, :, 6:9] = np.eye(3)
+        H[:, :, 3:6] = -self.back * np.eye(3)
+        H[:, :, 0:3] = -self.k * R @ skew(self.f - X[:, 13:16])
+        H[:, :, 12:15] = -self.k * R
+        return H[:, list(self.rows)]
+
     @staticmethod
     def from_fix(ned: Array, fix_type: int, h_acc: float | None, v_acc: float | None,
-                 noise: NavNoise) -> tuple[Array, GnssPosition] | None:
+                 noise: NavNoise, carry: tuple[float, float, Array, float] | None = None
+                 ) -> tuple[Array, GnssPosition] | None:
         """(z, model) for one fix, or None when the fix type is < 2 or a value is not
-        finite (no position update below a 2-D fix; 2-D: horizontal only)."""
+        finite (no position update below a 2-D fix; 2-D: horizontal only). ``carry``:
+        (back s, k s^2, f m/s^2, g m/s^2) of a fix carried by the state (class doc)."""
         ned = np.asarray(ned, float)
         if fix_type < 2 or not np.all(np.isfinite(ned[:2])):
             return None
         sh = max(noise.gnss_pos_floor, h_acc if h_acc and np.isfinite(h_acc) else 0.0)
         sv = max(noise.gnss_vpos_floor, v_acc if v_acc and np.isfinite(v_acc) else 0.0)
+        kw: dict[str, Any] = {}
+        if carry is not None:
+            kw = dict(zip(("back", "k", "f", "g"), carry, strict=True))
         if fix_type == 2 or not np.isfinite(ned[2]):
-            return ned[:2], GnssPosition(np.diag([sh**2, sh**2]), rows=(0, 1))
-        return ned, GnssPosition(np.diag([sh**2, sh**2, sv**2]))
+            return ned[:2], GnssPosition(np.diag([sh**2, sh**2]), rows=(0, 1), **kw)
+        return ned, GnssPosition(np.diag([sh**2, sh**2, sv**2]), **kw)
 
 
 class GnssVelocity(_Block):
