@@ -31,9 +31,10 @@ def _accel(t: np.ndarray, amp: float) -> np.ndarray:
 
 
 def _probe(delay: float, amp: float = 2.0, noise: float = 0.02, seed: int = 0,
-           hz: float = 25.0, T: float = 120.0) -> DelayProbe:
+           hz: float = 25.0, T: float = 120.0, window: float = 0.0) -> DelayProbe:
     """Level flight (identity attitude, so the specific force is a - g) with the GNSS
-    velocity (5 Hz, horizontal only, white noise) ``delay`` s behind the IMU."""
+    velocity (5 Hz, horizontal only, white noise) ``delay`` s behind the IMU, the mean
+    over ``window`` s centred there when ``window`` > 0."""
     rng = np.random.default_rng(seed)
     dt = 1.0 / hz
     t = np.arange(dt, T, dt)
@@ -49,7 +50,11 @@ def _probe(delay: float, amp: float = 2.0, noise: float = 0.02, seed: int = 0,
     ts = np.linspace(0.0, T, 200001)
     v = np.cumsum(_accel(ts, amp), axis=0) * (ts[1] - ts[0])
     for tk in tf:
-        vk = np.array([np.interp(tk - delay, ts, v[:, i]) for i in range(2)] + [np.nan])
+        if window > 0:
+            m = np.abs(ts - (tk - delay)) <= 0.5 * window
+            vk = np.r_[v[m, :2].mean(axis=0), np.nan]
+        else:
+            vk = np.array([np.interp(tk - delay, ts, v[:, i]) for i in range(2)] + [np.nan])
         vk[:2] += noise * rng.standard_normal(2)
         p.add_gnss(GnssSample(float(tk), np.array([47.0, 8.0, 400.0]), vk, 3, np.nan,
                               np.nan, np.nan, np.nan, np.nan, -1, "GPS_RAW_INT"))
@@ -62,6 +67,18 @@ def test_a_known_delay_is_found(delay):
     assert est.delay is not None, est.why
     assert abs(est.delay - delay) < 0.005  # 0 too: the grid reaches below it
     assert est.sd is not None and 0 < est.sd < MAX_SD_S
+
+
+@pytest.mark.parametrize("window", [0.0, 0.2, 0.35])
+def test_a_known_velocity_window_is_found(window):
+    """A GNSS velocity that is the mean over a window (an ArduPilot SITL's: 0.35 s) gives
+    the window, with the delay at its centre; an instantaneous one gives 0."""
+    est = _probe(0.08, window=window, noise=0.005).estimate()
+    assert est.delay is not None and abs(est.delay - 0.08) < 0.005, est.why
+    assert est.window is not None, est.window_why
+    assert abs(est.window - window) < 0.03
+    if window == 0.0:
+        assert "noise" in est.window_why
 
 
 def test_the_standard_error_covers_the_error():

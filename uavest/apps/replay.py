@@ -209,9 +209,19 @@ def _gnss_delay_doc(est: DelayEstimate, noise: NavNoise, span: str, refined: str
     else:
         used = float(noise.gnss_delay)
         why = f"default (not estimated: {est.why})"
-    return {"delay": est.delay, "sd": est.sd, "pairs": est.pairs,
-            "excitation": est.excitation, "why": est.why, "delay_used": used,
-            "why_used": why}
+    doc = {"delay": est.delay, "sd": est.sd, "pairs": est.pairs,
+           "excitation": est.excitation, "why": est.why, "delay_used": used,
+           "why_used": why, "window": est.window, "window_ratio": est.window_ratio}
+    if est.window:
+        doc["window_used"] = est.window
+        doc["window_why_used"] = (
+            f"estimated: the GNSS velocity is the mean over this window, centred on the "
+            f"delay (the window's means of the IMU's velocity fit the velocity changes "
+            f"with {est.window_ratio:.2f} of the cost without one; "
+            f"--noise gnss_vel_window=S to set it)")
+    elif est.delay is not None:
+        doc["window_why_used"] = f"default (not estimated: {est.window_why})"
+    return doc
 
 
 def _mag_doc(cfg: ReplayConfig, mest: MagEstimate, noise: NavNoise, span: str, refined: str
@@ -442,6 +452,7 @@ def replay_samples(
                              "of the attitude-only model that runs here")
     wall0 = time.perf_counter()
     delay_doc = None
+    window_set = "gnss_vel_window" in cfg.noise  # by the option
     if nav and cfg.estimate_delay and (cfg.gnss_delay is None or cfg.mag_delay is None
                                        or "mag_noise" not in cfg.noise):
         delay_doc, windowed = probe_gnss_delay(windowed, cfg, params)
@@ -449,7 +460,10 @@ def replay_samples(
         cfg = replace(cfg, gnss_delay=delay_doc.get("delay_used", cfg.gnss_delay),
                       mag_delay=md.get("delay_used", cfg.mag_delay),
                       noise={**cfg.noise, **({"mag_noise": md["noise_used"]}
-                                             if "noise_used" in md else {})})
+                                             if "noise_used" in md else {}),
+                             **({"gnss_vel_window": delay_doc["window_used"]}
+                                if "window_used" in delay_doc
+                                and "gnss_vel_window" not in cfg.noise else {})})
     specs = build_filters(resolve_list(cfg.filters, "attitude", dim=15 if nav else 6))
     rng_for = rng_for or (lambda label: rng(cfg.seed, 0, filter_stream(label)))
     runner_cls = NavRunner if nav else FilterRunner
@@ -468,6 +482,8 @@ def replay_samples(
                                gnss_delay_why=probe.get("why_used"),
                                mag_delay_why=probe_mag.get("why_used"),
                                mag_noise_why=probe_mag.get("noise_why"),
+                               gnss_vel_window_why=None if window_set
+                               else probe.get("window_why_used"),
                                mag_inclination=probe_mag.get("inclination"),
                                mag_inclination_why=probe_mag.get("inclination_why")),
                   params=params) if nav

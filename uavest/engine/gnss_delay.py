@@ -67,6 +67,17 @@ MAX_SD_S = 0.01
 #: ... and the GNSS velocity changed enough: the sum of |dv_i|^2 over the pairs, (m/s)^2
 #: (a hover with 2 cm/s of noise over 10 min gives ~1).
 MIN_EXCITATION = 20.0
+#: The GNSS velocity windows tried (s): 0 to this every WINDOW_GRID_S; the window is
+#: taken when the cost falls by more than the noise would explain: ``(J_0 - J_L) /
+#: (J_L / (m_eff - 1))`` above WINDOW_F (chi-square, 1 dof, 99.9 %), with ``m_eff`` the
+#: residual components over WINDOW_OVERLAP (the 1-s pairs of 5-Hz fixes overlap, so
+#: their residuals are not independent), and to at most WINDOW_GAIN of J_0.
+MAX_WINDOW_S = 0.8
+WINDOW_GRID_S = 0.025
+WINDOW_F = 10.83
+WINDOW_OVERLAP = 5.0
+WINDOW_GAIN = 0.95
+WINDOW_POINTS = 12  # the window mean: of this many midpoints
 #: The magnetometer ages tried (s): 0 to this.
 MAX_MAG_DELAY_S = 0.3
 #: The replay's pre-pass looks at the first this many seconds of IMU data (s).
@@ -98,6 +109,11 @@ class DelayEstimate:
     grid: Array = field(default_factory=lambda: np.zeros(0))
     cost: Array = field(default_factory=lambda: np.zeros(0))
     imu_rate_hz: float = 0.0  # the probe run's IMU rate (Hz)
+    #: the GNSS velocity's window (s, NavNoise.gnss_vel_window; None: not estimated,
+    #: ``window_why`` says why) and the cost there over the cost without one
+    window: float | None = None
+    window_ratio: float | None = None
+    window_why: str = ""
 
 
 @dataclass
@@ -315,7 +331,48 @@ class DelayProbe:
                        f"{sd * 1e3:.0f} ms > {MAX_SD_S * 1e3:.0f} ms)")
         else:
             est.delay = d
+            self._window(est, t0, t, V, dv, seg, gt, i0, i1, dz, comp)
         return est
+
+    def _window(self, est: DelayEstimate, t0: Array, t: Array, V: Array, dv: Array,
+                seg: Array, gt: Array, i0: Array, i1: Array, dz: Array, comp: Array
+                ) -> None:
+        """The GNSS velocity's window at the estimated delay: the ``L`` of a grid (0 to
+        :data:`MAX_WINDOW_S`) whose window means of ``V`` (over ``[t - d - L / 2, t - d +
+        L / 2]``) fit the velocity changes best; taken when its cost is at most
+        :data:`WINDOW_GAIN` of the cost at 0 (an ArduPilot SITL's GPS velocity: 0.35 s,
+        docs/navigation.md)."""
+        assert est.delay is not None
+        d = est.delay
+        h = 0.5 * MAX_WINDOW_S
+        _, sa = _v_at(t0, t, V, dv, seg, gt[i0] - d - h)
+        _, sb = _v_at(t0, t, V, dv, seg, gt[i1] - d + h)
+        use = (sa >= 0) & (sa == sb)
+        if int(use.sum()) < 10:
+            est.window_why = f"{int(use.sum())} GNSS fix pairs inside the IMU data"
+            return
+        grid = np.arange(0.0, MAX_WINDOW_S + 0.5 * WINDOW_GRID_S, WINDOW_GRID_S)
+        u = (np.arange(WINDOW_POINTS) + 0.5) / WINDOW_POINTS - 0.5  # midpoints in [-1/2, 1/2]
+        cost = np.empty(grid.size)
+        for k, L in enumerate(grid):
+            va = np.mean([_v_at(t0, t, V, dv, seg, gt[i0] - d + L * x)[0] for x in u], axis=0)
+            vb = np.mean([_v_at(t0, t, V, dv, seg, gt[i1] - d + L * x)[0] for x in u], axis=0)
+            r = np.where(comp & use[:, None], dz - (vb - va), 0.0)
+            cost[k] = float(np.sum(r * r))
+        k = int(np.argmin(cost))
+        est.window_ratio = float(cost[k] / cost[0]) if cost[0] > 0 else 1.0
+        m_eff = float(np.sum(comp & use[:, None])) / WINDOW_OVERLAP
+        f = (cost[0] - cost[k]) / max(cost[k] / max(m_eff - 1.0, 1.0), 1e-300)
+        if k == grid.size - 1:
+            est.window_why = (f"the least cost is at the end of the range searched "
+                              f"({MAX_WINDOW_S:g} s)")
+        elif k == 0 or est.window_ratio > WINDOW_GAIN or f < WINDOW_F:
+            est.window = 0.0
+            est.window_why = (f"no window lowers the cost more than noise would (least "
+                              f"{est.window_ratio:.2f} of the cost without one, at "
+                              f"{grid[k]:.3f} s)")
+        else:
+            est.window = _least(grid, cost, k, 2)[0]
 
     def _integral(self, raw: bool = False) -> tuple[Array, Array, Array, Array, Array]:
         """(step starts, step ends (s), V (m/s) the integral of ``a_n`` (``raw``: without

@@ -151,7 +151,8 @@ class NavOptions:
     where it came from (None: "option --gnss-delay" / "default"); ``mag_delay`` s, the
     magnetometer sample's age (None: 0), and ``mag_delay_why``; ``baro_delay`` s, the
     barometer sample's age (None: 0, not estimated); ``mag_noise_why``: where
-    the ``mag_noise`` of ``noise`` came from (None: an option or the default);
+    the ``mag_noise`` of ``noise`` came from (None: an option or the default), and
+    ``gnss_vel_window_why`` where its ``gnss_vel_window`` came from;
     ``mag_inclination`` rad (None: the World Magnetic Model's within
     :data:`~uavest.engine.nav_align.WMM_INCLINATION_TOL` of the alignment window's
     accelerometer-magnetometer angle, else that angle; ``inclination_wmm`` False: always
@@ -188,6 +189,7 @@ class NavOptions:
     mag_delay_why: str | None = None
     baro_delay: float | None = None
     mag_noise_why: str | None = None
+    gnss_vel_window_why: str | None = None
     mag_inclination: float | None = None
     mag_inclination_why: str | None = None
     inclination_wmm: bool = True
@@ -899,6 +901,7 @@ class NavStream(StreamSnapshots):
             imu_source=imu, imu_sources=imu_counts, mag_source=mag, accel_compensation=None,
             integration=integ, integration_why=why, preintegrated_samples_per_step=factor,
             align_rate_hz=rate, steps_per_update=1, gnss_delay_s=self.delay,
+            gnss_vel_window_s=self.vel_window,
             mag_delay_s=self.mag_delay if mag is not None else None,
         )
         t_first = ti[0]
@@ -909,6 +912,9 @@ class NavStream(StreamSnapshots):
         self._decide("integration", integ, t_first, "option" if o.integration != "auto" else why)
         self._decide("GNSS delay", f"{self.delay:.3f} s", t_first, o.gnss_delay_why or (
             "option --gnss-delay" if o.gnss_delay is not None else "default"))
+        if self.vel_window > 0 or o.gnss_vel_window_why:
+            self._decide("GNSS velocity window", f"{self.vel_window:.3f} s", t_first,
+                         o.gnss_vel_window_why or "option --noise")
         self._decide("IMU delay", f"{self.imu_delay * 1e3:.1f} ms", t_first, dwhy)
         if mag is not None:
             self._decide("magnetometer delay", f"{self.mag_delay * 1e3:.0f} ms", t_first,
