@@ -68,8 +68,9 @@ def test_gps_raw_int_units_accuracies_and_velocity(tmp_path):
     assert len(g) == 10 and g.source == "GPS_RAW_INT" and g.instance == 0
     assert np.allclose(g.t, 10.0 - 0.06 + 0.2 * np.arange(10))
     assert np.allclose(g.lat_lon_alt[0], [47.397742, 8.545594, 488.0])
-    # 5 m/s at course 90 deg: east; no vertical speed in GPS_RAW_INT
-    assert np.allclose(g.vel_ned[:, :2], [[0.0, 5.0]] * 10, atol=1e-9)
+    # 500 cm/s at course 90 deg: east, read as the middle of its centimetre (ArduPilot
+    # and PX4 truncate the speed to whole cm/s); no vertical speed in GPS_RAW_INT
+    assert np.allclose(g.vel_ned[:, :2], [[0.0, 5.005]] * 10, atol=1e-9)
     assert np.all(np.isnan(g.vel_ned[:, 2]))
     assert np.allclose(g.h_acc, 0.9) and np.allclose(g.v_acc, 1.6) and np.allclose(g.s_acc, 0.15)
     assert np.allclose(g.hdop, 1.2) and np.allclose(g.vdop, 1.8)
@@ -360,3 +361,12 @@ def test_on_arrival_releases_a_receive_burst_in_time_order(tmp_path):
                 assert isinstance(got[i - 1], ImuSample) and round(got[i - 1].t * 1000) == t_ms
                 own += 1
     assert same == own == 8
+
+
+def test_gps_raw_int_speed_is_read_as_the_middle_of_its_centimetre(tmp_path):
+    """A stopped receiver stays at 0; 1 cm/s north is 0.015 m/s (a truncated speed)."""
+    p = tmp_path / "g.tlog"
+    write_log(p, bad={0: {"vel": 0}, 1: {"vel": 1, "cog": 0}})
+    g = read_log(p).gnss["GPS_RAW_INT"]
+    assert np.allclose(g.vel_ned[0, :2], [0.0, 0.0])
+    assert np.allclose(g.vel_ned[1, :2], [0.015, 0.0])

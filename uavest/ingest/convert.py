@@ -335,14 +335,20 @@ def gnss_acc(h_acc=math.nan, v_acc=math.nan, s_acc=math.nan, hdop=math.nan, vdop
 
 
 def _gnss_raw_int(m, name: str) -> list[Raw]:
-    """GPS_RAW_INT / GPS2_RAW: lat/lon degE7, alt mm AMSL, vel cm/s and cog cdeg (ground
+    """GPS_RAW_INT / GPS2_RAW: lat/lon degE7, alt mm AMSL, vel cm/s (truncated: read as
+    the middle of its centimetre) and cog cdeg (ground
     speed and course: NED north/east, vertical NaN), eph/epv HDOP/VDOP x100, h_acc/v_acc
     mm, vel_acc mm/s (MAVLink 2 extensions; absent or 0 = unknown -> NaN)."""
     inst = 1 if name == "GPS2_RAW" else 0
     lla = np.array([m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3], dtype=float)
     vel = np.full(3, np.nan)
     if m.vel != _U16_UNKNOWN and m.cog != _U16_UNKNOWN:
-        spd, crs = m.vel * 1e-2, m.cog * 1e-2 * DEG
+        # ArduPilot and PX4 truncate the ground speed to whole cm/s (a float cast to
+        # uint16): a speed of n cm/s is one in [n, n + 1), n + 0.5 on average (an
+        # ArduCopter SITL: 0.005 m/s under its true speed, which a navigation filter
+        # trusting the velocity integrates into an along-track position error)
+        spd = (m.vel + 0.5) * 1e-2 if m.vel > 0 else 0.0
+        crs = m.cog * 1e-2 * DEG
         vel[:2] = spd * math.cos(crs), spd * math.sin(crs)
     sats = int(m.satellites_visible)
     acc = gnss_acc(_opt(m, "h_acc", 1e-3), _opt(m, "v_acc", 1e-3), _opt(m, "vel_acc", 1e-3),
