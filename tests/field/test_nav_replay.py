@@ -300,11 +300,14 @@ def test_sitl_copter_gnss_velocity_is_a_window_mean():
 
 @pytest.mark.slow
 def test_sitl_copter_velocity_window_pays(tmp_path):
-    """The replay of logs/sitl_copter.tlog told the SITL's GNSS velocity window
-    (``--noise gnss_vel_window=0.35``) against the same replay without it: velocity,
-    horizontal position and every attitude axis closer to the truth."""
-    _, docs = _sitl_copter_runs(tmp_path, {"win": ("--noise", "gnss_vel_window=0.35"),
-                                           "none": ()})
+    """The replay of logs/sitl_copter.tlog with the GNSS velocity window its probe
+    estimates (a decision line: 0.35 s) against the same replay told there is none
+    (``--noise gnss_vel_window=0``): velocity, horizontal position and every attitude
+    axis closer to the truth."""
+    outs, docs = _sitl_copter_runs(tmp_path, {"win": (), "none": (
+        "--noise", "gnss_vel_window=0")})
+    assert "decision: GNSS velocity window: 0.3" in outs["win"]
+    assert "GNSS velocity window: 0.000 s" in outs["none"]
     w, n = (docs[k]["filters"]["ekf"]["airborne"] for k in ("win", "none"))
     assert w["vel_rmse_ms"] < 0.9 * n["vel_rmse_ms"]
     assert w["hpos_rmse_m"] < 0.9 * n["hpos_rmse_m"]

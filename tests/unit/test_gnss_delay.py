@@ -257,3 +257,37 @@ def test_a_probe_that_cannot_start_is_reported_and_gives_every_sample_back():
     assert doc["delay"] is None and "the probe run failed" in doc["why"], doc["why"]
     assert "could not start" in doc["why"]
     assert list(it) == no_fix
+
+
+def _baro_probe(baro_delay: float, climb: float = 2.0, seed: int = 0) -> DelayProbe:
+    """GNSS heights at 5 Hz (0.08 s behind their stamps, 2 cm noise) and baro heights at
+    10 Hz ``baro_delay`` s behind theirs (3 cm noise, a 400 m offset, a slow drift), of a
+    vehicle climbing and descending at up to ``climb`` m/s."""
+    rng = np.random.default_rng(seed)
+    p = DelayProbe()
+
+    def h(t):
+        return 20.0 + climb * 8.0 * np.sin(t / 8.0)
+
+    for tk in np.arange(1.0, 119.0, 0.2):
+        p.add_gnss(GnssSample(float(tk), np.array([47.0, 8.0, h(tk - 0.08)
+                                                   + 0.02 * rng.standard_normal()]),
+                              np.array([1.0, 0.0, np.nan]), 3, np.nan, np.nan, np.nan,
+                              np.nan, np.nan, -1, "GPS_RAW_INT"))
+    for tk in np.arange(1.0, 119.0, 0.1):
+        p.add_baro(float(tk), h(tk - baro_delay) + 400.0 + 0.002 * tk
+                   + 0.03 * rng.standard_normal())
+    return p
+
+
+@pytest.mark.parametrize("delay", [0.0, 0.02, 0.09])
+def test_a_known_baro_delay_is_found(delay):
+    est = _baro_probe(delay).estimate_baro(gnss_delay=0.08)
+    assert est.delay is not None, est.why
+    assert abs(est.delay - delay) < 0.01
+    assert est.spread is not None and 0.02 < est.spread < 0.06  # the two noises
+
+
+def test_a_level_flight_gives_no_baro_delay():
+    est = _baro_probe(0.05, climb=0.0).estimate_baro(gnss_delay=0.08)
+    assert est.delay is None and ("not sharp" in est.why or "end of the range" in est.why)

@@ -25,7 +25,7 @@ def _run(**kw):
 
 
 @pytest.mark.slow  # three navigation runs over a 206 s log
-def test_live_run_estimates_the_gnss_delay_and_uses_it():
+def test_live_run_estimates_the_gnss_delay_window_and_baro_delay_and_uses_them():
     on_arrival = _run()
     ordered = _run(reorder_window=1.0)
     none = _run(gnss_delay=0.0)
@@ -43,6 +43,13 @@ def test_live_run_estimates_the_gnss_delay_and_uses_it():
     # run that held every sample in time order (no rewind) is the same within 2 ms
     assert ordered["history"]["lanes"] == {}
     assert abs(ordered["gnss_delay_live"]["delay"] - learned["delay"]) < 0.002
+    # with the delay, the GNSS velocity's window (the replay's probe: 0.347 s) and the
+    # baro's delay behind the GNSS height (0.089 s; against SIM_STATE 0.088 s)
+    assert 0.3 < learned["window"] < 0.4 and 0.07 < learned["baro_delay"] < 0.11, learned
+    assert abs(ordered["gnss_delay_live"]["window"] - learned["window"]) < 0.02
+    for what in ("GNSS velocity window", "baro delay"):
+        said = [d for d in on_arrival["decisions"] if d["what"] == what]
+        assert "estimated live" in said[-1]["why"], said
     # the delay given, nothing is learned
     assert "gnss_delay_live" not in none
     a, b = on_arrival["attitude"]["ekf"], none["attitude"]["ekf"]

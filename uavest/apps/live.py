@@ -63,6 +63,7 @@ from ..ingest.mavlink import sample_key
 from ..ingest.types import (
     AdsbSample,
     AttitudeRef,
+    BaroSample,
     DetectionSample,
     GnssSample,
     ImuSample,
@@ -572,6 +573,8 @@ class _LearnGnss(Sink):
     def sample(self, s) -> None:
         if isinstance(s, GnssSample):
             self.learner.add_gnss(s, getattr(self.att.stream, "gnss_source", None))
+        elif isinstance(s, BaroSample):
+            self.learner.add_baro(s, getattr(self.att.stream, "baro_source", None))
 
 
 class _NoEvents:

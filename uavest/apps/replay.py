@@ -47,7 +47,7 @@ from ..seeding import filter_stream, rng
 from ..sinks.base import Collector, Sink
 
 if TYPE_CHECKING:
-    from ..engine.gnss_delay import DelayEstimate, MagEstimate
+    from ..engine.gnss_delay import BaroEstimate, DelayEstimate, MagEstimate
 
 Array = np.ndarray
 
@@ -85,7 +85,7 @@ class ReplayConfig:
     accel_comp: str = "auto"
     mag_mode: str = "field"
     mag_delay: float | None = None  # s; None: estimated (navigation), 0 (attitude-only)
-    baro_delay: float | None = None  # s; None: 0 (navigation; not estimated)
+    baro_delay: float | None = None  # s; None: estimated (navigation), else as given
     geodesy: str = "auto"  # navigation: the local frame's (NavOptions.geodesy)
     #: the library default stays the attitude model (the one whose results the golden
     #: files and earlier tables hold); ``uavest replay`` defaults to "auto"
@@ -125,6 +125,11 @@ PROBE_REFINE_S = 0.03
 #: 0.05; 0.066 with the true inclination at 0.01), while the SITL flight's (0.06 deg off)
 #: gained (yaw 0.22 deg at 0.02, 0.40 at 0.05).
 MAG_NOISE_MIN = 0.05
+#: The baro noise taken from the probe's spread is at least this (m) and at most the
+#: IMU source's default: the spread is against the GNSS height, which an ArduPilot SITL
+#: gives without noise (4 mm on logs/sitl_copter.tlog), and a real baro's noise changes
+#: with the airflow round the vehicle, which a stretch of the flight may not show.
+BARO_NOISE_MIN = 0.05
 
 
 def probe_gnss_delay(samples: Iterable, cfg: ReplayConfig, params: dict | None
@@ -147,18 +152,19 @@ def probe_gnss_delay(samples: Iterable, cfg: ReplayConfig, params: dict | None
     noise = NavNoise().with_(**cfg.noise)
     opts = replace(opts, noise={**cfg.noise, **{
         k: max(v, float(getattr(noise, k))) for k, v in PROBE_FLOORS.items()}})
-    est, mest, held, rest, runs = _run_probes(samples, cfg, params, opts)
+    est, mest, held, rest, runs, best = _run_probes(samples, cfg, params, opts)
     span = f"the first {PROBE_S:g} s of IMU data"
     refined = ", refined once" if runs == 2 else ""
     doc: dict = {"probe_runs": runs}
     if cfg.gnss_delay is None:
         doc.update(_gnss_delay_doc(est, noise, span, refined))
     doc["mag"] = _mag_doc(cfg, mest, noise, span, refined)
+    doc["baro"] = _baro_doc(cfg, best, noise, span)
     return doc, itertools.chain(held, rest)
 
 
-def _run_probes(samples: Iterable, cfg: ReplayConfig, params: dict | None,
-                opts: NavOptions) -> tuple[DelayEstimate, MagEstimate, list, Iterator, int]:
+def _run_probes(samples: Iterable, cfg: ReplayConfig, params: dict | None, opts: NavOptions
+                ) -> tuple[DelayEstimate, MagEstimate, list, Iterator, int, BaroEstimate]:
     """The probe (:data:`PROBE_FILTER` on the stream options ``opts``) over the first
     samples, run a second time over the held ones from the estimated delays when either
     is more than :data:`PROBE_REFINE_S` from the one it assumed: (GNSS estimate,
@@ -175,13 +181,13 @@ def _run_probes(samples: Iterable, cfg: ReplayConfig, params: dict | None,
 
     prior = 0.0 if cfg.gnss_delay is None else float(cfg.gnss_delay)
     prior_m = 0.0 if cfg.mag_delay is None else float(cfg.mag_delay)
-    est, mest, held, rest = probe(samples, prior, prior_m)
+    est, mest, held, rest, best = probe(samples, prior, prior_m)
     runs = 1
     if 0 < est.imu_rate_hz < PROBE_MIN_IMU_HZ:  # (0: the probe run failed, why says why)
         why = (f"the IMU at {est.imu_rate_hz:.1f} Hz is too coarse to time the aiding "
                f"against (the probe needs {PROBE_MIN_IMU_HZ:g} Hz)")
-        est.delay = mest.delay = mest.scatter = mest.inclination = None
-        est.why = mest.why = why
+        est.delay = mest.delay = mest.scatter = mest.inclination = best.delay = None
+        est.why = mest.why = best.why = why
     far_g = cfg.gnss_delay is None and est.delay is not None and abs(
         est.delay - prior) > PROBE_REFINE_S
     far_m = cfg.mag_delay is None and mest.delay is not None and abs(
@@ -189,11 +195,12 @@ def _run_probes(samples: Iterable, cfg: ReplayConfig, params: dict | None,
     if far_g or far_m:
         prior = est.delay if far_g and est.delay is not None else prior
         prior_m = mest.delay if far_m and mest.delay is not None else prior_m
-        est2, mest2, _, _ = probe(held, prior, prior_m)
+        est2, mest2, _, _, best2 = probe(held, prior, prior_m)
         runs = 2
         est = est2 if est2.delay is not None or est.delay is None else est
         mest = mest2 if mest2.delay is not None or mest.delay is None else mest
-    return est, mest, held, rest, runs
+        best = best2 if best2.delay is not None or best.delay is None else best
+    return est, mest, held, rest, runs, best
 
 
 def _gnss_delay_doc(est: DelayEstimate, noise: NavNoise, span: str, refined: str) -> dict:
@@ -222,6 +229,39 @@ def _gnss_delay_doc(est: DelayEstimate, noise: NavNoise, span: str, refined: str
     elif est.delay is not None:
         doc["window_why_used"] = f"default (not estimated: {est.window_why})"
     return doc
+
+
+def _baro_doc(cfg: ReplayConfig, best: BaroEstimate, noise: NavNoise, span: str) -> dict:
+    """The barometer part of the probe's document: the estimate, and what the run takes
+    from it where ``cfg`` leaves it open (the delay; the noise, the spread clipped to
+    [:data:`BARO_NOISE_MIN`, the IMU source's default]) with why."""
+    b: dict = {"delay": best.delay, "sd": best.sd, "samples": best.samples,
+               "why": best.why, "spread": best.spread}
+    if best.delay is None:
+        if cfg.baro_delay is None and best.samples:
+            b["delay_used"], b["why_used"] = 0.0, f"default (not estimated: {best.why})"
+        return b
+    if cfg.baro_delay is None:
+        used, neg = _delay_used(best.delay)
+        assert best.sd is not None
+        b["delay_used"] = used
+        b["why_used"] = (f"estimated{neg}: the lag at which the baro heights, against the "
+                         f"GNSS heights at the GNSS delay, spread least ({best.samples} "
+                         f"samples in {span}, standard error {best.sd * 1e3:.1f} ms; "
+                         "--baro-delay S to set it)")
+    if "baro_noise" not in cfg.noise and best.spread is not None:
+        top = float(best.noise_default or noise.baro_noise)
+        b["noise_used"] = float(np.clip(best.spread, BARO_NOISE_MIN, max(top, BARO_NOISE_MIN)))
+        b["noise_why"] = (f"estimated: the spread of the baro height against the GNSS "
+                          f"height at that delay, {best.spread:.3f} m, within "
+                          f"[{BARO_NOISE_MIN:g}, {top:g}] m (--noise baro_noise=M to set it)")
+    return b
+
+
+def _delay_used(delay: float) -> tuple[float, str]:
+    from ..engine.gnss_delay import delay_used
+
+    return delay_used(delay)
 
 
 def _mag_doc(cfg: ReplayConfig, mest: MagEstimate, noise: NavNoise, span: str, refined: str
@@ -454,13 +494,17 @@ def replay_samples(
     delay_doc = None
     window_set = "gnss_vel_window" in cfg.noise  # by the option
     if nav and cfg.estimate_delay and (cfg.gnss_delay is None or cfg.mag_delay is None
+                                       or cfg.baro_delay is None
                                        or "mag_noise" not in cfg.noise):
         delay_doc, windowed = probe_gnss_delay(windowed, cfg, params)
-        md = delay_doc["mag"]
+        md, bd = delay_doc["mag"], delay_doc["baro"]
         cfg = replace(cfg, gnss_delay=delay_doc.get("delay_used", cfg.gnss_delay),
                       mag_delay=md.get("delay_used", cfg.mag_delay),
+                      baro_delay=bd.get("delay_used", cfg.baro_delay),
                       noise={**cfg.noise, **({"mag_noise": md["noise_used"]}
                                              if "noise_used" in md else {}),
+                             **({"baro_noise": bd["noise_used"]}
+                                if "noise_used" in bd else {}),
                              **({"gnss_vel_window": delay_doc["window_used"]}
                                 if "window_used" in delay_doc
                                 and "gnss_vel_window" not in cfg.noise else {})})
@@ -477,6 +521,7 @@ def replay_samples(
     coll = Collector() if cfg.smooth else None
     refs = _Refs() if cfg.smooth else None
     probe, probe_mag = delay_doc or {}, (delay_doc or {}).get("mag", {})
+    probe_baro = (delay_doc or {}).get("baro", {})
     stream: AttitudeStream | NavStream = (
         NavStream(opts=replace(cfg.nav_options(), before_fix=decision["fix_stream"],
                                gnss_delay_why=probe.get("why_used"),
@@ -484,6 +529,8 @@ def replay_samples(
                                mag_noise_why=probe_mag.get("noise_why"),
                                gnss_vel_window_why=None if window_set
                                else probe.get("window_why_used"),
+                               baro_delay_why=probe_baro.get("why_used"),
+                               baro_noise_why=probe_baro.get("noise_why"),
                                mag_inclination=probe_mag.get("inclination"),
                                mag_inclination_why=probe_mag.get("inclination_why")),
                   params=params) if nav

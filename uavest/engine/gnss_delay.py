@@ -42,17 +42,17 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry.rotation import quat_exp, quat_mul, quat_rotate, quat_slerp_interp
-from ..ingest.types import GnssSample, ImuSample, MagSample
-from .nav_aiding import NewReadings
+from ..ingest.types import BaroSample, GnssSample, ImuSample, MagSample
+from .nav_aiding import NewReadings, baro_height
 from .navigation import NavOptions, NavRunner, NavStream
 from .records import Start, Step
 
 Array = np.ndarray
 
-__all__ = ["GRID_S", "LIVE_CHECK_S", "LIVE_FIRST_S", "MAX_DELAY_S", "MAX_MAG_DELAY_S",
-           "MAX_SD_S", "MIN_DELAY_S", "MIN_EXCITATION", "PAIR_S", "PROBE_MIN_IMU_HZ", "PROBE_S",
-           "DelayEstimate", "DelayProbe", "LiveDelayLearner", "MagEstimate", "delay_used",
-           "estimate_gnss_delay"]
+__all__ = ["GRID_S", "LIVE_CHECK_S", "LIVE_FIRST_S", "MAX_BARO_DELAY_S", "MAX_DELAY_S",
+           "MAX_MAG_DELAY_S", "MAX_SD_S", "MIN_DELAY_S", "MIN_EXCITATION", "PAIR_S",
+           "PROBE_MIN_IMU_HZ", "PROBE_S", "BaroEstimate", "DelayEstimate", "DelayProbe",
+           "LiveDelayLearner", "MagEstimate", "delay_used", "estimate_gnss_delay"]
 
 #: The delays tried (s): MIN_DELAY_S to MAX_DELAY_S every GRID_S (a negative delay, the
 #: GNSS stamped before the IMU, is reported as found and used as 0).
@@ -78,6 +78,8 @@ WINDOW_F = 10.83
 WINDOW_OVERLAP = 5.0
 WINDOW_GAIN = 0.95
 WINDOW_POINTS = 12  # the window mean: of this many midpoints
+#: The barometer delays tried (s): MIN_DELAY_S to this.
+MAX_BARO_DELAY_S = 0.5
 #: The magnetometer ages tried (s): 0 to this.
 MAX_MAG_DELAY_S = 0.3
 #: The replay's pre-pass looks at the first this many seconds of IMU data (s).
@@ -114,6 +116,24 @@ class DelayEstimate:
     window: float | None = None
     window_ratio: float | None = None
     window_why: str = ""
+
+
+@dataclass
+class BaroEstimate:
+    """The barometer's delay ``delay`` (s; None: not estimated, ``why`` says why) behind
+    the GNSS height taken at the GNSS delay, its standard error ``sd`` (s), the spread
+    ``spread`` (m) of baro minus GNSS height at that delay (the baro's noise with the GNSS
+    height's in it) and the ``samples`` it rests on (:meth:`DelayProbe.estimate_baro`)."""
+
+    delay: float | None
+    sd: float | None
+    samples: int
+    why: str
+    spread: float | None = None
+    #: the baro noise (m) the probe's stream took for its IMU source
+    noise_default: float | None = None
+    grid: Array = field(default_factory=lambda: np.zeros(0))
+    cost: Array = field(default_factory=lambda: np.zeros(0))
 
 
 @dataclass
@@ -161,6 +181,10 @@ class DelayProbe:
         self._q: list[Array] = []
         self._mt: list[float] = []
         self._mf: list[Array] = []
+        self._ht: list[float] = []  # GNSS heights: times (s), heights up (m)
+        self._hh: list[float] = []
+        self._bt: list[float] = []  # baro heights: times (s), heights up (m)
+        self._bh: list[float] = []
         self._gravity: float | None = None  # m/s^2, the model's, from the first step
 
     def start(self) -> None:
@@ -204,6 +228,70 @@ class DelayProbe:
         if s.fix_type >= 2 and np.isfinite(v[:2]).all():
             self._gt.append(float(s.t))
             self._gv.append(v)
+        h = float(s.lat_lon_alt[2])
+        if s.fix_type >= 3 and np.isfinite(h):
+            self._ht.append(float(s.t))
+            self._hh.append(h)
+
+    def add_baro(self, t: float, height: float) -> None:
+        """One barometer sample at ``t`` (s, its stamp) of ``height`` (m up, any offset)."""
+        if np.isfinite(height):
+            self._bt.append(float(t))
+            self._bh.append(float(height))
+
+    def estimate_baro(self, gnss_delay: float, max_delay: float = MAX_BARO_DELAY_S,
+                      grid_s: float = GRID_S) -> BaroEstimate:
+        """The baro's delay (s): the ``L`` of a grid (:data:`MIN_DELAY_S` to ``max_delay``)
+        for which the baro heights, each against the GNSS height at its stamp less ``L``
+        (the GNSS height of a fix stamped ``t`` is taken at ``t - gnss_delay``, linear
+        between fixes), less an offset and a drift (a line in time, fitted), spread least;
+        refined as :meth:`estimate`. What fixes ``L`` is the climbs and descents: its
+        standard error is at least the spread over the root sum of squares of the
+        height's rate at the samples, so a flight at one height gives no estimate. The spread there is the baro's noise with the GNSS
+        height's in it (an ArduCopter SITL: 4 mm, logs/sitl_copter.tlog)."""
+        est = BaroEstimate(None, None, len(self._bt), "")
+        if len(self._bt) < 50 or len(self._ht) < 20:
+            est.why = f"{len(self._bt)} baro samples, {len(self._ht)} 3-D GNSS fixes"
+            return est
+        ht = np.array(self._ht) - gnss_delay
+        hh = np.array(self._hh)
+        order = np.argsort(ht, kind="stable")
+        ht, hh = ht[order], hh[order]
+        bt, bh = np.array(self._bt), np.array(self._bh)
+        keep = (bt - max_delay >= ht[0]) & (bt - MIN_DELAY_S <= ht[-1])
+        bt, bh = bt[keep], bh[keep]
+        n = bt.size
+        est.samples = n
+        if n < 50:
+            est.why = f"{n} baro samples inside the GNSS fixes"
+            return est
+        A = np.c_[np.ones(n), bt - bt.mean()]
+        grid = np.arange(MIN_DELAY_S, max_delay + 0.5 * grid_s, grid_s)
+        cost = np.empty(grid.size)
+        for k, L in enumerate(grid):
+            r = bh - np.interp(bt - L, ht, hh)
+            c, *_ = np.linalg.lstsq(A, r, rcond=None)
+            cost[k] = float(np.sum((r - A @ c) ** 2))
+        est.grid, est.cost = grid, cost
+        k = int(np.argmin(cost))
+        est.spread = float(np.sqrt(cost[k] / max(n - 2, 1)))
+        if not 0 < k < grid.size - 1:
+            est.why = (f"the least spread is at the end of the range searched "
+                       f"({grid[k]:.3f} s of {MIN_DELAY_S:g} to {max_delay:g} s)")
+            return est
+        d, sd = _least(grid, cost, k, n - 1)
+        # the lag's information is the height's rate: sd >= spread / sqrt(sum rate^2),
+        # the rate over 1 s of GNSS heights (the curvature alone takes the ripple of the
+        # GNSS heights' interpolation, with their noise, for a least in a level flight)
+        rate = np.interp(bt - d + 0.5, ht, hh) - np.interp(bt - d - 0.5, ht, hh)
+        est.sd = max(sd, est.spread / max(float(np.sqrt(np.sum(rate * rate))), 1e-12))
+        if est.sd > MAX_SD_S:
+            est.why = (f"the least spread is not sharp ({d * 1e3:.0f} ms, standard error "
+                       f"{est.sd * 1e3:.0f} ms > {MAX_SD_S * 1e3:.0f} ms: too little "
+                       "climbing or descending)")
+            return est
+        est.delay = d
+        return est
 
     def add_mag(self, t: float, field: Array) -> None:
         """One new magnetometer reading at ``t`` (s, its stamp) of ``field`` (body FRD,
@@ -467,12 +555,14 @@ def _cost_on(t0: Array, t1: Array, V: Array, dv: Array, seg: Array, gt: Array, i
 def estimate_gnss_delay(samples: Iterable[Any], opts: NavOptions, params: dict[str, Any],
                         runner: NavRunner, probe_s: float = PROBE_S, prior: float = 0.0,
                         prior_mag: float = 0.0
-                        ) -> tuple[DelayEstimate, MagEstimate, list[Any], Iterator[Any]]:
+                        ) -> tuple[DelayEstimate, MagEstimate, list[Any], Iterator[Any],
+                                   BaroEstimate]:
     """Run ``runner`` (one navigation filter) on a :class:`NavStream` with ``opts`` and
     the delays ``prior`` (GNSS) and ``prior_mag`` (magnetometer, s) over the first
     ``probe_s`` s of IMU data of ``samples``, and estimate both delays from it (and the
-    magnetometer's scatter). Returns the two estimates, the samples read (to be replayed
-    in front of the rest) and the iterator of the rest."""
+    magnetometer's scatter), and the barometer's delay behind the GNSS height. Returns
+    the GNSS and magnetometer estimates, the samples read (to be replayed in front of
+    the rest), the iterator of the rest and the baro estimate."""
     it = iter(samples)
     held: list[Any] = []
     # the probe's inclination is measured with its own attitude from a start on the
@@ -513,6 +603,8 @@ def estimate_gnss_delay(samples: Iterable[Any], opts: NavOptions, params: dict[s
             f = np.asarray(s.field, float)
             if mag_new.new(s.t, f):  # new readings only, as the stream's aiding
                 probe.add_mag(s.t, f)
+        elif isinstance(s, BaroSample) and s.source == stream.baro_source:
+            probe.add_baro(s.t, baro_height(s))
     if failed is None:
         try:
             feed(stream.flush())
@@ -520,13 +612,16 @@ def estimate_gnss_delay(samples: Iterable[Any], opts: NavOptions, params: dict[s
             failed = e
     if failed is not None:
         why = f"the probe run failed ({failed})"
-        return DelayEstimate(None, None, 0, 0.0, why), MagEstimate(None, None, 0, why), held, it
+        return (DelayEstimate(None, None, 0, 0.0, why), MagEstimate(None, None, 0, why), held,
+                it, BaroEstimate(None, None, 0, why))
     est = probe.estimate()
     mest = probe.estimate_mag(gnss_delay=delay_used(est.delay if est.delay is not None
                                                     else prior)[0])
     mest.noise_default = float(stream.noise.mag_noise)
     est.imu_rate_hz = mest.imu_rate_hz = float(stream.summary.get("align_rate_hz") or 0.0)
-    return est, mest, held, it
+    best = probe.estimate_baro(delay_used(est.delay if est.delay is not None else prior)[0])
+    best.noise_default = float(stream.noise.baro_noise)
+    return est, mest, held, it, best
 
 
 # ------------------------------------------------------------------ live
@@ -560,6 +655,12 @@ class LiveDelayLearner:
         self.delay: float | None = None
         self.why = ""
         self.t_decided: float | None = None
+        #: the GNSS velocity window (s) and the baro delay (s) found with the delay (None:
+        #: not estimated), and why
+        self.window: float | None = None
+        self.window_why = ""
+        self.baro_delay: float | None = None
+        self.baro_why = ""
         self.estimates: list[dict[str, Any]] = []
         self.label = ""
         self.done = False
@@ -581,6 +682,11 @@ class LiveDelayLearner:
         stream's receiver ``source`` (None: none chosen yet)."""
         if not self.done and source is not None and s.source == source:
             self._probe.add_gnss(s)
+
+    def add_baro(self, s: BaroSample, source: str | None) -> None:
+        """A baro sample as it arrives, when it is from the stream's barometer ``source``."""
+        if not self.done and source is not None and s.source == source:
+            self._probe.add_baro(s.t, baro_height(s))
 
     def _mark(self) -> tuple[int, tuple[int, int]]:
         return self._gen, self._probe.mark()
@@ -619,6 +725,7 @@ class LiveDelayLearner:
             d, neg = delay_used(est.delay)
             assert est.sd is not None
             self.delay, self.t_decided = d, t
+            self._aids(est, d, span)
             self.why = (f"estimated live{neg}: the lag of the GNSS velocity behind the IMU "
                         f"({self.label}, {est.pairs} fix pairs over {span:.0f} s of "
                         f"{'the run with the first estimate' if self._refining else 'navigation'},"
@@ -637,6 +744,25 @@ class LiveDelayLearner:
         else:
             self._next = t + self.check_s
 
+    def _aids(self, est: DelayEstimate, d: float, span: float) -> None:
+        """The velocity window and the baro delay that go with a delay ``d`` found."""
+        what = (f"{self.label}, over {span:.0f} s of "
+                f"{'the run with the first estimate' if self._refining else 'navigation'}")
+        if est.window is not None:
+            self.window = est.window
+            self.window_why = (
+                f"estimated live: the GNSS velocity is the mean over this window ({what}, "
+                f"{est.window_ratio:.2f} of the cost without one)" if est.window else
+                f"estimated live: none ({est.window_why})")
+        best = self._probe.estimate_baro(d)
+        self.estimates[-1]["baro_delay"] = best.delay
+        if best.delay is not None:
+            assert best.sd is not None
+            self.baro_delay, _ = delay_used(best.delay)
+            self.baro_why = (f"estimated live: the lag at which the baro heights, against the "
+                             f"GNSS heights at the GNSS delay, spread least ({what}, "
+                             f"standard error {best.sd * 1e3:.1f} ms)")
+
     def apply(self, stream: Any) -> None:
         """Give ``stream`` (a :class:`NavStream`) the delay found, if it does not have it
         yet (after the decision, or after a rewind or a restart took it back)."""
@@ -650,13 +776,18 @@ class LiveDelayLearner:
                     f"the IMU at {rate:.1f} Hz is too coarse to time the aiding against "
                     f"(needs {PROBE_MIN_IMU_HZ:g} Hz)")})
             return
+        assert self.t_decided is not None
         if stream.delay != self.delay:
-            assert self.t_decided is not None
             stream.set_gnss_delay(self.delay, self.t_decided, self.why)
+        if self.window is not None and stream.vel_window != self.window:
+            stream.set_gnss_window(self.window, self.t_decided, self.window_why)
+        if self.baro_delay is not None and stream.baro_delay != self.baro_delay:
+            stream.set_baro_delay(self.baro_delay, self.t_decided, self.baro_why)
 
     def as_dict(self) -> dict[str, Any]:
         """For the result document: the delay used (None: not estimated) and every try."""
         return {"delay": self.delay, "t": self.t_decided, "why": self.why or None,
+                "window": self.window, "baro_delay": self.baro_delay,
                 "filter": self.label or None, "tries": self.estimates}
 
 

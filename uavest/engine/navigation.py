@@ -123,6 +123,12 @@ HOLD_INTERVAL_S = 0.2
 #: interval below the gap threshold) is predicted in that many equal sub-steps.
 MAX_STEP_S = 0.5
 MAX_STEP_PERIODS = 2.0
+#: Until the GNSS velocity's window is known (an option, the replay's probe, a live run's
+#: estimate: :class:`~uavest.engine.gnss_delay.LiveDelayLearner`), the GNSS velocity std
+#: is at least this (m/s): the window a receiver may average over is then not modelled
+#: (an ArduPilot SITL's, 0.35 s, leaves 0.014 m/s of velocity error, up to 0.02 in
+#: manoeuvres; the floor the noise profile had before the window was modelled).
+UNMODELLED_WINDOW_VEL_FLOOR = 0.03
 #: Provisional latitude (rad) for gravity before the first fix gives the true one
 #: (normal gravity differs by at most 0.026 m/s^2 from its value here).
 UNAIDED_LAT = float(np.deg2rad(45.0))
@@ -152,7 +158,8 @@ class NavOptions:
     magnetometer sample's age (None: 0), and ``mag_delay_why``; ``baro_delay`` s, the
     barometer sample's age (None: 0, not estimated); ``mag_noise_why``: where
     the ``mag_noise`` of ``noise`` came from (None: an option or the default), and
-    ``gnss_vel_window_why`` where its ``gnss_vel_window`` came from;
+    ``gnss_vel_window_why`` where its ``gnss_vel_window`` came from, ``baro_delay_why``
+    and ``baro_noise_why`` where the baro's delay and noise came from;
     ``mag_inclination`` rad (None: the World Magnetic Model's within
     :data:`~uavest.engine.nav_align.WMM_INCLINATION_TOL` of the alignment window's
     accelerometer-magnetometer angle, else that angle; ``inclination_wmm`` False: always
@@ -190,6 +197,8 @@ class NavOptions:
     baro_delay: float | None = None
     mag_noise_why: str | None = None
     gnss_vel_window_why: str | None = None
+    baro_delay_why: str | None = None
+    baro_noise_why: str | None = None
     mag_inclination: float | None = None
     mag_inclination_why: str | None = None
     inclination_wmm: bool = True
@@ -338,6 +347,10 @@ class NavStream(StreamSnapshots):
         self.declination = 0.0
         self.delay = 0.0
         self.vel_window = 0.0  # s, NavNoise.gnss_vel_window
+        #: the window is known (given or estimated, even as 0): else the velocity floor is
+        #: at least UNMODELLED_WINDOW_VEL_FLOOR
+        self.window_known = False
+        self._noise_unknown_window: NavNoise | None = None
         #: the last steps released (end s, length s, rate, specific force) while a
         #: velocity window needs them (:func:`~uavest.engine.nav_aiding.window_force`)
         self._recent: deque[tuple[float, float, Array, Array]] = deque()
@@ -386,6 +399,11 @@ class NavStream(StreamSnapshots):
         return self._aids.gnss
 
     @property
+    def baro_source(self) -> str | None:
+        """The barometer the stream uses (None: not chosen yet, or no baro)."""
+        return self._aids.baro if self.opts.use_baro else None
+
+    @property
     def aiding(self) -> dict[str, dict[str, int]]:
         """Per sensor, the counts of what was used and skipped (``used``, ``late``,
         ``held``, ``nan``...)."""
@@ -412,6 +430,25 @@ class NavStream(StreamSnapshots):
         self.delay = float(delay)
         self.summary["gnss_delay_s"] = self.delay
         self._decide("GNSS delay", f"{self.delay:.3f} s", t, why)
+
+    def set_gnss_window(self, window: float, t: float, why: str) -> None:
+        """From now on the GNSS velocity is the mean over ``window`` s (as
+        :meth:`set_gnss_delay`; fixes already queued keep theirs)."""
+        if self._builder is None:
+            return
+        self.vel_window = float(window)
+        self.window_known = True
+        self.summary["gnss_vel_window_s"] = self.vel_window
+        self._decide("GNSS velocity window", f"{self.vel_window:.3f} s", t, why)
+
+    def set_baro_delay(self, delay: float, t: float, why: str) -> None:
+        """From now on a baro sample stamped t measures the height at t - ``delay`` (s; as
+        :meth:`set_gnss_delay`)."""
+        if self._builder is None:
+            return
+        self.baro_delay = float(delay)
+        self.summary["baro_delay_s"] = self.baro_delay
+        self._decide("baro delay", f"{self.baro_delay * 1e3:.0f} ms", t, why)
 
     def __iter__(self) -> Iterator[Start | Step]:
         for s in self.samples:
@@ -630,7 +667,11 @@ class NavStream(StreamSnapshots):
                          "first barometer in the stream")
             o = self.opts
             self._decide("baro delay", f"{self.baro_delay * 1e3:.0f} ms", s.t,
-                         "option --baro-delay" if o.baro_delay is not None else "default")
+                         o.baro_delay_why or ("option --baro-delay" if o.baro_delay is not None
+                                              else "default"))
+            if o.baro_noise_why:
+                self._decide("baro noise", f"{self.noise.baro_noise:.3f} m", s.t,
+                             o.baro_noise_why)
             self.summary["baro_delay_s"] = self.baro_delay
         self._aids.add_baro(s, self.baro_delay)
 
@@ -827,7 +868,9 @@ class NavStream(StreamSnapshots):
                 carry = carry_force(steps, stamp, fix.t - 0.5 * fix.span)
             else:
                 back, f = stamp - fix.t, r.a
-            self._aids.gnss_updates(fix, back, f, self._model.g, n, ups, sensors, carry)
+            nf = n if self.window_known or self._noise_unknown_window is None \
+                else self._noise_unknown_window
+            self._aids.gnss_updates(fix, back, f, self._model.g, nf, ups, sensors, carry)
         if carry is not None and self._aids.h_fix is not None:
             # a windowed fix is taken after its time: pair its height with the baro's
             # at that time (the last baro after it, in a climb, is off by the climb)
@@ -884,6 +927,10 @@ class NavStream(StreamSnapshots):
         self.noise = nav_noise_for_source(imu, rate).with_(**o.noise)
         self.delay = float(self.noise.gnss_delay if o.gnss_delay is None else o.gnss_delay)
         self.vel_window = float(self.noise.gnss_vel_window)
+        self.window_known = ("gnss_vel_window" in o.noise
+                             or o.gnss_vel_window_why is not None)
+        self._noise_unknown_window = self.noise.with_(gnss_vel_floor=max(
+            self.noise.gnss_vel_floor, UNMODELLED_WINDOW_VEL_FLOOR))
         self.mag_delay = float(o.mag_delay or 0.0)
         self.baro_delay = float(o.baro_delay or 0.0)
         med = float(np.median(np.diff(ti))) if len(ti) > 1 else 0.0  # s, IMU interval
