@@ -237,9 +237,9 @@ def _baro_doc(cfg: ReplayConfig, best: BaroEstimate, noise: NavNoise, span: str)
     [:data:`BARO_NOISE_MIN`, the IMU source's default]) with why."""
     b: dict = {"delay": best.delay, "sd": best.sd, "samples": best.samples,
                "why": best.why, "spread": best.spread}
-    if best.delay is None:
+    if best.delay is None:  # the run takes 0 and the baro's noise for an unknown delay
         if cfg.baro_delay is None and best.samples:
-            b["delay_used"], b["why_used"] = 0.0, f"default (not estimated: {best.why})"
+            b["why_used"] = f"default (not estimated: {best.why})"
         return b
     if cfg.baro_delay is None:
         used, neg = _delay_used(best.delay)

@@ -247,8 +247,9 @@ class DelayProbe:
         between fixes), less an offset and a drift (a line in time, fitted), spread least;
         refined as :meth:`estimate`. What fixes ``L`` is the climbs and descents: its
         standard error is at least the spread over the root sum of squares of the
-        height's rate at the samples, so a flight at one height gives no estimate. The spread there is the baro's noise with the GNSS
-        height's in it (an ArduCopter SITL: 4 mm, logs/sitl_copter.tlog)."""
+        height's rate at the samples, so a flight at one height gives no estimate. The
+        spread there is the baro's noise with the GNSS height's in it (an ArduCopter
+        SITL: 4 mm, logs/sitl_copter.tlog)."""
         est = BaroEstimate(None, None, len(self._bt), "")
         if len(self._bt) < 50 or len(self._ht) < 20:
             est.why = f"{len(self._bt)} baro samples, {len(self._ht)} 3-D GNSS fixes"

@@ -129,6 +129,11 @@ MAX_STEP_PERIODS = 2.0
 #: (an ArduPilot SITL's, 0.35 s, leaves 0.014 m/s of velocity error, up to 0.02 in
 #: manoeuvres; the floor the noise profile had before the window was modelled).
 UNMODELLED_WINDOW_VEL_FLOOR = 0.03
+#: Until the baro's delay is known (an option, the replay's probe, a live run's estimate)
+#: its noise is at least this (m): an ArduCopter SITL's baro lags 18-88 ms, 0.2 m in a
+#: 2.5 m/s climb, which the profile's 0.2 m took into the pitch (airborne 0.19 deg
+#: against 0.07 on logs/sitl_copter.tlog; 0.09 with this floor; docs/navigation.md).
+UNKNOWN_BARO_DELAY_NOISE = 0.5
 #: Provisional latitude (rad) for gravity before the first fix gives the true one
 #: (normal gravity differs by at most 0.026 m/s^2 from its value here).
 UNAIDED_LAT = float(np.deg2rad(45.0))
@@ -350,7 +355,8 @@ class NavStream(StreamSnapshots):
         #: the window is known (given or estimated, even as 0): else the velocity floor is
         #: at least UNMODELLED_WINDOW_VEL_FLOOR
         self.window_known = False
-        self._noise_unknown_window: NavNoise | None = None
+        self.baro_known = False  # the baro delay given or estimated
+        self._aid_noise: NavNoise | None = None  # the aids' noise (:meth:`_noise_for_aids`)
         #: the last steps released (end s, length s, rate, specific force) while a
         #: velocity window needs them (:func:`~uavest.engine.nav_aiding.window_force`)
         self._recent: deque[tuple[float, float, Array, Array]] = deque()
@@ -398,6 +404,19 @@ class NavStream(StreamSnapshots):
         """The GNSS receiver the stream uses (None: not chosen yet)."""
         return self._aids.gnss
 
+    def _noise_for_aids(self) -> NavNoise:
+        """:attr:`noise` for the GNSS and baro updates: while the GNSS velocity's window
+        is not known its floor at least :data:`UNMODELLED_WINDOW_VEL_FLOOR`, while the
+        baro's delay is not known its noise at least :data:`UNKNOWN_BARO_DELAY_NOISE`."""
+        if self._aid_noise is None:
+            n = self.noise
+            if not self.window_known:
+                n = n.with_(gnss_vel_floor=max(n.gnss_vel_floor, UNMODELLED_WINDOW_VEL_FLOOR))
+            if not self.baro_known:
+                n = n.with_(baro_noise=max(n.baro_noise, UNKNOWN_BARO_DELAY_NOISE))
+            self._aid_noise = n
+        return self._aid_noise
+
     @property
     def baro_source(self) -> str | None:
         """The barometer the stream uses (None: not chosen yet, or no baro)."""
@@ -438,6 +457,7 @@ class NavStream(StreamSnapshots):
             return
         self.vel_window = float(window)
         self.window_known = True
+        self._aid_noise = None
         self.summary["gnss_vel_window_s"] = self.vel_window
         self._decide("GNSS velocity window", f"{self.vel_window:.3f} s", t, why)
 
@@ -447,6 +467,8 @@ class NavStream(StreamSnapshots):
         if self._builder is None:
             return
         self.baro_delay = float(delay)
+        self.baro_known = True
+        self._aid_noise = None
         self.summary["baro_delay_s"] = self.baro_delay
         self._decide("baro delay", f"{self.baro_delay * 1e3:.0f} ms", t, why)
 
@@ -667,8 +689,11 @@ class NavStream(StreamSnapshots):
                          "first barometer in the stream")
             o = self.opts
             self._decide("baro delay", f"{self.baro_delay * 1e3:.0f} ms", s.t,
-                         o.baro_delay_why or ("option --baro-delay" if o.baro_delay is not None
-                                              else "default"))
+                         (o.baro_delay_why or ("option --baro-delay" if o.baro_delay
+                                               is not None else "default"))
+                         + ("" if self.baro_known else
+                            f"; until it is known the baro noise is at least "
+                            f"{UNKNOWN_BARO_DELAY_NOISE:g} m"))
             if o.baro_noise_why:
                 self._decide("baro noise", f"{self.noise.baro_noise:.3f} m", s.t,
                              o.baro_noise_why)
@@ -868,9 +893,8 @@ class NavStream(StreamSnapshots):
                 carry = carry_force(steps, stamp, fix.t - 0.5 * fix.span)
             else:
                 back, f = stamp - fix.t, r.a
-            nf = n if self.window_known or self._noise_unknown_window is None \
-                else self._noise_unknown_window
-            self._aids.gnss_updates(fix, back, f, self._model.g, nf, ups, sensors, carry)
+            self._aids.gnss_updates(fix, back, f, self._model.g, self._noise_for_aids(), ups,
+                                    sensors, carry)
         if carry is not None and self._aids.h_fix is not None:
             # a windowed fix is taken after its time: pair its height with the baro's
             # at that time (the last baro after it, in a climb, is off by the climb)
@@ -887,7 +911,7 @@ class NavStream(StreamSnapshots):
                 self._baro_recent = _recent_baro(self._baro_recent, baro, stamp)
             elif h_fix is not None and baro.t - h_fix[0] <= 0.5:
                 self._offset_pair(baro.height - h_fix[1], r.t)
-            self._aids.baro_updates(baro, self._stamp(r), n, ups, sensors)
+            self._aids.baro_updates(baro, self._stamp(r), self._noise_for_aids(), ups, sensors)
         mag = next((a for a in reversed(aids) if a.sensor == "mag"), None)
         if mag is not None:
             self._aids.mag_updates(mag, self._stamp(r), r.w, self._mref, self.declination, n,
@@ -929,8 +953,8 @@ class NavStream(StreamSnapshots):
         self.vel_window = float(self.noise.gnss_vel_window)
         self.window_known = ("gnss_vel_window" in o.noise
                              or o.gnss_vel_window_why is not None)
-        self._noise_unknown_window = self.noise.with_(gnss_vel_floor=max(
-            self.noise.gnss_vel_floor, UNMODELLED_WINDOW_VEL_FLOOR))
+        self.baro_known = o.baro_delay is not None
+        self._aid_noise = None
         self.mag_delay = float(o.mag_delay or 0.0)
         self.baro_delay = float(o.baro_delay or 0.0)
         med = float(np.median(np.diff(ti))) if len(ti) > 1 else 0.0  # s, IMU interval
@@ -959,9 +983,13 @@ class NavStream(StreamSnapshots):
         self._decide("integration", integ, t_first, "option" if o.integration != "auto" else why)
         self._decide("GNSS delay", f"{self.delay:.3f} s", t_first, o.gnss_delay_why or (
             "option --gnss-delay" if o.gnss_delay is not None else "default"))
-        if self.vel_window > 0 or o.gnss_vel_window_why:
+        if self.vel_window > 0 or self.window_known:
             self._decide("GNSS velocity window", f"{self.vel_window:.3f} s", t_first,
                          o.gnss_vel_window_why or "option --noise")
+        else:
+            self._decide("GNSS velocity window", "not known", t_first,
+                         f"not estimated yet: the GNSS velocity std is at least "
+                         f"{UNMODELLED_WINDOW_VEL_FLOOR:g} m/s until it is")
         self._decide("IMU delay", f"{self.imu_delay * 1e3:.1f} ms", t_first, dwhy)
         if mag is not None:
             self._decide("magnetometer delay", f"{self.mag_delay * 1e3:.0f} ms", t_first,
