@@ -268,7 +268,49 @@ class _Block(Measurement):
         return np.broadcast_to(self._H, (X.shape[0],) + self._H.shape)
 
 
-class GnssPosition(_Block):
+class _Carried(_Block):
+    """A block measured before the state's time and carried to it by the state:
+    ``h = x_block + cv v + ca (R(q) (f - b_a) + (0, 0, g))`` with ``f`` a specific force
+    (m/s^2, body FRD at the state's time) and ``g`` (m/s^2); without ``f`` (or with both
+    coefficients 0) the plain block."""
+
+    def __init__(self, R: Array, rows: tuple[int, ...], f: Array | None, g: float,
+                 cv: float, ca: float) -> None:
+        super().__init__(R, rows)
+        self.f = None if f is None else np.asarray(f, float)
+        self.g = float(g)
+        self._cv, self._ca = float(cv), float(ca)
+        self._carried = self.f is not None and bool(cv or ca)
+
+    def h(self, X: Array) -> Array:
+        if not self._carried:
+            return super().h(X)
+        assert self.f is not None
+        a = quat_rotate(X[..., :4], self.f - X[..., 13:16])
+        a[..., 2] += self.g
+        y = X[..., self._sl] + self._cv * X[..., 4:7] + self._ca * a
+        return y[..., list(self.rows)]
+
+    def H(self, x: Array) -> Array:
+        if not self._carried:
+            return self._H
+        return self.H_rows(x[None, :])[0]
+
+    def H_rows(self, X: Array) -> Array:
+        """Jacobians (M, m, 15) at every row of ``X`` (M, 16), vectorised."""
+        if not self._carried:
+            return super().H_rows(X)
+        assert self.f is not None
+        R = quat_to_dcm(X[:, :4])  # (M, 3, 3)
+        H = np.zeros((X.shape[0], 3, 15))
+        H[:, :, self._sl.start - 1:self._sl.stop - 1] = np.eye(3)
+        H[:, :, 3:6] += self._cv * np.eye(3)
+        H[:, :, 0:3] = -self._ca * R @ skew(self.f - X[:, 13:16])
+        H[:, :, 12:15] = -self._ca * R
+        return H[:, list(self.rows)]
+
+
+class GnssPosition(_Carried):
     """GNSS position in NED, m (from lat/lon/alt through the LocalFrame). ``rows``
     (0, 1) for a 2-D fix (horizontal only). R from the receiver's eph/epv (or h_acc /
     v_acc) with the floors of :class:`NavNoise` (:meth:`from_fix`).
@@ -284,38 +326,9 @@ class GnssPosition(_Block):
 
     def __init__(self, R: Array, rows: tuple[int, ...] = (0, 1, 2), back: float = 0.0,
                  k: float = 0.0, f: Array | None = None, g: float = 0.0) -> None:
-        super().__init__(R, rows)
         self.back = float(back) if f is not None else 0.0
         self.k = float(k)
-        self.f = None if f is None else np.asarray(f, float)
-        self.g = float(g)
-
-    def h(self, X: Array) -> Array:
-        if not self.back:
-            return super().h(X)
-        assert self.f is not None
-        a = quat_rotate(X[..., :4], self.f - X[..., 13:16])
-        a[..., 2] += self.g
-        p = X[..., 7:10] - self.back * X[..., 4:7] + self.k * a
-        return p[..., list(self.rows)]
-
-    def H(self, x: Array) -> Array:
-        if not self.back:
-            return self._H
-        return self.H_rows(x[None, :])[0]
-
-    def H_rows(self, X: Array) -> Array:
-        """Jacobians (M, m, 15) at every row of ``X`` (M, 16), vectorised."""
-        if not self.back:
-            return super().H_rows(X)
-        assert self.f is not None
-        R = quat_to_dcm(X[:, :4])
-        H = np.zeros((X.shape[0], 3, 15))
-        H[:, :, 6:9] = np.eye(3)
-        H[:, :, 3:6] = -self.back * np.eye(3)
-        H[:, :, 0:3] = -self.k * R @ skew(self.f - X[:, 13:16])
-        H[:, :, 12:15] = -self.k * R
-        return H[:, list(self.rows)]
+        super().__init__(R, rows, f, g, -self.back, self.k if self.back else 0.0)
 
     @staticmethod
     def from_fix(ned: Array, fix_type: int, h_acc: float | None, v_acc: float | None,
@@ -337,7 +350,7 @@ class GnssPosition(_Block):
         return ned, GnssPosition(np.diag([sh**2, sh**2, sv**2]), **kw)
 
 
-class GnssVelocity(_Block):
+class GnssVelocity(_Carried):
     """GNSS velocity in NED, m/s (or ``rows=(0, 1)`` from ground speed and course).
 
     ``back`` (s): the fix measures the velocity that long before the state's time (the
@@ -349,36 +362,8 @@ class GnssVelocity(_Block):
 
     def __init__(self, R: Array, rows: tuple[int, ...] = (0, 1, 2), back: float = 0.0,
                  f: Array | None = None, g: float = 0.0) -> None:
-        super().__init__(R, rows)
         self.back = float(back) if f is not None else 0.0
-        self.f = None if f is None else np.asarray(f, float)
-        self.g = float(g)
-
-    def h(self, X: Array) -> Array:
-        if not self.back:
-            return super().h(X)
-        assert self.f is not None
-        a = quat_rotate(X[..., :4], self.f - X[..., 13:16])
-        a[..., 2] += self.g
-        v = X[..., 4:7] - self.back * a
-        return v[..., list(self.rows)]
-
-    def H(self, x: Array) -> Array:
-        if not self.back:
-            return self._H
-        return self.H_rows(x[None, :])[0]
-
-    def H_rows(self, X: Array) -> Array:
-        """Jacobians (M, m, 15) at every row of ``X`` (M, 16), vectorised."""
-        if not self.back:
-            return super().H_rows(X)
-        assert self.f is not None
-        R = quat_to_dcm(X[:, :4])  # (M, 3, 3)
-        H = np.zeros((X.shape[0], 3, 15))
-        H[:, :, 3:6] = np.eye(3)
-        H[:, :, 0:3] = self.back * R @ skew(self.f - X[:, 13:16])
-        H[:, :, 12:15] = self.back * R
-        return H[:, list(self.rows)]
+        super().__init__(R, rows, f, g, 0.0, -self.back)
 
 
 class BaroHeight(_Block):
