@@ -235,6 +235,8 @@ def _baro_doc(cfg: ReplayConfig, best: BaroEstimate, noise: NavNoise, span: str)
     """The barometer part of the probe's document: the estimate, and what the run takes
     from it where ``cfg`` leaves it open (the delay; the noise, the spread clipped to
     [:data:`BARO_NOISE_MIN`, the IMU source's default]) with why."""
+    from ..engine.gnss_delay import delay_used
+
     b: dict = {"delay": best.delay, "sd": best.sd, "samples": best.samples,
                "why": best.why, "spread": best.spread}
     if best.delay is None:  # the run takes 0 and the baro's noise for an unknown delay
@@ -242,7 +244,7 @@ def _baro_doc(cfg: ReplayConfig, best: BaroEstimate, noise: NavNoise, span: str)
             b["why_used"] = f"default (not estimated: {best.why})"
         return b
     if cfg.baro_delay is None:
-        used, neg = _delay_used(best.delay)
+        used, neg = delay_used(best.delay)
         assert best.sd is not None
         b["delay_used"] = used
         b["why_used"] = (f"estimated{neg}: the lag at which the baro heights, against the "
@@ -256,12 +258,6 @@ def _baro_doc(cfg: ReplayConfig, best: BaroEstimate, noise: NavNoise, span: str)
                           f"height at that delay, {best.spread:.3f} m, within "
                           f"[{BARO_NOISE_MIN:g}, {top:g}] m (--noise baro_noise=M to set it)")
     return b
-
-
-def _delay_used(delay: float) -> tuple[float, str]:
-    from ..engine.gnss_delay import delay_used
-
-    return delay_used(delay)
 
 
 def _mag_doc(cfg: ReplayConfig, mest: MagEstimate, noise: NavNoise, span: str, refined: str

@@ -428,9 +428,10 @@ class DelayProbe:
                 ) -> None:
         """The GNSS velocity's window at the estimated delay: the ``L`` of a grid (0 to
         :data:`MAX_WINDOW_S`) whose window means of ``V`` (over ``[t - d - L / 2, t - d +
-        L / 2]``) fit the velocity changes best; taken when its cost is at most
-        :data:`WINDOW_GAIN` of the cost at 0 (an ArduPilot SITL's GPS velocity: 0.35 s,
-        docs/navigation.md)."""
+        L / 2]``) fit the velocity changes best; taken when the cost falls by more than
+        the residuals' noise explains (:data:`WINDOW_F`) and to at most
+        :data:`WINDOW_GAIN` of the cost at 0, else 0 (an ArduPilot SITL's GPS velocity:
+        0.35 s, docs/navigation.md)."""
         assert est.delay is not None
         d = est.delay
         h = 0.5 * MAX_WINDOW_S
@@ -441,13 +442,8 @@ class DelayProbe:
             est.window_why = f"{int(use.sum())} GNSS fix pairs inside the IMU data"
             return
         grid = np.arange(0.0, MAX_WINDOW_S + 0.5 * WINDOW_GRID_S, WINDOW_GRID_S)
-        u = (np.arange(WINDOW_POINTS) + 0.5) / WINDOW_POINTS - 0.5  # midpoints in [-1/2, 1/2]
-        cost = np.empty(grid.size)
-        for k, L in enumerate(grid):
-            va = np.mean([_v_at(t0, t, V, dv, seg, gt[i0] - d + L * x)[0] for x in u], axis=0)
-            vb = np.mean([_v_at(t0, t, V, dv, seg, gt[i1] - d + L * x)[0] for x in u], axis=0)
-            r = np.where(comp & use[:, None], dz - (vb - va), 0.0)
-            cost[k] = float(np.sum(r * r))
+        cost = np.array([_cost_on(t0, t, V, dv, seg, gt, i0, i1, dz, comp, d, use, L)
+                         for L in grid])
         k = int(np.argmin(cost))
         est.window_ratio = float(cost[k] / cost[0]) if cost[0] > 0 else 1.0
         m_eff = float(np.sum(comp & use[:, None])) / WINDOW_OVERLAP
@@ -545,10 +541,24 @@ def _v_at(t0: Array, t1: Array, V: Array, dv: Array, seg: Array, tq: Array
     return v, np.where(inside, seg[i], -1)
 
 
+def _v_mean(t0: Array, t1: Array, V: Array, dv: Array, seg: Array, tq: Array,
+            window: float) -> Array:
+    """V at the times ``tq`` (``window`` 0), or its mean over ``[tq - window / 2, tq +
+    window / 2]`` (s) from :data:`WINDOW_POINTS` midpoints."""
+    if not window:
+        return _v_at(t0, t1, V, dv, seg, tq)[0]
+    u = (np.arange(WINDOW_POINTS) + 0.5) / WINDOW_POINTS - 0.5  # midpoints in [-1/2, 1/2]
+    out: Array = np.mean([_v_at(t0, t1, V, dv, seg, tq + window * x)[0] for x in u], axis=0)
+    return out
+
+
 def _cost_on(t0: Array, t1: Array, V: Array, dv: Array, seg: Array, gt: Array, i0: Array,
-             i1: Array, dz: Array, comp: Array, d: float, use: Array) -> float:
-    va, _ = _v_at(t0, t1, V, dv, seg, gt[i0] - d)
-    vb, _ = _v_at(t0, t1, V, dv, seg, gt[i1] - d)
+             i1: Array, dz: Array, comp: Array, d: float, use: Array,
+             window: float = 0.0) -> float:
+    """The cost at delay ``d`` (s) of the pairs ``use`` takes, the GNSS velocity the mean
+    over ``window`` s (:func:`_v_mean`)."""
+    va = _v_mean(t0, t1, V, dv, seg, gt[i0] - d, window)
+    vb = _v_mean(t0, t1, V, dv, seg, gt[i1] - d, window)
     r = np.where(comp & use[:, None], dz - (vb - va), 0.0)
     return float(np.sum(r * r))
 

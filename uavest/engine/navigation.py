@@ -134,6 +134,9 @@ UNMODELLED_WINDOW_VEL_FLOOR = 0.03
 #: 2.5 m/s climb, which the profile's 0.2 m took into the pitch (airborne 0.19 deg
 #: against 0.07 on logs/sitl_copter.tlog; 0.09 with this floor; docs/navigation.md).
 UNKNOWN_BARO_DELAY_NOISE = 0.5
+#: With a velocity window, a fix's height is paired with the baro interpolated at its
+#: time from the baro samples of the last this many seconds.
+BARO_RECENT_S = 3.0
 #: Provisional latitude (rad) for gravity before the first fix gives the true one
 #: (normal gravity differs by at most 0.026 m/s^2 from its value here).
 UNAIDED_LAT = float(np.deg2rad(45.0))
@@ -244,16 +247,6 @@ class NavOptions:
 UAVEST_SIM_PARAMS = frozenset({"SIM_SPEEDUP"})
 
 
-def _recent_baro(recent: tuple[tuple[float, ...], tuple[float, ...]], baro: _Aid,
-                 now: float, keep_s: float = 3.0
-                 ) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """``recent`` (times s, baro heights m) with ``baro`` added and those older than
-    ``keep_s`` before ``now`` (s) dropped."""
-    keep = [(t, h) for t, h in zip(*recent, strict=True) if t >= now - keep_s]
-    keep.append((baro.t, baro.height))
-    return tuple(t for t, _ in keep), tuple(h for _, h in keep)
-
-
 def sitl_evidence(params: dict[str, Any]) -> str | None:
     """Why the log's parameters are an ArduPilot SITL's (a ``SIM_*`` parameter, which only
     its simulator has, but :data:`UAVEST_SIM_PARAMS`), or None."""
@@ -360,8 +353,8 @@ class NavStream(StreamSnapshots):
         #: the last steps released (end s, length s, rate, specific force) while a
         #: velocity window needs them (:func:`~uavest.engine.nav_aiding.window_force`)
         self._recent: deque[tuple[float, float, Array, Array]] = deque()
-        #: the baro heights of the last few seconds (times s, heights m) with a window
-        self._baro_recent: tuple[tuple[float, ...], tuple[float, ...]] = ((), ())
+        #: the baro samples (time s, height m) of the last BARO_RECENT_S with a window
+        self._baro_recent: deque[tuple[float, float]] = deque()
         self.imu_delay = 0.0
         self.frame: LocalFrame | SphereFrame | None = None
         #: why the stream is taken as an ArduPilot SITL's (its lat/lon on ArduPilot's
@@ -895,10 +888,10 @@ class NavStream(StreamSnapshots):
                 back, f = stamp - fix.t, r.a
             self._aids.gnss_updates(fix, back, f, self._model.g, self._noise_for_aids(), ups,
                                     sensors, carry)
-        if carry is not None and self._aids.h_fix is not None:
+        if carry is not None and self._aids.h_fix is not None and self._baro_recent:
             # a windowed fix is taken after its time: pair its height with the baro's
             # at that time (the last baro after it, in a climb, is off by the climb)
-            tb, hb = self._baro_recent
+            tb, hb = np.array(self._baro_recent).T
             t_h, h = self._aids.h_fix
             i = int(np.searchsorted(tb, t_h))
             if 0 < i < len(tb) and tb[i] - tb[i - 1] <= 0.5:
@@ -908,13 +901,15 @@ class NavStream(StreamSnapshots):
         if baro is not None:
             h_fix = self._aids.h_fix
             if self.vel_window > 0:
-                self._baro_recent = _recent_baro(self._baro_recent, baro, stamp)
+                while self._baro_recent and self._baro_recent[0][0] < stamp - BARO_RECENT_S:
+                    self._baro_recent.popleft()
+                self._baro_recent.append((baro.t, baro.height))
             elif h_fix is not None and baro.t - h_fix[0] <= 0.5:
                 self._offset_pair(baro.height - h_fix[1], r.t)
-            self._aids.baro_updates(baro, self._stamp(r), self._noise_for_aids(), ups, sensors)
+            self._aids.baro_updates(baro, stamp, self._noise_for_aids(), ups, sensors)
         mag = next((a for a in reversed(aids) if a.sensor == "mag"), None)
         if mag is not None:
-            self._aids.mag_updates(mag, self._stamp(r), r.w, self._mref, self.declination, n,
+            self._aids.mag_updates(mag, stamp, r.w, self._mref, self.declination, n,
                                    ups, sensors)
         if self._align.unaided and r.t - self._t_hold >= HOLD_INTERVAL_S:
             self._t_hold = r.t
@@ -926,7 +921,7 @@ class NavStream(StreamSnapshots):
         if self._anchor_sample is not None:
             info = {**(info or {}), "samples": (self._anchor_sample,)}
             self._anchor_sample = None
-        return Step(self._k, self._stamp(r), r.t - r.t0, self._model, tuple(ups), u, info)
+        return Step(self._k, stamp, r.t - r.t0, self._model, tuple(ups), u, info)
 
     def _offset_pair(self, d: float, t: float) -> None:
         """One (baro height - GNSS height) pair (m) for the offset
