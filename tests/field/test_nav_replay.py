@@ -216,7 +216,10 @@ def test_sitl_copter_gnss_delay_is_estimated_and_pays(tmp_path):
                  for k in ("inclination", "inclination_uncorrected"))
     assert err < 0.03 and err < err0, (err, err0)
     assert docs["est"]["position_reference"] == "SIM_STATE"
-    assert "delay" not in docs["zero"]["gnss_delay_estimate"]  # not estimated: given
+    zero = docs["zero"]["gnss_delay_estimate"]
+    assert "delay" not in zero  # not estimated: given; the velocity window is, at it
+    assert zero["window"] is not None and "at the given GNSS delay 0 s" in zero[
+        "window_why_used"], zero
     a, z = (docs[k]["filters"]["ekf"]["airborne"] for k in ("est", "zero"))
     for k in ("roll_rmse_deg", "pitch_rmse_deg", "vel_rmse_ms", "hpos_rmse_m"):
         assert a[k] < z[k], k

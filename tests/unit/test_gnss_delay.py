@@ -81,6 +81,22 @@ def test_a_known_velocity_window_is_found(window):
         assert "noise" in est.window_why
 
 
+def test_a_given_delay_is_kept_and_the_window_found_at_it():
+    """``--gnss-delay`` given: the delay is not searched (no standard error), the window is
+    estimated at it."""
+    p = _probe(0.08, window=0.35, noise=0.005)
+    est = p.estimate(delay=0.08)
+    assert est.delay == 0.08 and est.sd is None and est.why == "given"
+    assert est.window is not None and abs(est.window - 0.35) < 0.03, est.window_why
+    assert p.estimate(delay=0.08).window == est.window  # estimating changes nothing
+    # a wrong delay given: kept, the data's own lag said beside it, and no window at it
+    wrong = p.estimate(delay=0.0)
+    assert wrong.delay == 0.0 and wrong.data_delay is not None
+    assert abs(wrong.data_delay - 0.08) < 0.005 and "own lag 0.08" in wrong.given_note()
+    assert wrong.window is None and "not modelled" in wrong.window_why
+    assert p.estimate().given_note() == ""
+
+
 def test_the_standard_error_covers_the_error():
     """Over seeds, the estimate's error is of the size of its standard error."""
     z = []
@@ -291,3 +307,37 @@ def test_a_known_baro_delay_is_found(delay):
 def test_a_level_flight_gives_no_baro_delay():
     est = _baro_probe(0.05, climb=0.0).estimate_baro(gnss_delay=0.08)
     assert est.delay is None and ("not sharp" in est.why or "end of the range" in est.why)
+
+
+def test_live_learner_makes_a_window_found_equal_to_the_default_known():
+    """A window learned live as 0 s (an instantaneous receiver's) equals the stream's
+    default, yet is news: the stream drops its floor for an unknown window."""
+    from uavest.engine.gnss_delay import LiveDelayLearner
+
+    class Stream:
+        _builder = object()
+        delay, vel_window, window_known = 0.08, 0.0, False
+        baro_delay, baro_known = 0.0, False
+        summary: dict = {}
+
+        def __init__(self):
+            self.calls = []
+
+        def set_gnss_delay(self, *a):
+            self.calls.append("delay")
+
+        def set_gnss_window(self, w, t, why):
+            self.calls.append(("window", w))
+            self.window_known = True
+
+        def set_baro_delay(self, d, t, why):
+            self.calls.append(("baro", d))
+            self.baro_known = True
+
+    learner = LiveDelayLearner(given=0.08)
+    learner.window, learner.baro_delay, learner.t_decided = 0.0, 0.0, 60.0
+    s = Stream()
+    learner.apply(s)
+    assert s.calls == [("window", 0.0), ("baro", 0.0)]  # the given delay is not set again
+    learner.apply(s)
+    assert len(s.calls) == 2  # once known, not again

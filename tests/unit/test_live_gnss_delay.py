@@ -1,5 +1,6 @@
 """The GNSS delay estimated during a live navigation run (``uavest run --model nav``
-without ``--gnss-delay``: :class:`uavest.engine.gnss_delay.LiveDelayLearner`), over the
+without ``--gnss-delay``; with it, the velocity window and the baro delay at it:
+:class:`uavest.engine.gnss_delay.LiveDelayLearner`), over the
 live job run on logs/sitl_copter.tlog (an ArduCopter SITL flight whose GPS_RAW_INT lags
 its IMU by about 0.083 s, the replay's estimate): samples on arrival, where each fix comes
 after the IMU steps it predates and is applied by a rewind of the lane's history, against
@@ -29,6 +30,7 @@ def test_live_run_estimates_the_gnss_delay_window_and_baro_delay_and_uses_them()
     on_arrival = _run()
     ordered = _run(reorder_window=1.0)
     none = _run(gnss_delay=0.0)
+    given = _run(gnss_delay=0.083)
     learned = on_arrival["gnss_delay_live"]
     assert learned["delay"] is not None, learned
     # the SITL's lag, as the replay's probe puts it (0.083 s) and as the lag of
@@ -50,8 +52,27 @@ def test_live_run_estimates_the_gnss_delay_window_and_baro_delay_and_uses_them()
     for what in ("GNSS velocity window", "baro delay"):
         said = [d for d in on_arrival["decisions"] if d["what"] == what]
         assert "estimated live" in said[-1]["why"], said
-    # the delay given, nothing is learned
-    assert "gnss_delay_live" not in none
+    # the delay given, it is not learned; the window and the baro delay are, at it
+    for doc, d in ((none, 0.0), (given, 0.083)):
+        assert doc["gnss_delay_live"]["delay"] is None
+        assert doc["gnss_delay_live"]["given"] == d
+        said = [x for x in doc["decisions"] if x["what"] == "GNSS delay"]
+        assert [x["why"] for x in said] == ["option --gnss-delay"], said
+    g = given["gnss_delay_live"]
+    assert 0.3 < g["window"] < 0.4 and 0.07 < g["baro_delay"] < 0.11, g
+    for what in ("GNSS velocity window", "baro delay"):
+        said = [x for x in given["decisions"] if x["what"] == what]
+        assert "at the given GNSS delay 0.083 s" in said[-1]["why"], said
+    # a delay the data contradict (0 s against their 0.08): no window at it, the floor
+    # for an unknown one stays
+    n = none["gnss_delay_live"]
+    assert n["window"] is None and n["baro_delay"] is None, n
+    assert all("not modelled" in t["window_why"] and 0.07 < t["data_delay"] < 0.095
+               for t in n["tries"]), n["tries"]
+    said = [x for x in none["decisions"] if x["what"] == "GNSS velocity window"]
+    assert [x["value"] for x in said] == ["not known"], said
+    c = given["attitude"]["ekf"]
+    assert abs(c["vel_rmse_ms"] - on_arrival["attitude"]["ekf"]["vel_rmse_ms"]) < 0.01, c
     a, b = on_arrival["attitude"]["ekf"], none["attitude"]["ekf"]
     assert a["vel_rmse_ms"] < 0.5 * b["vel_rmse_ms"], (a, b)
     assert a["hpos_rmse_m"] < 0.5 * b["hpos_rmse_m"], (a, b)

@@ -725,7 +725,8 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
     runner_cls = NavRunner if nav else FilterRunner
     runners = [runner_cls(sp.label, f, rng(cfg.seed, 0, filter_stream(sp.label)))
                for sp, f in specs]
-    learner = LiveDelayLearner() if nav and cfg.gnss_delay is None and runners else None
+    # with --gnss-delay it learns the velocity window and the baro delay at that delay
+    learner = LiveDelayLearner(given=cfg.gnss_delay) if nav and runners else None
     att = _GapAware(_stream_factory(cfg, params, declination), cfg.bridge_s, learner)
     nav_scorer = NavScorer()
     lane = TrackLane(cfg, cfg.seed)

@@ -158,6 +158,10 @@ def probe_gnss_delay(samples: Iterable, cfg: ReplayConfig, params: dict | None
     doc: dict = {"probe_runs": runs}
     if cfg.gnss_delay is None:
         doc.update(_gnss_delay_doc(est, noise, span, refined))
+    else:  # the window at the delay given
+        doc.update(_window_doc(est, f" at the given GNSS delay {cfg.gnss_delay:g} s"
+                                    f"{est.given_note()}"))
+        doc.update(data_delay=est.data_delay, data_sd=est.data_sd)
     doc["mag"] = _mag_doc(cfg, mest, noise, span, refined)
     doc["baro"] = _baro_doc(cfg, best, noise, span)
     return doc, itertools.chain(held, rest)
@@ -177,7 +181,7 @@ def _run_probes(samples: Iterable, cfg: ReplayConfig, params: dict | None, opts:
     def probe(src: Iterable, prior: float, prior_mag: float):
         runner = NavRunner("gnss delay probe", flt, rng(cfg.seed, 0, "probe:gnss_delay"))
         return estimate_gnss_delay(src, opts, params or {}, runner, prior=prior,
-                                   prior_mag=prior_mag)
+                                   prior_mag=prior_mag, given=cfg.gnss_delay is not None)
 
     prior = 0.0 if cfg.gnss_delay is None else float(cfg.gnss_delay)
     prior_m = 0.0 if cfg.mag_delay is None else float(cfg.mag_delay)
@@ -186,8 +190,9 @@ def _run_probes(samples: Iterable, cfg: ReplayConfig, params: dict | None, opts:
     if 0 < est.imu_rate_hz < PROBE_MIN_IMU_HZ:  # (0: the probe run failed, why says why)
         why = (f"the IMU at {est.imu_rate_hz:.1f} Hz is too coarse to time the aiding "
                f"against (the probe needs {PROBE_MIN_IMU_HZ:g} Hz)")
-        est.delay = mest.delay = mest.scatter = mest.inclination = best.delay = None
-        est.why = mest.why = best.why = why
+        est.delay = est.window = mest.delay = mest.scatter = mest.inclination = None
+        best.delay = None
+        est.why = est.window_why = mest.why = best.why = why
     far_g = cfg.gnss_delay is None and est.delay is not None and abs(
         est.delay - prior) > PROBE_REFINE_S
     far_m = cfg.mag_delay is None and mest.delay is not None and abs(
@@ -218,16 +223,24 @@ def _gnss_delay_doc(est: DelayEstimate, noise: NavNoise, span: str, refined: str
         why = f"default (not estimated: {est.why})"
     doc = {"delay": est.delay, "sd": est.sd, "pairs": est.pairs,
            "excitation": est.excitation, "why": est.why, "delay_used": used,
-           "why_used": why, "window": est.window, "window_ratio": est.window_ratio}
+           "why_used": why}
+    return {**doc, **_window_doc(est)}
+
+
+def _window_doc(est: DelayEstimate, at: str = "") -> dict:
+    """The GNSS velocity window part of the probe's document (estimated at the delay
+    ``est.delay``; ``at`` says which, when it was given)."""
+    doc: dict = {"window": est.window, "window_ratio": est.window_ratio,
+                 "window_why": est.window_why}
     if est.window:
         doc["window_used"] = est.window
         doc["window_why_used"] = (
-            f"estimated: the GNSS velocity is the mean over this window, centred on the "
-            f"delay (the window's means of the IMU's velocity fit the velocity changes "
+            f"estimated{at}: the GNSS velocity is the mean over this window, centred on "
+            f"the delay (the window's means of the IMU's velocity fit the velocity changes "
             f"with {est.window_ratio:.2f} of the cost without one; "
             f"--noise gnss_vel_window=S to set it)")
-    elif est.delay is not None:
-        doc["window_why_used"] = f"default (not estimated: {est.window_why})"
+    elif est.window is not None:  # (None: not known, the stream keeps its floor)
+        doc["window_why_used"] = f"estimated{at}: none ({est.window_why})"
     return doc
 
 

@@ -78,6 +78,12 @@ WINDOW_F = 10.83
 WINDOW_OVERLAP = 5.0
 WINDOW_GAIN = 0.95
 WINDOW_POINTS = 12  # the window mean: of this many midpoints
+#: With the GNSS delay given, the window is estimated at it only when the data's own lag
+#: is within this (s), or 3 of its standard errors, of it: at a delay the data contradict
+#: the velocity's timing is not modelled and the stream keeps its floor for an unknown
+#: window (``--gnss-delay 0`` on logs/sitl_copter.tlog, whose lag is 0.083 s: 473 fixes
+#: gated and pitch 0.304 deg with the floor dropped, 226 and 0.240 with it kept).
+GIVEN_DELAY_TOL_S = 0.01
 #: The barometer delays tried (s): MIN_DELAY_S to this.
 MAX_BARO_DELAY_S = 0.5
 #: The magnetometer ages tried (s): 0 to this.
@@ -116,6 +122,19 @@ class DelayEstimate:
     window: float | None = None
     window_ratio: float | None = None
     window_why: str = ""
+    #: with the delay given: the delay the data show (s; None: none found) and its
+    #: standard error, for the user to compare
+    data_delay: float | None = None
+    data_sd: float | None = None
+
+    def given_note(self) -> str:
+        """With the delay given, what the data say of it (else "")."""
+        if self.why != "given":
+            return ""
+        if self.data_delay is None or self.data_sd is None:
+            return "; the data give no delay of their own"
+        return (f"; the data's own lag {self.data_delay:.3f} s, standard error "
+                f"{self.data_sd * 1e3:.1f} ms")
 
 
 @dataclass
@@ -380,8 +399,10 @@ class DelayProbe:
         return est
 
     def estimate(self, max_delay: float = MAX_DELAY_S, grid_s: float = GRID_S,
-                 pair_s: float = PAIR_S) -> DelayEstimate:
-        """The delay minimising the cost over the grid (module docstring)."""
+                 pair_s: float = PAIR_S, delay: float | None = None) -> DelayEstimate:
+        """The delay minimising the cost over the grid (module docstring), and the GNSS
+        velocity's window at it; with ``delay`` given (s, ``--gnss-delay``) only the
+        window, at that delay (``sd`` None)."""
         none = DelayEstimate(None, None, 0, 0.0, "")
         if len(self._t) < 10 or len(self._gt) < 10:
             none.why = "too few steps or GNSS fixes"
@@ -397,6 +418,18 @@ class DelayProbe:
         n = int(use.sum())
         m = int(comp[use].sum())
         exc = float(np.sum(np.where(comp[use], dz[use], 0.0) ** 2))
+        if delay is not None:
+            found = self.estimate(max_delay, grid_s, pair_s)
+            est = DelayEstimate(float(delay), None, n, exc, "given",
+                                data_delay=found.delay, data_sd=found.sd)
+            if found.delay is not None and found.sd is not None and abs(
+                    found.delay - delay) > max(GIVEN_DELAY_TOL_S, 3.0 * found.sd):
+                est.window_why = (f"the data's own lag, {found.delay:.3f} s, is "
+                                  f"{abs(found.delay - delay) * 1e3:.0f} ms from the "
+                                  "delay given: the velocity's timing is not modelled")
+            else:
+                self._window(est, t0, t, V, dv, seg, gt, i0, i1, dz, comp)
+            return est
         grid = np.arange(MIN_DELAY_S, max_delay + 0.5 * grid_s, grid_s)
         est = DelayEstimate(None, None, n, exc, "", grid, np.zeros(0))
         if n < 10:
@@ -565,13 +598,15 @@ def _cost_on(t0: Array, t1: Array, V: Array, dv: Array, seg: Array, gt: Array, i
 
 def estimate_gnss_delay(samples: Iterable[Any], opts: NavOptions, params: dict[str, Any],
                         runner: NavRunner, probe_s: float = PROBE_S, prior: float = 0.0,
-                        prior_mag: float = 0.0
+                        prior_mag: float = 0.0, given: bool = False
                         ) -> tuple[DelayEstimate, MagEstimate, list[Any], Iterator[Any],
                                    BaroEstimate]:
     """Run ``runner`` (one navigation filter) on a :class:`NavStream` with ``opts`` and
     the delays ``prior`` (GNSS) and ``prior_mag`` (magnetometer, s) over the first
     ``probe_s`` s of IMU data of ``samples``, and estimate both delays from it (and the
-    magnetometer's scatter), and the barometer's delay behind the GNSS height. Returns
+    magnetometer's scatter), and the barometer's delay behind the GNSS height; ``given``:
+    the GNSS delay ``prior`` is the user's, not estimated (the velocity window and the
+    baro delay are estimated at it). Returns
     the GNSS and magnetometer estimates, the samples read (to be replayed in front of
     the rest), the iterator of the rest and the baro estimate."""
     it = iter(samples)
@@ -625,12 +660,14 @@ def estimate_gnss_delay(samples: Iterable[Any], opts: NavOptions, params: dict[s
         why = f"the probe run failed ({failed})"
         return (DelayEstimate(None, None, 0, 0.0, why), MagEstimate(None, None, 0, why), held,
                 it, BaroEstimate(None, None, 0, why))
-    est = probe.estimate()
-    mest = probe.estimate_mag(gnss_delay=delay_used(est.delay if est.delay is not None
-                                                    else prior)[0])
+    est = probe.estimate(delay=prior if given else None)
+    # the magnetometer and the baro are timed against the GNSS heights and velocities at
+    # the data's own lag where there is one, a given delay or not
+    lag = next((d for d in (est.data_delay, est.delay) if d is not None), prior)
+    mest = probe.estimate_mag(gnss_delay=delay_used(lag)[0])
     mest.noise_default = float(stream.noise.mag_noise)
     est.imu_rate_hz = mest.imu_rate_hz = float(stream.summary.get("align_rate_hz") or 0.0)
-    best = probe.estimate_baro(delay_used(est.delay if est.delay is not None else prior)[0])
+    best = probe.estimate_baro(delay_used(lag)[0])
     best.noise_default = float(stream.noise.baro_noise)
     return est, mest, held, it, best
 
@@ -658,11 +695,16 @@ class LiveDelayLearner:
     The delay found is held here, outside the lane's history: a rewind of the stream to
     a checkpoint before it (:mod:`uavest.engine.history`) gets it again from
     :meth:`apply`. ``delay`` (s) is None until found; ``t_decided`` (s) and ``why`` say
-    when and why, ``estimates`` every try (:meth:`as_dict`, the result document)."""
+    when and why, ``estimates`` every try (:meth:`as_dict`, the result document).
+
+    With the delay ``given`` (s, ``--gnss-delay``) it is not estimated: the velocity
+    window and the baro delay are, at the given delay, on the same schedule (decided when
+    the window is; no refinement, the run already uses the delay)."""
 
     def __init__(self, first_s: float = LIVE_FIRST_S, check_s: float = LIVE_CHECK_S,
-                 span_s: float = PROBE_S) -> None:
+                 span_s: float = PROBE_S, given: float | None = None) -> None:
         self.first_s, self.check_s, self.span_s = first_s, check_s, span_s
+        self.given = None if given is None else float(given)
         self.delay: float | None = None
         self.why = ""
         self.t_decided: float | None = None
@@ -727,12 +769,19 @@ class LiveDelayLearner:
     def _check(self, t: float) -> None:
         assert self._t0 is not None
         span = t - self._t0
-        est = self._probe.estimate()
+        est = self._probe.estimate(delay=self.given)
         self.estimates.append({"t": t, "span_s": span, "delay": est.delay, "sd": est.sd,
                                "pairs": est.pairs, "why": est.why,
                                "refinement": self._refining})
         last = span + self.check_s > self.span_s or (self._refining and est.delay is None)
-        if est.delay is not None:
+        if self.given is not None:  # the window (and the baro delay) at the given delay
+            self.estimates[-1].update(window=est.window, window_why=est.window_why,
+                                      data_delay=est.data_delay)
+            if est.window is not None:
+                self.t_decided, self.done = t, True
+                self._aids(est, self.given, span)
+                return
+        elif est.delay is not None:
             d, neg = delay_used(est.delay)
             assert est.sd is not None
             self.delay, self.t_decided = d, t
@@ -758,14 +807,16 @@ class LiveDelayLearner:
     def _aids(self, est: DelayEstimate, d: float, span: float) -> None:
         """The velocity window and the baro delay that go with a delay ``d`` found."""
         what = (f"{self.label}, over {span:.0f} s of "
-                f"{'the run with the first estimate' if self._refining else 'navigation'}")
+                f"{'the run with the first estimate' if self._refining else 'navigation'}"
+                + ("" if self.given is None else
+                   f", at the given GNSS delay {d:g} s{est.given_note()}"))
         if est.window is not None:
             self.window = est.window
             self.window_why = (
                 f"estimated live: the GNSS velocity is the mean over this window ({what}, "
                 f"{est.window_ratio:.2f} of the cost without one)" if est.window else
                 f"estimated live: none ({est.window_why})")
-        best = self._probe.estimate_baro(d)
+        best = self._probe.estimate_baro(d if est.data_delay is None else est.data_delay)
         self.estimates[-1]["baro_delay"] = best.delay
         if best.delay is not None:
             assert best.sd is not None
@@ -779,7 +830,7 @@ class LiveDelayLearner:
         yet (after the decision, or after a rewind or a restart took it back)."""
         if getattr(stream, "_builder", None) is None:
             return
-        if self.delay is None:
+        if self.t_decided is None:
             rate = float(stream.summary.get("align_rate_hz") or 0.0)
             if not self.done and 0 < rate < PROBE_MIN_IMU_HZ:
                 self.done = True
@@ -787,17 +838,21 @@ class LiveDelayLearner:
                     f"the IMU at {rate:.1f} Hz is too coarse to time the aiding against "
                     f"(needs {PROBE_MIN_IMU_HZ:g} Hz)")})
             return
-        assert self.t_decided is not None
-        if stream.delay != self.delay:
+        if self.delay is not None and stream.delay != self.delay:
             stream.set_gnss_delay(self.delay, self.t_decided, self.why)
-        if self.window is not None and stream.vel_window != self.window:
+        # (a window or baro delay found equal to the stream's default is news too: the
+        # stream then drops the floor it keeps while they are unknown)
+        if self.window is not None and (stream.vel_window != self.window
+                                        or not stream.window_known):
             stream.set_gnss_window(self.window, self.t_decided, self.window_why)
-        if self.baro_delay is not None and stream.baro_delay != self.baro_delay:
+        if self.baro_delay is not None and (stream.baro_delay != self.baro_delay
+                                            or not stream.baro_known):
             stream.set_baro_delay(self.baro_delay, self.t_decided, self.baro_why)
 
     def as_dict(self) -> dict[str, Any]:
         """For the result document: the delay used (None: not estimated) and every try."""
-        return {"delay": self.delay, "t": self.t_decided, "why": self.why or None,
+        return {"delay": self.delay, "given": self.given, "t": self.t_decided,
+                "why": self.why or None,
                 "window": self.window, "baro_delay": self.baro_delay,
                 "filter": self.label or None, "tries": self.estimates}
 
