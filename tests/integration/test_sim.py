@@ -428,6 +428,30 @@ def test_simstate_consistent_with_imu(tmp_path):
     assert np.deg2rad(0.2) < rms < np.deg2rad(4)
 
 
+def test_hil_state_quaternion_is_the_true_state(tmp_path):
+    """HIL_STATE_QUATERNION (asked for by interval, as of PX4 SITL) carries the vehicle's
+    true attitude, position and velocity at its stamp, to its fields' resolution; read
+    through uavest's converter it is a truth reference with a position."""
+    from uavest.ingest.convert import convert_mavlink
+
+    sim, path = make_log(tmp_path, duration=10.0, imu_rate=100.0,
+                         rates={"RAW_IMU": 1, "HIL_STATE_QUATERNION": 20})
+    recs = [m for _, m in read_tlog(path) if m.get_type() == "HIL_STATE_QUATERNION"]
+    assert len(recs) == pytest.approx(200, abs=2)
+    for m in recs[::7]:
+        v = sim.truth_at(m.time_usec * 1e-6).vehicle
+        ref, pos = convert_mavlink(m)
+        assert ref.kind == "truth" and ref.source == pos.source == "HIL_STATE_QUATERNION"
+        q = ref.values[0]
+        assert min(np.abs(q - v.q).max(), np.abs(q + v.q).max()) < 1e-6
+        _, vel, lla = pos.values
+        np.testing.assert_allclose(vel, v.vel_ned, atol=0.006)  # cm/s
+        np.testing.assert_allclose(lla[:2], v.lla[:2], atol=1.5e-7)  # degE7
+        assert lla[2] == pytest.approx(v.lla[2], abs=0.0006)  # mm
+        np.testing.assert_allclose([m.rollspeed, m.pitchspeed, m.yawspeed], v.omega,
+                                   atol=1e-6)
+
+
 def test_adsb_matches_targets(tmp_path):
     pm = pytest.importorskip("pymap3d")
     sim, path = make_log(tmp_path, duration=30.0, imu_rate=100.0, rates={"RAW_IMU": 1})
@@ -527,6 +551,7 @@ def test_committed_log(tmp_path):
     t = np.array([m.time_usec for m in kinds["RAW_IMU"]]) * 1e-6
     assert 30 <= t[-1] - t[0] <= 60.5 and np.allclose(np.diff(t), 0.005)
     assert len(kinds["SIMSTATE"]) == len(kinds["RAW_IMU"])
+    assert len(kinds["HIL_STATE_QUATERNION"]) == pytest.approx(len(kinds["RAW_IMU"]) / 4, abs=2)
     assert {"ATTITUDE", "GPS_RAW_INT", "GLOBAL_POSITION_INT", "OBSTACLE_DISTANCE_3D",
             "ADSB_VEHICLE", "HEARTBEAT"} <= set(kinds)
     dec = [m for m in kinds["PARAM_VALUE"] if m.param_id == "COMPASS_DEC"]

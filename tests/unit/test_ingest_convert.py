@@ -146,6 +146,23 @@ def test_sim_state_is_attitude_and_position_truth():
         np.testing.assert_allclose(pos.values[2][:2], [47.3977472, 8.545476], atol=1e-5)
 
 
+def test_hil_state_quaternion_is_attitude_and_position_truth():
+    """PX4 SITL's ground truth (and uavest's simulator's): lat/lon degE7, alt mm, velocity
+    cm/s NED."""
+    q = euler_to_quat(0.1, -0.2, 1.0)
+    m = ml.MAVLink_hil_state_quaternion_message(
+        5_000_000, [float(c) for c in q], 0.1, 0.2, 0.3, 473977462, 85454756, 433090,
+        -50, 25, 150, 100, 100, 0, 0, -1000)
+    ref, pos = convert_mavlink(m)
+    assert (ref.cat, ref.kind, pos.cat, ref.source) == ("ref", "truth", "pos",
+                                                        "HIL_STATE_QUATERNION")
+    np.testing.assert_allclose(ref.values[0], q, atol=1e-6)
+    ned, vel, lla = pos.values
+    assert ned is None and check(pos) is None
+    np.testing.assert_allclose(lla, [47.3977462, 8.5454756, 433.09], atol=1e-9)
+    np.testing.assert_allclose(vel, [-0.5, 0.25, 1.5], atol=1e-9)
+
+
 class _DF:
     """Minimal stand-in for a pymavlink DataFlash record."""
 

@@ -92,14 +92,16 @@ _T = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # NED <-> E
 #: virtual radar), SIMSTATE and SIM_STATE (an ArduPilot SITL's truth: SIMSTATE the attitude,
 #: SIM_STATE also the position and velocity the navigation model is scored against, and
 #: the evidence that puts its frame on ArduPilot's sphere; a real vehicle ignores both),
-#: time, and the
+#: HIL_STATE_QUATERNION (the true state PX4 SITL and uavest's simulator send: attitude,
+#: position and velocity), time, and the
 #: radar lanes' inputs: ADSB_VEHICLE (ArduPilot sends traffic only when asked on that link,
 #: about 1 Hz per aircraft at most) and OBSTACLE_DISTANCE_3D, and barometric pressure.
 #: The achieved rate of each is said on one line ``rate_window_s`` after the start, a
 #: stream the vehicle does not serve as ``missing: X`` (:mod:`uavest.apps.streams`).
 LIVE_STREAMS = {
     "HIGHRES_IMU": 100.0, "RAW_IMU": 50.0, "ATTITUDE": 10.0, "GLOBAL_POSITION_INT": 10.0,
-    "GPS_RAW_INT": 5.0, "SIMSTATE": 10.0, "SIM_STATE": 10.0, "SYSTEM_TIME": 1.0,
+    "GPS_RAW_INT": 5.0, "SIMSTATE": 10.0, "SIM_STATE": 10.0,
+    "HIL_STATE_QUATERNION": 10.0, "SYSTEM_TIME": 1.0,
     "ADSB_VEHICLE": 10.0, "OBSTACLE_DISTANCE_3D": 10.0, "SCALED_PRESSURE": 10.0,
 }
 

@@ -145,13 +145,20 @@ def format_live(doc: dict) -> str:
     title = f"attitude against {what}; RMSE in degrees"
     if doc.get("model") == "nav":
         cols[4:4] = ["vel_rmse_ms", "hpos_rmse_m", "vpos_rmse_m"]
+        pref = next((r["position_reference"] for r in doc["attitude"].values()
+                     if r.get("position_reference")), None)
         title = (f"navigation model; attitude against {what}, RMSE in degrees; velocity "
-                 "(m/s) and position (m) against the position reference")
+                 f"(m/s) and position (m) against {pref or 'no position reference'}")
     lines += [title, table(doc["attitude"], cols)]
     live = doc.get("gnss_delay_live")
-    if live and live["delay"] is None:
-        last = live["tries"][-1]["why"] if live["tries"] else "the run ended before the first try"
+    tries = (live or {}).get("tries") or []
+    if live and live.get("given") is None and live["delay"] is None:
+        last = tries[-1]["why"] if tries else "the run ended before the first try"
         lines.append(f"GNSS delay: not estimated live ({last}); --gnss-delay S to set it")
+    elif live and live.get("given") is not None and live.get("window") is None:
+        last = (tries[-1].get("window_why") or tries[-1]["why"] if tries
+                else "the run ended before the first try")
+        lines.append(f"GNSS velocity window: not estimated live at the given delay ({last})")
     if doc["tracks"]:
         lines += ["", f"tracks against ADS-B truth ({doc['targets_seen']} aircraft seen, "
                   f"{doc['scans']} scans); GOSPA and position RMSE in m",

@@ -40,7 +40,7 @@ __all__ = [
 
 #: Preference order among autopilot estimates (first present wins).
 AUTOPILOT_SOURCES = ("ATTITUDE_QUATERNION", "ATTITUDE", "ATT", "vehicle_attitude")
-TRUTH_SOURCES = ("SIMSTATE", "SIM_STATE", "SIM")
+TRUTH_SOURCES = ("SIMSTATE", "SIM_STATE", "SIM", "HIL_STATE_QUATERNION")
 
 
 MIN_REF_SAMPLES = 10  # a reference with fewer samples cannot score a run

@@ -287,6 +287,17 @@ def _sim_state(m, name: str) -> list[Raw]:
     return [ref, Raw("pos", name, 0, (None, vel, lla), primary=False)]
 
 
+def _hil_state_q(m, name: str) -> list[Raw]:
+    """HIL_STATE_QUATERNION (a simulator's true state: PX4 SITL streams its ground truth
+    so, uavest's simulator too): the attitude quaternion (body FRD -> NED), the position
+    (lat/lon degE7, alt mm AMSL) and the NED velocity (vx, vy, vz cm/s), all truth."""
+    q = [float(v) for v in m.attitude_quaternion]
+    ref = _ref_from_quat(name, "truth", *q)
+    lla = np.array([m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3])
+    vel = np.array([m.vx, m.vy, m.vz], dtype=float) * 1e-2
+    return [ref, Raw("pos", name, 0, (None, vel, lla), primary=False)]
+
+
 def _ahrs2(m, name: str) -> list[Raw]:
     return [_ref_from_euler(name, "ahrs2", m.roll, m.pitch, m.yaw)]
 
@@ -452,6 +463,7 @@ MAVLINK_CONVERTERS = {
     "ATTITUDE_QUATERNION": _attitude_q,
     "SIMSTATE": _simstate,
     "SIM_STATE": _sim_state,
+    "HIL_STATE_QUATERNION": _hil_state_q,
     "AHRS2": _ahrs2,
     "GLOBAL_POSITION_INT": _global_pos,
     "LOCAL_POSITION_NED": _local_pos,

@@ -54,7 +54,7 @@ PERIODIC = {
     name: getattr(mav2, f"MAVLINK_MSG_ID_{name}")
     for name in ("RAW_IMU", "HIGHRES_IMU", "SCALED_PRESSURE", "SYS_STATUS", "GPS_RAW_INT",
                  "GLOBAL_POSITION_INT", "LOCAL_POSITION_NED", "ATTITUDE", "SIMSTATE",
-                 "VFR_HUD", "SYSTEM_TIME")
+                 "HIL_STATE_QUATERNION", "VFR_HUD", "SYSTEM_TIME")
 }
 EVENT = {"OBSTACLE_DISTANCE_3D": mav2.MAVLINK_MSG_ID_OBSTACLE_DISTANCE_3D,
          "ADSB_VEHICLE": mav2.MAVLINK_MSG_ID_ADSB_VEHICLE,
@@ -336,6 +336,15 @@ class Protocol:
             eu, f, w = tr.euler[i], tr.f_body[i], tr.omega[i]
             return e.simstate_encode(*map(float, eu), *map(float, f), *map(float, w),
                                      _deg_e7(lat), _deg_e7(lon))
+        if name == "HIL_STATE_QUATERNION":  # the true state, as PX4 SITL sends its own
+            v, w = tr.vel[i], tr.omega[i]
+            a = tr.f_body[i] / G0 * 1000.0
+            spd = int(round(float(np.linalg.norm(v)) * 100))
+            return e.hil_state_quaternion_encode(
+                t_us, [float(c) for c in tr.q[i]], *map(float, w), _deg_e7(lat), _deg_e7(lon),
+                int(round(float(h) * 1e3)), _i16(v[0] * 100), _i16(v[1] * 100),
+                _i16(v[2] * 100), min(spd, 65535), min(spd, 65535), _i16(a[0]), _i16(a[1]),
+                _i16(a[2]))
         if name == "SYSTEM_TIME":
             return e.system_time_encode(int(self.epoch * 1e6) + t_us, t_ms)
         if name == "SYS_STATUS":

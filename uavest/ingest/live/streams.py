@@ -55,10 +55,11 @@ DATA_STREAM = {
     "SYSTEM_TIME": mavlink.MAV_DATA_STREAM_EXTRA3,
 }
 DATA_STREAM_MAX_HZ = 50
-#: Streams only a simulator sends (ArduPilot SITL's truth): a vehicle, or uavest's own
-#: simulator for SIM_STATE, refuses them as a matter of course, so the refusal is not
-#: warned about (the stream line still says ``missing``).
-SIMULATOR_ONLY = frozenset({"SIMSTATE", "SIM_STATE"})
+#: Streams only a simulator sends (ArduPilot SITL's truth SIMSTATE / SIM_STATE; PX4
+#: SITL's and uavest's simulator's HIL_STATE_QUATERNION): a vehicle, or the other
+#: simulators, refuse them as a matter of course, so the refusal is not warned about (the
+#: stream line still says ``missing``).
+SIMULATOR_ONLY = frozenset({"SIMSTATE", "SIM_STATE", "HIL_STATE_QUATERNION"})
 
 
 @dataclass
