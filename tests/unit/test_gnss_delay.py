@@ -341,3 +341,46 @@ def test_live_learner_makes_a_window_found_equal_to_the_default_known():
     assert s.calls == [("window", 0.0), ("baro", 0.0)]  # the given delay is not set again
     learner.apply(s)
     assert len(s.calls) == 2  # once known, not again
+
+
+def _drift_probe(err, T=120.0, seed=0):
+    """A probe fed 5-Hz 3-D fixes of a vehicle circling at 8 m/s whose positions carry
+    ``err(t, rng)`` (n, 2) m and whose velocities are exact."""
+    from uavest.geometry.geodesy import LocalFrame
+    from uavest.ingest.types import GnssSample
+
+    frame = LocalFrame(47.4, 8.5, 500.0)
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, T, 0.2)
+    w = 8.0 / 60.0
+    p = np.c_[60 * np.sin(w * t), 60 * (1 - np.cos(w * t)), np.full(t.size, -30.0)]
+    v = np.c_[8 * np.cos(w * t), 8 * np.sin(w * t), np.zeros(t.size)]
+    p[:, :2] += err(t, rng)
+    lat, lon, h = frame.ned_to_geodetic(p)
+    probe = DelayProbe()
+    for k in range(t.size):
+        probe.add_gnss(GnssSample(float(t[k]), np.array([lat[k], lon[k], h[k]]), v[k], 3,
+                                  0.8, 1.5, 0.1, 1.0, 1.0, 10, "GPS_RAW_INT", 0))
+    return probe.estimate_drift(frame)
+
+
+def test_the_drift_tells_correlated_fix_errors_from_independent_ones():
+    """Independent position errors (0.5 m) move the fixes against their integrated
+    velocities by 0.5 sqrt(2) at 1 s and at 10 s; a 60-s Gauss-Markov error (0.8 m, as
+    uavest's simulator's receiver) moves them little over 1 s and much more over 10 s;
+    exact fixes not at all."""
+    from uavest.sim.sensors import GaussMarkov
+
+    white = _drift_probe(lambda t, r: r.normal(0, 0.5, (t.size, 2)))
+    assert white.short == pytest.approx(0.5 * np.sqrt(2), rel=0.15)
+    assert white.long == pytest.approx(white.short, rel=0.2) and not white.correlated
+
+    def gm(t, r):
+        return GaussMarkov([0.8, 0.8], 60.0, 0.2, r).run(t.size)
+
+    slow = _drift_probe(gm)
+    assert slow.correlated and slow.long > 2.0 * slow.short, slow
+    exact = _drift_probe(lambda t, r: np.zeros((t.size, 2)))
+    assert exact.long < 0.01 and not exact.correlated  # the trapezoid's own error
+    few = _drift_probe(lambda t, r: np.zeros((t.size, 2)), T=1.0)
+    assert few.long is None and "too few" in few.why

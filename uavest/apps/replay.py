@@ -47,7 +47,7 @@ from ..seeding import filter_stream, rng
 from ..sinks.base import Collector, Sink
 
 if TYPE_CHECKING:
-    from ..engine.gnss_delay import BaroEstimate, DelayEstimate, MagEstimate
+    from ..engine.gnss_delay import BaroEstimate, DelayEstimate, DriftEstimate, MagEstimate
 
 Array = np.ndarray
 
@@ -162,6 +162,8 @@ def probe_gnss_delay(samples: Iterable, cfg: ReplayConfig, params: dict | None
         doc.update(_window_doc(est, f" at the given GNSS delay {cfg.gnss_delay:g} s"
                                     f"{est.given_note()}"))
         doc.update(data_delay=est.data_delay, data_sd=est.data_sd)
+    if est.drift is not None:
+        doc["gnss_drift"] = _drift_doc(est.drift, span)
     doc["mag"] = _mag_doc(cfg, mest, noise, span, refined)
     doc["baro"] = _baro_doc(cfg, best, noise, span)
     return doc, itertools.chain(held, rest)
@@ -225,6 +227,24 @@ def _gnss_delay_doc(est: DelayEstimate, noise: NavNoise, span: str, refined: str
            "excitation": est.excitation, "why": est.why, "delay_used": used,
            "why_used": why}
     return {**doc, **_window_doc(est)}
+
+
+def _drift_doc(d: DriftEstimate, span: str) -> dict:
+    """The GNSS position drift part of the probe's document, with what it means."""
+    from ..engine.gnss_delay import DRIFT_LONG_S, DRIFT_SHORT_S
+
+    doc: dict = {"short_s": DRIFT_SHORT_S, "long_s": DRIFT_LONG_S, "short_m": d.short,
+                 "long_m": d.long, "pairs": d.pairs, "correlated": d.correlated,
+                 "why": d.why or None}
+    if d.short is not None and d.long is not None:
+        doc["text"] = (
+            f"the fixes' positions less their integrated velocities move {d.short:.3f} m "
+            f"over {DRIFT_SHORT_S:g} s and {d.long:.3f} m over {DRIFT_LONG_S:g} s (rms per "
+            f"horizontal axis, {d.pairs} pairs in {span}): "
+            + ("errors correlated over seconds, which the filters take as independent "
+               "fixes: their position NEES is optimistic (no GNSS-bias state)"
+               if d.correlated else "no error correlated over seconds"))
+    return doc
 
 
 def _window_doc(est: DelayEstimate, at: str = "") -> dict:

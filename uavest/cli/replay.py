@@ -149,6 +149,9 @@ def model_lines(doc: dict) -> list[str]:
         lines.append(f"aiding: GNSS {doc.get('gnss_source')} (delay "
                      f"{doc.get('gnss_delay_s') or 0:g} s), baro {doc.get('baro_source')}, "
                      f"magnetometer {doc.get('mag_source')}" + (f"; {cnt}" if cnt else ""))
+    drift = (doc.get("gnss_delay_estimate") or {}).get("gnss_drift") or {}
+    if drift.get("text"):
+        lines.append(f"GNSS drift: {drift['text']}")
     if doc.get("position_reference"):
         lines.append(f"position reference: {doc['position_reference']} "
                      f"({doc.get('position_reference_kind')}); velocity RMSE m/s, position "

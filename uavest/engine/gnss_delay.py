@@ -126,6 +126,8 @@ class DelayEstimate:
     #: standard error, for the user to compare
     data_delay: float | None = None
     data_sd: float | None = None
+    #: the fixes' positions against their velocities (:meth:`DelayProbe.estimate_drift`)
+    drift: DriftEstimate | None = None
 
     def given_note(self) -> str:
         """With the delay given, what the data say of it (else "")."""
@@ -135,6 +137,42 @@ class DelayEstimate:
             return "; the data give no delay of their own"
         return (f"; the data's own lag {self.data_delay:.3f} s, standard error "
                 f"{self.data_sd * 1e3:.1f} ms")
+
+
+#: The GNSS position is compared with its own velocity, integrated, over these spans (s)
+DRIFT_SHORT_S = 1.0
+DRIFT_LONG_S = 10.0
+#: ... and said to carry correlated errors when the long span's difference is more than
+#: this many times the short one's (independent errors give the same at every span) and
+#: more than DRIFT_MIN_M (the integration's own error: 3 mm over 10 s circling at 8 m/s)
+DRIFT_GROWTH = 2.0
+DRIFT_MIN_M = 0.05
+
+
+@dataclass
+class DriftEstimate:
+    """How the GNSS fixes' positions move against their own velocities, integrated: the
+    root mean square per horizontal axis (m) of ``(p(t + T) - p(t)) - integral of v`` over
+    T = :data:`DRIFT_SHORT_S` (``short``) and :data:`DRIFT_LONG_S` (``long``), from
+    ``pairs`` long pairs (None with ``why`` when too few). Independent position errors
+    of std s give s sqrt(2) at both spans; errors correlated over seconds (a receiver's
+    multipath and atmosphere; uavest's simulator: a 60-s Gauss-Markov process) grow with
+    the span, and a filter taking the fixes as independent does not carry them in its
+    covariance (its position NEES is then optimistic). logs/sitl_copter.tlog (an ArduPilot
+    SITL, on its sphere): 0.007 and 0.011 m; vtol.tlog 0.067 and 0.127 m; sim_200hz 0.169
+    and 0.452 m."""
+
+    short: float | None
+    long: float | None
+    pairs: int
+    why: str = ""
+
+    @property
+    def correlated(self) -> bool:
+        """The long span's difference is :data:`DRIFT_GROWTH` times the short one's and
+        more than :data:`DRIFT_MIN_M`."""
+        return (self.short is not None and self.long is not None
+                and self.long > max(DRIFT_GROWTH * self.short, DRIFT_MIN_M))
 
 
 @dataclass
@@ -204,6 +242,9 @@ class DelayProbe:
         self._hh: list[float] = []
         self._bt: list[float] = []  # baro heights: times (s), heights up (m)
         self._bh: list[float] = []
+        self._pt: list[float] = []  # 3-D fixes: times (s), lat/lon/alt, NED velocity
+        self._pl: list[Array] = []
+        self._pv: list[Array] = []
         self._gravity: float | None = None  # m/s^2, the model's, from the first step
 
     def start(self) -> None:
@@ -251,6 +292,41 @@ class DelayProbe:
         if s.fix_type >= 3 and np.isfinite(h):
             self._ht.append(float(s.t))
             self._hh.append(h)
+        lla = np.asarray(s.lat_lon_alt, float)
+        if s.fix_type >= 3 and np.isfinite(lla[:2]).all() and np.isfinite(v[:2]).all():
+            self._pt.append(float(s.t))
+            self._pl.append(lla)
+            self._pv.append(v)
+
+    def estimate_drift(self, frame: Any) -> DriftEstimate:
+        """:class:`DriftEstimate` of the 3-D fixes, their positions in ``frame`` (the run's
+        local frame: an ArduPilot SITL's lat/lon read through the wrong geodesy move 0.1-0.2
+        % of the displacement against its velocities)."""
+        if frame is None or len(self._pt) < 10:
+            return DriftEstimate(None, None, 0, "too few 3-D fixes")
+        order = np.argsort(self._pt, kind="stable")
+        t = np.array(self._pt)[order]
+        lla = np.array(self._pl)[order]
+        v = np.array(self._pv)[order][:, :2]
+        p = np.asarray(frame.geodetic_to_ned(lla[:, 0], lla[:, 1], lla[:, 2]))[:, :2]
+        dt = np.diff(t)
+        walked = np.r_[[np.zeros(2)], np.cumsum(0.5 * (v[1:] + v[:-1]) * dt[:, None], 0)]
+        r = p - walked  # the position less the integrated velocity
+        brk = np.r_[0, np.cumsum(dt > 1.0)]  # a gap over 1 s starts a new stretch
+        out, n_long = [], 0
+        for span in (DRIFT_SHORT_S, DRIFT_LONG_S):
+            j = np.searchsorted(t, t + span)
+            ok = (j < t.size)
+            i = np.nonzero(ok)[0]
+            j = j[ok]
+            ok = (brk[j] == brk[i]) & (np.abs(t[j] - t[i] - span) <= 0.5 * span)
+            d = (r[j] - r[i])[ok]
+            n_long = int(ok.sum())
+            out.append(float(np.sqrt(np.mean(d**2))) if n_long >= 10 else None)
+        if out[1] is None:
+            return DriftEstimate(out[0], None, n_long,
+                                 f"{n_long} fix pairs {DRIFT_LONG_S:g} s apart")
+        return DriftEstimate(out[0], out[1], n_long)
 
     def add_baro(self, t: float, height: float) -> None:
         """One barometer sample at ``t`` (s, its stamp) of ``height`` (m up, any offset)."""
@@ -661,6 +737,7 @@ def estimate_gnss_delay(samples: Iterable[Any], opts: NavOptions, params: dict[s
         return (DelayEstimate(None, None, 0, 0.0, why), MagEstimate(None, None, 0, why), held,
                 it, BaroEstimate(None, None, 0, why))
     est = probe.estimate(delay=prior if given else None)
+    est.drift = probe.estimate_drift(stream.frame)
     # the magnetometer and the baro are timed against the GNSS heights and velocities at
     # the data's own lag where there is one, a given delay or not
     lag = next((d for d in (est.data_delay, est.delay) if d is not None), prior)
