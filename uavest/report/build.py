@@ -125,9 +125,14 @@ def attitude_data(rec: Recording) -> dict:
     return out
 
 
-#: Velocity/position references for the navigation page, best first: the simulator's or
-#: autopilot's fused solution (a reference, never a measurement of the filter).
-_NAV_REFS = ("GLOBAL_POSITION_INT", "vehicle_global_position", "POS")
+def _nav_refs() -> tuple[str, ...]:
+    """Velocity/position references for the navigation page, best first, as the replay's
+    scorer takes them (:func:`uavest.eval.navigation.choose_position_ref`): a simulator's
+    truth, else the autopilot's fused solution (a reference, never a measurement)."""
+    from ..eval.attitude import TRUTH_SOURCES
+    from ..eval.navigation import POSITION_REFS
+
+    return (*TRUTH_SOURCES, *POSITION_REFS)
 #: The raw GNSS sources, whose first fix is the navigation model's local origin.
 _RAW_GNSS = ("GPS_RAW_INT", "GPS2_RAW", "GPS_INPUT", "GPS", "vehicle_gps_position",
              "sensor_gps")
@@ -137,7 +142,7 @@ def navigation_data(rec: Recording) -> dict:
     """The navigation model's channels (``/navigation/<label>/estimate``): per label ``t``
     (K,) s, ``v``, ``p`` (K, 3) NED m/s and m, ``s3v``, ``s3p`` (K, 3) their 3-sigma; and
     ``ref``: (source, t, v (K, 3) m/s, p (K, 3) m or None) from the first of
-    :data:`_NAV_REFS` in the recording, its position in the local NED frame at the first
+    :func:`_nav_refs` in the recording, its position in the local NED frame at the first
     raw GNSS fix (the model's origin; the run's ``/navigation/anchor`` when recorded); and
     ``pos_from``, the time (s) from which positions are in that frame (None: all).
     Empty without navigation channels."""
@@ -154,7 +159,7 @@ def navigation_data(rec: Recording) -> dict:
     if not out["filters"]:
         return out
     origin, out["pos_from"], out["geodesy"] = _nav_anchor(rec)
-    for src in _NAV_REFS:
+    for src in _nav_refs():
         msgs = [m for m in rec.json.get(f"/position/{src}", []) if m.get("vel_ned_m_s")
                 and None not in m["vel_ned_m_s"]]
         if msgs:
