@@ -137,7 +137,8 @@ def test_sim_to_live_estimator_matches_truth_and_its_tlog_replays_the_same(tmp_p
 @pytest.mark.slow
 def test_live_navigation_model_against_the_simulator_and_its_tlog_replays_the_same(tmp_path):
     """``--model nav`` live: the simulator's raw GNSS stream aids the navigation filters
-    (velocity and position scored against the simulator), and the session tlog replayed
+    (velocity and position scored against the simulator's true state, HIL_STATE_QUATERNION),
+    and the session tlog replayed
     gives the same estimates step by step."""
     port = _port()
     tlog = tmp_path / "live_nav.tlog"
@@ -152,6 +153,8 @@ def test_live_navigation_model_against_the_simulator_and_its_tlog_replays_the_sa
         assert row["n"] > 50 and row["resets"] == 0, row
         assert row["vel_rmse_ms"] is not None and row["vel_rmse_ms"] < 0.5, row
         assert row["hpos_rmse_m"] is not None and row["hpos_rmse_m"] < 3.0, row
+        # against the simulator's true state, not its simulated autopilot's estimate
+        assert row["position_reference"] == "HIL_STATE_QUATERNION", row
         assert coll.arrays(label)["x"].shape[1] == 16
     src = open_source(tlog, sysid=doc["link"]["vehicle_sysid"],
                       reorder_window=LiveConfig().reorder_window)

@@ -71,6 +71,14 @@ def test_live_run_estimates_the_gnss_delay_window_and_baro_delay_and_uses_them()
                for t in n["tries"]), n["tries"]
     said = [x for x in none["decisions"] if x["what"] == "GNSS velocity window"]
     assert [x["value"] for x in said] == ["not known"], said
+    # the summary says what was not learned, and names the position reference
+    from uavest.cli.run import format_live
+
+    text = format_live(none)
+    assert "GNSS velocity window: not estimated live at the given delay (the data's own " \
+           "lag" in text, text
+    assert "position (m) against SIM_STATE" in text
+    assert "not estimated live" not in format_live(given)
     c = given["attitude"]["ekf"]
     assert abs(c["vel_rmse_ms"] - on_arrival["attitude"]["ekf"]["vel_rmse_ms"]) < 0.01, c
     a, b = on_arrival["attitude"]["ekf"], none["attitude"]["ekf"]
