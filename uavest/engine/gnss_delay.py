@@ -129,6 +129,12 @@ class DelayEstimate:
     #: the fixes' positions against their velocities (:meth:`DelayProbe.estimate_drift`)
     drift: DriftEstimate | None = None
 
+    def lag(self, fallback: float) -> float:
+        """The GNSS lag (s) the baro and the magnetometer are timed against: the data's own
+        where found (a delay given or not), else ``fallback``; as :func:`delay_used`."""
+        d = next((d for d in (self.data_delay, self.delay) if d is not None), fallback)
+        return delay_used(d)[0]
+
     def given_note(self) -> str:
         """With the delay given, what the data say of it (else "")."""
         if self.why != "given":
@@ -477,8 +483,9 @@ class DelayProbe:
     def estimate(self, max_delay: float = MAX_DELAY_S, grid_s: float = GRID_S,
                  pair_s: float = PAIR_S, delay: float | None = None) -> DelayEstimate:
         """The delay minimising the cost over the grid (module docstring), and the GNSS
-        velocity's window at it; with ``delay`` given (s, ``--gnss-delay``) only the
-        window, at that delay (``sd`` None)."""
+        velocity's window at it; with ``delay`` given (s, ``--gnss-delay``) that delay
+        (``sd`` None), the searched one beside it (``data_delay``, ``data_sd``) and the
+        window at the given one unless the searched one contradicts it."""
         none = DelayEstimate(None, None, 0, 0.0, "")
         if len(self._t) < 10 or len(self._gt) < 10:
             none.why = "too few steps or GNSS fixes"
@@ -486,7 +493,27 @@ class DelayProbe:
         t0, t, V, dv, seg = self._integral()
         gt, gv, i0, i1 = self._pairs(pair_s)
         dz = gv[i1] - gv[i0]  # (n, 3), NaN where a component is missing
-        comp = np.isfinite(dz)
+        args = (t0, t, V, dv, seg, gt, i0, i1, dz, np.isfinite(dz))
+        found = self._search(*args, max_delay, grid_s)
+        if delay is None:
+            if found.delay is not None:
+                self._window(found, *args)
+            return found
+        est = DelayEstimate(float(delay), None, found.pairs, found.excitation, "given",
+                            data_delay=found.delay, data_sd=found.sd)
+        if found.delay is not None and found.sd is not None and abs(
+                found.delay - delay) > max(GIVEN_DELAY_TOL_S, 3.0 * found.sd):
+            est.window_why = (f"the data's own lag, {found.delay:.3f} s, is "
+                              f"{abs(found.delay - delay) * 1e3:.0f} ms from the "
+                              "delay given: the velocity's timing is not modelled")
+        else:
+            self._window(est, *args)
+        return est
+
+    def _search(self, t0: Array, t: Array, V: Array, dv: Array, seg: Array, gt: Array,
+                i0: Array, i1: Array, dz: Array, comp: Array, max_delay: float,
+                grid_s: float) -> DelayEstimate:
+        """The delay's grid search (:meth:`estimate`), without the window."""
         # the pairs every delay of the grid can use: both shifted ends in one segment
         _, sa = _v_at(t0, t, V, dv, seg, gt[i0] - max_delay)
         _, sb = _v_at(t0, t, V, dv, seg, gt[i1] - MIN_DELAY_S)
@@ -494,18 +521,6 @@ class DelayProbe:
         n = int(use.sum())
         m = int(comp[use].sum())
         exc = float(np.sum(np.where(comp[use], dz[use], 0.0) ** 2))
-        if delay is not None:
-            found = self.estimate(max_delay, grid_s, pair_s)
-            est = DelayEstimate(float(delay), None, n, exc, "given",
-                                data_delay=found.delay, data_sd=found.sd)
-            if found.delay is not None and found.sd is not None and abs(
-                    found.delay - delay) > max(GIVEN_DELAY_TOL_S, 3.0 * found.sd):
-                est.window_why = (f"the data's own lag, {found.delay:.3f} s, is "
-                                  f"{abs(found.delay - delay) * 1e3:.0f} ms from the "
-                                  "delay given: the velocity's timing is not modelled")
-            else:
-                self._window(est, t0, t, V, dv, seg, gt, i0, i1, dz, comp)
-            return est
         grid = np.arange(MIN_DELAY_S, max_delay + 0.5 * grid_s, grid_s)
         est = DelayEstimate(None, None, n, exc, "", grid, np.zeros(0))
         if n < 10:
@@ -529,7 +544,6 @@ class DelayProbe:
                        f"{sd * 1e3:.0f} ms > {MAX_SD_S * 1e3:.0f} ms)")
         else:
             est.delay = d
-            self._window(est, t0, t, V, dv, seg, gt, i0, i1, dz, comp)
         return est
 
     def _window(self, est: DelayEstimate, t0: Array, t: Array, V: Array, dv: Array,
@@ -738,13 +752,11 @@ def estimate_gnss_delay(samples: Iterable[Any], opts: NavOptions, params: dict[s
                 it, BaroEstimate(None, None, 0, why))
     est = probe.estimate(delay=prior if given else None)
     est.drift = probe.estimate_drift(stream.frame)
-    # the magnetometer and the baro are timed against the GNSS heights and velocities at
-    # the data's own lag where there is one, a given delay or not
-    lag = next((d for d in (est.data_delay, est.delay) if d is not None), prior)
-    mest = probe.estimate_mag(gnss_delay=delay_used(lag)[0])
+    lag = est.lag(prior)
+    mest = probe.estimate_mag(gnss_delay=lag)
     mest.noise_default = float(stream.noise.mag_noise)
     est.imu_rate_hz = mest.imu_rate_hz = float(stream.summary.get("align_rate_hz") or 0.0)
-    best = probe.estimate_baro(delay_used(lag)[0])
+    best = probe.estimate_baro(lag)
     best.noise_default = float(stream.noise.baro_noise)
     return est, mest, held, it, best
 
@@ -893,7 +905,7 @@ class LiveDelayLearner:
                 f"estimated live: the GNSS velocity is the mean over this window ({what}, "
                 f"{est.window_ratio:.2f} of the cost without one)" if est.window else
                 f"estimated live: none ({est.window_why})")
-        best = self._probe.estimate_baro(d if est.data_delay is None else est.data_delay)
+        best = self._probe.estimate_baro(est.lag(d))
         self.estimates[-1]["baro_delay"] = best.delay
         if best.delay is not None:
             assert best.sd is not None

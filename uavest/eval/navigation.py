@@ -54,7 +54,8 @@ def nees_band(d: int) -> tuple[float, float]:
 
 
 def choose_position_ref(names: list[str]) -> str | None:
-    """Truth first (``SIMSTATE``, ``SIM``), then :data:`POSITION_REFS` in order."""
+    """Truth first (:data:`~uavest.eval.attitude.TRUTH_SOURCES` in order: ``SIM_STATE``,
+    ``SIM``, ``HIL_STATE_QUATERNION``), then :data:`POSITION_REFS` in order."""
     for k in (*TRUTH_SOURCES, *POSITION_REFS):
         if k in names:
             return k

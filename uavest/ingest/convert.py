@@ -274,7 +274,6 @@ def _sim_state(m, name: str) -> list[Raw]:
     extension is there, else the float lat/lon, which ArduPilot fills in degE7 and the
     message definition in deg; alt m AMSL) and velocity (vn, ve, vd m/s NED), both
     truth."""
-    ref = _ref_from_quat(name, "truth", m.q1, m.q2, m.q3, m.q4)
     lat_i, lon_i = getattr(m, "lat_int", 0) or 0, getattr(m, "lon_int", 0) or 0
     if lat_i or lon_i:
         lat, lon = lat_i * 1e-7, lon_i * 1e-7
@@ -284,18 +283,24 @@ def _sim_state(m, name: str) -> list[Raw]:
             lat, lon = lat * 1e-7, lon * 1e-7
     lla = np.array([lat, lon, float(m.alt)])
     vel = np.array([m.vn, m.ve, m.vd], dtype=float)
-    return [ref, Raw("pos", name, 0, (None, vel, lla), primary=False)]
+    return _truth_state(name, (m.q1, m.q2, m.q3, m.q4), lla, vel)
+
+
+def _truth_state(name: str, q, lla: np.ndarray, vel: np.ndarray) -> list[Raw]:
+    """A simulator's true state: its attitude ``q`` (w, x, y, z; body FRD -> NED) as a
+    truth reference, its position ``lla`` (deg, deg, m) and NED velocity ``vel`` (m/s) as
+    a position reference (never a measurement)."""
+    return [_ref_from_quat(name, "truth", *q), Raw("pos", name, 0, (None, vel, lla),
+                                                   primary=False)]
 
 
 def _hil_state_q(m, name: str) -> list[Raw]:
     """HIL_STATE_QUATERNION (a simulator's true state: PX4 SITL streams its ground truth
     so, uavest's simulator too): the attitude quaternion (body FRD -> NED), the position
     (lat/lon degE7, alt mm AMSL) and the NED velocity (vx, vy, vz cm/s), all truth."""
-    q = [float(v) for v in m.attitude_quaternion]
-    ref = _ref_from_quat(name, "truth", *q)
     lla = np.array([m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3])
     vel = np.array([m.vx, m.vy, m.vz], dtype=float) * 1e-2
-    return [ref, Raw("pos", name, 0, (None, vel, lla), primary=False)]
+    return _truth_state(name, [float(v) for v in m.attitude_quaternion], lla, vel)
 
 
 def _ahrs2(m, name: str) -> list[Raw]:

@@ -125,14 +125,6 @@ def attitude_data(rec: Recording) -> dict:
     return out
 
 
-def _nav_refs() -> tuple[str, ...]:
-    """Velocity/position references for the navigation page, best first, as the replay's
-    scorer takes them (:func:`uavest.eval.navigation.choose_position_ref`): a simulator's
-    truth, else the autopilot's fused solution (a reference, never a measurement)."""
-    from ..eval.attitude import TRUTH_SOURCES
-    from ..eval.navigation import POSITION_REFS
-
-    return (*TRUTH_SOURCES, *POSITION_REFS)
 #: The raw GNSS sources, whose first fix is the navigation model's local origin.
 _RAW_GNSS = ("GPS_RAW_INT", "GPS2_RAW", "GPS_INPUT", "GPS", "vehicle_gps_position",
              "sensor_gps")
@@ -141,9 +133,12 @@ _RAW_GNSS = ("GPS_RAW_INT", "GPS2_RAW", "GPS_INPUT", "GPS", "vehicle_gps_positio
 def navigation_data(rec: Recording) -> dict:
     """The navigation model's channels (``/navigation/<label>/estimate``): per label ``t``
     (K,) s, ``v``, ``p`` (K, 3) NED m/s and m, ``s3v``, ``s3p`` (K, 3) their 3-sigma; and
-    ``ref``: (source, t, v (K, 3) m/s, p (K, 3) m or None) from the first of
-    :func:`_nav_refs` in the recording, its position in the local NED frame at the first
-    raw GNSS fix (the model's origin; the run's ``/navigation/anchor`` when recorded); and
+    ``ref``: (source, t, v (K, 3) m/s, p (K, 3) m or None) from the recorded source with
+    velocities that the replay's scorer would take
+    (:func:`uavest.eval.navigation.choose_position_ref`: a simulator's truth, else the
+    autopilot's fused solution, never a measurement), its position in the local NED
+    frame at the first raw GNSS fix (the model's origin; the run's ``/navigation/anchor``
+    when recorded); and
     ``pos_from``, the time (s) from which positions are in that frame (None: all).
     Empty without navigation channels."""
     out: dict = {"filters": {}, "ref": None}
@@ -159,16 +154,22 @@ def navigation_data(rec: Recording) -> dict:
     if not out["filters"]:
         return out
     origin, out["pos_from"], out["geodesy"] = _nav_anchor(rec)
-    for src in _nav_refs():
-        msgs = [m for m in rec.json.get(f"/position/{src}", []) if m.get("vel_ned_m_s")
+    from ..eval.navigation import choose_position_ref
+
+    with_vel = {}
+    for topic in rec.topics("/position/"):
+        msgs = [m for m in rec.json.get(topic, []) if m.get("vel_ned_m_s")
                 and None not in m["vel_ned_m_s"]]
         if msgs:
-            lla = [m.get("lat_lon_alt") for m in msgs]
-            p = (lla_to_local_ned(np.array(lla, float), origin, out["geodesy"])
-                 if origin is not None and all(x and None not in x for x in lla) else None)
-            out["ref"] = (src, _stack(msgs, "t"), _stack(msgs, "vel_ned_m_s", 3), p)
-            out["ref_lla"] = np.array(lla, float) if p is not None else None
-            break
+            with_vel[topic.split("/", 2)[2]] = msgs
+    src = choose_position_ref(list(with_vel))
+    if src is not None:
+        msgs = with_vel[src]
+        lla = [m.get("lat_lon_alt") for m in msgs]
+        p = (lla_to_local_ned(np.array(lla, float), origin, out["geodesy"])
+             if origin is not None and all(x and None not in x for x in lla) else None)
+        out["ref"] = (src, _stack(msgs, "t"), _stack(msgs, "vel_ned_m_s", 3), p)
+        out["ref_lla"] = np.array(lla, float) if p is not None else None
     out["origin"] = origin
     return out
 
