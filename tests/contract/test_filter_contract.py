@@ -152,7 +152,8 @@ def skip_kf_nonlinear(spec: str, prob: Problem) -> None:
 
 # --------------------------------------------------------------------------------- spaces
 
-SPACES = {"vector3": VectorSpace(3), "attitude": AttitudeSpace(), "nav": NavSpace()}
+SPACES = {"vector3": VectorSpace(3), "attitude": AttitudeSpace(), "nav": NavSpace(),
+          "nav_gnss_bias": NavSpace(extra=3)}
 
 
 def random_point(space, rng):
@@ -163,7 +164,7 @@ def random_point(space, rng):
         q = rng.normal(size=4)
         return np.concatenate([q / np.linalg.norm(q), rng.normal(size=3) * 5.0,
                                rng.normal(size=3) * 100.0, rng.normal(size=3) * 0.01,
-                               rng.normal(size=3) * 0.1])
+                               rng.normal(size=3) * 0.1, rng.normal(size=space.extra)])
     return rng.normal(size=space.size)
 
 

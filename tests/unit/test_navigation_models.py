@@ -18,6 +18,7 @@ from uavest.models.navigation import (
     NavNoise,
     OnNav,
     innovation_gate,
+    nav_dim,
 )
 
 SP = NavSpace()
@@ -243,3 +244,129 @@ def test_window_and_carry_forces_match_the_integrated_flight():
     model_p = p[-1] - back * v[-1] + k * (quat_rotate(qe, fp) + [0.0, 0.0, g])
     assert k == pytest.approx(0.5 * 0.26**2)
     np.testing.assert_allclose(model_p, p[i], atol=1e-3)
+
+
+# ------------------------------------------------------------------ GNSS bias states
+
+BIAS = NavNoise(gnss_bias_h=0.8, gnss_bias_v=1.5, gnss_bias_tau=60.0)
+SPB = NavSpace(extra=3)
+
+
+def _point_b(rng):
+    return np.concatenate([_point(rng), rng.normal(size=3) * [0.8, 0.8, 1.5]])
+
+
+def test_gnss_bias_states_only_when_asked():
+    assert not NavNoise().gnss_bias and ImuTransition(NavNoise()).space.dim == 15
+    assert not NavNoise(gnss_bias_h=0.8).gnss_bias  # no correlation time: no states
+    assert BIAS.gnss_bias and ImuTransition(BIAS).space == SPB and SPB.dim == 18
+    assert nav_dim({}) == 15 and nav_dim({"gnss_bias_h": 1.0, "gnss_bias_tau": 30.0}) == 18
+
+
+def test_gnss_bias_transition_F_and_Q_match_the_gauss_markov_process():
+    rng = np.random.default_rng(5)
+    tr = ImuTransition(BIAS, lat=np.deg2rad(47.0), h=400.0)
+    dt = 0.04
+    for _ in range(3):
+        x = _point_b(rng)
+        u = np.concatenate([rng.normal(size=3) * 0.5, rng.normal(size=3) * 3 + [0, 0, -9.8]])
+        ref = fd_jacobian(lambda X, u=u: tr.f(X, 0.0, dt, u), SPB, SPB, x)
+        np.testing.assert_allclose(tr.F(x, 0.0, dt, u), ref, atol=1e-6)
+        # the first 16 components move as without the bias states
+        np.testing.assert_allclose(tr.f(x, 0.0, dt, u)[:16],
+                                   ImuTransition(NavNoise(), lat=np.deg2rad(47.0),
+                                                 h=400.0).f(x[:16], 0.0, dt, u), atol=1e-12)
+    # the bias keeps its steady variance: phi^2 sigma^2 + q = sigma^2 on every axis
+    F, Q = tr.F(x, 0.0, dt, u), tr.Q(0.0, dt)
+    sb2 = np.array([0.8, 0.8, 1.5]) ** 2
+    np.testing.assert_allclose(np.diag(F)[15:] ** 2 * sb2 + np.diag(Q)[15:], sb2, rtol=1e-9)
+    np.testing.assert_allclose(Q[:15, :15], ImuTransition(NavNoise()).Q(0.0, dt))
+
+
+def test_measurements_on_the_biased_state_match_finite_differences():
+    """A fix reads p + bp, a baro (offset to the GNSS height) -(p_D + bp_D), the rest do
+    not read the bias; analytic H (and the hybrid's rows) against finite differences."""
+    rng = np.random.default_rng(6)
+    f = np.array([0.8, -1.5, -9.3])
+    mref = np.array([0.44, 0.02, 0.9]) / np.linalg.norm([0.44, 0.02, 0.9])
+    models = (GnssPosition(np.eye(3)), GnssPosition(np.eye(2), rows=(0, 1)),
+              GnssPosition(np.eye(3), back=0.2, k=0.02, f=f, g=9.8),
+              GnssPosition(np.eye(3), biased=False), GnssVelocity(np.eye(3), back=0.03, f=f,
+                                                                  g=9.8),
+              BaroHeight(np.eye(1), offset=3.0, back=0.05),
+              OnNav(MagField(mref, np.eye(3) * 1e-4), 0.05, np.array([0.4, -0.3, 0.9])))
+    x = _point_b(rng)
+    for m in models:
+        m.space = SPB
+        ref = fd_jacobian(m.h, SPB, None, x)
+        np.testing.assert_allclose(m.H(x), ref, atol=2e-7)
+        Hs = m.H_rows(np.array([x, _point_b(rng)]))
+        np.testing.assert_allclose(Hs[0], m.H(x), atol=1e-9)
+    np.testing.assert_allclose(models[0].h(x), x[7:10] + x[16:19])
+    np.testing.assert_allclose(models[3].h(x), x[7:10])  # the unaided run's hold
+    np.testing.assert_allclose(models[5].h(x), -(x[9] - 0.05 * x[6]) + 3.0 - x[18])
+
+
+def test_a_fix_splits_the_receiver_accuracy_into_bias_and_white_parts():
+    n = BIAS.with_(gnss_pos_floor=0.3, gnss_vpos_floor=0.3)
+    sh, sv = n.gnss_pos_sd(1.0, 2.0)
+    assert sh == pytest.approx(0.6) and sv == pytest.approx(np.sqrt(4 - 1.5**2))
+    assert n.gnss_pos_sd(0.5, None) == (0.3, 0.3)  # less than the bias: the floors
+    assert NavNoise(gnss_pos_floor=0.3).gnss_pos_sd(1.0, None)[0] == 1.0  # no states
+
+
+def _gm_flight(seed, steps=3000, dt=0.02, sigma=2.0, tau=10.0):
+    """_flight with the fixes' position error a Gauss-Markov process (sigma m, tau s)."""
+    data = _flight(seed, steps, dt)
+    rng = np.random.default_rng(seed + 100)
+    phi = np.exp(-10 * dt / tau)
+    b = rng.normal(size=3) * sigma
+    out = []
+    for xt, u, zp, zv in data:
+        if zp is not None:
+            b = phi * b + rng.normal(size=3) * sigma * np.sqrt(1 - phi**2)
+            zp = xt[7:10] + b
+        out.append((xt, u, zp, zv))
+    return out
+
+
+@pytest.mark.slow
+def test_gnss_bias_states_make_the_position_nees_consistent():
+    """The same seeded flight, fixes with a 10-s Gauss-Markov error of 2 m: the EKF that
+    takes them as independent is over-confident in position; with the bias states its
+    position NEES is in its 95 % band on most steps, and its position no worse."""
+    from uavest.eval.navigation import nees_band
+
+    data = _gm_flight(4)
+    lo, hi = nees_band(3)
+    res = {}
+    for noise in (NavNoise(), NavNoise(gnss_bias_h=2.0, gnss_bias_v=2.0, gnss_bias_tau=10.0)):
+        tr = ImuTransition(noise)
+        sp = tr.space
+        x0 = data[0][0].copy()
+        P0 = np.diag([0.05**2] * 3 + [1.0] * 3 + [9.0] * 3 + [0.01**2] * 3 + [0.2**2] * 3)
+        if sp.extra:
+            x0 = np.concatenate([x0, np.zeros(3)])
+            P0 = np.pad(P0, ((0, 3), (0, 3)))
+            P0[15:, 15:] = np.eye(3) * 4.0
+        f = make_filter("ekf")
+        rng = np.random.default_rng(1)
+        s = f.init(Gaussian(x0, P0), sp, rng)
+        inb, err = [], []
+        for k, (xt, u, zp, zv) in enumerate(data):
+            s = f.predict(s, tr, k * 0.02, 0.02, u, rng)
+            if zp is not None:
+                mp, mv = GnssPosition(np.eye(3) * 0.01), GnssVelocity(np.eye(3) * 0.01)
+                mp.space = mv.space = sp
+                s, _ = f.update(s, zp, mp, rng)
+                s, _ = f.update(s, zv, mv, rng)
+            g = f.estimate(s)
+            if k > 500:
+                e = g.x[7:10] - xt[7:10]
+                d = float(e @ np.linalg.solve(g.P[6:9, 6:9], e))
+                inb.append(lo <= d <= hi)
+                err.append(e)
+        res[sp.dim] = (np.mean(inb), np.sqrt(np.mean(np.square(err))))
+    assert res[15][0] < 0.3, res
+    assert res[18][0] >= 0.8, res
+    assert res[18][1] <= 1.1 * res[15][1], res

@@ -137,8 +137,7 @@ def fix_prior(fix: _Aid, dt: float, noise: NavNoise) -> tuple[Array, Array, list
     if not vz_ok:
         v[2] = 0.0
     p = fix.ned + v * dt
-    sh = max(n.gnss_pos_floor, g.h_acc if np.isfinite(g.h_acc) else 0.0)
-    sv = max(n.gnss_vpos_floor, g.v_acc if np.isfinite(g.v_acc) else 0.0)
+    sh, sv = n.gnss_pos_sd(g.h_acc, g.v_acc)
     svel = max(n.gnss_vel_floor, g.s_acc if np.isfinite(g.s_acc) else 0.0)
     return v, p, ([svel**2] * 2 + [(svel if vz_ok else n.init_vel) ** 2]
                   + [sh**2] * 2 + [sv**2])
@@ -176,7 +175,24 @@ def fix_start(q: Array, tilt: float, syaw: float, v: Array, p: Array, pv: list[f
     x = np.concatenate([q, v, p, np.zeros(6)])
     P = np.diag([tilt**2] * 2 + [syaw**2] + pv
                 + [n.init_gyro_bias**2] * 3 + [n.init_accel_bias**2] * 3)
-    return x, P
+    return with_gnss_bias(x, P, n, from_fix=True)
+
+
+def with_gnss_bias(x: Array, P: Array, noise: NavNoise, from_fix: bool) -> tuple[Array, Array]:
+    """``(x, P)`` of the 15-dimensional start with the GNSS bias states appended when
+    ``noise`` has them (:attr:`NavNoise.gnss_bias`): zero, at their steady std. A position
+    ``from_fix`` is the fix less its bias: its variance grows by the bias's and the two
+    are anti-correlated (``P_pb = -sigma_b^2``)."""
+    if not noise.gnss_bias:
+        return x, P
+    sb2 = noise.gnss_bias_sd**2
+    P2 = np.zeros((18, 18))
+    P2[:15, :15] = P
+    P2[15:, 15:] = np.diag(sb2)
+    if from_fix:
+        P2[6:9, 6:9] += np.diag(sb2)
+        P2[6:9, 15:18] = P2[15:18, 6:9] = -np.diag(sb2)
+    return np.concatenate([x, np.zeros(3)]), P2
 
 
 def unaided_start(q: Array, syaw: float, noise: NavNoise) -> tuple[Array, Array]:
@@ -188,7 +204,7 @@ def unaided_start(q: Array, syaw: float, noise: NavNoise) -> tuple[Array, Array]
     P = np.diag([n.init_tilt**2] * 2 + [syaw**2] + [n.init_vel**2] * 3
                 + [n.nofix_pos_noise**2] * 3
                 + [n.init_gyro_bias**2] * 3 + [n.init_accel_bias**2] * 3)
-    return x, P
+    return with_gnss_bias(x, P, n, from_fix=False)
 
 
 def anchor_start(v: Array, p: Array, pv: list[float], noise: NavNoise
@@ -200,4 +216,4 @@ def anchor_start(v: Array, p: Array, pv: list[float], noise: NavNoise
     x = np.concatenate([[1.0, 0.0, 0.0, 0.0], v, p, np.zeros(6)])
     P = np.diag([n.init_tilt**2] * 3 + pv + [n.init_gyro_bias**2] * 3
                 + [n.init_accel_bias**2] * 3)
-    return x, P
+    return with_gnss_bias(x, P, n, from_fix=True)

@@ -73,6 +73,7 @@ from ..models.navigation import (
     ImuTransition,
     NavNoise,
     nav_noise_for_source,
+    nav_space,
 )
 from .attitude import (
     GAP_MEDIANS,
@@ -167,8 +168,9 @@ class NavOptions:
     barometer sample's age (None: 0, not estimated); ``mag_noise_why``: where
     the ``mag_noise`` of ``noise`` came from (None: an option or the default), and
     ``gnss_vel_window_why`` where its ``gnss_vel_window`` came from, ``baro_delay_why``
-    and ``baro_noise_why`` where the baro's delay and noise came from;
-    ``mag_inclination`` rad (None: the World Magnetic Model's within
+    and ``baro_noise_why`` where the baro's delay and noise came from, ``gnss_bias_why``
+    where the GNSS bias states' ``gnss_bias_*`` came from; ``mag_inclination`` rad
+    (None: the World Magnetic Model's within
     :data:`~uavest.engine.nav_align.WMM_INCLINATION_TOL` of the alignment window's
     accelerometer-magnetometer angle, else that angle; ``inclination_wmm`` False: always
     that angle) and
@@ -207,6 +209,7 @@ class NavOptions:
     gnss_vel_window_why: str | None = None
     baro_delay_why: str | None = None
     baro_noise_why: str | None = None
+    gnss_bias_why: str | None = None
     mag_inclination: float | None = None
     mag_inclination_why: str | None = None
     inclination_wmm: bool = True
@@ -913,8 +916,12 @@ class NavStream(StreamSnapshots):
                                    ups, sensors)
         if self._align.unaided and r.t - self._t_hold >= HOLD_INTERVAL_S:
             self._t_hold = r.t
-            ups.append((np.zeros(3), GnssPosition(np.eye(3) * n.nofix_pos_noise**2)))
+            ups.append((np.zeros(3), GnssPosition(np.eye(3) * n.nofix_pos_noise**2,
+                                                  biased=False)))
             sensors.append("hold")
+        if self.space.extra:  # the models read the state with its GNSS bias states
+            for _, m in ups:
+                m.space = self.space
         self._k += 1
         u = np.concatenate([r.w, r.a])
         info: dict[str, Any] | None = {"sensors": tuple(sensors)} if sensors else None
@@ -944,6 +951,7 @@ class NavStream(StreamSnapshots):
         rate = (len(ti) - 1) / max(ti[-1] - ti[0], 1e-9) if len(ti) > 1 else 0.0
         integ, why, factor = step_plan(imu, rate, o.integration, o.rate_hz)
         self.noise = nav_noise_for_source(imu, rate).with_(**o.noise)
+        self.space = nav_space(self.noise)
         self.delay = float(self.noise.gnss_delay if o.gnss_delay is None else o.gnss_delay)
         self.vel_window = float(self.noise.gnss_vel_window)
         self.window_known = ("gnss_vel_window" in o.noise
@@ -986,6 +994,11 @@ class NavStream(StreamSnapshots):
                          f"not estimated yet: the GNSS velocity std is at least "
                          f"{UNMODELLED_WINDOW_VEL_FLOOR:g} m/s until it is")
         self._decide("IMU delay", f"{self.imu_delay * 1e3:.1f} ms", t_first, dwhy)
+        if self.noise.gnss_bias:
+            n = self.noise
+            self._decide("GNSS bias states", f"{n.gnss_bias_h:.2f} m horizontal, "
+                         f"{n.gnss_bias_v:.2f} m vertical, {n.gnss_bias_tau:.0f} s", t_first,
+                         o.gnss_bias_why or "option --noise")
         if mag is not None:
             self._decide("magnetometer delay", f"{self.mag_delay * 1e3:.0f} ms", t_first,
                          o.mag_delay_why or ("option --mag-delay" if o.mag_delay is not None

@@ -19,6 +19,10 @@ chordal mean of the quaternions plus the weighted sum of the vector blocks, refi
 Gauss-Newton (Karcher) step, as :class:`AttitudeSpace` does.
 
 Everything is vectorised over rows: ``x`` (16,) or (M, 16) against ``dx`` (M, 15).
+
+``NavSpace(extra=3)`` appends Euclidean components after ``ba`` (``x`` size 19, ``dx``
+dim 18): the navigation model's GNSS receiver bias ``bp`` (m, NED) when it has one
+(:class:`uavest.models.navigation.NavNoise`, ``gnss_bias_tau``).
 """
 
 from __future__ import annotations
@@ -48,29 +52,33 @@ DTH, DV, DP, DBG, DBA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), sli
 
 SIZE = 16
 DIM = 15
+#: slice of the GNSS receiver bias in the ambient state / the tangent, when present
+BP, DBP = slice(16, 19), slice(15, 18)
 
 
 def nav_retract_rows(x: Array, dx: Array) -> Array:
-    """:meth:`NavSpace.retract` for ``x`` (16,) or (M, 16) and ``dx`` (M, 15)."""
+    """:meth:`NavSpace.retract` for ``x`` (16,) or (M, 16) and ``dx`` (M, 15) (or the
+    same with extra Euclidean components)."""
     M = dx.shape[0]
     E = _exp_rows(np.ascontiguousarray(dx[:, :3]))
     if x.ndim == 1:
         qe = E @ (x[:4][_LI] * _LS).T
     else:
         qe = _qmul_rows(x[:, :4], E)
-    out = np.empty((M, SIZE))
+    out = np.empty((M, dx.shape[1] + 1))
     _normalise_into(qe, out[:, :4])
     np.add(x[..., 4:], dx[:, 3:], out=out[:, 4:])
     return out
 
 
 def nav_local_rows(x: Array, y: Array) -> Array:
-    """:meth:`NavSpace.local` for ``x`` (16,) or (M, 16) and ``y`` (M, 16)."""
+    """:meth:`NavSpace.local` for ``x`` (16,) or (M, 16) and ``y`` (M, 16) (or the same
+    with extra Euclidean components)."""
     if x.ndim == 1:
         qq = y[:, :4] @ ((x[:4] * _CONJ)[_LI] * _LS).T
     else:
         qq = _qmul_rows(x[:, :4] * _CONJ, y[:, :4])
-    out = np.empty((y.shape[0], DIM))
+    out = np.empty((y.shape[0], y.shape[1] - 1))
     _log_rows_into(qq, out[:, :3])
     np.subtract(y[:, 4:], x[..., 4:], out=out[:, 3:])
     return out
@@ -79,11 +87,20 @@ def nav_local_rows(x: Array, y: Array) -> Array:
 class NavSpace:
     """SO(3) x R^3 (v NED) x R^3 (p NED) x R^3 (gyro bias) x R^3 (accel bias).
 
-    ``size`` 16, tangent ``dim`` 15; see the module docstring for the layout and units.
+    ``size`` 16, tangent ``dim`` 15 (``extra`` more of each: Euclidean components after
+    the accelerometer bias); see the module docstring for the layout and units.
     """
 
-    dim = DIM
-    size = SIZE
+    def __init__(self, extra: int = 0) -> None:
+        self.extra = int(extra)
+        self.dim = DIM + self.extra
+        self.size = SIZE + self.extra
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, NavSpace) and other.extra == self.extra
+
+    def __hash__(self) -> int:
+        return hash(("NavSpace", self.extra))
 
     def retract(self, x: Array, dx: Array) -> Array:
         if dx.ndim == 2 and x.ndim <= 2 and (x.ndim == 1 or x.shape[0] == dx.shape[0]):
@@ -107,7 +124,8 @@ class NavSpace:
         r = x[..., 4:] + dx[..., 3:]
         lead = np.broadcast_shapes(q.shape[:-1], r.shape[:-1])
         return np.concatenate(
-            [np.broadcast_to(q, lead + (4,)), np.broadcast_to(r, lead + (12,))], axis=-1
+            [np.broadcast_to(q, lead + (4,)), np.broadcast_to(r, lead + (self.size - 4,))],
+            axis=-1
         )
 
     def _local_broadcast(self, x: Array, y: Array) -> Array:
@@ -122,7 +140,7 @@ class NavSpace:
         sgn = np.where(q @ ref[:4] < 0.0, -1.0, 1.0)
         qm = (w * sgn) @ q
         nq = float(np.sqrt(qm @ qm))
-        start = np.empty(SIZE)
+        start = np.empty(X.shape[1])
         start[:4] = qm / nq if nq > 1e-9 else ref[:4]
         start[4:] = w @ X[:, 4:]
         # one Gauss-Newton (Karcher) step after the chordal start, as AttitudeSpace.mean
@@ -130,4 +148,5 @@ class NavSpace:
         return res
 
     def __repr__(self) -> str:
-        return "NavSpace(q*Exp(dtheta), v+dv, p+dp, bg+dbg, ba+dba)"
+        extra = f", +{self.extra}" if self.extra else ""
+        return f"NavSpace(q*Exp(dtheta), v+dv, p+dp, bg+dbg, ba+dba{extra})"

@@ -46,6 +46,21 @@ from uavest.models.attitude import GyroTransition, sensor_family
 Array = np.ndarray
 
 SPACE = NavSpace()
+#: the space with the GNSS receiver bias states (NavNoise.gnss_bias)
+SPACE_GNSS_BIAS = NavSpace(extra=3)
+
+
+def nav_dim(overrides: dict[str, float]) -> int:
+    """The navigation state's tangent dimension (15, or 18 with the GNSS bias states)
+    for ``--noise`` overrides (the IMU profiles leave the bias states off, so the
+    overrides decide; filters are built for this dimension)."""
+    return nav_space(NavNoise().with_(**overrides)).dim
+
+
+def nav_space(noise: NavNoise) -> NavSpace:
+    """The state space for ``noise``: :data:`SPACE_GNSS_BIAS` when it has GNSS bias
+    states, else :data:`SPACE`."""
+    return SPACE_GNSS_BIAS if noise.gnss_bias else SPACE
 
 
 @dataclass(frozen=True)
@@ -81,6 +96,13 @@ class NavNoise:
     nofix_pos_noise: before the first GNSS fix, the std (m, each NED axis) of the
         constant-position measurement that holds the unaided mechanisation near where
         it started (ArduPilot EKF3's EK3_NOAID_M_NSE default, 10 m).
+    gnss_bias_h, gnss_bias_v, gnss_bias_tau: the receiver's slowly varying position
+        error as first-order Gauss-Markov states ``bp`` (NED, m) with steady std
+        ``gnss_bias_h`` (north, east) and ``gnss_bias_v`` (down), m, and correlation time
+        ``gnss_bias_tau``, s: a fix measures ``p + bp``; its white part is what the
+        receiver's accuracy leaves beyond them (``sqrt(h_acc^2 - gnss_bias_h^2)``, at least
+        the floors). ``gnss_bias_tau`` 0 (default): no such states (15, not 18), the fixes'
+        errors independent.
     """
 
     gyro_noise: float = 0.003
@@ -104,6 +126,34 @@ class NavNoise:
     init_gyro_bias: float = np.deg2rad(0.5)
     init_accel_bias: float = 0.2
     nofix_pos_noise: float = 10.0
+    gnss_bias_h: float = 0.0
+    gnss_bias_v: float = 0.0
+    gnss_bias_tau: float = 0.0
+
+    @property
+    def gnss_bias(self) -> bool:
+        """True when the model carries the GNSS receiver bias states (``gnss_bias_tau``
+        > 0 and a non-zero std)."""
+        return self.gnss_bias_tau > 0 and (self.gnss_bias_h > 0 or self.gnss_bias_v > 0)
+
+    def gnss_pos_sd(self, h_acc: float | None, v_acc: float | None) -> tuple[float, float]:
+        """The std (m) of a fix's independent error, horizontal and vertical: the
+        receiver's accuracy (``h_acc``, ``v_acc`` m; None or NaN: not reported) less the
+        GNSS bias states' share in quadrature when the model has them, at least the
+        floors."""
+        def part(acc: float | None, bias: float, floor: float) -> float:
+            a = float(acc) if acc and np.isfinite(acc) else 0.0
+            if self.gnss_bias:
+                a = float(np.sqrt(max(a * a - bias * bias, 0.0)))
+            return max(floor, a)
+        return (part(h_acc, self.gnss_bias_h, self.gnss_pos_floor),
+                part(v_acc, self.gnss_bias_v, self.gnss_vpos_floor))
+
+    @property
+    def gnss_bias_sd(self) -> Array:
+        """The bias states' steady std, NED, m (3,) (at least 1 mm: a zero would leave
+        the covariance singular)."""
+        return np.maximum([self.gnss_bias_h, self.gnss_bias_h, self.gnss_bias_v], 1e-3)
 
     def with_(self, **kw: float) -> NavNoise:
         """Copy with fields replaced (unknown names raise TypeError)."""
@@ -172,6 +222,7 @@ class ImuTransition(Transition):
     def __init__(self, noise: NavNoise | None = None, lat: float = 0.0, h: float = 0.0,
                  earth_rate: bool = False) -> None:
         self.noise = noise or NavNoise()
+        self.space = nav_space(self.noise)
         self.lat = float(lat)  # rad
         self.g = float(gravity(lat, h))
         self.earth_rate = bool(earth_rate)
@@ -199,7 +250,13 @@ class ImuTransition(Transition):
         out[:, :4] = _qstep(X[:, :4], w, dt)
         out[:, 4:7] = X[:, 4:7] + a * dt
         out[:, 7:10] = X[:, 7:10] + X[:, 4:7] * dt + 0.5 * dt * dt * a
+        if X.shape[1] > 16:  # the GNSS bias decays towards 0
+            out[:, 16:19] = X[:, 16:19] * self._phi(dt)
         return out[0] if one else out
+
+    def _phi(self, dt: float) -> float:
+        """The GNSS bias states' decay over ``dt`` s."""
+        return float(np.exp(-abs(dt) / self.noise.gnss_bias_tau))
 
     def Q(self, t: float, dt: float, u: Array | None = None) -> Array:
         n, dt = self.noise, abs(dt)
@@ -210,6 +267,9 @@ class ImuTransition(Transition):
         qba = n.accel_bias_walk**2 * dt + 1e-16
         Q = np.diag([qa] * 3 + [qv] * 3 + [qp] * 3 + [qbg] * 3 + [qba] * 3)
         Q[3:6, 6:9] = Q[6:9, 3:6] = np.eye(3) * n.accel_noise**2 * dt**2 / 2.0
+        if n.gnss_bias:  # exact first-order Gauss-Markov discretisation
+            Qb = np.diag(n.gnss_bias_sd**2 * (1.0 - self._phi(dt) ** 2) + 1e-14)
+            Q = np.block([[Q, np.zeros((15, 3))], [np.zeros((3, 15)), Qb]])
         return Q
 
     def F(self, x: Array, t: float, dt: float, u: Array | None = None) -> Array:
@@ -219,7 +279,9 @@ class ImuTransition(Transition):
         R = quat_to_dcm(x[:4])
         Rh = quat_to_dcm(_qstep(x[None, :4], w, 0.5 * dt)[0])  # mid-step attitude
         da_dth = -R @ skew(R.T @ Rh @ fb[0])
-        F = np.eye(15)
+        F = np.eye(self.space.dim)
+        if self.space.extra:
+            F[15:18, 15:18] *= self._phi(dt)
         F[0:3, 0:3] = Fa[:3, :3]
         F[0:3, 9:12] = Fa[:3, 3:]
         F[3:6, 0:3] = da_dth * dt
@@ -261,11 +323,18 @@ class _Block(Measurement):
     def h(self, X: Array) -> Array:
         return self._sign * X[..., self._idx] + self._offset
 
+    def _H_for(self, size: int) -> Array:
+        """``_H`` (m, 15) padded with zero columns to a state of ambient ``size``."""
+        if size <= 16:
+            return self._H
+        return np.pad(self._H, ((0, 0), (0, size - 16)))
+
     def H(self, x: Array) -> Array:
-        return self._H
+        return self._H_for(x.shape[-1])
 
     def H_rows(self, X: Array) -> Array:
-        return np.broadcast_to(self._H, (X.shape[0],) + self._H.shape)
+        H = self._H_for(X.shape[-1])
+        return np.broadcast_to(H, (X.shape[0],) + H.shape)
 
 
 class _Carried(_Block):
@@ -293,16 +362,17 @@ class _Carried(_Block):
 
     def H(self, x: Array) -> Array:
         if not self._carried:
-            return self._H
+            return self._H_for(x.shape[-1])
         return self.H_rows(x[None, :])[0]
 
     def H_rows(self, X: Array) -> Array:
-        """Jacobians (M, m, 15) at every row of ``X`` (M, 16), vectorised."""
+        """Jacobians (M, m, 15) at every row of ``X`` (M, 16), vectorised (more columns,
+        zero, for a state with more components)."""
         if not self._carried:
             return super().H_rows(X)
         assert self.f is not None
         R = quat_to_dcm(X[:, :4])  # (M, 3, 3)
-        H = np.zeros((X.shape[0], 3, 15))
+        H = np.zeros((X.shape[0], 3, X.shape[1] - 1))
         H[:, :, self._sl.start - 1:self._sl.stop - 1] = np.eye(3)
         H[:, :, 3:6] += self._cv * np.eye(3)
         H[:, :, 0:3] = -self._ca * R @ skew(self.f - X[:, 13:16])
@@ -325,10 +395,30 @@ class GnssPosition(_Carried):
     _sl = slice(7, 10)
 
     def __init__(self, R: Array, rows: tuple[int, ...] = (0, 1, 2), back: float = 0.0,
-                 k: float = 0.0, f: Array | None = None, g: float = 0.0) -> None:
+                 k: float = 0.0, f: Array | None = None, g: float = 0.0,
+                 biased: bool = True) -> None:
         self.back = float(back) if f is not None else 0.0
         self.k = float(k)
+        #: on a state with the GNSS bias states (size 19) the fix is of ``p + bp``
+        #: (False: of ``p`` alone, as the unaided run's constant-position hold)
+        self.biased = bool(biased)
         super().__init__(R, rows, f, g, -self.back, self.k if self.back else 0.0)
+
+    def h(self, X: Array) -> Array:
+        y = super().h(X)
+        if self.biased and X.shape[-1] > 16:
+            y = y + X[..., 16:19][..., list(self.rows)]
+        return y
+
+    def H(self, x: Array) -> Array:
+        return self.H_rows(x[None, :])[0] if x.shape[-1] > 16 else super().H(x)
+
+    def H_rows(self, X: Array) -> Array:
+        H = super().H_rows(X)
+        if self.biased and X.shape[-1] > 16:
+            H = np.array(H)
+            H[:, np.arange(len(self.rows)), 15 + np.array(self.rows)] = 1.0
+        return H
 
     @staticmethod
     def from_fix(ned: Array, fix_type: int, h_acc: float | None, v_acc: float | None,
@@ -340,8 +430,7 @@ class GnssPosition(_Carried):
         ned = np.asarray(ned, float)
         if fix_type < 2 or not np.all(np.isfinite(ned[:2])):
             return None
-        sh = max(noise.gnss_pos_floor, h_acc if h_acc and np.isfinite(h_acc) else 0.0)
-        sv = max(noise.gnss_vpos_floor, v_acc if v_acc and np.isfinite(v_acc) else 0.0)
+        sh, sv = noise.gnss_pos_sd(h_acc, v_acc)
         kw: dict[str, Any] = {}
         if carry is not None:
             kw = dict(zip(("back", "k", "f", "g"), carry, strict=True))
@@ -369,7 +458,9 @@ class GnssVelocity(_Carried):
 class BaroHeight(_Block):
     """Barometric height up, m: h = -p_D + offset. The offset (baro height minus the
     GNSS/initial height) is estimated once at start-up and held fixed; it is not a
-    state, so baro drift shows up as a height error the GNSS corrects."""
+    state, so baro drift shows up as a height error the GNSS corrects. On a state with
+    the GNSS bias states the offset, taken against the GNSS's heights, carries the
+    receiver's vertical bias: h = -(p_D + bp_D) + offset."""
 
     _sl = slice(7, 10)
     _sign = -1.0
@@ -384,7 +475,17 @@ class BaroHeight(_Block):
             self._H[0, 5] = self.back
 
     def h(self, X: Array) -> Array:
-        return -(X[..., 9:10] - self.back * X[..., 6:7]) + self._offset
+        y = -(X[..., 9:10] - self.back * X[..., 6:7]) + self._offset
+        if X.shape[-1] > 16:  # the offset is to the GNSS height: it carries its bias
+            y = y - X[..., 18:19]
+        return y
+
+    def _H_for(self, size: int) -> Array:
+        H = super()._H_for(size)
+        if size > 16:
+            H = H.copy()
+            H[0, 17] = -1.0
+        return H
 
 
 class OnNav(Measurement):
@@ -421,7 +522,7 @@ class OnNav(Measurement):
     def H(self, x: Array) -> Array:
         qb = self._q(x)
         Ha = self.inner.H(np.concatenate([qb, np.zeros(3)]))
-        H = np.zeros((Ha.shape[0], 15))
+        H = np.zeros((Ha.shape[0], x.shape[-1] - 1))
         H[:, :3] = Ha[:, :3]
         if self.back:
             # q Exp(d) Exp(-phi) = q Exp(-phi) Exp(Exp(phi) d), phi = (w - b_g) back

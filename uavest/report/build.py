@@ -219,7 +219,7 @@ def navigation_metrics(nav: dict, att: dict) -> dict:
                 ok_p = ok_p & (t >= nav["pos_from"])
             m["ep"] = np.where(ok_p[:, None], f["p"] - p_ref, np.nan)
         a = att.get(lab)
-        if a is not None and len(a["t"]) == len(t) and a["P"].shape[1] == 15:
+        if a is not None and len(a["t"]) == len(t) and a["P"].shape[1] >= 15:
             sc = NavScorer()
             sc.pos_from = nav.get("pos_from")
             x = np.zeros(16)

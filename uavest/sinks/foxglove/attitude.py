@@ -300,7 +300,7 @@ class AttitudeChannels:
         ln.buf.append(rec)
         if rec.reset:
             self.reset_event(rec)
-        if len(rec.x) == NAV_SIZE:
+        if len(rec.x) >= NAV_SIZE:
             self.frames.nav_position(lab, rec.x[7:10])
         if self.frames.frame_dt:
             last = ln.last_frame
@@ -321,7 +321,7 @@ class AttitudeChannels:
                 "est": pb.FixedEncoder("AttitudeEstimate", lengths={
                     "q": 4, "bias_rad_s": 3, "P_triu": nP * (nP + 1) // 2}),
                 "health": pb.FixedEncoder("FilterHealth")}
-            if nx == NAV_SIZE:
+            if nx >= NAV_SIZE:
                 ln.enc["nav"] = pb.FixedEncoder("NavigationEstimate", lengths={
                     "velocity_ned_m_s": 3, "position_ned_m": 3, "sigma3_velocity_m_s": 3,
                     "sigma3_position_m": 3, "accel_bias_m_s2": 3})
@@ -348,7 +348,7 @@ class AttitudeChannels:
         nx, nP = X.shape[1], P.shape[1]
         enc = self._encoders(ln, nx, nP)
         Q = X[:, :4]
-        nav = nx == NAV_SIZE
+        nav = nx >= NAV_SIZE
         if nav:  # the navigation state [q, v, p, bg, ba]: the gyro bias is 10:13
             B = X[:, 10:13]
         else:
