@@ -24,6 +24,7 @@ from uavest.apps.live import LiveConfig, run_live, run_samples
 from uavest.ingest import open_source
 from uavest.scenarios import load_typed
 from uavest.sim import Simulator
+from uavest.sim.sensors import spec_noise
 from uavest.sinks.base import Collector
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -143,10 +144,16 @@ def test_live_navigation_model_against_the_simulator_and_its_tlog_replays_the_sa
     port = _port()
     tlog = tmp_path / "live_nav.tlog"
     coll = Collector()
+    # as uavest demo: the simulator's sensor spec, its receiver's Gauss-Markov error as
+    # the model's GNSS bias states
+    spec = spec_noise(load_typed("sim_default"))
+    assert spec["gnss_bias_tau"] > 0
     with _Sim(port):
         doc = run_live(_cfg(port, tlog=str(tlog), model="nav", filters=("ekf", "hybrid"),
-                            trackers=(), duration=12.0), sinks=[coll], status=False)
+                            trackers=(), duration=12.0, noise=spec), sinks=[coll],
+                       status=False)
     assert doc["model"] == "nav" and doc["reference_kind"] == "truth"
+    assert doc["noise"]["overrides"] == spec
     assert any(d["what"] == "alignment" for d in doc["decisions"])
     for label in ("ekf", "hybrid"):
         row = doc["attitude"][label]
@@ -155,11 +162,15 @@ def test_live_navigation_model_against_the_simulator_and_its_tlog_replays_the_sa
         assert row["hpos_rmse_m"] is not None and row["hpos_rmse_m"] < 3.0, row
         # against the simulator's true state, not its simulated autopilot's estimate
         assert row["position_reference"] == "HIL_STATE_QUATERNION", row
-        assert coll.arrays(label)["x"].shape[1] == 16
+        assert coll.arrays(label)["x"].shape[1] == 19  # with the GNSS bias states
+        # the receiver's correlated error in the state: the position NEES in its band
+        # (without the bias states it is above it on 0.99 of the steps, docs/navigation.md)
+        assert row["nees"]["position"]["in_band95"] >= 0.8, row["nees"]
     src = open_source(tlog, sysid=doc["link"]["vehicle_sysid"],
                       reorder_window=LiveConfig().reorder_window)
     again = Collector()
-    run_samples(src, _cfg(port, trackers=(), model="nav", filters=("ekf", "hybrid")),
+    run_samples(src, _cfg(port, trackers=(), model="nav", filters=("ekf", "hybrid"),
+                          noise=spec),
                 params=src.params, sinks=[again], status=False)
     for label in ("ekf", "hybrid"):
         a, b = coll.arrays(label), again.arrays(label)
@@ -236,6 +247,8 @@ def test_sigint_leaves_complete_output_files(tmp_path):
     (["run", "--connect", "udpin:127.0.0.1:9", "--model", "nav", "--gnss-delay", "-1"],
      "--gnss-delay"),
     (["run", "--connect", "udpin:127.0.0.1:9", "--model", "auto"], "--model"),
+    (["run", "--connect", "udpin:127.0.0.1:9", "--noise", "bogus=1"], "--noise"),
+    (["run", "--connect", "udpin:127.0.0.1:9", "--noise", "gnss_bias_h=1"], "--noise"),
 ])
 def test_live_commands_refuse_bad_input_with_one_line(argv, says):
     env = dict(os.environ, PYTHONPATH=str(ROOT))

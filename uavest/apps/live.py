@@ -72,12 +72,13 @@ from ..ingest.types import (
     PositionSample,
 )
 from ..models.motion import NearlyConstantVelocity
+from ..models.navigation import nav_dim
 from ..models.radar import RadarMeasurement, SensorPose
 from ..presets import resolve_list, spec_labels
 from ..seeding import filter_stream, rng
 from ..sinks.base import Sink
 from ..tracking.tracker import Tracker, TrackerConfig
-from .replay import _NavScore, _Score
+from .replay import _NavScore, _Score, check_attitude_noise
 
 Array = np.ndarray
 
@@ -147,6 +148,12 @@ class LiveConfig:
     model: str = "attitude"
     gnss_delay: float | None = None  # s; None: the navigation model's default
     geodesy: str = "auto"  # navigation: the local frame's (NavOptions.geodesy)
+    #: overrides of the model's noise parameters (``--noise``; the navigation model's
+    #: :class:`~uavest.models.navigation.NavNoise` or the attitude model's
+    #: :class:`~uavest.models.attitude.AttitudeNoise` names), and where they came from
+    #: (None: the option; ``uavest demo``: its simulator's sensor spec)
+    noise: dict = field(default_factory=dict)
+    noise_why: str | None = None
 
     @property
     def on_arrival(self) -> bool:
@@ -720,7 +727,12 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
     if cfg.on_arrival and not (math.isfinite(cfg.history_s) and 0 < cfg.history_s <= 5):
         raise InputError(f"--history must be more than 0 and at most 5 s, got {cfg.history_s}")
     nav = cfg.model == "nav"
-    specs = (build_filters(resolve_list(cfg.filters, "attitude", dim=15 if nav else 6))
+    if nav:
+        NavOptions(noise=cfg.noise)  # checks the --noise names before the link opens
+    else:
+        check_attitude_noise(cfg.noise, "(--model nav to use it)")
+    specs = (build_filters(resolve_list(cfg.filters, "attitude",
+                                        dim=nav_dim(cfg.noise) if nav else 6))
              if cfg.filters else [])
     tspecs = (build_filters(resolve_list(cfg.trackers, "radar", dim=TRACKER_DIM))
               if cfg.trackers else [])
@@ -798,9 +810,14 @@ def _stream_factory(cfg: LiveConfig, params: dict | None,
             return NavStream(opts=NavOptions(rate_hz=cfg.rate_hz, declination=d,
                                              gnss_delay=cfg.gnss_delay,
                                              on_arrival=cfg.on_arrival,
-                                             geodesy=cfg.geodesy), params=params)
+                                             geodesy=cfg.geodesy, noise=dict(cfg.noise),
+                                             mag_noise_why=(cfg.noise_why if "mag_noise"
+                                                            in cfg.noise else None),
+                                             gnss_bias_why=(cfg.noise_why if "gnss_bias_tau"
+                                                            in cfg.noise else None)),
+                             params=params)
         return AttitudeStream(opts=AttitudeOptions(rate_hz=cfg.rate_hz, update_hz=cfg.update_hz,
-                                                     declination=d,
+                                                     declination=d, noise=dict(cfg.noise),
                                                      on_arrival=cfg.on_arrival),
                               params=params)
     return make_stream
@@ -829,6 +846,8 @@ def _attitude_result(cfg: LiveConfig, att: _GapAware, runners: list,
         "reference": ref,
         "reference_kind": None if ref is None else refs[ref].kind,
         "model": cfg.model,
+        "noise": {"overrides": dict(cfg.noise), "why": cfg.noise_why or (
+            "option --noise" if cfg.noise else None)},
         "attitude": {r.label: {**(scorer.scores(r.label, ref, truth) if ref else {}),
                                **(nav_scorer.scores(r.label, ref if truth else None,
                                                     getattr(att.stream, "frame", None))

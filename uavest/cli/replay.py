@@ -49,7 +49,9 @@ def add_geodesy_option(p: argparse.ArgumentParser) -> None:
                    "wgs84)")
 
 
-def _parse_noise(items: list[str]) -> dict:
+def parse_noise(items: list[str]) -> dict:
+    """``--noise KEY=VALUE`` items as {name: value}; a clear error for an unknown name,
+    a non-number or a negative value."""
     # the attitude and the navigation model's parameters (each model checks its own)
     known = set(AttitudeNoise.__dataclass_fields__) | set(NavNoise.__dataclass_fields__)
     out = {}
@@ -317,7 +319,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         seed=args.seed, rate_hz=args.rate, update_hz=args.update_rate,
         integration=args.integration,
         declination=None if args.declination is None else math.radians(args.declination),
-        noise=_parse_noise(args.noise), imu=args.imu, use_mag=not args.no_mag,
+        noise=parse_noise(args.noise), imu=args.imu, use_mag=not args.no_mag,
         accel_comp=args.accel_comp, mag_mode=args.mag_mode, mag_delay=args.mag_delay,
         model=model, gnss_delay=args.gnss_delay, model_why=model_why,
         baro_delay=args.baro_delay, geodesy=args.geodesy,

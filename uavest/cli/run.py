@@ -11,12 +11,13 @@ import sys
 import threading
 
 from ..apps.live import TRACKER_DIM, LiveConfig, run_live
+from ..apps.replay import check_attitude_noise
 from ..errors import InputError
 from ..ingest.adsb_radar import RadarConfig
 from ..sinks.jsonout import write_json
 from ..sinks.table import table
 from .record import add_recording_options, finish_recording, recording_sinks
-from .replay import add_geodesy_option, decision_lines
+from .replay import add_geodesy_option, decision_lines, parse_noise
 
 __all__ = ["add_demo_parser", "add_run_parser", "format_live"]
 
@@ -77,6 +78,9 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="with --model nav: the GNSS measurement delay, s (default: "
                    "estimated during the run from 60 s after its first step, the model's 0 "
                    "until then)")
+    p.add_argument("--noise", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a noise parameter of the model (repeatable), e.g. --noise "
+                   "mag_noise=0.01 (names and units: docs/navigation.md, docs/attitude.md)")
     add_geodesy_option(p)
 
 
@@ -121,6 +125,9 @@ def _cfg(args, connect: str) -> LiveConfig:
     for name, v in (("rate", args.rate), ("update-rate", getattr(args, "update_rate", None))):
         if v is not None and not (v >= 0 and math.isfinite(v)):
             raise InputError(f"--{name} must be >= 0 Hz (0 = every step), got {v}")
+    noise = parse_noise(args.noise)
+    if args.model != "nav":
+        check_attitude_noise(noise, "(--model nav to use it)")
     return LiveConfig(
         connect=connect, filters=tuple(args.filter_specs or split_filter_list(args.filters)),
         trackers=tuple(resolve_list(",".join(trackers), "radar", TRACKER_DIM)) if trackers else (),
@@ -131,7 +138,7 @@ def _cfg(args, connect: str) -> LiveConfig:
         duration=args.duration, rate_hz=args.rate,
         update_hz=getattr(args, "update_rate", None),
         radar_source=args.radar_source, radar=_radar(args), model=args.model,
-        gnss_delay=args.gnss_delay, geodesy=args.geodesy)
+        gnss_delay=args.gnss_delay, geodesy=args.geodesy, noise=noise)
 
 
 def format_live(doc: dict) -> str:
@@ -149,6 +156,10 @@ def format_live(doc: dict) -> str:
                      if r.get("position_reference")), None)
         title = (f"navigation model; attitude against {what}, RMSE in degrees; velocity "
                  f"(m/s) and position (m) against {pref or 'no position reference'}")
+    nz = doc.get("noise") or {}
+    if nz.get("overrides"):
+        lines.append("noise: " + ", ".join(f"{k} {v:.4g}" for k, v in nz["overrides"].items())
+                     + f" ({nz['why']})")
     lines += [title, table(doc["attitude"], cols)]
     live = doc.get("gnss_delay_live")
     tries = (live or {}).get("tries") or []
@@ -266,6 +277,7 @@ def demo(args) -> dict:
     """Run the simulator and the live estimator side by side; returns the result doc."""
     from ..scenarios import load_typed
     from ..sim import Simulator
+    from ..sim.sensors import spec_noise
 
     if not args.speed > 0:
         raise InputError(f"--speed must be > 0 for a live demo, got {args.speed}")
@@ -286,6 +298,13 @@ def demo(args) -> dict:
     th.start()
     cfg = _cfg(args, f"udpin:127.0.0.1:{port}")
     cfg.heartbeat_timeout = 15.0
+    if cfg.model == "nav":  # the simulator's sensor spec, where --noise leaves it open
+        spec = {k: v for k, v in spec_noise(sc).items() if k not in cfg.noise}
+        if spec:
+            cfg.noise = {**spec, **cfg.noise}
+            cfg.noise_why = (f"the simulator's sensor spec (scenario '{args.scenario}': "
+                             + ", ".join(f"{k} {v:.3g}" for k, v in spec.items())
+                             + "; --noise KEY=VALUE to set one)")
     # uavest's simulator sends SIMSTATE, not ArduPilot SITL's SIM_STATE (whose presence
     # would put the navigation frame on ArduPilot's sphere): not asked, not "missing"
     cfg.streams = {k: v for k, v in cfg.streams.items() if k != "SIM_STATE"}

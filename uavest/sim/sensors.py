@@ -129,6 +129,26 @@ class ImuModel:
         return ImuChunk(gyro, accel, bg, ba, mag, new)
 
 
+def spec_noise(scenario: Any) -> dict[str, float]:
+    """The navigation model's noise parameters (:class:`~uavest.models.navigation.NavNoise`
+    names) that a ``kind = "sim"`` scenario specifies its sensors with, as a user would
+    take them from a datasheet (``uavest demo`` hands them to its estimator):
+    ``gyro_noise`` the ``[imu]`` gyro noise density (rad/s/sqrt(Hz)) and ``mag_noise``
+    the ``[mag]`` per-sample noise over the field's intensity (rad: the direction noise
+    of one reading); ``gnss_bias_h`` / ``gnss_bias_v`` / ``gnss_bias_tau`` the ``[gps]``
+    receiver's Gauss-Markov position error (``sigma_h``, ``sigma_v`` m, ``tau_s`` s).
+    The accelerometer's is not among them: at the IMU rates the demo streams, the
+    airframe's vibration (``vibration_accel``) is most of it."""
+    imu, mag, gps = scenario.imu, scenario.mag, scenario.gps
+    out = {"gyro_noise": float(imu.gyro_noise_density)}
+    if float(mag.intensity_gauss) > 0:
+        out["mag_noise"] = float(mag.noise_gauss) / float(mag.intensity_gauss)
+    if float(gps.sigma_h) > 0 or float(gps.sigma_v) > 0:
+        out.update(gnss_bias_h=float(gps.sigma_h), gnss_bias_v=float(gps.sigma_v),
+                   gnss_bias_tau=float(gps.tau_s))
+    return out
+
+
 class GaussMarkov:
     """First-order Gauss-Markov process per component: stationary std ``sigma``, time
     constant ``tau`` (s), sampled every ``dt`` s (exact discretisation)."""
