@@ -380,6 +380,14 @@ def test_the_drift_tells_correlated_fix_errors_from_independent_ones():
 
     slow = _drift_probe(gm)
     assert slow.correlated and slow.long > 2.0 * slow.short, slow
+    # sized as GNSS bias states: the receiver's accuracy (0.8 / 1.5 m) and a correlation
+    # time from the drift's growth near the process's 60 s
+    bias, why = slow.bias_model()
+    assert bias is not None and bias["gnss_bias_h"] == 0.8 and bias["gnss_bias_v"] == 1.5
+    assert 30.0 < bias["gnss_bias_tau"] < 120.0, (bias, why)
+    assert white.bias_model()[0] is None
+    assert dataclasses.replace(slow, h_acc=None).bias_model() == (
+        None, "the receiver reports no accuracy to size them with")
     exact = _drift_probe(lambda t, r: np.zeros((t.size, 2)))
     assert exact.long < 0.01 and not exact.correlated  # the trapezoid's own error
     few = _drift_probe(lambda t, r: np.zeros((t.size, 2)), T=1.0)

@@ -41,7 +41,7 @@ from ..ingest.types import (
     NoSamplesError,
     PositionSample,
 )
-from ..models.navigation import NavNoise
+from ..models.navigation import NavNoise, nav_dim
 from ..presets import resolve_list, spec_labels
 from ..seeding import filter_stream, rng
 from ..sinks.base import Collector, Sink
@@ -163,7 +163,8 @@ def probe_gnss_delay(samples: Iterable, cfg: ReplayConfig, params: dict | None
                                     f"{est.given_note()}"))
         doc.update(data_delay=est.data_delay, data_sd=est.data_sd)
     if est.drift is not None:
-        doc["gnss_drift"] = _drift_doc(est.drift, span)
+        bias_set = any(k.startswith("gnss_bias_") for k in cfg.noise)
+        doc["gnss_drift"] = _drift_doc(est.drift, span, bias_set)
     doc["mag"] = _mag_doc(cfg, mest, noise, span, refined)
     doc["baro"] = _baro_doc(cfg, best, noise, span)
     return doc, itertools.chain(held, rest)
@@ -178,7 +179,8 @@ def _run_probes(samples: Iterable, cfg: ReplayConfig, params: dict | None, opts:
     :data:`~uavest.engine.gnss_delay.PROBE_MIN_IMU_HZ` leaves both estimates None."""
     from ..engine.gnss_delay import PROBE_MIN_IMU_HZ, estimate_gnss_delay
 
-    (sp, flt), = build_filters(resolve_list((PROBE_FILTER,), "attitude", dim=15))
+    (sp, flt), = build_filters(resolve_list((PROBE_FILTER,), "attitude",
+                                            dim=nav_dim(cfg.noise)))
 
     def probe(src: Iterable, prior: float, prior_mag: float):
         runner = NavRunner("gnss delay probe", flt, rng(cfg.seed, 0, "probe:gnss_delay"))
@@ -210,6 +212,17 @@ def _run_probes(samples: Iterable, cfg: ReplayConfig, params: dict | None, opts:
     return est, mest, held, rest, runs, best
 
 
+def check_attitude_noise(noise: dict, where: str) -> None:
+    """A clear error when ``--noise`` names a navigation-only parameter for the attitude
+    model (``where`` ends the message: which run)."""
+    from ..models.attitude import AttitudeNoise
+
+    bad = sorted(set(noise) - set(AttitudeNoise.__dataclass_fields__))
+    if bad:
+        raise InputError(f"--noise {bad[0]}: a parameter of the navigation model, not "
+                         f"of the attitude-only model {where}")
+
+
 def _gnss_delay_doc(est: DelayEstimate, noise: NavNoise, span: str, refined: str) -> dict:
     """The GNSS part of the probe's document: the estimate and the delay the run takes
     (the estimate clipped to [0, 2] s, else the model's default) with why."""
@@ -229,21 +242,33 @@ def _gnss_delay_doc(est: DelayEstimate, noise: NavNoise, span: str, refined: str
     return {**doc, **_window_doc(est)}
 
 
-def _drift_doc(d: DriftEstimate, span: str) -> dict:
-    """The GNSS position drift part of the probe's document, with what it means."""
+def _drift_doc(d: DriftEstimate, span: str, bias_set: bool) -> dict:
+    """The GNSS position drift part of the probe's document, with what it means, and the
+    GNSS bias states it sizes (``bias_used``, ``bias_why``) unless ``bias_set`` (by
+    ``--noise``)."""
     from ..engine.gnss_delay import DRIFT_LONG_S, DRIFT_SHORT_S
 
     doc: dict = {"short_s": DRIFT_SHORT_S, "long_s": DRIFT_LONG_S, "short_m": d.short,
                  "long_m": d.long, "pairs": d.pairs, "correlated": d.correlated,
-                 "why": d.why or None}
+                 "why": d.why or None, "h_acc_m": d.h_acc, "v_acc_m": d.v_acc}
+    bias, bwhy = d.bias_model()
+    if bias is not None and not bias_set:
+        doc["bias_used"] = bias
+        doc["bias_why"] = f"estimated: {bwhy} (--noise gnss_bias_tau=0 for none)"
     if d.short is not None and d.long is not None:
+        if not d.correlated:
+            means = "no error correlated over seconds"
+        elif bias_set:
+            means = "errors correlated over seconds; the GNSS bias states as --noise sets them"
+        elif bias is not None:
+            means = f"errors correlated over seconds, carried as GNSS bias states ({bwhy})"
+        else:
+            means = (f"errors correlated over seconds, which the filters take as independent "
+                     f"fixes: their position NEES is optimistic (no GNSS bias states: {bwhy})")
         doc["text"] = (
             f"the fixes' positions less their integrated velocities move {d.short:.3f} m "
             f"over {DRIFT_SHORT_S:g} s and {d.long:.3f} m over {DRIFT_LONG_S:g} s (rms per "
-            f"horizontal axis, {d.pairs} pairs in {span}): "
-            + ("errors correlated over seconds, which the filters take as independent "
-               "fixes: their position NEES is optimistic (no GNSS-bias state)"
-               if d.correlated else "no error correlated over seconds"))
+            f"horizontal axis, {d.pairs} pairs in {span}): {means}")
     return doc
 
 
@@ -513,12 +538,7 @@ def replay_samples(
     windowed, decision = choose_model(windowed, cfg.model, cfg.model_why)
     nav = decision["value"] == "nav"
     if not nav:
-        from ..models.attitude import AttitudeNoise
-
-        bad = sorted(set(cfg.noise) - set(AttitudeNoise.__dataclass_fields__))
-        if bad:
-            raise InputError(f"--noise {bad[0]}: a parameter of the navigation model, not "
-                             "of the attitude-only model that runs here")
+        check_attitude_noise(cfg.noise, "that runs here")
     wall0 = time.perf_counter()
     delay_doc = None
     window_set = "gnss_vel_window" in cfg.noise  # by the option
@@ -527,6 +547,7 @@ def replay_samples(
                                        or "mag_noise" not in cfg.noise):
         delay_doc, windowed = probe_gnss_delay(windowed, cfg, params)
         md, bd = delay_doc["mag"], delay_doc["baro"]
+        bias = (delay_doc.get("gnss_drift") or {}).get("bias_used") or {}
         cfg = replace(cfg, gnss_delay=delay_doc.get("delay_used", cfg.gnss_delay),
                       mag_delay=md.get("delay_used", cfg.mag_delay),
                       baro_delay=bd.get("delay_used", cfg.baro_delay),
@@ -536,8 +557,10 @@ def replay_samples(
                                 if "noise_used" in bd else {}),
                              **({"gnss_vel_window": delay_doc["window_used"]}
                                 if "window_used" in delay_doc
-                                and "gnss_vel_window" not in cfg.noise else {})})
-    specs = build_filters(resolve_list(cfg.filters, "attitude", dim=15 if nav else 6))
+                                and "gnss_vel_window" not in cfg.noise else {}),
+                             **bias})
+    specs = build_filters(resolve_list(cfg.filters, "attitude",
+                                       dim=nav_dim(cfg.noise) if nav else 6))
     rng_for = rng_for or (lambda label: rng(cfg.seed, 0, filter_stream(label)))
     runner_cls = NavRunner if nav else FilterRunner
     runners = [
@@ -560,6 +583,7 @@ def replay_samples(
                                else probe.get("window_why_used"),
                                baro_delay_why=probe_baro.get("why_used"),
                                baro_noise_why=probe_baro.get("noise_why"),
+                               gnss_bias_why=(probe.get("gnss_drift") or {}).get("bias_why"),
                                mag_inclination=probe_mag.get("inclination"),
                                mag_inclination_why=probe_mag.get("inclination_why")),
                   params=params) if nav

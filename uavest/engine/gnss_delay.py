@@ -153,6 +153,8 @@ DRIFT_LONG_S = 10.0
 #: more than DRIFT_MIN_M (the integration's own error: 3 mm over 10 s circling at 8 m/s)
 DRIFT_GROWTH = 2.0
 DRIFT_MIN_M = 0.05
+#: the longest correlation time the GNSS bias states are given from the drift, s
+DRIFT_TAU_MAX_S = 3600.0
 
 
 @dataclass
@@ -172,6 +174,32 @@ class DriftEstimate:
     long: float | None
     pairs: int
     why: str = ""
+    #: the receiver's median reported accuracy (h_acc, v_acc, m) over those fixes (None:
+    #: not reported)
+    h_acc: float | None = None
+    v_acc: float | None = None
+
+    def bias_model(self) -> tuple[dict[str, float] | None, str]:
+        """The GNSS bias states (:class:`~uavest.models.navigation.NavNoise` names
+        ``gnss_bias_h``, ``gnss_bias_v``, ``gnss_bias_tau``) for correlated errors, with
+        why (None: no states, why not). The receiver's accuracy is the error's steady std
+        (the drift alone cannot give it: a fix's absolute error is not in the fixes); the
+        drift's growth from the short span to the long one, ``2 sigma^2 / tau`` per s for a
+        Gauss-Markov error of correlation time ``tau`` much longer than the spans, gives
+        ``tau`` (at least :data:`DRIFT_LONG_S`). Without a vertical accuracy the vertical
+        std is the horizontal one."""
+        if not self.correlated or self.short is None or self.long is None:
+            return None, "no error correlated over seconds"
+        if self.h_acc is None:
+            return None, "the receiver reports no accuracy to size them with"
+        slope = (self.long**2 - self.short**2) / (DRIFT_LONG_S - DRIFT_SHORT_S)  # m^2/s
+        tau = float(np.clip(2.0 * self.h_acc**2 / slope, DRIFT_LONG_S, DRIFT_TAU_MAX_S))
+        v = self.v_acc if self.v_acc is not None else self.h_acc
+        return ({"gnss_bias_h": self.h_acc, "gnss_bias_v": v, "gnss_bias_tau": tau},
+                f"std the receiver's median accuracy ({self.h_acc:.2f} m horizontal, "
+                f"{v:.2f} m vertical{'' if self.v_acc is not None else ' (as horizontal)'}), "
+                f"correlation time {tau:.0f} s from the drift's growth "
+                f"({slope * 1e3:.1f} mm^2/s per axis)")
 
     @property
     def correlated(self) -> bool:
@@ -251,6 +279,7 @@ class DelayProbe:
         self._pt: list[float] = []  # 3-D fixes: times (s), lat/lon/alt, NED velocity
         self._pl: list[Array] = []
         self._pv: list[Array] = []
+        self._pacc: list[tuple[float, float]] = []  # their h_acc, v_acc (m; NaN: none)
         self._gravity: float | None = None  # m/s^2, the model's, from the first step
 
     def start(self) -> None:
@@ -303,6 +332,7 @@ class DelayProbe:
             self._pt.append(float(s.t))
             self._pl.append(lla)
             self._pv.append(v)
+            self._pacc.append((float(s.h_acc), float(s.v_acc)))
 
     def estimate_drift(self, frame: Any) -> DriftEstimate:
         """:class:`DriftEstimate` of the 3-D fixes, their positions in ``frame`` (the run's
@@ -329,10 +359,13 @@ class DelayProbe:
             d = (r[j] - r[i])[ok]
             n_long = int(ok.sum())
             out.append(float(np.sqrt(np.mean(d**2))) if n_long >= 10 else None)
+        acc = np.array(self._pacc, float).reshape(-1, 2)
+        ha, va = (float(np.nanmedian(a)) if np.isfinite(a).any() and np.nanmedian(a) > 0
+                  else None for a in acc.T)
         if out[1] is None:
             return DriftEstimate(out[0], None, n_long,
-                                 f"{n_long} fix pairs {DRIFT_LONG_S:g} s apart")
-        return DriftEstimate(out[0], out[1], n_long)
+                                 f"{n_long} fix pairs {DRIFT_LONG_S:g} s apart", ha, va)
+        return DriftEstimate(out[0], out[1], n_long, "", ha, va)
 
     def add_baro(self, t: float, height: float) -> None:
         """One barometer sample at ``t`` (s, its stamp) of ``height`` (m up, any offset)."""
