@@ -310,3 +310,42 @@ def test_the_demo_has_every_stream_it_asks_for(tmp_path):
     assert doc["link"]["missing_streams"] == []
     assert "SIM_STATE" not in doc["run"]["config"]["streams"]
     assert "SIMSTATE" in doc["link"]["streams"]
+
+
+@pytest.mark.slow
+def test_live_run_sizes_gnss_bias_states_from_the_drift_it_learns(tmp_path):
+    """A 150-s recording of uavest's simulator (its receiver's error a 60-s Gauss-Markov
+    process) through the live job without --noise: with the GNSS delay (61 s) it sizes
+    GNSS bias states from the fixes' drift, restarts every filter from its own estimate
+    with them, and from then on the position NEES is in band; --noise gnss_bias_tau=0
+    keeps the 15-state run, whose position NEES stays out of its band."""
+    tlog = tmp_path / "sim150.tlog"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    subprocess.run([sys.executable, "-m", "uavest.cli.sim", "sim_default", "--out", "none",
+                    "--speed", "0", "--duration", "150", "--imu-rate", "200", "--seed", "1",
+                    "--params", "--rate", "RAW_IMU=200", "--rate", "EXTRA1=50",
+                    "--rate", "EXTENDED_STATUS=5", "--rate", "POSITION=10",
+                    "--rate", "HIL_STATE_QUATERNION=50", "--tlog", str(tlog), "--quiet"],
+                   env=env, check=True, timeout=300)
+    docs, colls = {}, {}
+    for name, noise in (("learned", {}), ("off", {"gnss_bias_tau": 0.0})):
+        src = open_source(tlog, reorder_window=LiveConfig().reorder_window)
+        colls[name] = Collector()
+        docs[name] = run_samples(src, _cfg(0, trackers=(), model="nav", filters=("ekf",),
+                                           noise=noise, duration=None),
+                                 params=src.params, sinks=[colls[name]], status=False)
+    live = docs["learned"]["gnss_delay_live"]
+    assert live["gnss_drift"]["correlated"], live
+    assert live["gnss_bias"]["gnss_bias_h"] == pytest.approx(0.8), live
+    assert 30.0 < live["gnss_bias"]["gnss_bias_tau"] < 120.0, live
+    dec = [d for d in docs["learned"]["decisions"] if d["what"] == "GNSS bias states"]
+    assert len(dec) == 1 and dec[0]["why"].startswith("estimated live"), dec
+    recs = colls["learned"].records["ekf"]
+    sizes = [len(r.x) for r in recs]
+    k = sizes.index(19)  # the switch: 16 components before, 19 after, no reset
+    assert set(sizes[:k]) == {16} and set(sizes[k:]) == {19}
+    assert abs(recs[k].t - dec[0]["t"]) < 0.1, (recs[k].t, dec[0]["t"])
+    assert docs["learned"]["attitude"]["ekf"]["resets"] == 0
+    assert all(len(r.x) == 16 for r in colls["off"].records["ekf"])
+    pos = {n: d["attitude"]["ekf"]["nees"]["position"]["in_band95"] for n, d in docs.items()}
+    assert pos["learned"] > pos["off"] + 0.2, pos

@@ -837,6 +837,12 @@ class LiveDelayLearner:
         self.baro_delay: float | None = None
         self.baro_why = ""
         self.estimates: list[dict[str, Any]] = []
+        #: GNSS bias states sized from the fixes' drift with the delay (None: none), why,
+        #: and the drift (``DriftEstimate`` fields)
+        self.bias: dict[str, float] | None = None
+        self.bias_why = ""
+        self.drift: dict[str, Any] | None = None
+        self._frame: Any = None  # the stream's local frame (the fixes' positions in it)
         self.label = ""
         self.done = False
         self._probe = DelayProbe()
@@ -938,6 +944,15 @@ class LiveDelayLearner:
                 f"estimated live: the GNSS velocity is the mean over this window ({what}, "
                 f"{est.window_ratio:.2f} of the cost without one)" if est.window else
                 f"estimated live: none ({est.window_why})")
+        if self.drift is None and self._frame is not None:
+            dr = self._probe.estimate_drift(self._frame)
+            self.drift = {"short_m": dr.short, "long_m": dr.long, "pairs": dr.pairs,
+                          "correlated": dr.correlated, "h_acc_m": dr.h_acc,
+                          "v_acc_m": dr.v_acc}
+            bias, why = dr.bias_model()
+            if bias is not None:
+                self.bias = bias
+                self.bias_why = f"estimated live: {why} ({what})"
         best = self._probe.estimate_baro(est.lag(d))
         self.estimates[-1]["baro_delay"] = best.delay
         if best.delay is not None:
@@ -952,6 +967,7 @@ class LiveDelayLearner:
         yet (after the decision, or after a rewind or a restart took it back)."""
         if getattr(stream, "_builder", None) is None:
             return
+        self._frame = getattr(stream, "frame", None)
         if self.t_decided is None:
             rate = float(stream.summary.get("align_rate_hz") or 0.0)
             if not self.done and 0 < rate < PROBE_MIN_IMU_HZ:
@@ -970,12 +986,15 @@ class LiveDelayLearner:
         if self.baro_delay is not None and (stream.baro_delay != self.baro_delay
                                             or not stream.baro_known):
             stream.set_baro_delay(self.baro_delay, self.t_decided, self.baro_why)
+        if self.bias is not None and not stream.noise.gnss_bias:
+            stream.set_gnss_bias(self.bias, self.t_decided, self.bias_why)
 
     def as_dict(self) -> dict[str, Any]:
         """For the result document: the delay used (None: not estimated) and every try."""
         return {"delay": self.delay, "given": self.given, "t": self.t_decided,
                 "why": self.why or None,
                 "window": self.window, "baro_delay": self.baro_delay,
+                "gnss_drift": self.drift, "gnss_bias": self.bias,
                 "filter": self.label or None, "tries": self.estimates}
 
 
@@ -991,9 +1010,14 @@ class _Tap:
     def label(self) -> str:
         return str(self.runner.label)
 
+    @property
+    def started_from(self) -> Any:
+        return getattr(self.runner, "started_from", None)
+
     def start(self, st: Start) -> None:
         self.runner.start(st)
-        self.learner._start()
+        if st.augment is None:  # the same run with more states: not a new segment
+            self.learner._start()
 
     def step(self, st: Step) -> Any:
         rec = self.runner.step(st)

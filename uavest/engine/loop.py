@@ -126,9 +126,11 @@ def _dispatch(items: Iterable[Start | Step], estimators: Sequence[Estimator],
             for e in estimators:
                 e.start(it)
                 if loud:
+                    # an augmented restart starts each estimator from its own prior
+                    p0 = getattr(e, "started_from", None) if it.augment is not None else None
+                    p0 = it.prior if p0 is None else p0
                     for s in sinks:
-                        s.start(e.label, it.t0, getattr(it.prior, "x", None),
-                                getattr(it.prior, "P", None))
+                        s.start(e.label, it.t0, getattr(p0, "x", None), getattr(p0, "P", None))
     return n
 
 

@@ -178,6 +178,15 @@ def fix_start(q: Array, tilt: float, syaw: float, v: Array, p: Array, pv: list[f
     return with_gnss_bias(x, P, n, from_fix=True)
 
 
+def add_gnss_bias(g: Any, noise: NavNoise) -> Any:
+    """A running navigation estimate ``g`` (a Gaussian, 16 components) with the GNSS bias
+    states of ``noise`` appended: its position has been fitted to fixes that carry the
+    bias, so it is taken as a fix's (:func:`with_gnss_bias`, ``from_fix``)."""
+    x, P = with_gnss_bias(np.asarray(g.x, float)[:16], np.asarray(g.P, float)[:15, :15],
+                          noise, from_fix=True)
+    return type(g)(x, P)
+
+
 def with_gnss_bias(x: Array, P: Array, noise: NavNoise, from_fix: bool) -> tuple[Array, Array]:
     """``(x, P)`` of the 15-dimensional start with the GNSS bias states appended when
     ``noise`` has them (:attr:`NavNoise.gnss_bias`): zero, at their steady std. A position

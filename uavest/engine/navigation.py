@@ -46,6 +46,7 @@ import copy
 from collections import deque
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, fields
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -89,6 +90,7 @@ from .attitude import (
 from .nav_aiding import AidQueues, _Aid, baro_height, carry_force, good_fix, window_force
 from .nav_align import (
     AlignWindow,
+    add_gnss_bias,
     anchor_start,
     fix_prior,
     fix_start,
@@ -96,6 +98,7 @@ from .nav_align import (
     level,
     start_inclination,
     unaided_start,
+    with_gnss_bias,
 )
 from .records import NavAnchor, Start, Step
 from .runner import FilterRunner
@@ -353,6 +356,7 @@ class NavStream(StreamSnapshots):
         self.window_known = False
         self.baro_known = False  # the baro delay given or estimated
         self._aid_noise: NavNoise | None = None  # the aids' noise (:meth:`_noise_for_aids`)
+        self._bias_pending = False  # GNSS bias states set: restart with them at next step
         #: the last steps released (end s, length s, rate, specific force) while a
         #: velocity window needs them (:func:`~uavest.engine.nav_aiding.window_force`)
         self._recent: deque[tuple[float, float, Array, Array]] = deque()
@@ -467,6 +471,33 @@ class NavStream(StreamSnapshots):
         self._aid_noise = None
         self.summary["baro_delay_s"] = self.baro_delay
         self._decide("baro delay", f"{self.baro_delay * 1e3:.0f} ms", t, why)
+
+    def restore(self, snap: dict[str, Any]) -> None:
+        """:meth:`StreamSnapshots.restore`, the state space following the restored noise
+        (GNSS bias states set after the snapshot are set again by who set them)."""
+        super().restore(snap)
+        self.space = nav_space(self.noise)
+
+    def set_gnss_bias(self, bias: dict[str, float], t: float, why: str) -> None:
+        """From the next step on the state carries GNSS bias states of ``bias``
+        (``gnss_bias_h``, ``gnss_bias_v`` m, ``gnss_bias_tau`` s): a restart whose prior
+        is each filter's running estimate with them appended
+        (:func:`~uavest.engine.nav_align.add_gnss_bias`). Nothing when the state has them
+        already or ``--noise`` named them."""
+        if (self._builder is None or self.noise.gnss_bias
+                or any(k.startswith("gnss_bias_") for k in self.opts.noise)):
+            return
+        self.noise = self.noise.with_(**bias)
+        self.space = nav_space(self.noise)
+        if self._model is not None:
+            self._model = self._model.with_noise(self.noise)
+        self._aid_noise = None
+        self._bias_pending = True
+        n = self.noise
+        self.summary["gnss_bias"] = {"h_m": n.gnss_bias_h, "v_m": n.gnss_bias_v,
+                                     "tau_s": n.gnss_bias_tau, "t": float(t)}
+        self._decide("GNSS bias states", f"{n.gnss_bias_h:.2f} m horizontal, "
+                     f"{n.gnss_bias_v:.2f} m vertical, {n.gnss_bias_tau:.0f} s", t, why)
 
     def __iter__(self) -> Iterator[Start | Step]:
         for s in self.samples:
@@ -714,6 +745,13 @@ class NavStream(StreamSnapshots):
                 else:
                     out.append(self._step(r, [a for a in aids if a.sensor != "gnss"]))
             else:
+                if self._bias_pending:
+                    self._bias_pending = False
+                    n = self.noise
+                    x, P = with_gnss_bias(np.r_[1.0, np.zeros(15)], np.eye(15), n, False)
+                    out.append(Start(self._stamp(r), Gaussian(x, P), self.space,
+                                     reason="GNSS bias states",
+                                     augment=partial(add_gnss_bias, noise=n)))
                 out.append(self._step(r, aids))
         return out
 

@@ -43,7 +43,9 @@ class Start:
     ``keep_P``: the same for any components, by index into the state vector and into
     the tangent covariance (e.g. a navigation state's attitude and biases when the
     first GNSS fix re-anchors velocity and position); their cross-covariance with the
-    others is zero."""
+    others is zero. ``augment``: on a restart, the prior is ``augment(estimate)`` of each
+    estimator's own running estimate instead (``prior`` then only gives the size: the
+    navigation state growing GNSS bias states mid-run)."""
 
     t0: float
     prior: Any
@@ -52,6 +54,7 @@ class Start:
     keep_tail: int = 0
     keep_x: tuple[int, ...] = ()
     keep_P: tuple[int, ...] = ()
+    augment: Any = None
 
 
 @dataclass(frozen=True, slots=True)

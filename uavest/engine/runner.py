@@ -69,6 +69,8 @@ class FilterRunner:
         prior, resets = st.prior, None
         if self.state is not None:  # a restart: the guard's reset count carries on
             resets = getattr(self.state, "resets", None)
+            if st.augment is not None:
+                prior = st.augment(self.filter.estimate(self.state))
             kx, kp = st.keep_x, st.keep_P
             if st.keep_tail:
                 n, nx, nP = st.keep_tail, len(prior.x), len(prior.P)
@@ -89,6 +91,7 @@ class FilterRunner:
 
             self.state = replace(self.state, resets=resets)
         self._last = prior  # the previous step's estimate (smoothing pairs with it)
+        self.started_from = prior  # what the sinks are told it started from
 
     def step(self, st: Step) -> StepRecord:
         f, rng = self.filter, self.rng

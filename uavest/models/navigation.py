@@ -25,6 +25,7 @@ MagField, GravityDirection) onto the navigation state.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -228,6 +229,14 @@ class ImuTransition(Transition):
         self.earth_rate = bool(earth_rate)
         self.w_ie = EARTH_RATE * np.array([np.cos(lat), 0.0, -np.sin(lat)])  # NED
         self._gyro = GyroTransition()
+
+    def with_noise(self, noise: NavNoise) -> ImuTransition:
+        """The same mechanisation (latitude, gravity, Earth rate) with ``noise`` (and
+        its state space)."""
+        out = copy.copy(self)
+        out.noise = noise
+        out.space = nav_space(noise)
+        return out
 
     def _rates(self, X: Array, u: Array) -> tuple[Array, Array]:
         w = u[:3] - X[..., 10:13]
