@@ -72,7 +72,7 @@ from ..ingest.types import (
     PositionSample,
 )
 from ..models.motion import NearlyConstantVelocity
-from ..models.navigation import nav_dim
+from ..models.navigation import names_gnss_bias, nav_dim
 from ..models.radar import RadarMeasurement, SensorPose
 from ..presets import resolve_list, spec_labels
 from ..seeding import filter_stream, rng
@@ -709,6 +709,21 @@ class _Guarded(Sink):
 # ----------------------------------------------------------------------- the job
 
 
+def check_live_config(cfg: LiveConfig) -> None:
+    """A clear one-line error for a bad option of ``cfg`` (:func:`run_live` calls it
+    before it opens the link, :func:`run_samples` again for its other callers)."""
+    if cfg.model not in ("attitude", "nav"):
+        raise InputError(f"--model must be attitude or nav for a live run, not {cfg.model!r}")
+    if not (math.isfinite(cfg.reorder_window) and 0 <= cfg.reorder_window <= 5):
+        raise InputError(f"--reorder-window must be from 0 to 5 s, got {cfg.reorder_window}")
+    if cfg.on_arrival and not (math.isfinite(cfg.history_s) and 0 < cfg.history_s <= 5):
+        raise InputError(f"--history must be more than 0 and at most 5 s, got {cfg.history_s}")
+    if cfg.model == "nav":
+        NavOptions(noise=cfg.noise)  # checks the --noise names
+    else:
+        check_attitude_noise(cfg.noise, "(--model nav to use it)")
+
+
 def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
                 declination: Callable[[], float | None] | None = None, sinks=(),
                 info: RunInfo | None = None, link=None, status: bool | None = None,
@@ -720,17 +735,8 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
     ``cfg.on_arrival`` the lanes run with the engine's history (``cfg.history_s``); a
     sample late beyond it is counted ``late`` (per source) in ``stats`` (default the
     source's or the link's :class:`~uavest.ingest.types.IngestStats`)."""
-    if cfg.model not in ("attitude", "nav"):
-        raise InputError(f"--model must be attitude or nav for a live run, not {cfg.model!r}")
-    if not (math.isfinite(cfg.reorder_window) and 0 <= cfg.reorder_window <= 5):
-        raise InputError(f"--reorder-window must be from 0 to 5 s, got {cfg.reorder_window}")
-    if cfg.on_arrival and not (math.isfinite(cfg.history_s) and 0 < cfg.history_s <= 5):
-        raise InputError(f"--history must be more than 0 and at most 5 s, got {cfg.history_s}")
+    check_live_config(cfg)
     nav = cfg.model == "nav"
-    if nav:
-        NavOptions(noise=cfg.noise)  # checks the --noise names before the link opens
-    else:
-        check_attitude_noise(cfg.noise, "(--model nav to use it)")
     specs = (build_filters(resolve_list(cfg.filters, "attitude",
                                         dim=nav_dim(cfg.noise) if nav else 6))
              if cfg.filters else [])
@@ -813,8 +819,9 @@ def _stream_factory(cfg: LiveConfig, params: dict | None,
                                              geodesy=cfg.geodesy, noise=dict(cfg.noise),
                                              mag_noise_why=(cfg.noise_why if "mag_noise"
                                                             in cfg.noise else None),
-                                             gnss_bias_why=(cfg.noise_why if "gnss_bias_tau"
-                                                            in cfg.noise else None)),
+                                             gnss_bias_why=(cfg.noise_why if
+                                                            names_gnss_bias(cfg.noise)
+                                                            else None)),
                              params=params)
         return AttitudeStream(opts=AttitudeOptions(rate_hz=cfg.rate_hz, update_hz=cfg.update_hz,
                                                      declination=d, noise=dict(cfg.noise),
@@ -880,6 +887,7 @@ def run_live(cfg: LiveConfig, *, sinks=(), stop: threading.Event | None = None,
     over it (:func:`replay_session`) instead: the live run's estimates again."""
     from pathlib import Path
 
+    check_live_config(cfg)
     if Path(cfg.connect).is_file():
         return replay_session(cfg, sinks=sinks, command=command, failures=failures)
     from ..ingest.live import open_live

@@ -41,7 +41,7 @@ from ..ingest.types import (
     NoSamplesError,
     PositionSample,
 )
-from ..models.navigation import NavNoise, nav_dim
+from ..models.navigation import NavNoise, names_gnss_bias, nav_dim
 from ..presets import resolve_list, spec_labels
 from ..seeding import filter_stream, rng
 from ..sinks.base import Collector, Sink
@@ -163,8 +163,7 @@ def probe_gnss_delay(samples: Iterable, cfg: ReplayConfig, params: dict | None
                                     f"{est.given_note()}"))
         doc.update(data_delay=est.data_delay, data_sd=est.data_sd)
     if est.drift is not None:
-        bias_set = any(k.startswith("gnss_bias_") for k in cfg.noise)
-        doc["gnss_drift"] = _drift_doc(est.drift, span, bias_set)
+        doc["gnss_drift"] = _drift_doc(est.drift, span, names_gnss_bias(cfg.noise))
     doc["mag"] = _mag_doc(cfg, mest, noise, span, refined)
     doc["baro"] = _baro_doc(cfg, best, noise, span)
     return doc, itertools.chain(held, rest)
@@ -248,9 +247,8 @@ def _drift_doc(d: DriftEstimate, span: str, bias_set: bool) -> dict:
     ``--noise``)."""
     from ..engine.gnss_delay import DRIFT_LONG_S, DRIFT_SHORT_S
 
-    doc: dict = {"short_s": DRIFT_SHORT_S, "long_s": DRIFT_LONG_S, "short_m": d.short,
-                 "long_m": d.long, "pairs": d.pairs, "correlated": d.correlated,
-                 "why": d.why or None, "h_acc_m": d.h_acc, "v_acc_m": d.v_acc}
+    doc: dict = {"short_s": DRIFT_SHORT_S, "long_s": DRIFT_LONG_S, **d.as_dict(),
+                 "why": d.why or None}
     bias, bwhy = d.bias_model()
     if bias is not None and not bias_set:
         doc["bias_used"] = bias

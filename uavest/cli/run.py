@@ -11,7 +11,6 @@ import sys
 import threading
 
 from ..apps.live import TRACKER_DIM, LiveConfig, run_live
-from ..apps.replay import check_attitude_noise
 from ..errors import InputError
 from ..ingest.adsb_radar import RadarConfig
 from ..sinks.jsonout import write_json
@@ -125,9 +124,6 @@ def _cfg(args, connect: str) -> LiveConfig:
     for name, v in (("rate", args.rate), ("update-rate", getattr(args, "update_rate", None))):
         if v is not None and not (v >= 0 and math.isfinite(v)):
             raise InputError(f"--{name} must be >= 0 Hz (0 = every step), got {v}")
-    noise = parse_noise(args.noise)
-    if args.model != "nav":
-        check_attitude_noise(noise, "(--model nav to use it)")
     return LiveConfig(
         connect=connect, filters=tuple(args.filter_specs or split_filter_list(args.filters)),
         trackers=tuple(resolve_list(",".join(trackers), "radar", TRACKER_DIM)) if trackers else (),
@@ -138,7 +134,7 @@ def _cfg(args, connect: str) -> LiveConfig:
         duration=args.duration, rate_hz=args.rate,
         update_hz=getattr(args, "update_rate", None),
         radar_source=args.radar_source, radar=_radar(args), model=args.model,
-        gnss_delay=args.gnss_delay, geodesy=args.geodesy, noise=noise)
+        gnss_delay=args.gnss_delay, geodesy=args.geodesy, noise=parse_noise(args.noise))
 
 
 def format_live(doc: dict) -> str:

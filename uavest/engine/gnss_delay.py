@@ -201,6 +201,11 @@ class DriftEstimate:
                 f"correlation time {tau:.0f} s from the drift's growth "
                 f"({slope * 1e3:.1f} mm^2/s per axis)")
 
+    def as_dict(self) -> dict[str, Any]:
+        """For the result documents (the replay's probe, the live learner)."""
+        return {"short_m": self.short, "long_m": self.long, "pairs": self.pairs,
+                "correlated": self.correlated, "h_acc_m": self.h_acc, "v_acc_m": self.v_acc}
+
     @property
     def correlated(self) -> bool:
         """The long span's difference is :data:`DRIFT_GROWTH` times the short one's and
@@ -946,9 +951,7 @@ class LiveDelayLearner:
                 f"estimated live: none ({est.window_why})")
         if self.drift is None and self._frame is not None:
             dr = self._probe.estimate_drift(self._frame)
-            self.drift = {"short_m": dr.short, "long_m": dr.long, "pairs": dr.pairs,
-                          "correlated": dr.correlated, "h_acc_m": dr.h_acc,
-                          "v_acc_m": dr.v_acc}
+            self.drift = dr.as_dict()
             bias, why = dr.bias_model()
             if bias is not None:
                 self.bias = bias

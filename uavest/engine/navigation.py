@@ -73,6 +73,7 @@ from ..models.navigation import (
     GnssPosition,
     ImuTransition,
     NavNoise,
+    names_gnss_bias,
     nav_noise_for_source,
     nav_space,
 )
@@ -485,7 +486,7 @@ class NavStream(StreamSnapshots):
         (:func:`~uavest.engine.nav_align.add_gnss_bias`). Nothing when the state has them
         already or ``--noise`` named them."""
         if (self._builder is None or self.noise.gnss_bias
-                or any(k.startswith("gnss_bias_") for k in self.opts.noise)):
+                or names_gnss_bias(self.opts.noise)):
             return
         self.noise = self.noise.with_(**bias)
         self.space = nav_space(self.noise)
@@ -496,6 +497,11 @@ class NavStream(StreamSnapshots):
         n = self.noise
         self.summary["gnss_bias"] = {"h_m": n.gnss_bias_h, "v_m": n.gnss_bias_v,
                                      "tau_s": n.gnss_bias_tau, "t": float(t)}
+        self._decide_bias(t, why)
+
+    def _decide_bias(self, t: float, why: str) -> None:
+        """The decision line of the GNSS bias states the noise has."""
+        n = self.noise
         self._decide("GNSS bias states", f"{n.gnss_bias_h:.2f} m horizontal, "
                      f"{n.gnss_bias_v:.2f} m vertical, {n.gnss_bias_tau:.0f} s", t, why)
 
@@ -1033,10 +1039,7 @@ class NavStream(StreamSnapshots):
                          f"{UNMODELLED_WINDOW_VEL_FLOOR:g} m/s until it is")
         self._decide("IMU delay", f"{self.imu_delay * 1e3:.1f} ms", t_first, dwhy)
         if self.noise.gnss_bias:
-            n = self.noise
-            self._decide("GNSS bias states", f"{n.gnss_bias_h:.2f} m horizontal, "
-                         f"{n.gnss_bias_v:.2f} m vertical, {n.gnss_bias_tau:.0f} s", t_first,
-                         o.gnss_bias_why or "option --noise")
+            self._decide_bias(t_first, o.gnss_bias_why or "option --noise")
         if mag is not None:
             self._decide("magnetometer delay", f"{self.mag_delay * 1e3:.0f} ms", t_first,
                          o.mag_delay_why or ("option --mag-delay" if o.mag_delay is not None

@@ -52,8 +52,6 @@ DTH, DV, DP, DBG, DBA = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), sli
 
 SIZE = 16
 DIM = 15
-#: slice of the GNSS receiver bias in the ambient state / the tangent, when present
-BP, DBP = slice(16, 19), slice(15, 18)
 
 
 def nav_retract_rows(x: Array, dx: Array) -> Array:

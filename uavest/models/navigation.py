@@ -51,6 +51,12 @@ SPACE = NavSpace()
 SPACE_GNSS_BIAS = NavSpace(extra=3)
 
 
+def names_gnss_bias(overrides: dict[str, float]) -> bool:
+    """True when ``--noise`` overrides name any of the GNSS bias states' parameters (they
+    are then the user's, not estimated)."""
+    return any(k.startswith("gnss_bias_") for k in overrides)
+
+
 def nav_dim(overrides: dict[str, float]) -> int:
     """The navigation state's tangent dimension (15, or 18 with the GNSS bias states)
     for ``--noise`` overrides (the IMU profiles leave the bias states off, so the
@@ -259,7 +265,7 @@ class ImuTransition(Transition):
         out[:, :4] = _qstep(X[:, :4], w, dt)
         out[:, 4:7] = X[:, 4:7] + a * dt
         out[:, 7:10] = X[:, 7:10] + X[:, 4:7] * dt + 0.5 * dt * dt * a
-        if X.shape[1] > 16:  # the GNSS bias decays towards 0
+        if self.space.extra:  # the GNSS bias decays towards 0
             out[:, 16:19] = X[:, 16:19] * self._phi(dt)
         return out[0] if one else out
 
@@ -276,7 +282,7 @@ class ImuTransition(Transition):
         qba = n.accel_bias_walk**2 * dt + 1e-16
         Q = np.diag([qa] * 3 + [qv] * 3 + [qp] * 3 + [qbg] * 3 + [qba] * 3)
         Q[3:6, 6:9] = Q[6:9, 3:6] = np.eye(3) * n.accel_noise**2 * dt**2 / 2.0
-        if n.gnss_bias:  # exact first-order Gauss-Markov discretisation
+        if self.space.extra:  # exact first-order Gauss-Markov discretisation
             Qb = np.diag(n.gnss_bias_sd**2 * (1.0 - self._phi(dt) ** 2) + 1e-14)
             Q = np.block([[Q, np.zeros((15, 3))], [np.zeros((3, 15)), Qb]])
         return Q
