@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from uavest.engine import navigation
 from uavest.engine.build import build_filters
 from uavest.engine.loop import Lane, run_lanes
 from uavest.engine.navigation import NavOptions, NavRunner, NavStream
@@ -185,6 +186,28 @@ def test_gnss_delay_compensated():
     e0, _ = errors(s0, c0, r0[0].label, ts, xs, 110.0)
     e1, _ = errors(s1, c1, r1[0].label, ts, xs, 110.0)
     assert rms(e1[:, 6:8]) < 0.6 * rms(e0[:, 6:8])  # a 0.2 s lag at 6 m/s is 1.2 m
+
+
+@pytest.mark.slow
+def test_an_unknown_gnss_delay_widens_the_velocity_so_a_late_receiver_is_not_gated(
+        monkeypatch):
+    """Until the GNSS delay is known, a fix's velocity std gains UNKNOWN_GNSS_LAG_S times
+    the vehicle's acceleration: the velocity of a receiver 0.4 s late in a manoeuvre is
+    taken, not gated away, and the velocity is better for it; with the delay given
+    nothing is added."""
+    samples, ts, xs = flight(3, delay=0.4, heave=1.5)
+    s1, r1, c1 = run_nav(samples)
+    given = NavOptions(integration="hold", gnss_delay=0.4)
+    g1 = run_nav(samples, opts=given)[2].arrays(r1[0].label)
+    monkeypatch.setattr(navigation, "UNKNOWN_GNSS_LAG_S", 0.0)
+    s0, r0, c0 = run_nav(samples)
+    g0 = run_nav(samples, opts=given)[2].arrays(r0[0].label)
+    rej0, rej1 = r0[0].gates["gnss_vel"]["rejected"], r1[0].gates["gnss_vel"]["rejected"]
+    assert rej0 >= 10 and rej1 <= 3, (rej0, rej1)
+    e0, _ = errors(s0, c0, r0[0].label, ts, xs, 105.0)
+    e1, _ = errors(s1, c1, r1[0].label, ts, xs, 105.0)
+    assert rms(e1[:, 3:6]) < 0.9 * rms(e0[:, 3:6])
+    np.testing.assert_array_equal(g0["x"], g1["x"])  # the delay given: the term is off
 
 
 @pytest.mark.slow

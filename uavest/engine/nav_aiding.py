@@ -296,10 +296,12 @@ class AidQueues:
 
     def gnss_updates(self, fix: _Aid, back: float, f: Array, g: float, noise: NavNoise,
                      ups: list[tuple[Array, Any]], sensors: list[str],
-                     carry: tuple[float, float, Array] | None = None) -> None:
+                     carry: tuple[float, float, Array] | None = None,
+                     timing_sd: Array | None = None) -> None:
         """Append the updates of a fix taken by a step (counted ``used``) to ``ups`` and
         their names to ``sensors``: the velocity (:class:`GnssVelocity`, std
-        max(s_acc, floor); horizontal only without a vertical speed; NaN counted
+        max(s_acc, floor), with ``timing_sd`` (m/s per NED axis: the receiver's timing not
+        known) added in quadrature; horizontal only without a vertical speed; NaN counted
         ``vel_nan``) ``back`` s before the step's end (the specific force ``f`` m/s^2
         and gravity ``g`` carry it there), the position carried to the step's end with
         the fix's velocity (:meth:`GnssPosition.from_fix`); the fix's height is kept
@@ -312,8 +314,10 @@ class AidQueues:
         if np.isfinite(v[:2]).all():
             sv = max(n.gnss_vel_floor, gs.s_acc if np.isfinite(gs.s_acc) else 0.0)
             rows = (0, 1, 2) if np.isfinite(v[2]) else (0, 1)
-            ups.append((v[list(rows)], GnssVelocity(
-                np.eye(len(rows)) * sv * sv, rows, back=back, f=f, g=g)))
+            var = np.full(len(rows), sv * sv)
+            if timing_sd is not None:
+                var = var + np.asarray(timing_sd, float)[list(rows)] ** 2
+            ups.append((v[list(rows)], GnssVelocity(np.diag(var), rows, back=back, f=f, g=g)))
             sensors.append("gnss_vel")
             vx = np.where(np.isfinite(v), v, 0.0)
         else:

@@ -134,6 +134,21 @@ MAX_STEP_PERIODS = 2.0
 #: (an ArduPilot SITL's, 0.35 s, leaves 0.014 m/s of velocity error, up to 0.02 in
 #: manoeuvres; the floor the noise profile had before the window was modelled).
 UNMODELLED_WINDOW_VEL_FLOOR = 0.03
+#: Until the GNSS delay is known (an option, the replay's probe, a live run's estimate),
+#: the fix's velocity is taken as measured up to this long (s) before or after the time
+#: the model gives it (an ArduCopter SITL's velocity lags the IMU by 0.085 s plus half
+#: its 0.35-s window), so its std per axis gains this times the vehicle's acceleration
+#: (from the last two fixes) in quadrature. 0.22 s is the GPS delay ArduPilot's EKF
+#: assumed for every receiver before the drivers reported their own. Without it, a live
+#: run against the ArduCopter SITL rejected 14 of 15 GNSS velocities in a 3-s turn before
+#: it learned the delay, then took a 22-cm position step (docs/live.md). The fix's
+#: position is not widened: its lag (speed x delay) stays within its std and the gate.
+UNKNOWN_GNSS_LAG_S = 0.22
+#: Fixes further apart than this (s) give no acceleration for :data:`UNKNOWN_GNSS_LAG_S`.
+LAG_ACCEL_MAX_DT = 1.0
+#: The acceleration (m/s^2 per axis) taken for it is at most this (2 g): a larger change
+#: between two fixes is a bad velocity, which the gate is there to see.
+LAG_ACCEL_MAX = 20.0
 #: Until the baro's delay is known (an option, the replay's probe, a live run's estimate)
 #: its noise is at least this (m): an ArduCopter SITL's baro lags 18-88 ms, 0.2 m in a
 #: 2.5 m/s climb, which the profile's 0.2 m took into the pitch (airborne 0.19 deg
@@ -356,6 +371,10 @@ class NavStream(StreamSnapshots):
         #: at least UNMODELLED_WINDOW_VEL_FLOOR
         self.window_known = False
         self.baro_known = False  # the baro delay given or estimated
+        self.delay_known = False  # the GNSS delay given or estimated
+        #: the last fix's (time s, NED velocity m/s), for the acceleration that sizes the
+        #: velocity's timing term while the delay is not known (UNKNOWN_GNSS_LAG_S)
+        self._vfix_last: tuple[float, Array] | None = None
         self._aid_noise: NavNoise | None = None  # the aids' noise (:meth:`_noise_for_aids`)
         self._bias_pending = False  # GNSS bias states set: restart with them at next step
         #: the last steps released (end s, length s, rate, specific force) while a
@@ -448,6 +467,7 @@ class NavStream(StreamSnapshots):
         if self._builder is None:
             return
         self.delay = float(delay)
+        self.delay_known = True
         self.summary["gnss_delay_s"] = self.delay
         self._decide("GNSS delay", f"{self.delay:.3f} s", t, why)
 
@@ -934,7 +954,7 @@ class NavStream(StreamSnapshots):
             else:
                 back, f = stamp - fix.t, r.a
             self._aids.gnss_updates(fix, back, f, self._model.g, self._noise_for_aids(), ups,
-                                    sensors, carry)
+                                    sensors, carry, self._timing_sd(fix))
         if carry is not None and self._aids.h_fix is not None and self._baro_recent:
             # a windowed fix is taken after its time: pair its height with the baro's
             # at that time (the last baro after it, in a climb, is off by the climb)
@@ -974,6 +994,19 @@ class NavStream(StreamSnapshots):
             self._anchor_sample = None
         return Step(self._k, stamp, r.t - r.t0, self._model, tuple(ups), u, info)
 
+    def _timing_sd(self, fix: _Aid) -> Array | None:
+        """The std (m/s per NED axis) a fix's velocity gains while the GNSS delay is not
+        known (:data:`UNKNOWN_GNSS_LAG_S` times the acceleration between the last fix and
+        this one; None once the delay is known, or without a previous fix close enough)."""
+        assert fix.gnss is not None
+        v = np.asarray(fix.gnss.vel_ned, float)
+        last, self._vfix_last = self._vfix_last, (fix.t, v)
+        if self.delay_known or last is None or not 0.0 < fix.t - last[0] <= LAG_ACCEL_MAX_DT:
+            return None
+        a = np.nan_to_num((v - last[1]) / (fix.t - last[0]))  # m/s^2 (NaN axis: none)
+        sd: Array = UNKNOWN_GNSS_LAG_S * np.minimum(np.abs(a), LAG_ACCEL_MAX)
+        return sd
+
     def _offset_pair(self, d: float, t: float) -> None:
         """One (baro height - GNSS height) pair (m) for the offset
         (:meth:`AidQueues.offset_pair`)."""
@@ -1000,6 +1033,7 @@ class NavStream(StreamSnapshots):
         self.vel_window = float(self.noise.gnss_vel_window)
         self.window_known = ("gnss_vel_window" in o.noise
                              or o.gnss_vel_window_why is not None)
+        self.delay_known = o.gnss_delay is not None or "gnss_delay" in o.noise
         self.baro_known = o.baro_delay is not None
         self._aid_noise = None
         self.mag_delay = float(o.mag_delay or 0.0)
