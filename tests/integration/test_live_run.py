@@ -24,7 +24,7 @@ from uavest.apps.live import LiveConfig, run_live, run_samples
 from uavest.ingest import open_source
 from uavest.scenarios import load_typed
 from uavest.sim import Simulator
-from uavest.sim.sensors import spec_noise
+from uavest.sim.sensors import GNSS_DELAY_S, spec_noise
 from uavest.sinks.base import Collector
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -145,13 +145,13 @@ def test_live_navigation_model_against_the_simulator_and_its_tlog_replays_the_sa
     tlog = tmp_path / "live_nav.tlog"
     coll = Collector()
     # as uavest demo: the simulator's sensor spec, its receiver's Gauss-Markov error as
-    # the model's GNSS bias states
+    # the model's GNSS bias states and its delay (none) as --gnss-delay
     spec = spec_noise(load_typed("sim_default"))
     assert spec["gnss_bias_tau"] > 0
     with _Sim(port):
         doc = run_live(_cfg(port, tlog=str(tlog), model="nav", filters=("ekf", "hybrid"),
-                            trackers=(), duration=12.0, noise=spec), sinks=[coll],
-                       status=False)
+                            trackers=(), duration=12.0, noise=spec,
+                            gnss_delay=GNSS_DELAY_S), sinks=[coll], status=False)
     assert doc["model"] == "nav" and doc["reference_kind"] == "truth"
     assert doc["noise"]["overrides"] == spec
     assert any(d["what"] == "alignment" for d in doc["decisions"])
@@ -170,7 +170,7 @@ def test_live_navigation_model_against_the_simulator_and_its_tlog_replays_the_sa
                       reorder_window=LiveConfig().reorder_window)
     again = Collector()
     run_samples(src, _cfg(port, trackers=(), model="nav", filters=("ekf", "hybrid"),
-                          noise=spec),
+                          noise=spec, gnss_delay=GNSS_DELAY_S),
                 params=src.params, sinks=[again], status=False)
     for label in ("ekf", "hybrid"):
         a, b = coll.arrays(label), again.arrays(label)
@@ -310,6 +310,27 @@ def test_the_demo_has_every_stream_it_asks_for(tmp_path):
     assert doc["link"]["missing_streams"] == []
     assert "SIM_STATE" not in doc["run"]["config"]["streams"]
     assert "SIMSTATE" in doc["link"]["streams"]
+
+
+@pytest.mark.slow
+def test_the_nav_demo_gives_its_estimator_the_simulators_receiver(tmp_path):
+    """``uavest demo --model nav`` hands its estimator the simulator's sensor spec: the
+    receiver's Gauss-Markov error as GNSS bias states and its delay (none) as the GNSS
+    delay, a decision that says so (not the default, so the fixes' velocities are not
+    widened for an unknown delay)."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    out = tmp_path / "demo.json"
+    r = subprocess.run([sys.executable, "-m", "uavest", "demo", "--model", "nav",
+                        "--duration", "6", "--no-record", "--no-status", "--trackers",
+                        "none", "--json", str(out)], env=env, capture_output=True,
+                       text=True, timeout=120, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(out.read_text())
+    delay = [d for d in doc["decisions"] if d["what"] == "GNSS delay"]
+    assert delay and delay[0]["value"] == f"{GNSS_DELAY_S:.3f} s", delay
+    assert "simulator's sensor spec" in delay[0]["why"], delay
+    assert doc["gnss_delay_live"]["given"] == GNSS_DELAY_S
+    assert doc["noise"]["overrides"]["gnss_bias_tau"] > 0
 
 
 @pytest.mark.slow

@@ -147,6 +147,9 @@ class LiveConfig:
     #: cannot look ahead for a fix stream, so the model is an option, not a decision.
     model: str = "attitude"
     gnss_delay: float | None = None  # s; None: the navigation model's default
+    #: where ``gnss_delay`` came from (None: the option --gnss-delay; ``uavest demo``: its
+    #: simulator's receiver)
+    gnss_delay_why: str | None = None
     geodesy: str = "auto"  # navigation: the local frame's (NavOptions.geodesy)
     #: overrides of the model's noise parameters (``--noise``; the navigation model's
     #: :class:`~uavest.models.navigation.NavNoise` or the attitude model's
@@ -815,6 +818,7 @@ def _stream_factory(cfg: LiveConfig, params: dict | None,
         if cfg.model == "nav":
             return NavStream(opts=NavOptions(rate_hz=cfg.rate_hz, declination=d,
                                              gnss_delay=cfg.gnss_delay,
+                                             gnss_delay_why=cfg.gnss_delay_why,
                                              on_arrival=cfg.on_arrival,
                                              geodesy=cfg.geodesy, noise=dict(cfg.noise),
                                              mag_noise_why=(cfg.noise_why if "mag_noise"

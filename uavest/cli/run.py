@@ -273,7 +273,7 @@ def demo(args) -> dict:
     """Run the simulator and the live estimator side by side; returns the result doc."""
     from ..scenarios import load_typed
     from ..sim import Simulator
-    from ..sim.sensors import spec_noise
+    from ..sim.sensors import GNSS_DELAY_S, spec_noise
 
     if not args.speed > 0:
         raise InputError(f"--speed must be > 0 for a live demo, got {args.speed}")
@@ -294,6 +294,12 @@ def demo(args) -> dict:
     th.start()
     cfg = _cfg(args, f"udpin:127.0.0.1:{port}")
     cfg.heartbeat_timeout = 15.0
+    if cfg.model == "nav" and cfg.gnss_delay is None:
+        # the simulator's receiver stamps each fix at the time it measures: a delay known
+        # (else the fixes' velocities are widened for an unknown one, docs/navigation.md)
+        cfg.gnss_delay = GNSS_DELAY_S
+        cfg.gnss_delay_why = ("the simulator's sensor spec: its receiver stamps each fix at "
+                              "the time it measures (--gnss-delay S to set one)")
     if cfg.model == "nav":  # the simulator's sensor spec, where --noise leaves it open
         spec = {k: v for k, v in spec_noise(sc).items() if k not in cfg.noise}
         if spec:

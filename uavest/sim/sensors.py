@@ -129,6 +129,12 @@ class ImuModel:
         return ImuChunk(gyro, accel, bg, ba, mag, new)
 
 
+#: The simulator's GNSS delay, s: its receiver stamps each fix (GPS_RAW_INT) with the time
+#: it measures, and its velocity is the velocity at that time (``uavest demo`` gives it
+#: to its estimator as ``--gnss-delay``, as a user would from a receiver's datasheet).
+GNSS_DELAY_S = 0.0
+
+
 def spec_noise(scenario: Any) -> dict[str, float]:
     """The navigation model's noise parameters (:class:`~uavest.models.navigation.NavNoise`
     names) that a ``kind = "sim"`` scenario specifies its sensors with, as a user would
