@@ -1,0 +1,28 @@
+"""benchmarks/ensemble_memory.py (docs/filters.md, "Long memory"): on the navigation
+filter's position and velocity alone, linear and Gaussian, the Kalman filter is
+consistent and an ensemble's position covariance shrinks below it; a filter's numbers do
+not depend on what runs beside it."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+BENCH = Path(__file__).resolve().parents[2] / "benchmarks" / "ensemble_memory.py"
+
+
+def _bench():
+    spec = importlib.util.spec_from_file_location("ensemble_memory", BENCH)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_the_ensembles_position_covariance_shrinks_below_the_kalman_filters():
+    bench = _bench()
+    rows = bench.trial("ekf,enkf", 0, 0, 2000)  # (RMSE cm, std cm, NEES mean, in band)
+    kf, enkf = rows["ekf"], rows["enkf"]
+    assert kf[3] >= 0.8 and 1.0 < kf[2] < 5.0, kf  # the Kalman filter: consistent
+    assert enkf[1] < 0.6 * kf[1] and enkf[2] > 3 * kf[2], (enkf, kf)
+    assert bench.trial("enkf", 0, 0, 2000)["enkf"] == enkf  # its own random stream
