@@ -1063,7 +1063,10 @@ class NavStream(StreamSnapshots):
                      + ", ".join(f"{k} {v}" for k, v in sorted(imu_counts.items())) + ")")
         self._decide("integration", integ, t_first, "option" if o.integration != "auto" else why)
         self._decide("GNSS delay", f"{self.delay:.3f} s", t_first, o.gnss_delay_why or (
-            "option --gnss-delay" if o.gnss_delay is not None else "default"))
+            "option --gnss-delay" if o.gnss_delay is not None else
+            "option --noise" if self.delay_known else
+            f"default; until it is known each fix's velocity std gains "
+            f"{UNKNOWN_GNSS_LAG_S:g} s x the vehicle's acceleration"))
         if self.vel_window > 0 or self.window_known:
             self._decide("GNSS velocity window", f"{self.vel_window:.3f} s", t_first,
                          o.gnss_vel_window_why or "option --noise")
