@@ -10,6 +10,7 @@ import pytest
 from uavest.engine import navigation
 from uavest.engine.build import build_filters
 from uavest.engine.loop import Lane, run_lanes
+from uavest.engine.nav_aiding import _Aid
 from uavest.engine.navigation import NavOptions, NavRunner, NavStream
 from uavest.errors import InputError
 from uavest.geometry.geodesy import LocalFrame
@@ -208,6 +209,29 @@ def test_an_unknown_gnss_delay_widens_the_velocity_so_a_late_receiver_is_not_gat
     e1, _ = errors(s1, c1, r1[0].label, ts, xs, 105.0)
     assert rms(e1[:, 3:6]) < 0.9 * rms(e0[:, 3:6])
     np.testing.assert_array_equal(g0["x"], g1["x"])  # the delay given: the term is off
+
+
+def test_the_unknown_delay_widening_takes_bad_fixes_in_its_stride():
+    """The widening's acceleration: from consecutive fixes' velocities, NaN axes as none,
+    capped at 2 g, none across a gap or when time goes backwards, none once the delay is
+    known (NavStream._timing_sd)."""
+    st = NavStream(opts=NavOptions(integration="hold"))
+    lag, cap = navigation.UNKNOWN_GNSS_LAG_S, navigation.LAG_ACCEL_MAX
+
+    def fix(t, v):
+        g = GnssSample(t, np.array([47.4, 8.5, 430.0]), np.array(v, float), 3, 0.5, 1.0,
+                       0.1, 0.8, 1.2, 12, "vehicle_gps_position")
+        return _Aid(t, "gnss", g, np.zeros(3))
+
+    assert st._timing_sd(fix(10.0, [1.0, 0.0, 0.0])) is None  # no fix before it
+    np.testing.assert_allclose(st._timing_sd(fix(10.2, [1.4, -0.2, np.nan])),
+                               [lag * 2.0, lag * 1.0, 0.0])
+    np.testing.assert_allclose(st._timing_sd(fix(10.4, [101.4, 0.0, 0.0])),
+                               [lag * cap, lag * 1.0, 0.0])
+    assert st._timing_sd(fix(10.3, [1.0, 0.0, 0.0])) is None  # time went backwards
+    assert st._timing_sd(fix(12.0, [3.0, 0.0, 0.0])) is None  # 1.7 s apart
+    st.delay_known = True
+    assert st._timing_sd(fix(12.2, [9.0, 0.0, 0.0])) is None
 
 
 @pytest.mark.slow
