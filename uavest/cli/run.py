@@ -294,13 +294,13 @@ def demo(args) -> dict:
     th.start()
     cfg = _cfg(args, f"udpin:127.0.0.1:{port}")
     cfg.heartbeat_timeout = 15.0
-    if cfg.model == "nav" and cfg.gnss_delay is None:
-        # the simulator's receiver stamps each fix at the time it measures: a delay known
-        # (else the fixes' velocities are widened for an unknown one, docs/navigation.md)
-        cfg.gnss_delay = GNSS_DELAY_S
-        cfg.gnss_delay_why = ("the simulator's sensor spec: its receiver stamps each fix at "
-                              "the time it measures (--gnss-delay S to set one)")
-    if cfg.model == "nav":  # the simulator's sensor spec, where --noise leaves it open
+    if cfg.model == "nav":  # the simulator's sensor spec, where the options leave it open
+        if cfg.gnss_delay is None:
+            # its receiver stamps each fix at the time it measures: a delay known (else the
+            # fixes' velocities are widened for an unknown one, docs/navigation.md)
+            cfg.gnss_delay = GNSS_DELAY_S
+            cfg.gnss_delay_why = ("the simulator's sensor spec: its receiver stamps each fix "
+                                  "at the time it measures (--gnss-delay S to set one)")
         spec = {k: v for k, v in spec_noise(sc).items() if k not in cfg.noise}
         if spec:
             cfg.noise = {**spec, **cfg.noise}

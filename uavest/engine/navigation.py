@@ -997,11 +997,15 @@ class NavStream(StreamSnapshots):
     def _timing_sd(self, fix: _Aid) -> Array | None:
         """The std (m/s per NED axis) a fix's velocity gains while the GNSS delay is not
         known (:data:`UNKNOWN_GNSS_LAG_S` times the acceleration between the last fix and
-        this one; None once the delay is known, or without a previous fix close enough)."""
+        this one; None once the delay is known, or without a previous fix close enough).
+        Once the delay is known it stays known (a rewind restores both), so the fixes are
+        no longer kept."""
+        if self.delay_known:
+            return None
         assert fix.gnss is not None
         v = np.asarray(fix.gnss.vel_ned, float)
         last, self._vfix_last = self._vfix_last, (fix.t, v)
-        if self.delay_known or last is None or not 0.0 < fix.t - last[0] <= LAG_ACCEL_MAX_DT:
+        if last is None or not 0.0 < fix.t - last[0] <= LAG_ACCEL_MAX_DT:
             return None
         a = np.nan_to_num((v - last[1]) / (fix.t - last[0]))  # m/s^2 (NaN axis: none)
         sd: Array = UNKNOWN_GNSS_LAG_S * np.minimum(np.abs(a), LAG_ACCEL_MAX)
