@@ -14,12 +14,13 @@ ensemble's sampling error in its gains, which shrinks the spread a little at eve
 update (Houtekamer and Mitchell, "Data assimilation using an ensemble Kalman filter
 technique", Monthly Weather Review 1998), is never refreshed.
 
-Default filters (:data:`DEFAULT_FILTERS`, resolved as ``uavest replay`` resolves them,
-the attitude preset's: the hybrid there has n_cloud 16 and tau 0.9, M = 13 x 17 = 221
-members here, 527 on the navigation state): ekf (the Kalman filter here, exact), ukf,
-the EnKF (100 members) and ETKF, the hybrid, the hybrid with all of each measurement in
-its EnKF shift (``tau=1.0``: no confidence weights), and with 2, 4 and 8 times its
-members (``n_cloud`` 32, 64, 128: M = 429, 845, 1677).
+Default filters (:data:`DEFAULT_FILTERS`, resolved as ``uavest replay`` resolves them
+for the navigation model, the nav preset: the hybrid there has n_cloud 16 and tau 0.9,
+M = 13 x 17 = 221 members here, 527 on the navigation state, and re-spreads its members
+after each EnKF shift, ``reinflate``): ekf (the Kalman filter here, exact), ukf, the EnKF
+(100 members) and ETKF, the hybrid, and without the re-spread; each also with all of each
+measurement in its EnKF shift (``tau=1.0``: no confidence weights), and the hybrid
+without the re-spread with 8 times its members (``n_cloud=128``: M = 1677).
 
 Rows (the second half of each trial, the filters on the same seeded data): the position
 RMSE (cm), the filter's own position std (cm, the root of the mean variance), the
@@ -47,8 +48,8 @@ from uavest.models.motion import ncv_matrices  # noqa: E402
 from uavest.presets import resolve_list  # noqa: E402
 from uavest.seeding import filter_stream, rng  # noqa: E402
 
-DEFAULT_FILTERS = ("ekf,ukf,enkf,etkf,hybrid,hybrid(tau=1.0),hybrid(n_cloud=32),"
-                   "hybrid(n_cloud=64),hybrid(n_cloud=128)")
+DEFAULT_FILTERS = ("ekf,ukf,enkf,etkf,hybrid,hybrid(reinflate=false),hybrid(tau=1.0),"
+                   "hybrid(tau=1.0,reinflate=false),hybrid(n_cloud=128,reinflate=false)")
 DT = 0.04  # s, the prediction step (25 Hz)
 EVERY = 5  # predictions per measurement (5 Hz)
 Q_ACC = 0.005**2  # (m/s^2)^2/Hz, the navigation profile's accelerometer noise
@@ -77,7 +78,7 @@ def trial(specs: str, seed: int, trial_no: int, steps: int
                   if k % EVERY == 0 else None)
     lo, hi = chi2.ppf([0.025, 0.975], 3)
     out = {}
-    for sp, flt in build_filters(resolve_list(specs, "attitude", dim=6)):
+    for sp, flt in build_filters(resolve_list(specs, "nav", dim=6)):
         fr = rng(seed, trial_no, filter_stream(sp.label))
         s = flt.init(Gaussian(np.zeros(6), P0), tr.space, fr)
         err, var, nees = [], [], []
@@ -111,10 +112,10 @@ def main() -> None:
         for label, r in trial(a.filters, a.seed, t, a.steps).items():
             rows.setdefault(label, []).append(r)
     print(f"{a.trials} trials x {a.steps} steps of {DT} s, second half; position")
-    print(f"{'filter':28s} {'RMSE cm':>8s} {'std cm':>7s} {'NEES':>7s} {'in95':>5s}")
+    print(f"{'filter':36s} {'RMSE cm':>8s} {'std cm':>7s} {'NEES':>7s} {'in95':>5s}")
     for label, rs in rows.items():
         m = np.mean(rs, axis=0)
-        print(f"{label:28s} {m[0]:8.2f} {m[1]:7.2f} {m[2]:7.2f} {m[3]:5.2f}")
+        print(f"{label:36s} {m[0]:8.2f} {m[1]:7.2f} {m[2]:7.2f} {m[3]:5.2f}")
 
 
 if __name__ == "__main__":

@@ -71,7 +71,13 @@ PRESETS: dict[str, Preset] = {
         {"enkf": {"members": _hybrid_members}, "etkf": {"members": _hybrid_members}},
         match_members=True,
     ),
-    "attitude": Preset("attitude", "uavest replay", {"hybrid": {"n_cloud": 16, "tau": 0.9}}),
+    "attitude": Preset("attitude", "uavest replay / run / demo with the attitude model",
+                       {"hybrid": {"n_cloud": 16, "tau": 0.9}}),
+    # the attitude preset's hybrid, re-spread after each shift: the navigation state's
+    # position, velocity and biases are long-memory states that an ensemble's gain
+    # otherwise shrinks (docs/filters.md, "Long memory")
+    "nav": Preset("nav", "uavest replay / run / demo with the navigation model",
+                  {"hybrid": {"n_cloud": 16, "tau": 0.9, "reinflate": True}}),
     "radar": Preset(
         "radar", "uavest track, uavest bench (radar scenarios)",
         {"hybrid": {"update_mode": "local", "n_cloud": 64}},
@@ -201,7 +207,12 @@ def _changed(spec: FilterSpec) -> str:
     core = parse_spec(spec.name, mode)
     keep = [k for k, v in spec.params.items()
             if k == "update_mode" or core.params.get(k, object()) != v]
-    return f"{spec.name}(" + ", ".join(f"{k}={spec.params[k]}" for k in keep) + ")"
+    return f"{spec.name}(" + ", ".join(f"{k}={_written(spec.params[k])}" for k in keep) + ")"
+
+
+def _written(v: Any) -> str:
+    """A parameter's value as a spec writes it (``true``, not ``True``)."""
+    return str(v).lower() if isinstance(v, bool) else str(v)
 
 
 def describe_presets(names: Sequence[str] = ("hybrid", "enkf", "etkf")) -> str:

@@ -53,7 +53,8 @@ from uavest.models.radar import RadarMeasurement
 # Small ensembles keep the suite fast; the statistical KF test uses large ones.
 BASE_SPECS = [
     "kf", "ekf", "ukf", "ckf", "srukf", "enkf(members=60)", "etkf(members=60)",
-    "hybrid(n_cloud=6)", "hybrid(update_mode=local, n_cloud=6)", "hybrid_literal(n_cloud=6)",
+    "hybrid(n_cloud=6)", "hybrid(n_cloud=6, reinflate=true)",
+    "hybrid(update_mode=local, n_cloud=6)", "hybrid_literal(n_cloud=6)",
     "pf(particles=400)",
 ]
 SH_SPECS = ["ekf_sh", "ukf_sh", "enkf_sh(members=60)", "hybrid_sh(n_cloud=6)"]
@@ -320,6 +321,7 @@ def test_gaussian_filters_equal_kf_on_linear_model(spec, wrap):
 # (2 g^2/(2n+1) + s^2 N/(N+1)) P), so it is tested with the gamma that makes it so.
 STAT_CASES = [
     ("enkf(members=2000)", 0.15), ("etkf(members=200)", 0.15), ("hybrid(n_cloud=300)", 0.15),
+    ("hybrid(n_cloud=300, reinflate=true)", 0.15),
     ("hybrid(update_mode=local, n_cloud=300)", 0.15),
     (f"hybrid_literal(weights=equal, process_noise=members, n_cloud=300, "
      f"gamma={np.sqrt((1 - 0.25 * 300 / 301) * 2.5)})", 0.25),
@@ -399,7 +401,9 @@ def test_rts_terms_on_linear_model_match_analytic_kf(spec, wrap):
     the paired prediction is the filter's own for Gaussian filters."""
     tr, me, prior, Z = LIN
     big = {"enkf(members=60)": "enkf(members=3000)", "etkf(members=60)": "etkf(members=400)",
-           "hybrid(n_cloud=6)": "hybrid(n_cloud=300)", "enkf_sh(members=60)":
+           "hybrid(n_cloud=6)": "hybrid(n_cloud=300)",
+           "hybrid(n_cloud=6, reinflate=true)": "hybrid(n_cloud=300, reinflate=true)",
+           "enkf_sh(members=60)":
            "enkf_sh(members=3000)", "hybrid_sh(n_cloud=6)": "hybrid_sh(n_cloud=300)",
            "hybrid(update_mode=local, n_cloud=6)": "hybrid(update_mode=local, n_cloud=300)"}
     f = build(big.get(spec, spec), wrap)

@@ -202,7 +202,8 @@ def test_bench_enkf_members_match_the_hybrid_of_the_same_run():
 
 
 def test_unknown_preset_and_filter_are_named():
-    with pytest.raises(SpecError, match="unknown preset 'replay'; known: bench, attitude, radar"):
+    with pytest.raises(SpecError,
+                       match="unknown preset 'replay'; known: bench, attitude, nav, radar"):
         presets.resolve("ekf", "replay")
     with pytest.raises(SpecError, match="unknown filter 'nope'"):
         presets.resolve("nope", "bench", dim=1)
@@ -243,6 +244,8 @@ def test_describe_presets_says_what_hybrid_is_in_each_command():
     lines = text.splitlines()
     assert any("attitude" in ln and "uavest replay" in ln for ln in lines)
     assert "hybrid(update_mode=shift, n_cloud=16, tau=0.9)" in text
+    assert "hybrid(update_mode=shift, n_cloud=16, tau=0.9, reinflate=true)" in text
+    assert any("nav" in ln and "navigation model" in ln for ln in lines)
     assert "hybrid(update_mode=local, n_cloud=64)" in text
     assert "members = (2n+1)(n_cloud+1) of the hybrid in the same run" in text
 

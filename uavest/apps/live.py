@@ -740,7 +740,7 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
     source's or the link's :class:`~uavest.ingest.types.IngestStats`)."""
     check_live_config(cfg)
     nav = cfg.model == "nav"
-    specs = (build_filters(resolve_list(cfg.filters, "attitude",
+    specs = (build_filters(resolve_list(cfg.filters, "nav" if nav else "attitude",
                                         dim=nav_dim(cfg.noise) if nav else 6))
              if cfg.filters else [])
     tspecs = (build_filters(resolve_list(cfg.trackers, "radar", dim=TRACKER_DIM))

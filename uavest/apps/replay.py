@@ -178,7 +178,7 @@ def _run_probes(samples: Iterable, cfg: ReplayConfig, params: dict | None, opts:
     :data:`~uavest.engine.gnss_delay.PROBE_MIN_IMU_HZ` leaves both estimates None."""
     from ..engine.gnss_delay import PROBE_MIN_IMU_HZ, estimate_gnss_delay
 
-    (sp, flt), = build_filters(resolve_list((PROBE_FILTER,), "attitude",
+    (sp, flt), = build_filters(resolve_list((PROBE_FILTER,), "nav",
                                             dim=nav_dim(cfg.noise)))
 
     def probe(src: Iterable, prior: float, prior_mag: float):
@@ -557,7 +557,7 @@ def replay_samples(
                                 if "window_used" in delay_doc
                                 and "gnss_vel_window" not in cfg.noise else {}),
                              **bias})
-    specs = build_filters(resolve_list(cfg.filters, "attitude",
+    specs = build_filters(resolve_list(cfg.filters, "nav" if nav else "attitude",
                                        dim=nav_dim(cfg.noise) if nav else 6))
     rng_for = rng_for or (lambda label: rng(cfg.seed, 0, filter_stream(label)))
     runner_cls = NavRunner if nav else FilterRunner

@@ -421,6 +421,22 @@ def _float_vector(z: object, m: int) -> bool:
     return type(z) is np.ndarray and z.dtype == np.float64 and z.shape == (m,)
 
 
+def sampling_shrink(Pyy: Array, R: Array, w: Array) -> float:
+    """The share by which one EnKF shift with a gain from sample moments shrinks the
+    members' spread beyond what the exact gain would, to first order: tr(S^-1 Pyy) / N,
+    with S = Pyy + R the shift's innovation covariance and N = 1 / sum w^2 the effective
+    number of members.
+
+    Why: a state's sample covariance with the predicted measurement carries a sampling
+    error of variance ~ P_xx Pyy / N whatever the true correlation, and the shift removes
+    the square of it as if it were correlation (the "inbreeding" of Houtekamer and
+    Mitchell, "Data assimilation using an ensemble Kalman filter technique", Monthly
+    Weather Review 1998). On a weakly observed, long-memory state (a navigation filter's
+    position, aided through its velocity) nothing refreshes the spread, and the shrink
+    accumulates (docs/filters.md, "Long memory")."""
+    return float(np.trace(np.linalg.solve(Pyy + R, Pyy))) * float(_dot(w, w))
+
+
 class _HybridBase(EnsembleFilter):
     """Sampling, regeneration and prediction shared by :class:`HybridShift` and
     :class:`HybridLocal` (fields declared by the subclasses)."""
@@ -517,6 +533,12 @@ class HybridShift(_HybridBase):
       regen_ess: regenerate when the effective sample size < regen_ess * M (0.5).
       kernel: bandwidth h of the regeneration kernel; members are shrunk by sqrt(1-h^2)
         towards the mean and jittered with N(0, h^2 P), preserving mean and covariance.
+      reinflate: after each EnKF shift, spread the members out about their weighted mean
+        by sqrt(1 + tr(S^-1 Pyy) / N) (:func:`sampling_shrink`): what a gain made from
+        sample moments takes out of the spread beyond the exact gain (False; the
+        navigation preset's hybrid has it on). The members are rebuilt about the prior
+        mean: on a manifold the result differs from the plain shift at second order in
+        the spread, and the compiled kernels are not used.
     ``tau``, ``min_ess``, ``stages``, ``kernel`` have an effect only with confidence
     weights, ``regen_ess`` only with expanded sampling and confidence weights, ``gamma``
     and ``spread`` only with expanded sampling.
@@ -543,6 +565,8 @@ class HybridShift(_HybridBase):
     kernel: float = field(default=0.3, metadata=param(
         "float", lo=0.0, hi=1.0, lo_open=True, when=_CONFIDENCE,
         doc="regeneration kernel bandwidth h"))
+    reinflate: bool = field(default=False, metadata=param(
+        "bool", doc="undo the gain's sampling-error shrink after each shift"))
     name: str = "hybrid"
 
     def __post_init__(self) -> None:
@@ -623,7 +647,7 @@ class HybridShift(_HybridBase):
         the kernel does not apply (more than one stage or shift, a measurement model that
         is not plain on a vector space, a ``z`` that is not the model's float64 vector).
         A failure hands the drawn normals to :meth:`_update_numpy`."""
-        if not (self.stages == self.shifts == 1 and _plain_vector(model)
+        if not (self.stages == self.shifts == 1 and not self.reinflate and _plain_vector(model)
                 and _float_vector(z, model.dim)):
             return None
         M = E.M
@@ -689,11 +713,29 @@ class HybridShift(_HybridBase):
                 A = dY.T * (c * w)
                 K = gain(_dot(A, X).T, _dot(A, dY) + Rt)
             else:
-                dX = space.local(_mean(space, X, w), X)
-                dX = dX - _dot(w, dX)
-                K = gain(_dot(c * (dX.T * w), dY), _dot(c * (dY.T * w), dY) + Rt)
+                if self.reinflate and i == 0 and E.moments is not None:
+                    # the prior's mean and deviations (the estimate's memo), recentred
+                    # below under the update's weights: the new members are built on it
+                    x, L0 = E.moments[0], E.moments[1]
+                else:
+                    x = _mean(space, X, w)
+                    L0 = space.local(x, X)
+                dX = L0 - _dot(w, L0)
+                Pyy = _dot(c * (dY.T * w), dY)
+                K = gain(_dot(c * (dX.T * w), dY), Pyy + Rt)
             V = rng.standard_normal((M, model.dim)) if i or V0 is None else V0
-            X = space.retract(X, _dot(r + _dot(V, Lr.T), K.T))
+            D = _dot(r + _dot(V, Lr.T), K.T)  # each member's shift
+            if not self.reinflate:
+                X = space.retract(X, D)
+            elif flat:
+                X = X + D
+                x = _dot(w, X)
+                X = x + math.sqrt(1.0 + sampling_shrink(_dot(A, dY), Rt, w)) * (X - x)
+            else:  # the shifted members about the prior mean, spread out about their mean
+                D += L0
+                d = _dot(w, D)
+                a = math.sqrt(1.0 + sampling_shrink(Pyy, Rt, w))
+                X = space.retract(x, d + a * (D - d))
         return Ensemble(X, E.space, None if self.weights == "equal" else w), innov
 
 

@@ -67,8 +67,9 @@ SP = NavSpace()
 
 #: the yaw error below which a filter counts as converged (and stays), rad
 CONVERGED_YAW = math.radians(5.0)
-#: the filters' preset: the one ``uavest replay`` uses (hybrid n_cloud = 16, tau = 0.9)
-PRESET = "attitude"
+#: the filters' preset: the one ``uavest replay`` uses with the navigation model (hybrid
+#: n_cloud = 16, tau = 0.9, re-spread after each shift)
+PRESET = "nav"
 #: strength of the simulated Earth field, gauss (declination 0)
 MAG_STRENGTH = 0.48
 

@@ -140,8 +140,11 @@ def plan_logs(paths: list[Path], filters: tuple[str, ...] | list[str] | None = N
     # the model as uavest replay chooses it (per log: navigation with a GNSS fix stream)
     rcfg = ReplayConfig(filters=filters, **{"model": "auto", **(replay or {})})
     specs = resolve_list(list(filters), "attitude", dim=6)
+    # a log with a GNSS fix stream runs them in the navigation preset
+    nav_specs = resolve_list(list(filters), "nav")
     opts = {k: v for k, v in asdict(rcfg).items() if k != "filters"}
-    config = {"kind": "log", "filters": [s.as_dict() for s in specs], "replay": opts,
+    config = {"kind": "log", "filters": [s.as_dict() for s in specs],
+              "filters_nav": [s.as_dict() for s in nav_specs], "replay": opts,
               "version": __version__}
     ch = sha256_text(canonical(config))
     plan = Plan(configs={"logs": config}, config_hashes={"logs": ch})
