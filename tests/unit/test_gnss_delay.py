@@ -392,3 +392,24 @@ def test_the_drift_tells_correlated_fix_errors_from_independent_ones():
     assert exact.long < 0.01 and not exact.correlated  # the trapezoid's own error
     few = _drift_probe(lambda t, r: np.zeros((t.size, 2)), T=1.0)
     assert few.long is None and "too few" in few.why
+
+
+@pytest.mark.parametrize("spread, used", [(0.004, "floor"), (0.1, 0.1), (0.6, 0.2)])
+def test_the_baro_noise_taken_is_the_spread_within_the_floor_and_the_default(spread, used):
+    """The probe's baro spread against the GNSS height becomes the run's baro noise,
+    clipped to [BARO_NOISE_MIN, the source's default]: an ArduPilot SITL's few mm (its
+    GNSS height has no noise) go up to the floor, a real receiver's decimetres down to
+    the default."""
+    from uavest.apps.replay import BARO_NOISE_MIN, ReplayConfig, _baro_doc
+    from uavest.engine.gnss_delay import BaroEstimate
+    from uavest.models.navigation import NavNoise
+
+    best = BaroEstimate(0.08, 0.001, 500, "", spread=spread, noise_default=0.2)
+    doc = _baro_doc(ReplayConfig(model="nav"), best, NavNoise(), "the first 240 s")
+    want = BARO_NOISE_MIN if used == "floor" else used
+    assert doc["noise_used"] == pytest.approx(want)
+    assert 0.005 < BARO_NOISE_MIN <= 0.02  # above a SITL's spread, below a real baro's
+    assert "--noise baro_noise=M" in doc["noise_why"]
+    given = _baro_doc(ReplayConfig(model="nav", noise={"baro_noise": 0.3}), best, NavNoise(),
+                      "the first 240 s")
+    assert "noise_used" not in given  # the option wins
