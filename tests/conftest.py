@@ -42,6 +42,17 @@ from pathlib import Path as _Path  # noqa: E402
 REPO_ROOT = _Path(__file__).resolve().parents[1]
 
 
+def load_benchmark(name: str):
+    """The module ``benchmarks/<name>.py`` (a script, not a package), loaded from its file."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, REPO_ROOT / "benchmarks" / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
 def shared_logs_dir() -> _Path:
     """Where the shared logs are: ``$UAVEST_LOGS`` or ``repo_root/../shared/logs``."""
     env = os.environ.get("UAVEST_LOGS")

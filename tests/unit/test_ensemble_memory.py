@@ -6,22 +6,11 @@ not depend on what runs beside it."""
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
-BENCH = Path(__file__).resolve().parents[2] / "benchmarks" / "ensemble_memory.py"
-
-
-def _bench():
-    spec = importlib.util.spec_from_file_location("ensemble_memory", BENCH)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+from conftest import load_benchmark
 
 
 def test_the_ensembles_position_covariance_shrinks_below_the_kalman_filters():
-    bench = _bench()
+    bench = load_benchmark("ensemble_memory")
     rows = bench.trial("ekf,enkf", 0, 0, 2000)  # (RMSE cm, std cm, NEES mean, in band)
     kf, enkf = rows["ekf"], rows["enkf"]
     assert kf[3] >= 0.8 and 1.0 < kf[2] < 5.0, kf  # the Kalman filter: consistent
@@ -30,7 +19,7 @@ def test_the_ensembles_position_covariance_shrinks_below_the_kalman_filters():
 
 
 def test_the_hybrids_respread_keeps_its_position_covariance_at_the_kalman_filters():
-    bench = _bench()
+    bench = load_benchmark("ensemble_memory")
     rows = bench.trial("ekf,hybrid,hybrid(reinflate=false),hybrid(tau=1.0),"
                        "hybrid(tau=1.0,reinflate=false)", 0, 0, 2000)
     kf = rows["ekf"][1]  # position std, cm
