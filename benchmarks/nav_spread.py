@@ -48,7 +48,7 @@ def spreads(log: str, filters: str, seed: int, skip: float, gnss_delay: float | 
     res = {}
     for lab in labels:
         t, v = per[lab]
-        common, i0, i1 = np.intersect1d(t0, t, return_indices=True)
+        _, i0, i1 = np.intersect1d(t0, t, return_indices=True)
         r = np.median(v[i1] / v0[i0], axis=0)
         res[lab] = (float(r[0]), float(r[1]), float(r[2]), float(np.sqrt(np.mean(v[:, 2]))))
     return res

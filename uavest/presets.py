@@ -42,7 +42,7 @@ from .core.contract import Filter
 from .core.hybrid import default_gamma
 from .core.registry import build as _build
 from .core.registry import filter_class, parse_spec
-from .core.spec import FilterSpec, SpecError, split_filter_list
+from .core.spec import FilterSpec, SpecError, split_filter_list, value_text
 
 #: A dimension-dependent preset value: f(dim, preset name) -> value.
 PerDim = Callable[[int, str], Any]
@@ -207,12 +207,7 @@ def _changed(spec: FilterSpec) -> str:
     core = parse_spec(spec.name, mode)
     keep = [k for k, v in spec.params.items()
             if k == "update_mode" or core.params.get(k, object()) != v]
-    return f"{spec.name}(" + ", ".join(f"{k}={_written(spec.params[k])}" for k in keep) + ")"
-
-
-def _written(v: Any) -> str:
-    """A parameter's value as a spec writes it (``true``, not ``True``)."""
-    return str(v).lower() if isinstance(v, bool) else str(v)
+    return f"{spec.name}(" + ", ".join(f"{k}={value_text(spec.params[k])}" for k in keep) + ")"
 
 
 def describe_presets(names: Sequence[str] = ("hybrid", "enkf", "etkf")) -> str:

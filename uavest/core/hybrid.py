@@ -711,7 +711,8 @@ class HybridShift(_HybridBase):
                 # on a vector space sum_j w_j (X_j - x) dY_j^T = sum_j w_j X_j dY_j^T (the
                 # weighted dY sum to zero), so neither the mean nor dX is needed
                 A = dY.T * (c * w)
-                K = gain(_dot(A, X).T, _dot(A, dY) + Rt)
+                Pyy = _dot(A, dY)
+                K = gain(_dot(A, X).T, Pyy + Rt)
             else:
                 if self.reinflate and i == 0 and E.moments is not None:
                     # the prior's mean and deviations (the estimate's memo), recentred
@@ -730,7 +731,7 @@ class HybridShift(_HybridBase):
             elif flat:
                 X = X + D
                 x = _dot(w, X)
-                X = x + math.sqrt(1.0 + sampling_shrink(_dot(A, dY), Rt, w)) * (X - x)
+                X = x + math.sqrt(1.0 + sampling_shrink(Pyy, Rt, w)) * (X - x)
             else:  # the shifted members about the prior mean, spread out about their mean
                 D += L0
                 d = _dot(w, D)

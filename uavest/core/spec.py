@@ -132,6 +132,11 @@ def _show(v: Any) -> str:
     return repr(v) if isinstance(v, str) else str(v).lower() if isinstance(v, bool) else str(v)
 
 
+def value_text(v: Any) -> str:
+    """A parameter's value as a spec string writes it (``true``, ``shift``, ``0.5``)."""
+    return _show(v).strip(chr(39))
+
+
 # ------------------------------------------------------------------------------- value
 
 
@@ -186,7 +191,7 @@ class FilterSpec:
 
     def text(self) -> str:
         """A spec string that parses back to these parameters."""
-        args = ", ".join(f"{k}={_show(v).strip(chr(39))}" for k, v in self.params.items())
+        args = ", ".join(f"{k}={value_text(v)}" for k, v in self.params.items())
         return f"{self.name}({args})" if args else self.name
 
 
