@@ -72,13 +72,13 @@ from ..ingest.types import (
     PositionSample,
 )
 from ..models.motion import NearlyConstantVelocity
-from ..models.navigation import names_gnss_bias, nav_dim
+from ..models.navigation import names_gnss_bias
 from ..models.radar import RadarMeasurement, SensorPose
 from ..presets import resolve_list, spec_labels
 from ..seeding import filter_stream, rng
 from ..sinks.base import Sink
 from ..tracking.tracker import Tracker, TrackerConfig
-from .replay import _NavScore, _Score, check_attitude_noise
+from .replay import _NavScore, _Score, check_attitude_noise, model_filters
 
 Array = np.ndarray
 
@@ -740,9 +740,7 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
     source's or the link's :class:`~uavest.ingest.types.IngestStats`)."""
     check_live_config(cfg)
     nav = cfg.model == "nav"
-    specs = (build_filters(resolve_list(cfg.filters, "nav" if nav else "attitude",
-                                        dim=nav_dim(cfg.noise) if nav else 6))
-             if cfg.filters else [])
+    specs = model_filters(cfg.filters, nav, cfg.noise) if cfg.filters else []
     tspecs = (build_filters(resolve_list(cfg.trackers, "radar", dim=TRACKER_DIM))
               if cfg.trackers else [])
     runner_cls = NavRunner if nav else FilterRunner

@@ -13,10 +13,10 @@ Every filter's randomness comes from ``uavest.seeding.rng(seed, 0, "filter:<labe
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -52,8 +52,8 @@ if TYPE_CHECKING:
 Array = np.ndarray
 
 __all__ = [
-    "DEFAULT_FILTERS", "ArrayRun", "ReplayConfig", "replay", "replay_arrays", "replay_samples",
-    "samples_from_arrays",
+    "DEFAULT_FILTERS", "ArrayRun", "ReplayConfig", "model_filters", "replay", "replay_arrays",
+    "replay_samples", "samples_from_arrays",
 ]
 
 DEFAULT_FILTERS = ("ekf", "ukf", "hybrid")
@@ -213,6 +213,16 @@ def _run_probes(samples: Iterable, cfg: ReplayConfig, params: dict | None, opts:
         mest = mest2 if mest2.delay is not None or mest.delay is None else mest
         best = best2 if best2.delay is not None or best.delay is None else best
     return est, mest, held, rest, runs, best
+
+
+def model_filters(filters: str | Sequence[str | FilterSpec], nav: bool, noise: dict
+                  ) -> list[tuple[FilterSpec, Any]]:
+    """The filters ``filters`` built for the model a run takes (``uavest replay`` and
+    ``uavest run``): resolved in the ``nav`` preset at the navigation state's dimension for
+    the ``--noise`` overrides ``noise`` (15, or 18 with the GNSS bias states) when ``nav``,
+    else in the ``attitude`` preset at 6; (spec, filter) pairs."""
+    return build_filters(resolve_list(filters, "nav" if nav else "attitude",
+                                      dim=nav_dim(noise) if nav else 6))
 
 
 def check_attitude_noise(noise: dict, where: str) -> None:
@@ -561,8 +571,7 @@ def replay_samples(
                                 if "window_used" in delay_doc
                                 and "gnss_vel_window" not in cfg.noise else {}),
                              **bias})
-    specs = build_filters(resolve_list(cfg.filters, "nav" if nav else "attitude",
-                                       dim=nav_dim(cfg.noise) if nav else 6))
+    specs = model_filters(cfg.filters, nav, cfg.noise)
     rng_for = rng_for or (lambda label: rng(cfg.seed, 0, filter_stream(label)))
     runner_cls = NavRunner if nav else FilterRunner
     runners = [
