@@ -98,6 +98,7 @@ from .nav_align import (
     gnss_acceleration,
     level,
     start_inclination,
+    turn_yaw,
     unaided_start,
     with_gnss_bias,
 )
@@ -418,6 +419,12 @@ class NavStream(StreamSnapshots):
         self._mref: Array | None = None
         self._decl_pending = False
         self._decl_seen: tuple[int, bool] | None = None
+        #: the yaw turn (rad) a declination learnt after the start asks of the filters
+        #: (a restart before the next step, :func:`~uavest.engine.nav_align.turn_yaw`)
+        self._yaw_turn = 0.0
+        #: a fix has shown a ground speed of ``yaw_speed`` or more: the GNSS has had a say
+        #: in the yaw, which a declination learnt now does not turn
+        self._moved = False
 
     @property
     def gnss_source(self) -> str | None:
@@ -769,16 +776,31 @@ class NavStream(StreamSnapshots):
                 if fix is not None:
                     out += self._anchor(r, fix)
                 else:
+                    out += self._restarts(r)
                     out.append(self._step(r, [a for a in aids if a.sensor != "gnss"]))
             else:
-                if self._bias_pending:
-                    self._bias_pending = False
-                    n = self.noise
-                    x, P = with_gnss_bias(np.r_[1.0, np.zeros(15)], np.eye(15), n, False)
-                    out.append(Start(self._stamp(r), Gaussian(x, P), self.space,
-                                     reason="GNSS bias states",
-                                     augment=partial(add_gnss_bias, noise=n)))
+                out += self._restarts(r)
                 out.append(self._step(r, aids))
+        return out
+
+    def _restarts(self, r: _Raw) -> list[Start]:
+        """The restarts due before the step of ``r``, each from every filter's running
+        estimate: the yaw turned by a declination learnt since the last step
+        (:meth:`_check_declination`), the GNSS bias states appended once set
+        (:meth:`set_gnss_bias`)."""
+        out: list[Start] = []
+        if self._decl_pending:
+            self._check_declination(r.t)
+        x, P = with_gnss_bias(np.r_[1.0, np.zeros(15)], np.eye(15), self.noise, False)
+        if self._yaw_turn:
+            a, self._yaw_turn = self._yaw_turn, 0.0
+            out.append(Start(self._stamp(r), Gaussian(x, P), self.space,
+                             reason="declination", augment=partial(turn_yaw, angle=a)))
+        if self._bias_pending:
+            self._bias_pending = False
+            out.append(Start(self._stamp(r), Gaussian(x, P), self.space,
+                             reason="GNSS bias states",
+                             augment=partial(add_gnss_bias, noise=self.noise)))
         return out
 
     def _try_start(self, r: _Raw, aids: list[_Aid]) -> list[Start | Step]:
@@ -924,22 +946,30 @@ class NavStream(StreamSnapshots):
         if decl is None:
             return
         self._decl_pending = False
+        turn = float(decl) - self.declination
         self.declination = float(decl)
         if self._mref is not None:
             self._mref = mag_reference(self.declination, float(np.arcsin(self._mref[2])))
         self.summary.update(declination_rad=self.declination, declination_source=src,
                             declination_from_t=float(t))
+        if self._mag is not None and not self._moved and turn:
+            # the yaw so far is the magnetometer's at the old declination: turned with it
+            self._yaw_turn += turn
+            src += (f"; the yaw turned by {np.degrees(turn):+.2f} deg with it (from the "
+                    "magnetometer alone so far: no fix at "
+                    f"{self.opts.yaw_speed:g} m/s or more yet)")
         self._decide("declination", f"{np.degrees(self.declination):.2f} deg", t, src)
 
     # ------------------------------------------------------------------ steps
     def _step(self, r: _Raw, aids: list[_Aid]) -> Step:
-        if self._decl_pending:
-            self._check_declination(r.t)
         n = self.noise
         assert self._model is not None and r.a is not None
         ups: list[tuple[Array, Any]] = []
         sensors: list[str] = []
         fix = next((a for a in reversed(aids) if a.sensor == "gnss"), None)
+        if fix is not None and fix.gnss is not None and not self._moved:
+            v = np.asarray(fix.gnss.vel_ned, float)
+            self._moved = bool(np.hypot(v[0], v[1]) >= self.opts.yaw_speed)
         stamp = self._stamp(r)
         carry = None
         if self.vel_window > 0:
