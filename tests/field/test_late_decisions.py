@@ -50,3 +50,36 @@ def test_declination_known_at_the_start_is_not_changed():
     st.flush()
     assert [d["t"] for d in st.decisions if d["what"] == "declination"] == [0.0]
     assert st.declination == 0.1
+
+
+def test_a_late_declination_turns_the_attitude_filters_yaw_at_once():
+    """The attitude model's yaw is the magnetometer's: a declination that comes after the
+    alignment restarts every filter from its running estimate with the yaw turned by it
+    (one Start, reason "declination"), so the yaw is right from the next step rather than
+    after the mag updates have pulled it there (and the gyro bias with it)."""
+    from uavest.engine.build import build_filters
+    from uavest.engine.loop import Lane, run_lanes
+    from uavest.engine.runner import FilterRunner
+    from uavest.geometry.rotation import quat_to_euler
+    from uavest.presets import resolve_list
+    from uavest.sinks.base import Collector
+
+    def params_at(samples, params):
+        for s in samples:
+            if s.t >= 5.0 and "COMPASS_DEC" not in params:
+                params.update(COMPASS_DEC=0.2, COMPASS_AUTODEC=0)
+            yield s
+
+    params: dict = {}
+    st = AttitudeStream(opts=AttitudeOptions(), params=params)
+    (sp, flt), = build_filters(resolve_list(["ekf"], "attitude", dim=6))
+    runner = FilterRunner(sp.label, flt, np.random.default_rng(0))
+    coll = Collector()
+    run_lanes(params_at(_samples(), params), [Lane(st, [runner])], [coll])
+    a = coll.arrays("ekf")
+    yaw = quat_to_euler(a["x"][:, :4])[:, 2]
+    before, after = yaw[(a["t"] > 4.0) & (a["t"] < 4.9)], yaw[(a["t"] > 5.1) & (a["t"] < 6.0)]
+    assert np.abs(before).max() < 0.01  # the magnetometer's at 0
+    assert np.abs(after - 0.2).max() < 0.01  # turned at once
+    reasons = [d for d in st.decisions if d["what"] == "declination"]
+    assert "the yaw turned by +11.46 deg" in reasons[-1]["why"]

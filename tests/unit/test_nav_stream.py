@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from uavest.engine import navigation
+from uavest.engine import attitude, navigation
 from uavest.engine.build import build_filters
 from uavest.engine.loop import Lane, run_lanes
 from uavest.engine.nav_aiding import _Aid
@@ -374,7 +374,7 @@ def test_a_declination_learnt_at_rest_turns_the_yaw_with_it(spec, monkeypatch):
     got = {}
     for how in ("known", "turned", "not turned"):
         if how == "not turned":  # the restart keeps the yaw (the stream before the turn)
-            monkeypatch.setattr(navigation, "turn_yaw", lambda g, angle: g)
+            monkeypatch.setattr(attitude, "turn_yaw", lambda g, angle: g)
         params: dict = ({"COMPASS_DEC": dec, "COMPASS_AUTODEC": 0} if how == "known"
                         else {})
         src = samples if how == "known" else _late_declination(samples, params, 110.0, dec)
@@ -407,7 +407,7 @@ def test_turn_yaw_turns_the_attitude_about_down_only():
     """``turn_yaw``: yaw + angle, roll and pitch, velocity, position, biases and the
     covariance (the body-frame tangent) as they were."""
     from uavest.core.gaussian import Gaussian
-    from uavest.engine.nav_align import turn_yaw
+    from uavest.engine.attitude import turn_yaw
     from uavest.geometry.rotation import quat_to_euler
 
     rng = np.random.default_rng(4)

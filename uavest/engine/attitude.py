@@ -52,13 +52,23 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import numpy as np
 
 from ..core.gaussian import Gaussian
 from ..errors import InputError
-from ..geometry.rotation import G0, AttitudeSpace, qexp_f, qlog_f, qmul_f, quat_exp, quat_rotate
+from ..geometry.rotation import (
+    G0,
+    AttitudeSpace,
+    qexp_f,
+    qlog_f,
+    qmul_f,
+    quat_exp,
+    quat_mul,
+    quat_rotate,
+)
 from ..ingest.api import choose_source
 from ..ingest.semantics import default_integration
 from ..ingest.types import (
@@ -352,6 +362,84 @@ def _preintegrate(t0: float, block: list[ImuSample], g0: Array | None = None
     return qlog_f(q)
 
 
+def turn_yaw(g: Any, angle: float) -> Any:
+    """A running estimate ``g`` (a Gaussian whose state starts with the body-to-NED
+    attitude quaternion: the attitude and the navigation states) turned about the NED
+    down axis by ``angle`` (rad, east of north positive): ``q -> q_z(angle) q``, the rest
+    of the state and the covariance as they are (the attitude's tangent is in the body
+    frame). For a declination learnt after the start while the yaw came from the
+    magnetometer alone (:class:`LateDeclination`): the filter's yaw is then off by the
+    declination's change, which its updates would take out over tens of seconds,
+    through its gyro bias."""
+    x = np.array(g.x, float)
+    qz = np.array([np.cos(0.5 * angle), 0.0, 0.0, np.sin(0.5 * angle)])
+    x[:4] = quat_mul(qz, x[:4])
+    return type(g)(x, np.array(g.P, float))
+
+
+class LateDeclination:
+    """The declination a stream's source gives only after the start (no parameter yet,
+    automatic declination before the GNSS fix: :func:`declination_and_source`), taken when
+    it comes (:meth:`_check_declination`, while ``_decl_pending``), the magnetic reference
+    turned with it; while the stream's yaw is the magnetometer's alone
+    (:meth:`_yaw_from_mag`) the filters' yaw is turned with it too, by a restart from
+    their running estimates before the next step (:meth:`_turn_start`)."""
+
+    params: Any
+    opts: Any
+    space: Any
+    summary: dict[str, Any]
+    declination: float
+    _mref: Array | None
+    _mag: str | None
+    _decl_pending: bool
+    _decl_seen: tuple[int, bool] | None
+    #: the yaw turn (rad) a declination learnt since the last step asks of the filters
+    _yaw_turn: float
+
+    def _decide(self, what: str, value: Any, t: float, why: str) -> None:
+        raise NotImplementedError
+
+    def _yaw_from_mag(self) -> tuple[bool, str]:
+        """(the filters' yaw so far is the magnetometer's alone, the words saying why)."""
+        return self._mag is not None, "the magnetometer's"
+
+    def _check_declination(self, t: float) -> None:
+        """Take the source's declination once its parameters give one (at ``t`` s)."""
+        key = (len(self.params), bool(getattr(self.params, "geo", None)))
+        if key == self._decl_seen:
+            return
+        self._decl_seen = key
+        decl, src = declination_and_source(self.params)
+        if decl is None:
+            return
+        self._decl_pending = False
+        turn = float(decl) - self.declination
+        self.declination = float(decl)
+        if self._mref is not None:
+            self._mref = mag_reference(self.declination, float(np.arcsin(self._mref[2])))
+        self.summary.update(declination_rad=self.declination, declination_source=src,
+                            declination_from_t=float(t))
+        alone, what = self._yaw_from_mag()
+        if alone and turn:  # the yaw so far is the magnetometer's at the old declination
+            self._yaw_turn += turn
+            src += f"; the yaw turned by {np.degrees(turn):+.2f} deg with it ({what})"
+        self._decide("declination", f"{np.degrees(self.declination):.2f} deg", t, src)
+
+    def _turn_start(self, t: float, t0: float, prior: Gaussian) -> list[Start]:
+        """Before the step ending at ``t`` (s), from ``t0`` (s): the declination's check
+        while it is pending, then the restart at ``t0`` that turns the yaw if one is due
+        (``prior`` of the state's size: the restart takes each filter's running estimate,
+        :func:`turn_yaw`)."""
+        if self._decl_pending:
+            self._check_declination(t)
+        if not self._yaw_turn:
+            return []
+        a, self._yaw_turn = self._yaw_turn, 0.0
+        return [Start(t0, prior, self.space, reason="declination",
+                      augment=partial(turn_yaw, angle=a))]
+
+
 class StreamSnapshots:
     """``snapshot`` / ``restore`` of a step builder (:class:`AttitudeStream`,
     :class:`~uavest.engine.navigation.NavStream`) for the engine's history
@@ -400,7 +488,7 @@ def choose_imu(held: Sequence[Sample], imu: str | None, use_mag: bool
     return imu, imu_counts, mag, mag_counts
 
 
-class AttitudeStream(StreamSnapshots):
+class AttitudeStream(LateDeclination, StreamSnapshots):
     """One :class:`Start` then :class:`Step` s from a sample stream (see the module
     docstring). Push samples one at a time (:meth:`push`, :meth:`flush`: each returns the
     items it completed), or iterate it over ``samples``. :attr:`summary` describes what
@@ -441,6 +529,7 @@ class AttitudeStream(StreamSnapshots):
         self._decl_pending = False  # declination unknown so far: take it when it arrives
         self._gap: _Gap | None = None  # an IMU gap waiting for its first step after it
         self._decl_seen: tuple[int, bool] | None = None  # (params size, geo) last looked at
+        self._yaw_turn = 0.0  # LateDeclination
         #: other IMU sources seen after the set-up: name -> [samples since the chosen IMU's
         #: last sample, first time, last time, samples in all] (the failover's evidence)
         self._other_imu: dict[str, list[float]] = {}
@@ -547,14 +636,15 @@ class AttitudeStream(StreamSnapshots):
                 elif self._gap is not None and r.a is not None:
                     out += self._realign(r)
                 else:
-                    out.append(self._step(r))
+                    out += self._steps(r)
             return out
         steps = [r for r in raws if not isinstance(r, _Gap)]  # in the alignment: no filter yet
         for i, r in enumerate(steps):
             self._align.append(r)
             if r.t > self._first.t + self.opts.align_s:
                 out += self._start()
-                out += [self._step(x) for x in steps[i + 1:]]
+                for x in steps[i + 1:]:
+                    out += self._steps(x)
                 break
         return out
 
@@ -595,7 +685,7 @@ class AttitudeStream(StreamSnapshots):
                      + (", gyro biases from zero (another sensor)" if switched
                         else ", gyro biases kept"))
         return [Start(r.t0, prior, self.space, reason="imu switch" if switched else "gap",
-                      keep_tail=0 if switched else 3), self._step(r)]
+                      keep_tail=0 if switched else 3), *self._steps(r)]
 
     def _failover(self, s: ImuSample) -> list[Start | Step] | None:
         """The IMU choice re-decided when the evidence arrives: the chosen IMU has been
@@ -644,27 +734,13 @@ class AttitudeStream(StreamSnapshots):
         self._decide("acceleration compensation", f"on ({s.source})", s.t,
                      f"first valid velocity from {s.source}")
 
-    def _check_declination(self, t: float) -> None:
-        """A declination unknown at the alignment (no parameter yet, automatic declination
-        before the GNSS fix) is taken when the source's parameters give one."""
-        key = (len(self.params), bool(getattr(self.params, "geo", None)))
-        if key == self._decl_seen:
-            return
-        self._decl_seen = key
-        decl, src = declination_and_source(self.params)
-        if decl is None:
-            return
-        self._decl_pending = False
-        self.declination = decl
-        if self._mref is not None:
-            self._mref = mag_reference(decl, float(np.arcsin(self._mref[2])))
-        self.summary.update(declination_rad=decl, declination_source=src,
-                            declination_from_t=float(t))
-        self._decide("declination", f"{np.degrees(decl):.2f} deg", t, src)
+    def _steps(self, r: _Raw) -> list[Start | Step]:
+        """The step of ``r``, after the restart a declination learnt since asks
+        (:meth:`LateDeclination._turn_start`)."""
+        prior = Gaussian(np.r_[1.0, np.zeros(6)], np.eye(6))
+        return [*self._turn_start(r.t, r.t0, prior), self._step(r)]
 
     def _step(self, r: _Raw) -> Step:
-        if self._decl_pending:
-            self._check_declination(r.t)
         self._k += 1
         return Step(self._k, r.t, r.t - r.t0, self._model, self._updates(r, self._mref), r.w)
 
@@ -814,7 +890,7 @@ class AttitudeStream(StreamSnapshots):
                      + (", yaw from the magnetometer" if mag0 is not None and self._mag
                         else ", yaw 0 (no magnetometer)")
                      + f"; {len(align)} steps of the {o.align_s:g} s window held")
-        return [start, *(self._step(r) for r in align)]
+        return [start, *(x for r in align for x in self._steps(r))]
 
     def _finish_summary(self) -> None:
         n, t0, t1 = self._imu_n

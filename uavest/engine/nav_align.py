@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from ..geometry.rotation import euler_to_quat, quat_mul, quat_rotate, quat_rotate_inv, wrap_pi
+from ..geometry.rotation import euler_to_quat, quat_rotate, quat_rotate_inv, wrap_pi
 from ..models.attitude import inclination_from_params, inclination_from_samples
 from ..models.navigation import NavNoise
 from .attitude import _Raw
@@ -185,20 +185,6 @@ def add_gnss_bias(g: Any, noise: NavNoise) -> Any:
     x, P = with_gnss_bias(np.asarray(g.x, float)[:16], np.asarray(g.P, float)[:15, :15],
                           noise, from_fix=True)
     return type(g)(x, P)
-
-
-def turn_yaw(g: Any, angle: float) -> Any:
-    """A running navigation estimate ``g`` (a Gaussian) turned about the NED down axis by
-    ``angle`` (rad, east of north positive): the attitude ``q -> q_z(angle) q``; the
-    velocity, position and biases as they are, and the covariance too (the attitude's
-    tangent is in the body frame, :class:`~uavest.geometry.navigation.NavSpace`). For a
-    declination learnt after the start while the yaw came from the magnetometer alone:
-    the filter's yaw is then off by the declination's change, which its updates would
-    take out over tens of seconds, through its gyro bias."""
-    x = np.array(g.x, float)
-    qz = np.array([np.cos(0.5 * angle), 0.0, 0.0, np.sin(0.5 * angle)])
-    x[:4] = quat_mul(qz, x[:4])
-    return type(g)(x, np.array(g.P, float))
 
 
 def with_gnss_bias(x: Array, P: Array, noise: NavNoise, from_fix: bool) -> tuple[Array, Array]:

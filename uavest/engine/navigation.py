@@ -80,6 +80,7 @@ from ..models.navigation import (
 from .attitude import (
     GAP_MEDIANS,
     GAP_MIN_S,
+    LateDeclination,
     StreamSnapshots,
     _Gap,
     _Raw,
@@ -98,7 +99,6 @@ from .nav_align import (
     gnss_acceleration,
     level,
     start_inclination,
-    turn_yaw,
     unaided_start,
     with_gnss_bias,
 )
@@ -344,7 +344,7 @@ def split_step(r: _Raw, max_step: float) -> list[_Raw]:
     return out
 
 
-class NavStream(StreamSnapshots):
+class NavStream(LateDeclination, StreamSnapshots):
     """One :class:`Start` then navigation :class:`Step` s from a sample stream (module
     docstring). :meth:`push` / :meth:`flush` return the items they completed; iterating
     runs over ``samples``. :attr:`summary` has the keys of the attitude stream's summary
@@ -419,9 +419,7 @@ class NavStream(StreamSnapshots):
         self._mref: Array | None = None
         self._decl_pending = False
         self._decl_seen: tuple[int, bool] | None = None
-        #: the yaw turn (rad) a declination learnt after the start asks of the filters
-        #: (a restart before the next step, :func:`~uavest.engine.nav_align.turn_yaw`)
-        self._yaw_turn = 0.0
+        self._yaw_turn = 0.0  # LateDeclination
         #: a fix has shown a ground speed of ``yaw_speed`` or more: the GNSS has had a say
         #: in the yaw, which a declination learnt now does not turn
         self._moved = False
@@ -788,14 +786,8 @@ class NavStream(StreamSnapshots):
         estimate: the yaw turned by a declination learnt since the last step
         (:meth:`_check_declination`), the GNSS bias states appended once set
         (:meth:`set_gnss_bias`)."""
-        out: list[Start] = []
-        if self._decl_pending:
-            self._check_declination(r.t)
         x, P = with_gnss_bias(np.r_[1.0, np.zeros(15)], np.eye(15), self.noise, False)
-        if self._yaw_turn:
-            a, self._yaw_turn = self._yaw_turn, 0.0
-            out.append(Start(self._stamp(r), Gaussian(x, P), self.space,
-                             reason="declination", augment=partial(turn_yaw, angle=a)))
+        out = self._turn_start(r.t, self._stamp(r), Gaussian(x, P))
         if self._bias_pending:
             self._bias_pending = False
             out.append(Start(self._stamp(r), Gaussian(x, P), self.space,
@@ -937,28 +929,13 @@ class NavStream(StreamSnapshots):
                 self.summary["inclination_rad"] = float(inc)
                 self._decide("inclination", f"{np.degrees(inc):.2f} deg", r.t, why)
 
-    def _check_declination(self, t: float) -> None:
-        key = (len(self.params), bool(getattr(self.params, "geo", None)))
-        if key == self._decl_seen:
-            return
-        self._decl_seen = key
-        decl, src = declination_and_source(self.params)
-        if decl is None:
-            return
-        self._decl_pending = False
-        turn = float(decl) - self.declination
-        self.declination = float(decl)
-        if self._mref is not None:
-            self._mref = mag_reference(self.declination, float(np.arcsin(self._mref[2])))
-        self.summary.update(declination_rad=self.declination, declination_source=src,
-                            declination_from_t=float(t))
-        if self._mag is not None and not self._moved and turn:
-            # the yaw so far is the magnetometer's at the old declination: turned with it
-            self._yaw_turn += turn
-            src += (f"; the yaw turned by {np.degrees(turn):+.2f} deg with it (from the "
-                    "magnetometer alone so far: no fix at "
-                    f"{self.opts.yaw_speed:g} m/s or more yet)")
-        self._decide("declination", f"{np.degrees(self.declination):.2f} deg", t, src)
+    def _yaw_from_mag(self) -> tuple[bool, str]:
+        """:meth:`LateDeclination._yaw_from_mag`: until a fix has shown a ground speed of
+        ``yaw_speed`` (the GNSS then has had a say in the yaw, which a declination learnt
+        now does not turn)."""
+        return (self._mag is not None and not self._moved,
+                f"from the magnetometer alone so far: no fix at {self.opts.yaw_speed:g} m/s "
+                "or more yet")
 
     # ------------------------------------------------------------------ steps
     def _step(self, r: _Raw, aids: list[_Aid]) -> Step:
