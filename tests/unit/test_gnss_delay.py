@@ -400,8 +400,8 @@ def test_the_baro_noise_taken_is_the_spread_within_the_floor_and_the_default(spr
     clipped to [BARO_NOISE_MIN, the source's default]: an ArduPilot SITL's few mm (its
     GNSS height has no noise) go up to the floor, a real receiver's decimetres down to
     the default."""
-    from uavest.apps.replay import BARO_NOISE_MIN, ReplayConfig, _baro_doc
-    from uavest.engine.gnss_delay import BaroEstimate
+    from uavest.apps.replay import ReplayConfig, _baro_doc
+    from uavest.engine.gnss_delay import BARO_NOISE_MIN, BaroEstimate
     from uavest.models.navigation import NavNoise
 
     best = BaroEstimate(0.08, 0.001, 500, "", spread=spread, noise_default=0.2)

@@ -86,3 +86,33 @@ def test_live_run_estimates_the_gnss_delay_window_and_baro_delay_and_uses_them()
     assert a["vel_rmse_ms"] < 0.5 * b["vel_rmse_ms"], (a, b)
     assert a["hpos_rmse_m"] < 0.5 * b["hpos_rmse_m"], (a, b)
     assert a["roll_rmse_deg"] < b["roll_rmse_deg"] and a["pitch_rmse_deg"] < b["pitch_rmse_deg"]
+
+
+@pytest.mark.slow  # two navigation runs over a 206 s log
+def test_a_live_run_started_with_a_previous_runs_aiding_has_the_takeoffs_tilt(tmp_path):
+    """``--aiding-from``: a run started with the GNSS delay, velocity window and baro noise
+    a previous run learned (its JSON result, as written) has them from its first step,
+    where the previous run had them only 60 s in, after the takeoff: its pitch is that of
+    a run that knew them (logs/sitl_copter.tlog, airborne EKF: 0.18 -> 0.09 deg), its
+    NEES in band, and it still learns its own delay and window."""
+    from uavest.apps.aiding import read_aiding
+    from uavest.sinks.jsonout import write_json
+
+    first = _run()
+    path = write_json(tmp_path / "first.json", first)
+    aiding, why = read_aiding(path)
+    assert set(aiding) == {"gnss_delay", "gnss_vel_window", "baro_noise"}, aiding
+    learned = first["gnss_delay_live"]
+    assert aiding["gnss_delay"] == pytest.approx(learned["delay"])
+    assert aiding["gnss_vel_window"] == pytest.approx(learned["window"])
+    # the SITL's baro is a few mm from its noiseless GNSS height: the floor
+    assert learned["baro_spread"] < 0.01 and aiding["baro_noise"] == pytest.approx(0.02)
+    second = _run(aiding=aiding, aiding_why=why)
+    a, b = (d["attitude"]["ekf"]["airborne"] for d in (first, second))
+    assert b["pitch_rmse_deg"] < 0.7 * a["pitch_rmse_deg"], (a, b)
+    assert min(b["nees"][k]["in_band95"] for k in ("attitude", "velocity", "position")) > 0.8
+    said = [d for d in second["decisions"] if d["what"] == "GNSS delay"]
+    assert "from --aiding-from: a live run's" in said[0]["why"], said
+    assert "estimated live" in said[-1]["why"], said
+    noise = [d for d in second["decisions"] if d["what"] == "baro noise"]
+    assert noise and "first.json" in noise[0]["why"], noise

@@ -157,6 +157,12 @@ class LiveConfig:
     #: (None: the option; ``uavest demo``: its simulator's sensor spec)
     noise: dict = field(default_factory=dict)
     noise_why: str | None = None
+    #: navigation: what a previous result of the vehicle learned (``--aiding-from``,
+    #: :func:`~uavest.apps.aiding.read_aiding`: the GNSS delay and velocity window, the
+    #: baro noise) to start with where the options leave it open (the run still learns
+    #: its own), and where it came from
+    aiding: dict = field(default_factory=dict)
+    aiding_why: str | None = None
 
     @property
     def on_arrival(self) -> bool:
@@ -727,6 +733,27 @@ def check_live_config(cfg: LiveConfig) -> None:
         check_attitude_noise(cfg.noise, "(--model nav to use it)")
 
 
+def nav_options(cfg: LiveConfig, declination: float | None) -> NavOptions:
+    """The navigation stream's options of a live run: ``cfg``'s, with ``declination``
+    (rad; None: the source's parameters), and what ``cfg.aiding`` gives where the options
+    leave it open (:func:`~uavest.apps.aiding.read_aiding`; each with ``cfg.aiding_why``)."""
+    a, noise = cfg.aiding, dict(cfg.noise)
+    kept = f"from --aiding-from: {cfg.aiding_why}"
+    why = f"{kept}; this run's own estimate replaces it once learnt"
+    gnss_delay, gnss_why = cfg.gnss_delay, cfg.gnss_delay_why
+    if gnss_delay is None and "gnss_delay" in a:
+        gnss_delay, gnss_why = a["gnss_delay"], why
+    from_file = {k: a[k] for k in ("gnss_vel_window", "baro_noise") if k in a and k not in noise}
+    noise.update(from_file)
+    return NavOptions(rate_hz=cfg.rate_hz, declination=declination, gnss_delay=gnss_delay,
+                      gnss_delay_why=gnss_why, on_arrival=cfg.on_arrival,
+                      geodesy=cfg.geodesy, noise=noise,
+                      mag_noise_why=cfg.noise_why if "mag_noise" in cfg.noise else None,
+                      baro_noise_why=kept if "baro_noise" in from_file else None,
+                      gnss_vel_window_why=why if "gnss_vel_window" in from_file else None,
+                      gnss_bias_why=cfg.noise_why if names_gnss_bias(cfg.noise) else None)
+
+
 def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
                 declination: Callable[[], float | None] | None = None, sinks=(),
                 info: RunInfo | None = None, link=None, status: bool | None = None,
@@ -814,17 +841,7 @@ def _stream_factory(cfg: LiveConfig, params: dict | None,
     def make_stream() -> AttitudeStream | NavStream:
         d = declination() if declination is not None else None
         if cfg.model == "nav":
-            return NavStream(opts=NavOptions(rate_hz=cfg.rate_hz, declination=d,
-                                             gnss_delay=cfg.gnss_delay,
-                                             gnss_delay_why=cfg.gnss_delay_why,
-                                             on_arrival=cfg.on_arrival,
-                                             geodesy=cfg.geodesy, noise=dict(cfg.noise),
-                                             mag_noise_why=(cfg.noise_why if "mag_noise"
-                                                            in cfg.noise else None),
-                                             gnss_bias_why=(cfg.noise_why if
-                                                            names_gnss_bias(cfg.noise)
-                                                            else None)),
-                             params=params)
+            return NavStream(opts=nav_options(cfg, d), params=params)
         return AttitudeStream(opts=AttitudeOptions(rate_hz=cfg.rate_hz, update_hz=cfg.update_hz,
                                                      declination=d, noise=dict(cfg.noise),
                                                      on_arrival=cfg.on_arrival),

@@ -23,6 +23,7 @@ import numpy as np
 from ..core.spec import FilterSpec
 from ..engine.attitude import AttitudeOptions, AttitudeStream
 from ..engine.build import build_filters
+from ..engine.gnss_delay import baro_noise_from_spread
 from ..engine.loop import Lane, run_lanes
 from ..engine.navigation import NavNotStarted, NavOptions, NavRunner, NavStream
 from ..engine.records import RunInfo, StepRecord, package_versions
@@ -125,15 +126,6 @@ PROBE_REFINE_S = 0.03
 #: 0.05; 0.066 with the true inclination at 0.01), while the SITL flight's (0.06 deg off)
 #: gained (yaw 0.22 deg at 0.02, 0.40 at 0.05).
 MAG_NOISE_MIN = 0.05
-#: The baro noise taken from the probe's spread is at least this (m) and at most the
-#: IMU source's default: the spread is against the GNSS height, which an ArduPilot SITL
-#: gives without noise (4-5 mm on its flights), and a real baro's noise changes with the
-#: airflow round the vehicle, which a stretch of the flight may not show. A real
-#: receiver's height noise (decimetres) puts the spread above it. With 0.05 the EKF's
-#: replayed position NEES was in band on 0.668-0.919 of the airborne steps of six
-#: ArduCopter SITL flights (under-confident), with 0.02 on 0.808-0.950
-#: (docs/navigation.md, "The baro noise floor").
-BARO_NOISE_MIN = 0.02
 
 
 def probe_gnss_delay(samples: Iterable, cfg: ReplayConfig, params: dict | None
@@ -304,7 +296,8 @@ def _window_doc(est: DelayEstimate, at: str = "") -> dict:
 def _baro_doc(cfg: ReplayConfig, best: BaroEstimate, noise: NavNoise, span: str) -> dict:
     """The barometer part of the probe's document: the estimate, and what the run takes
     from it where ``cfg`` leaves it open (the delay; the noise, the spread clipped to
-    [:data:`BARO_NOISE_MIN`, the IMU source's default]) with why."""
+    [:data:`~uavest.engine.gnss_delay.BARO_NOISE_MIN`, the IMU source's default]) with
+    why."""
     from ..engine.gnss_delay import delay_used
 
     b: dict = {"delay": best.delay, "sd": best.sd, "samples": best.samples,
@@ -323,10 +316,8 @@ def _baro_doc(cfg: ReplayConfig, best: BaroEstimate, noise: NavNoise, span: str)
                          "--baro-delay S to set it)")
     if "baro_noise" not in cfg.noise and best.spread is not None:
         top = float(best.noise_default or noise.baro_noise)
-        b["noise_used"] = float(np.clip(best.spread, BARO_NOISE_MIN, max(top, BARO_NOISE_MIN)))
-        b["noise_why"] = (f"estimated: the spread of the baro height against the GNSS "
-                          f"height at that delay, {best.spread:.3f} m, within "
-                          f"[{BARO_NOISE_MIN:g}, {top:g}] m (--noise baro_noise=M to set it)")
+        b["noise_used"], why = baro_noise_from_spread(best.spread, top)
+        b["noise_why"] = f"estimated: {why}"
     return b
 
 

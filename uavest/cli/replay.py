@@ -402,7 +402,8 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
                    "log has too little manoeuvring)")
     p.add_argument("--baro-delay", type=float, default=None, metavar="S",
                    help="navigation model: barometer measurement delay in s, a reading "
-                   "stamped t applied to the height at t - S (default 0; not estimated)")
+                   "stamped t applied to the height at t - S (default: estimated from the "
+                   "log against the GNSS height; 0 when the log has too little climbing)")
     add_geodesy_option(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_recording_options(p)

@@ -77,6 +77,11 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="with --model nav: the GNSS measurement delay, s (default: "
                    "estimated during the run from 60 s after its first step, the model's 0 "
                    "until then)")
+    p.add_argument("--aiding-from", metavar="FILE",
+                   help="with --model nav: start with what a previous run or replay of this "
+                   "vehicle learned (its --json result): the GNSS delay and velocity window "
+                   "and the baro noise; the run still learns its own and takes them when it "
+                   "has them, and options given here win (docs/live.md)")
     p.add_argument("--noise", action="append", default=[], metavar="KEY=VALUE",
                    help="override a noise parameter of the model (repeatable), e.g. --noise "
                    "mag_noise=0.01 (names and units: docs/navigation.md, docs/attitude.md)")
@@ -119,6 +124,14 @@ def _cfg(args, connect: str) -> LiveConfig:
                                              and args.gnss_delay >= 0):
         raise InputError(f"--gnss-delay must be a finite number of seconds >= 0, got "
                          f"{args.gnss_delay}")
+    aiding, aiding_why = {}, None
+    if getattr(args, "aiding_from", None):
+        if args.model != "nav":
+            raise InputError("--aiding-from needs --model nav (it carries the navigation "
+                             "model's aiding)")
+        from ..apps.aiding import read_aiding
+
+        aiding, aiding_why = read_aiding(args.aiding_from)
     if args.duration is not None and not args.duration > 0:
         raise InputError(f"--duration must be > 0 s, got {args.duration}")
     for name, v in (("rate", args.rate), ("update-rate", getattr(args, "update_rate", None))):
@@ -134,7 +147,8 @@ def _cfg(args, connect: str) -> LiveConfig:
         duration=args.duration, rate_hz=args.rate,
         update_hz=getattr(args, "update_rate", None),
         radar_source=args.radar_source, radar=_radar(args), model=args.model,
-        gnss_delay=args.gnss_delay, geodesy=args.geodesy, noise=parse_noise(args.noise))
+        gnss_delay=args.gnss_delay, geodesy=args.geodesy, noise=parse_noise(args.noise),
+        aiding=aiding, aiding_why=aiding_why)
 
 
 def format_live(doc: dict) -> str:

@@ -49,10 +49,11 @@ from .records import Start, Step
 
 Array = np.ndarray
 
-__all__ = ["GRID_S", "LIVE_CHECK_S", "LIVE_FIRST_S", "MAX_BARO_DELAY_S", "MAX_DELAY_S",
-           "MAX_MAG_DELAY_S", "MAX_SD_S", "MIN_DELAY_S", "MIN_EXCITATION", "PAIR_S",
-           "PROBE_MIN_IMU_HZ", "PROBE_S", "BaroEstimate", "DelayEstimate", "DelayProbe",
-           "LiveDelayLearner", "MagEstimate", "delay_used", "estimate_gnss_delay"]
+__all__ = ["BARO_NOISE_MIN", "GRID_S", "LIVE_CHECK_S", "LIVE_FIRST_S", "MAX_BARO_DELAY_S",
+           "MAX_DELAY_S", "MAX_MAG_DELAY_S", "MAX_SD_S", "MIN_DELAY_S", "MIN_EXCITATION",
+           "PAIR_S", "PROBE_MIN_IMU_HZ", "PROBE_S", "BaroEstimate", "DelayEstimate",
+           "DelayProbe", "LiveDelayLearner", "MagEstimate", "baro_noise_from_spread",
+           "delay_used", "estimate_gnss_delay"]
 
 #: The delays tried (s): MIN_DELAY_S to MAX_DELAY_S every GRID_S (a negative delay, the
 #: GNSS stamped before the IMU, is reported as found and used as 0).
@@ -86,6 +87,16 @@ WINDOW_POINTS = 12  # the window mean: of this many midpoints
 GIVEN_DELAY_TOL_S = 0.01
 #: The barometer delays tried (s): MIN_DELAY_S to this.
 MAX_BARO_DELAY_S = 0.5
+#: The baro noise taken from its spread against the GNSS height (the replay's probe; a
+#: live run's suggestion for the next run, ``--aiding-from``: :func:`baro_noise_from_spread`)
+#: is at least this (m) and at most the IMU source's default: the spread is against the
+#: GNSS height, which an ArduPilot SITL gives without noise (4-5 mm on its flights), and a
+#: real baro's noise changes with the airflow round the vehicle, which a stretch of the
+#: flight may not show. A real receiver's height noise (decimetres) puts the spread above
+#: it. With 0.05 the EKF's replayed position NEES was in band on 0.668-0.919 of the
+#: airborne steps of six ArduCopter SITL flights (under-confident), with 0.02 on
+#: 0.808-0.950 (docs/navigation.md, "The baro noise floor").
+BARO_NOISE_MIN = 0.02
 #: The magnetometer ages tried (s): 0 to this.
 MAX_MAG_DELAY_S = 0.3
 #: The replay's pre-pass looks at the first this many seconds of IMU data (s).
@@ -95,6 +106,18 @@ PROBE_S = 240.0
 #: and the probe put its GNSS delay at 0.09 s where the replay is best at 0.25 s
 #: (docs/navigation.md).
 PROBE_MIN_IMU_HZ = 20.0
+
+
+def baro_noise_from_spread(spread: float, top: float) -> tuple[float, str]:
+    """The baro noise (m) a run takes from the ``spread`` (m) of the baro heights against
+    the GNSS heights at the baro's delay (:meth:`DelayProbe.estimate_baro`): clipped to
+    [:data:`BARO_NOISE_MIN`, ``top``] (``top`` m, the noise the run has for its IMU source),
+    with the words saying so."""
+    hi = max(float(top), BARO_NOISE_MIN)
+    return (float(np.clip(spread, BARO_NOISE_MIN, hi)),
+            f"the spread of the baro height against the GNSS height at that delay, "
+            f"{spread:.3f} m, within [{BARO_NOISE_MIN:g}, {hi:g}] m "
+            "(--noise baro_noise=M to set it)")
 
 
 def delay_used(delay: float) -> tuple[float, str]:
@@ -841,6 +864,12 @@ class LiveDelayLearner:
         self.window_why = ""
         self.baro_delay: float | None = None
         self.baro_why = ""
+        #: the baro's spread against the GNSS height at that delay (m; None: not
+        #: estimated) and the noise a next run may start with (``--aiding-from``; not used
+        #: here: the baro offset this run averaged before its timing was known is off by
+        #: more than that noise, docs/live.md)
+        self.baro_spread: float | None = None
+        self.baro_noise: float | None = None
         self.estimates: list[dict[str, Any]] = []
         #: GNSS bias states sized from the fixes' drift with the delay (None: none), why,
         #: and the drift (``DriftEstimate`` fields)
@@ -964,6 +993,7 @@ class LiveDelayLearner:
             self.baro_why = (f"estimated live: the lag at which the baro heights, against the "
                              f"GNSS heights at the GNSS delay, spread least ({what}, "
                              f"standard error {best.sd * 1e3:.1f} ms)")
+            self.baro_spread, self.baro_noise = best.spread, None
 
     def apply(self, stream: Any) -> None:
         """Give ``stream`` (a :class:`NavStream`) the delay found, if it does not have it
@@ -989,6 +1019,9 @@ class LiveDelayLearner:
         if self.baro_delay is not None and (stream.baro_delay != self.baro_delay
                                             or not stream.baro_known):
             stream.set_baro_delay(self.baro_delay, self.t_decided, self.baro_why)
+        if self.baro_spread is not None and self.baro_noise is None:
+            self.baro_noise = baro_noise_from_spread(self.baro_spread,
+                                                     stream.noise.baro_noise)[0]
         if self.bias is not None and not stream.noise.gnss_bias:
             stream.set_gnss_bias(self.bias, self.t_decided, self.bias_why)
 
@@ -997,6 +1030,7 @@ class LiveDelayLearner:
         return {"delay": self.delay, "given": self.given, "t": self.t_decided,
                 "why": self.why or None,
                 "window": self.window, "baro_delay": self.baro_delay,
+                "baro_spread": self.baro_spread, "baro_noise": self.baro_noise,
                 "gnss_drift": self.drift, "gnss_bias": self.bias,
                 "filter": self.label or None, "tries": self.estimates}
 

@@ -1,0 +1,71 @@
+"""``uavest run --aiding-from FILE``: what a previous navigation result learned, read
+from its JSON (uavest/apps/aiding.py); bad files get one line."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from uavest.apps.aiding import read_aiding
+from uavest.errors import InputError
+
+LIVE = {"model": "nav", "gnss_delay_live": {
+    "delay": 0.083, "window": 0.347, "baro_delay": 0.044, "baro_spread": 0.004,
+    "baro_noise": 0.02, "given": None}}
+REPLAY = {"model": {"what": "model", "value": "nav"}, "gnss_delay_estimate": {
+    "delay_used": 0.084, "window_used": 0.345,
+    "baro": {"delay_used": 0.043, "noise_used": 0.02},
+    "mag": {"delay_used": 0.06, "noise_used": 0.05}}}
+
+
+def _file(tmp_path, doc, name="r.json"):
+    p = tmp_path / name
+    p.write_text(doc if isinstance(doc, str) else json.dumps(doc))
+    return p
+
+
+@pytest.mark.parametrize("doc, what", [(LIVE, "a live run's"), (REPLAY, "a replay's")])
+def test_the_gnss_timing_and_the_baro_noise_are_read_and_the_baro_delay_is_not(
+        tmp_path, doc, what):
+    got, why = read_aiding(_file(tmp_path, doc))
+    want = ({"gnss_delay": 0.083, "gnss_vel_window": 0.347, "baro_noise": 0.02}
+            if doc is LIVE else {"gnss_delay": 0.084, "gnss_vel_window": 0.345,
+                                 "baro_noise": 0.02})
+    assert got == pytest.approx(want)
+    assert why == f"{what} estimates in r.json"
+
+
+def test_what_was_not_learned_is_not_taken(tmp_path):
+    doc = {"model": "nav", "gnss_delay_live": {"delay": None, "window": None,
+                                               "baro_noise": 0.05, "given": 0.1}}
+    got, _ = read_aiding(_file(tmp_path, doc))
+    assert got == {"baro_noise": 0.05}  # a given delay is the option's, not learnt
+
+
+@pytest.mark.parametrize("content, says", [
+    (None, "cannot read it"),
+    ("{not json", "not a JSON result"),
+    (json.dumps({"model": "attitude", "attitude": {}}), "not a navigation result"),
+    (json.dumps([1, 2]), "not a navigation result"),
+    (json.dumps({"model": "nav", "gnss_delay_live": {"delay": None, "window": "x"}}),
+     "learned none"),
+    (json.dumps({"model": "nav", "gnss_delay_live": {"delay": float("nan")}}),
+     "learned none"),
+])
+def test_a_file_that_is_not_a_navigation_result_gets_one_line(tmp_path, content, says):
+    p = tmp_path / "x.json" if content is None else _file(tmp_path, content, "x.json")
+    with pytest.raises(InputError) as e:
+        read_aiding(p)
+    msg = str(e.value)
+    assert says in msg and "--aiding-from" in msg and "\n" not in msg
+
+
+def test_the_command_line_refuses_it_for_the_attitude_model(tmp_path, capsys):
+    from uavest.cli import main
+
+    p = _file(tmp_path, LIVE)
+    rc = main(["run", "--connect", str(p), "--aiding-from", str(p), "--trackers", "none"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--aiding-from needs --model nav" in err, err
+    assert "Traceback" not in err

@@ -1,0 +1,81 @@
+"""The aiding a previous navigation result learned, for a live run to start with
+(``uavest run --aiding-from FILE``).
+
+A live run learns its GNSS delay, the GNSS velocity's window and the baro's delay only
+once the vehicle has manoeuvred (:class:`~uavest.engine.gnss_delay.LiveDelayLearner`, 60 s
+after its first step); until then it widens the GNSS velocity and the baro for timings
+it does not know, and its tilt pays for it in the takeoff (docs/live.md). These are the
+receiver's and the baro's properties, the same from one flight of a vehicle to the next,
+so a run can start with what a previous one learned: a ``uavest run --json`` result (its
+``gnss_delay_live``) or a ``uavest replay --json`` result of a log of the same vehicle
+(its probe's ``gnss_delay_estimate``). Taken: the GNSS delay, the GNSS velocity's window
+and the baro's noise (its spread against the GNSS height, at least
+:data:`~uavest.engine.gnss_delay.BARO_NOISE_MIN`). Not taken: the baro's delay, which
+changed from 44 to 96 ms between sessions of one ArduCopter SITL (taken from the previous
+session, it put the pitch of the next back where it was without any: docs/live.md). The
+run still learns its own and takes them when it has them; options given on the command
+line win over the file.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from ..errors import InputError
+
+__all__ = ["AIDING_KEYS", "read_aiding"]
+
+#: What a result may give: the GNSS delay (s), the GNSS velocity's window (s), the baro's
+#: noise (m).
+AIDING_KEYS = ("gnss_delay", "gnss_vel_window", "baro_noise")
+
+
+def _model(doc: dict[str, Any]) -> Any:
+    m = doc.get("model")
+    return m.get("value") if isinstance(m, dict) else m
+
+
+def _number(v: Any) -> float | None:
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return None
+    return f if f == f and abs(f) != float("inf") and f >= 0 else None
+
+
+def read_aiding(path: str | Path) -> tuple[dict[str, float], str]:
+    """({name: value} of :data:`AIDING_KEYS` the result at ``path`` learned, the words
+    saying where they come from). A file that cannot be read, is not JSON, is not a
+    navigation result or learned none of them: :class:`InputError`, one line."""
+    try:
+        doc = json.loads(Path(path).read_text())
+    except OSError as e:
+        raise InputError(f"--aiding-from {path}: cannot read it ({e.strerror or e})") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise InputError(f"--aiding-from {path}: not a JSON result of uavest run or "
+                         f"uavest replay ({e})") from None
+    if not isinstance(doc, dict) or _model(doc) != "nav":
+        raise InputError(f"--aiding-from {path}: not a navigation result of uavest run or "
+                         "uavest replay (--json of a run with the navigation model)")
+    got: dict[str, Any] = {}
+    live = doc.get("gnss_delay_live")
+    probe = doc.get("gnss_delay_estimate")
+    if isinstance(live, dict):
+        what = "a live run's estimates"
+        got = {"gnss_delay": live.get("delay"), "gnss_vel_window": live.get("window"),
+               "baro_noise": live.get("baro_noise")}
+    elif isinstance(probe, dict):
+        what = "a replay's estimates"
+        baro = probe.get("baro") or {}
+        got = {"gnss_delay": probe.get("delay_used"),
+               "gnss_vel_window": probe.get("window_used"),
+               "baro_noise": baro.get("noise_used")}
+    else:
+        what = ""
+    out = {k: f for k in AIDING_KEYS if (f := _number(got.get(k))) is not None}
+    if not out:
+        raise InputError(f"--aiding-from {path}: the result learned none of the GNSS delay, "
+                         "the GNSS velocity window and the baro noise")
+    return out, f"{what} in {Path(path).name}"
