@@ -50,7 +50,7 @@ causal, so a live link computes it exactly as a replay does.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from typing import Any
@@ -426,17 +426,17 @@ class LateDeclination:
             src += f"; the yaw turned by {np.degrees(turn):+.2f} deg with it ({what})"
         self._decide("declination", f"{np.degrees(self.declination):.2f} deg", t, src)
 
-    def _turn_start(self, t: float, t0: float, prior: Gaussian) -> list[Start]:
+    def _turn_start(self, t: float, t0: float, prior: Callable[[], Gaussian]) -> list[Start]:
         """Before the step ending at ``t`` (s), from ``t0`` (s): the declination's check
         while it is pending, then the restart at ``t0`` that turns the yaw if one is due
-        (``prior`` of the state's size: the restart takes each filter's running estimate,
-        :func:`turn_yaw`)."""
+        (``prior()`` of the state's size: the restart takes each filter's running
+        estimate, :func:`turn_yaw`)."""
         if self._decl_pending:
             self._check_declination(t)
         if not self._yaw_turn:
             return []
         a, self._yaw_turn = self._yaw_turn, 0.0
-        return [Start(t0, prior, self.space, reason="declination",
+        return [Start(t0, prior(), self.space, reason="declination",
                       augment=partial(turn_yaw, angle=a))]
 
 
@@ -737,8 +737,10 @@ class AttitudeStream(LateDeclination, StreamSnapshots):
     def _steps(self, r: _Raw) -> list[Start | Step]:
         """The step of ``r``, after the restart a declination learnt since asks
         (:meth:`LateDeclination._turn_start`)."""
-        prior = Gaussian(np.r_[1.0, np.zeros(6)], np.eye(6))
-        return [*self._turn_start(r.t, r.t0, prior), self._step(r)]
+        if not (self._decl_pending or self._yaw_turn):  # (the usual step: no restart)
+            return [self._step(r)]
+        return [*self._turn_start(r.t, r.t0, lambda: Gaussian(np.r_[1.0, np.zeros(6)],
+                                                               np.eye(6))), self._step(r)]
 
     def _step(self, r: _Raw) -> Step:
         self._k += 1

@@ -786,14 +786,19 @@ class NavStream(LateDeclination, StreamSnapshots):
         estimate: the yaw turned by a declination learnt since the last step
         (:meth:`_check_declination`), the GNSS bias states appended once set
         (:meth:`set_gnss_bias`)."""
-        x, P = with_gnss_bias(np.r_[1.0, np.zeros(15)], np.eye(15), self.noise, False)
-        out = self._turn_start(r.t, self._stamp(r), Gaussian(x, P))
+        out = self._turn_start(r.t, self._stamp(r), self._size_prior)
         if self._bias_pending:
             self._bias_pending = False
-            out.append(Start(self._stamp(r), Gaussian(x, P), self.space,
+            out.append(Start(self._stamp(r), self._size_prior(), self.space,
                              reason="GNSS bias states",
                              augment=partial(add_gnss_bias, noise=self.noise)))
         return out
+
+    def _size_prior(self) -> Gaussian:
+        """A prior of the state's size for a restart from the running estimates
+        (``Start.augment``: it only gives the size)."""
+        x, P = with_gnss_bias(np.r_[1.0, np.zeros(15)], np.eye(15), self.noise, False)
+        return Gaussian(x, P)
 
     def _try_start(self, r: _Raw, aids: list[_Aid]) -> list[Start | Step]:
         o, al = self.opts, self._align
