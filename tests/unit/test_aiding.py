@@ -69,3 +69,23 @@ def test_the_command_line_refuses_it_for_the_attitude_model(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 2 and "--aiding-from needs --model nav" in err, err
     assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("spread, want", [(0.1, 0.1), (0.5, 0.2), (0.004, 0.02)])
+def test_the_baro_noise_a_live_run_records_is_capped_by_its_sources_profile(spread, want):
+    """The baro noise a live run records for a next one is its baro's spread within
+    [BARO_NOISE_MIN, the IMU source's profile], not within the noise the run itself had:
+    a run started with a previous run's 0.02 m would otherwise never record more."""
+    from types import SimpleNamespace
+
+    from uavest.engine.gnss_delay import LiveDelayLearner
+    from uavest.models.navigation import NavNoise
+
+    learner = LiveDelayLearner()
+    learner.t_decided, learner.baro_spread = 64.5, spread
+    stream = SimpleNamespace(_builder=object(), frame=None, noise=NavNoise(baro_noise=0.02),
+                             source_noise=NavNoise(baro_noise=0.2),
+                             opts=SimpleNamespace(noise={"baro_noise": 0.02}))
+    learner.apply(stream)
+    assert learner.baro_noise == pytest.approx(want)
+    assert learner.as_dict()["baro_noise"] == pytest.approx(want)

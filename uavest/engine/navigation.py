@@ -363,6 +363,8 @@ class NavStream(LateDeclination, StreamSnapshots):
         self.params: dict[str, Any] = {} if params is None else params
         self.space = NavSpace()
         self.noise: NavNoise = NavNoise().with_(**self.opts.noise)
+        #: the IMU source's noise profile, before the options' overrides
+        self.source_noise: NavNoise = NavNoise()
         self.summary: dict[str, Any] = {}
         self.decisions: list[dict[str, Any]] = []
         self.declination = 0.0
@@ -686,7 +688,8 @@ class NavStream(LateDeclination, StreamSnapshots):
         self._imu, self._align.switched = s.source, True
         if self._mag == old:  # that sensor's magnetometer went with it
             self._mag = s.source if self._mag is not None else None
-        self.noise = nav_noise_for_source(s.source, rate).with_(**o.noise)
+        self.source_noise = nav_noise_for_source(s.source, rate)
+        self.noise = self.source_noise.with_(**o.noise)
         if self.frame is not None:
             self._model = ImuTransition(self.noise, lat=self.frame.lat0, h=self.frame.h0)
         self._other_imu.pop(s.source)
@@ -1043,7 +1046,8 @@ class NavStream(LateDeclination, StreamSnapshots):
         ti = [s.t for s in held if isinstance(s, ImuSample) and s.source == imu]
         rate = (len(ti) - 1) / max(ti[-1] - ti[0], 1e-9) if len(ti) > 1 else 0.0
         integ, why, factor = step_plan(imu, rate, o.integration, o.rate_hz)
-        self.noise = nav_noise_for_source(imu, rate).with_(**o.noise)
+        self.source_noise = nav_noise_for_source(imu, rate)
+        self.noise = self.source_noise.with_(**o.noise)
         self.space = nav_space(self.noise)
         self.delay = float(self.noise.gnss_delay if o.gnss_delay is None else o.gnss_delay)
         self.vel_window = float(self.noise.gnss_vel_window)
