@@ -89,3 +89,19 @@ def test_the_baro_noise_a_live_run_records_is_capped_by_its_sources_profile(spre
     learner.apply(stream)
     assert learner.baro_noise == pytest.approx(want)
     assert learner.as_dict()["baro_noise"] == pytest.approx(want)
+
+
+def test_a_run_that_learned_its_timing_says_how_to_start_the_next_with_it(tmp_path):
+    """``uavest run --json PATH`` and ``uavest replay --json PATH`` end with the line naming
+    ``--aiding-from PATH`` and what it would take, when the result learned any of it
+    (none, or an attitude result: no line)."""
+    from uavest.apps.aiding import aiding_hint
+
+    p = _file(tmp_path, LIVE)
+    line = aiding_hint(str(p), "run")
+    assert line == ("a live run against this vehicle can start with what this run "
+                    "learned (GNSS delay 0.083 s, velocity window 0.347 s, baro noise "
+                    f"0.020 m): uavest run --model nav --aiding-from {p}")
+    nothing = _file(tmp_path, {"model": "nav", "gnss_delay_live": {"delay": None}}, "n.json")
+    assert aiding_hint(str(nothing), "run") is None
+    assert aiding_hint(str(_file(tmp_path, {"model": "attitude"}, "a.json")), "replay") is None

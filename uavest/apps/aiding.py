@@ -25,7 +25,7 @@ from typing import Any
 
 from ..errors import InputError
 
-__all__ = ["AIDING_KEYS", "read_aiding"]
+__all__ = ["AIDING_KEYS", "aiding_hint", "read_aiding"]
 
 #: What a result may give: the GNSS delay (s), the GNSS velocity's window (s), the baro's
 #: noise (m).
@@ -79,3 +79,18 @@ def read_aiding(path: str | Path) -> tuple[dict[str, float], str]:
         raise InputError(f"--aiding-from {path}: the result learned none of the GNSS delay, "
                          "the GNSS velocity window and the baro noise")
     return out, f"{what} in {Path(path).name}"
+
+
+def aiding_hint(path: str | Path, what: str) -> str | None:
+    """The line that tells how to start a live run against the vehicle with what the
+    ``what`` ("run", "replay") whose result is at ``path`` learned (``--aiding-from``);
+    None when it learned nothing a live run would take."""
+    try:
+        got, _ = read_aiding(path)
+    except InputError:
+        return None
+    names = {"gnss_delay": ("GNSS delay", "s"), "gnss_vel_window": ("velocity window", "s"),
+             "baro_noise": ("baro noise", "m")}
+    said = ", ".join(f"{names[k][0]} {v:.3f} {names[k][1]}" for k, v in got.items())
+    return (f"a live run against this vehicle can start with what this {what} learned "
+            f"({said}): uavest run --model nav --aiding-from {path}")

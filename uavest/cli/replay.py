@@ -9,6 +9,7 @@ import os
 import sys
 from pathlib import Path
 
+from ..apps.aiding import aiding_hint
 from ..apps.replay import DEFAULT_FILTERS, ReplayConfig, replay
 from ..core.spec import FilterSpec
 from ..engine.attitude import DEFAULT_MAX_RATE_HZ
@@ -331,6 +332,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if args.json:
         write_json(args.json, doc)
         print(f"wrote {args.json}")
+        hint = aiding_hint(args.json, "replay")
+        if hint:
+            print(hint)
     finish_recording(args)
     if doc["reference"] is None:
         why = "; ".join(f"{k}: {v}" for k, v in doc["references_rejected"].items())

@@ -10,6 +10,7 @@ import socket
 import sys
 import threading
 
+from ..apps.aiding import aiding_hint
 from ..apps.live import TRACKER_DIM, LiveConfig, run_live
 from ..errors import InputError
 from ..ingest.adsb_radar import RadarConfig
@@ -240,6 +241,9 @@ def _finish(args, doc: dict, failures: list) -> int:
     if args.json:
         write_json(args.json, doc)
         print(f"wrote {args.json}")
+        hint = aiding_hint(args.json, "run")
+        if hint:
+            print(hint)
     if failures:
         raise failures[0].error
     finish_recording(args)
