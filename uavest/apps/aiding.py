@@ -20,16 +20,19 @@ line win over the file.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
 
-__all__ = ["AIDING_KEYS", "aiding_hint", "read_aiding"]
+__all__ = ["AIDING", "AIDING_KEYS", "aiding_hint", "read_aiding"]
 
-#: What a result may give: the GNSS delay (s), the GNSS velocity's window (s), the baro's
-#: noise (m).
-AIDING_KEYS = ("gnss_delay", "gnss_vel_window", "baro_noise")
+#: What a result may give, with the words and unit it is said in: the GNSS delay (s), the
+#: GNSS velocity's window (s), the baro's noise (m).
+AIDING = {"gnss_delay": ("GNSS delay", "s"), "gnss_vel_window": ("velocity window", "s"),
+          "baro_noise": ("baro noise", "m")}
+AIDING_KEYS = tuple(AIDING)
 
 
 def _model(doc: dict[str, Any]) -> Any:
@@ -42,7 +45,7 @@ def _number(v: Any) -> float | None:
         f = float(v)
     except (TypeError, ValueError):
         return None
-    return f if f == f and abs(f) != float("inf") and f >= 0 else None
+    return f if math.isfinite(f) and f >= 0 else None
 
 
 def read_aiding(path: str | Path) -> tuple[dict[str, float], str]:
@@ -89,8 +92,6 @@ def aiding_hint(path: str | Path, what: str) -> str | None:
         got, _ = read_aiding(path)
     except InputError:
         return None
-    names = {"gnss_delay": ("GNSS delay", "s"), "gnss_vel_window": ("velocity window", "s"),
-             "baro_noise": ("baro noise", "m")}
-    said = ", ".join(f"{names[k][0]} {v:.3f} {names[k][1]}" for k, v in got.items())
+    said = ", ".join(f"{AIDING[k][0]} {v:.3f} {AIDING[k][1]}" for k, v in got.items())
     return (f"a live run against this vehicle can start with what this {what} learned "
             f"({said}): uavest run --model nav --aiding-from {path}")

@@ -174,8 +174,7 @@ def _run_probes(samples: Iterable, cfg: ReplayConfig, params: dict | None, opts:
     :data:`~uavest.engine.gnss_delay.PROBE_MIN_IMU_HZ` leaves both estimates None."""
     from ..engine.gnss_delay import PROBE_MIN_IMU_HZ, estimate_gnss_delay
 
-    (sp, flt), = build_filters(resolve_list((PROBE_FILTER,), "nav",
-                                            dim=nav_dim(cfg.noise)))
+    (sp, flt), = model_filters((PROBE_FILTER,), True, cfg.noise)
 
     def probe(src: Iterable, prior: float, prior_mag: float):
         runner = NavRunner("gnss delay probe", flt, rng(cfg.seed, 0, "probe:gnss_delay"))

@@ -10,7 +10,7 @@ import socket
 import sys
 import threading
 
-from ..apps.aiding import aiding_hint
+from ..apps.aiding import aiding_hint, read_aiding
 from ..apps.live import TRACKER_DIM, LiveConfig, run_live
 from ..errors import InputError
 from ..ingest.adsb_radar import RadarConfig
@@ -130,8 +130,6 @@ def _cfg(args, connect: str) -> LiveConfig:
         if args.model != "nav":
             raise InputError("--aiding-from needs --model nav (it carries the navigation "
                              "model's aiding)")
-        from ..apps.aiding import read_aiding
-
         aiding, aiding_why = read_aiding(args.aiding_from)
     if args.duration is not None and not args.duration > 0:
         raise InputError(f"--duration must be > 0 s, got {args.duration}")

@@ -737,10 +737,12 @@ class AttitudeStream(LateDeclination, StreamSnapshots):
     def _steps(self, r: _Raw) -> list[Start | Step]:
         """The step of ``r``, after the restart a declination learnt since asks
         (:meth:`LateDeclination._turn_start`)."""
-        if not (self._decl_pending or self._yaw_turn):  # (the usual step: no restart)
-            return [self._step(r)]
-        return [*self._turn_start(r.t, r.t0, lambda: Gaussian(np.r_[1.0, np.zeros(6)],
-                                                               np.eye(6))), self._step(r)]
+        return [*self._turn_start(r.t, r.t0, self._size_prior), self._step(r)]
+
+    def _size_prior(self) -> Gaussian:
+        """A prior of the state's size for a restart from the running estimates
+        (``Start.augment``: it only gives the size)."""
+        return Gaussian(np.r_[1.0, np.zeros(6)], np.eye(6))
 
     def _step(self, r: _Raw) -> Step:
         self._k += 1

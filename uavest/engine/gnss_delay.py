@@ -1022,8 +1022,8 @@ class LiveDelayLearner:
         if self.baro_spread is not None and self.baro_noise is None:
             # at most the source's profile, not the noise this run has: one started with
             # a previous run's (``--aiding-from``) would otherwise never suggest more
-            top = getattr(stream, "source_noise", stream.noise).baro_noise
-            self.baro_noise = baro_noise_from_spread(self.baro_spread, top)[0]
+            self.baro_noise = baro_noise_from_spread(self.baro_spread,
+                                                     stream.source_noise.baro_noise)[0]
         if self.bias is not None and not stream.noise.gnss_bias:
             stream.set_gnss_bias(self.bias, self.t_decided, self.bias_why)
 

@@ -789,10 +789,11 @@ class NavStream(LateDeclination, StreamSnapshots):
         estimate: the yaw turned by a declination learnt since the last step
         (:meth:`_check_declination`), the GNSS bias states appended once set
         (:meth:`set_gnss_bias`)."""
-        out = self._turn_start(r.t, self._stamp(r), self._size_prior)
+        t0 = self._stamp(r)
+        out = self._turn_start(r.t, t0, self._size_prior)
         if self._bias_pending:
             self._bias_pending = False
-            out.append(Start(self._stamp(r), self._size_prior(), self.space,
+            out.append(Start(t0, self._size_prior(), self.space,
                              reason="GNSS bias states",
                              augment=partial(add_gnss_bias, noise=self.noise)))
         return out
