@@ -10,7 +10,8 @@ Layers (data flows one way; each imports only those above it in this list; check
   against their numpy references, one fallback) and the compiled helpers they share.
 - ``uavest.geometry``: rotations, quaternions, state spaces (``retract``/``local``), geodesy.
 - ``uavest.link``: the MAVLink link beside it (transport: UDP, TCP, serial; MAVLink 2
-  signing; framing: the encoder buffer, tlog records), shared by the live source, the
+  signing; framing: the encoder buffer, tlog records; the ``SPEC_*`` parameters in
+  which a vehicle states its sensors' datasheet), shared by the live source, the
   MAVLink publisher and the simulator; knows nothing of samples, filters or records.
 - ``uavest.core``: the filter core (knows nothing of MAVLink or files).
 - ``uavest.models``: transition and measurement models (know nothing of files).

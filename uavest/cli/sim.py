@@ -73,6 +73,10 @@ def _fill(p: argparse.ArgumentParser) -> None:
                    help="hold the simulated clock at 0 until a peer connects / sends")
     p.add_argument("--params", action="store_true",
                    help="send the parameter list (PARAM_VALUE, e.g. COMPASS_DEC) once at start")
+    p.add_argument("--no-spec", action="store_true",
+                   help="do not state the sensors' datasheet (the SPEC_* parameters), as "
+                   "an autopilot does not: an estimator then uses its IMU source's "
+                   "default noise profile")
     p.add_argument("--quiet", action="store_true", help="no summary on stderr")
     p.set_defaults(func=cmd_sim)
 
@@ -90,7 +94,7 @@ def cmd_sim(args) -> int:
                                 "expected 'sim'")
         rates = _parse_rates(args.rate)
         sim = Simulator(scn, seed=args.seed, imu_rate=args.imu_rate, sysid=args.sysid,
-                        rates=rates)
+                        rates=rates, state_spec=not args.no_spec)
     # bad values are InputErrors; a KeyError is a required key missing from a scenario
     # table (e.g. a target without position_ned)
     except (InputError, argparse.ArgumentTypeError, KeyError) as e:

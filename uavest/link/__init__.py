@@ -10,7 +10,9 @@ nothing of samples, filters or records (only :mod:`uavest.errors` and pymavlink)
 * :mod:`.signing`: MAVLink 2 signing (the key, signing what we send, the strict check of
   what we receive);
 * :mod:`.framing`: MAVLink 2 frames as bytes (the encoder buffer, tlog records and the
-  tlog writer, the parser's left-over bytes and bad packets classified).
+  tlog writer, the parser's left-over bytes and bad packets classified);
+* :mod:`.spec`: the ``SPEC_*`` parameters in which a vehicle (the simulator) states its
+  sensors' datasheet, and their reading.
 
 See ``docs/live.md``.
 """

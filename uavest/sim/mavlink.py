@@ -36,9 +36,10 @@ from pymavlink.dialects.v20 import ardupilotmega as mav2
 from ..errors import InputError
 from ..geometry.geodesy import LocalFrame
 from ..link import FrameEncoder, Transport, tlog_record
+from ..link.spec import spec_params
 from .protocol import EVENT, PERIODIC, STREAM_NAMES, STREAMS, Protocol
 from .radar import Detection, Radar, Targets
-from .sensors import AdsbReports, ImuModel, NavSensors
+from .sensors import GNSS_DELAY_S, AdsbReports, ImuModel, NavSensors, spec_noise
 from .truth import TRUTH_COLUMNS, Chunk, Truth, TruthCsv, TruthHistory, VehicleTruth
 from .vehicle import VehicleModel, stream_rng
 
@@ -86,6 +87,8 @@ class Simulator:
         ``{"RAW_IMU": 200, "EXTRA1": 50}`` (stream names are capped at 50 Hz like
         REQUEST_DATA_STREAM); merged over the scenario's ``[mavlink.rates]``.
       history_s: seconds of vehicle truth kept for :meth:`truth_at` (None: all).
+      state_spec: answer the sensors' datasheet as the ``SPEC_*`` parameters
+        (:mod:`uavest.link.spec`); False: as an autopilot, which does not.
     """
 
     CHUNK_S = 0.5
@@ -98,6 +101,7 @@ class Simulator:
         sysid: int = 1,
         rates: dict[str, float] | None = None,
         history_s: float | None = 3600.0,
+        state_spec: bool = True,
     ) -> None:
         if isinstance(scenario, dict):
             raise TypeError("Simulator takes the typed scenario "
@@ -109,6 +113,7 @@ class Simulator:
             raise InputError("imu rate must be within 1-2000 Hz")
         self.sysid = int(sysid)
         self.history_s = history_s
+        self.state_spec = bool(state_spec)
         o = scenario.origin
         self.frame = LocalFrame(o.lat_deg, o.lon_deg, o.alt_m)
         epoch = scenario.time.epoch
@@ -160,6 +165,8 @@ class Simulator:
 
     def _make_params(self) -> dict[str, tuple[float, int]]:
         P = mav2
+        spec = (spec_params({**spec_noise(self.sc), "gnss_delay": GNSS_DELAY_S})
+                if self.state_spec else {})
         return {
             "COMPASS_DEC": (float(np.float32(self.imu.declination)), P.MAV_PARAM_TYPE_REAL32),
             "COMPASS_AUTODEC": (0.0, P.MAV_PARAM_TYPE_INT8),
@@ -167,6 +174,8 @@ class Simulator:
             "SCHED_LOOP_RATE": (float(round(self.imu_rate)), P.MAV_PARAM_TYPE_INT16),
             "AHRS_EKF_TYPE": (3.0, P.MAV_PARAM_TYPE_INT8),
             "SIM_SPEEDUP": (1.0, P.MAV_PARAM_TYPE_REAL32),
+            # its sensors' datasheet (uavest.link.spec), for the estimator to take
+            **{k: (float(np.float32(v)), P.MAV_PARAM_TYPE_REAL32) for k, v in spec.items()},
         }
 
     @property
