@@ -139,21 +139,26 @@ def test_sim_to_live_estimator_matches_truth_and_its_tlog_replays_the_same(tmp_p
 def test_live_navigation_model_against_the_simulator_and_its_tlog_replays_the_same(tmp_path):
     """``--model nav`` live: the simulator's raw GNSS stream aids the navigation filters
     (velocity and position scored against the simulator's true state, HIL_STATE_QUATERNION),
-    and the session tlog replayed
-    gives the same estimates step by step."""
+    with the sensor spec the simulator states as parameters (its receiver's Gauss-Markov
+    error as the model's GNSS bias states, its delay, none, as the GNSS delay), and the
+    session tlog through the live job (which finds the spec in it) gives the same
+    estimates step by step."""
     port = _port()
     tlog = tmp_path / "live_nav.tlog"
     coll = Collector()
-    # as uavest demo: the simulator's sensor spec, its receiver's Gauss-Markov error as
-    # the model's GNSS bias states and its delay (none) as --gnss-delay
     spec = spec_noise(load_typed("sim_default"))
     assert spec["gnss_bias_tau"] > 0
     with _Sim(port):
         doc = run_live(_cfg(port, tlog=str(tlog), model="nav", filters=("ekf", "hybrid"),
-                            trackers=(), duration=12.0, noise=spec,
-                            gnss_delay=GNSS_DELAY_S), sinks=[coll], status=False)
+                            trackers=(), duration=12.0), sinks=[coll], status=False)
     assert doc["model"] == "nav" and doc["reference_kind"] == "truth"
-    assert doc["noise"]["overrides"] == spec
+    # taken from the simulator's SPEC_* parameters (MAVLink floats), not given here
+    assert doc["noise"]["overrides"] == pytest.approx(spec, rel=1e-6)
+    assert doc["sensor_spec"]["taken"] == pytest.approx(
+        {**spec, "gnss_delay": GNSS_DELAY_S}, rel=1e-6)
+    delay = [d for d in doc["decisions"] if d["what"] == "GNSS delay"]
+    assert delay[0]["why"] == "the vehicle's sensor spec (SPEC_GPS_DLY)", delay
+    assert doc["gnss_delay_live"]["given"] == GNSS_DELAY_S
     assert any(d["what"] == "alignment" for d in doc["decisions"])
     for label in ("ekf", "hybrid"):
         row = doc["attitude"][label]
@@ -166,12 +171,11 @@ def test_live_navigation_model_against_the_simulator_and_its_tlog_replays_the_sa
         # the receiver's correlated error in the state: the position NEES in its band
         # (without the bias states it is above it on 0.99 of the steps, docs/navigation.md)
         assert row["nees"]["position"]["in_band95"] >= 0.8, row["nees"]
-    src = open_source(tlog, sysid=doc["link"]["vehicle_sysid"],
-                      reorder_window=LiveConfig().reorder_window)
     again = Collector()
-    run_samples(src, _cfg(port, trackers=(), model="nav", filters=("ekf", "hybrid"),
-                          noise=spec, gnss_delay=GNSS_DELAY_S),
-                params=src.params, sinks=[again], status=False)
+    doc2 = run_live(LiveConfig(connect=str(tlog), sysid=doc["link"]["vehicle_sysid"],
+                               trackers=(), model="nav", filters=("ekf", "hybrid")),
+                    sinks=[again], status=False)
+    assert doc2["sensor_spec"] == doc["sensor_spec"]
     for label in ("ekf", "hybrid"):
         a, b = coll.arrays(label), again.arrays(label)
         n = len(a["t"]) - 1
@@ -314,10 +318,10 @@ def test_the_demo_has_every_stream_it_asks_for(tmp_path):
 
 @pytest.mark.slow
 def test_the_nav_demo_gives_its_estimator_the_simulators_receiver(tmp_path):
-    """``uavest demo --model nav`` hands its estimator the simulator's sensor spec: the
-    receiver's Gauss-Markov error as GNSS bias states and its delay (none) as the GNSS
-    delay, a decision that says so (not the default, so the fixes' velocities are not
-    widened for an unknown delay)."""
+    """``uavest demo --model nav``'s estimator takes the simulator's sensor spec from its
+    parameters: the receiver's Gauss-Markov error as GNSS bias states and its delay
+    (none) as the GNSS delay, a decision that says so (not the default, so the fixes'
+    velocities are not widened for an unknown delay)."""
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     out = tmp_path / "demo.json"
     r = subprocess.run([sys.executable, "-m", "uavest", "demo", "--model", "nav",
@@ -328,7 +332,7 @@ def test_the_nav_demo_gives_its_estimator_the_simulators_receiver(tmp_path):
     doc = json.loads(out.read_text())
     delay = [d for d in doc["decisions"] if d["what"] == "GNSS delay"]
     assert delay and delay[0]["value"] == f"{GNSS_DELAY_S:.3f} s", delay
-    assert "simulator's sensor spec" in delay[0]["why"], delay
+    assert "the vehicle's sensor spec (SPEC_GPS_DLY)" in delay[0]["why"], delay
     assert doc["gnss_delay_live"]["given"] == GNSS_DELAY_S
     assert doc["noise"]["overrides"]["gnss_bias_tau"] > 0
 

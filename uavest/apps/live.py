@@ -31,7 +31,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -71,6 +71,7 @@ from ..ingest.types import (
     NoSamplesError,
     PositionSample,
 )
+from ..link.spec import SPEC_PARAMS
 from ..models.motion import NearlyConstantVelocity
 from ..models.navigation import names_gnss_bias
 from ..models.radar import RadarMeasurement, SensorPose
@@ -79,6 +80,7 @@ from ..seeding import filter_stream, rng
 from ..sinks.base import Sink
 from ..tracking.tracker import Tracker, TrackerConfig
 from .replay import _NavScore, _Score, check_attitude_noise, model_filters
+from .sensor_spec import GNSS_BIAS_KEYS, SpecStart, with_sensor_spec
 
 Array = np.ndarray
 
@@ -163,6 +165,9 @@ class LiveConfig:
     #: its own), and where it came from
     aiding: dict = field(default_factory=dict)
     aiding_why: str | None = None
+    #: navigation: the vehicle's sensor spec as taken (:meth:`SpecStart.as_dict
+    #: <uavest.apps.sensor_spec.SpecStart.as_dict>`; None: it states none)
+    sensor_spec: dict | None = None
 
     @property
     def on_arrival(self) -> bool:
@@ -733,11 +738,33 @@ def check_live_config(cfg: LiveConfig) -> None:
         check_attitude_noise(cfg.noise, "(--model nav to use it)")
 
 
+def with_vehicle_spec(cfg: LiveConfig, params: dict) -> LiveConfig:
+    """``cfg`` with what the vehicle's sensor spec (``params``' ``SPEC_*``,
+    :func:`~uavest.apps.sensor_spec.with_sensor_spec`) gives a navigation run where the
+    options leave it open; ``cfg`` itself for the attitude model or no spec."""
+    if cfg.model != "nav":
+        return cfg
+    # a delay from --aiding-from counts as given: an option, over the spec
+    sp = with_sensor_spec(params, cfg.noise, cfg.gnss_delay if cfg.gnss_delay is not None
+                          else cfg.aiding.get("gnss_delay"))
+    if sp.as_dict() is None:
+        return cfg
+    noise, delay = sp.merged(cfg.noise, cfg.gnss_delay)
+    given, why = sorted(cfg.noise), sp.why
+    return replace(
+        cfg, noise=noise, gnss_delay=delay, sensor_spec=sp.as_dict(),
+        noise_why=cfg.noise_why if why is None else why + (
+            f"; option --noise: {', '.join(given)}" if given else ""),
+        gnss_delay_why=sp.why_of("gnss_delay") or cfg.gnss_delay_why)
+
+
 def nav_options(cfg: LiveConfig, declination: float | None) -> NavOptions:
     """The navigation stream's options of a live run: ``cfg``'s, with ``declination``
     (rad; None: the source's parameters), and what ``cfg.aiding`` gives where the options
-    leave it open (:func:`~uavest.apps.aiding.read_aiding`; each with ``cfg.aiding_why``)."""
+    leave it open (:func:`~uavest.apps.aiding.read_aiding`; each with ``cfg.aiding_why``);
+    the values the vehicle's sensor spec gave (:func:`with_vehicle_spec`) say so."""
     a, noise = cfg.aiding, dict(cfg.noise)
+    spec = SpecStart(**cfg.sensor_spec) if cfg.sensor_spec else SpecStart()
     kept = f"from --aiding-from: {cfg.aiding_why}"
     why = f"{kept}; this run's own estimate replaces it once learnt"
     gnss_delay, gnss_why = cfg.gnss_delay, cfg.gnss_delay_why
@@ -748,10 +775,12 @@ def nav_options(cfg: LiveConfig, declination: float | None) -> NavOptions:
     return NavOptions(rate_hz=cfg.rate_hz, declination=declination, gnss_delay=gnss_delay,
                       gnss_delay_why=gnss_why, on_arrival=cfg.on_arrival,
                       geodesy=cfg.geodesy, noise=noise,
-                      mag_noise_why=cfg.noise_why if "mag_noise" in cfg.noise else None,
+                      mag_noise_why=spec.why_of("mag_noise") or (
+                          cfg.noise_why if "mag_noise" in cfg.noise else None),
                       baro_noise_why=kept if "baro_noise" in from_file else None,
                       gnss_vel_window_why=why if "gnss_vel_window" in from_file else None,
-                      gnss_bias_why=cfg.noise_why if names_gnss_bias(cfg.noise) else None)
+                      gnss_bias_why=spec.why_of(*GNSS_BIAS_KEYS) or (
+                          cfg.noise_why if names_gnss_bias(cfg.noise) else None))
 
 
 def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
@@ -874,6 +903,7 @@ def _attitude_result(cfg: LiveConfig, att: _GapAware, runners: list,
         "model": cfg.model,
         "noise": {"overrides": dict(cfg.noise), "why": cfg.noise_why or (
             "option --noise" if cfg.noise else None)},
+        **({"sensor_spec": cfg.sensor_spec} if cfg.sensor_spec is not None else {}),
         "attitude": {r.label: {**(scorer.scores(r.label, ref, truth) if ref else {}),
                                **(nav_scorer.scores(r.label, ref if truth else None,
                                                     getattr(att.stream, "frame", None))
@@ -918,6 +948,7 @@ def run_live(cfg: LiveConfig, *, sinks=(), stop: threading.Event | None = None,
     events: list = []
     try:
         link.start()
+        cfg = with_vehicle_spec(cfg, link.answered_params(SPEC_PARAMS))
         info = RunInfo(command, cfg.connect, cfg.seed, config=_config(cfg),
                        versions=package_versions())
         sinks = list(sinks)
@@ -963,6 +994,9 @@ def replay_session(cfg: LiveConfig, *, sinks=(), command: str = "",
     from ..ingest import open_source
 
     src = open_source(cfg.connect, sysid=cfg.sysid, reorder_window=cfg.reorder_window)
+    if cfg.model == "nav" and hasattr(src, "prescan_params"):
+        src.prescan_params(SPEC_PARAMS)  # what the vehicle answered at the session's start
+    cfg = with_vehicle_spec(cfg, src.params)
     info = RunInfo(command, cfg.connect, cfg.seed, config=_config(cfg),
                    versions=package_versions())
     doc = run_samples(src, cfg, params=src.params, sinks=list(sinks), info=info,

@@ -42,10 +42,12 @@ from ..ingest.types import (
     NoSamplesError,
     PositionSample,
 )
+from ..link.spec import SPEC_PARAMS
 from ..models.navigation import NavNoise, names_gnss_bias, nav_dim
 from ..presets import resolve_list, spec_labels
 from ..seeding import filter_stream, rng
 from ..sinks.base import Collector, Sink
+from .sensor_spec import GNSS_BIAS_KEYS, with_sensor_spec
 
 if TYPE_CHECKING:
     from ..engine.gnss_delay import BaroEstimate, DelayEstimate, DriftEstimate, MagEstimate
@@ -63,6 +65,10 @@ MODEL_PEEK_S = 60.0
 MODELS = ("auto", "nav", "attitude")
 #: ... and wants this many 3-D fixes of one receiver (a fix stream, not a few fixes).
 MIN_FIXES = 10
+#: A replay looks this far into a MAVLink log (messages) for the vehicle's sensor spec
+#: (``SPEC_*``: a ``uavest sim --params`` log has it first, a live session's tlog within its
+#: first seconds, where the run asked for it).
+SPEC_PRESCAN_MESSAGES = 5000
 
 
 @dataclass
@@ -249,7 +255,7 @@ def _gnss_delay_doc(est: DelayEstimate, noise: NavNoise, span: str, refined: str
 def _drift_doc(d: DriftEstimate, span: str, bias_set: bool) -> dict:
     """The GNSS position drift part of the probe's document, with what it means, and the
     GNSS bias states it sizes (``bias_used``, ``bias_why``) unless ``bias_set`` (by
-    ``--noise``)."""
+    ``--noise`` or the vehicle's sensor spec)."""
     from ..engine.gnss_delay import DRIFT_LONG_S, DRIFT_SHORT_S
 
     doc: dict = {"short_s": DRIFT_SHORT_S, "long_s": DRIFT_LONG_S, **d.as_dict(),
@@ -262,7 +268,8 @@ def _drift_doc(d: DriftEstimate, span: str, bias_set: bool) -> dict:
         if not d.correlated:
             means = "no error correlated over seconds"
         elif bias_set:
-            means = "errors correlated over seconds; the GNSS bias states as --noise sets them"
+            means = ("errors correlated over seconds; the GNSS bias states as given (--noise "
+                     "or the vehicle's sensor spec)")
         elif bias is not None:
             means = f"errors correlated over seconds, carried as GNSS bias states ({bwhy})"
         else:
@@ -544,6 +551,9 @@ def replay_samples(
     wall0 = time.perf_counter()
     delay_doc = None
     window_set = "gnss_vel_window" in cfg.noise  # by the option
+    spec = with_sensor_spec(params or {} if nav else {}, cfg.noise, cfg.gnss_delay)
+    noise, delay = spec.merged(cfg.noise, cfg.gnss_delay)
+    cfg = replace(cfg, noise=noise, gnss_delay=delay)
     if nav and cfg.estimate_delay and (cfg.gnss_delay is None or cfg.mag_delay is None
                                        or cfg.baro_delay is None
                                        or "mag_noise" not in cfg.noise):
@@ -577,14 +587,17 @@ def replay_samples(
     probe_baro = (delay_doc or {}).get("baro", {})
     stream: AttitudeStream | NavStream = (
         NavStream(opts=replace(cfg.nav_options(), before_fix=decision["fix_stream"],
-                               gnss_delay_why=probe.get("why_used"),
+                               gnss_delay_why=spec.why_of("gnss_delay")
+                               or probe.get("why_used"),
                                mag_delay_why=probe_mag.get("why_used"),
-                               mag_noise_why=probe_mag.get("noise_why"),
+                               mag_noise_why=spec.why_of("mag_noise")
+                               or probe_mag.get("noise_why"),
                                gnss_vel_window_why=None if window_set
                                else probe.get("window_why_used"),
                                baro_delay_why=probe_baro.get("why_used"),
                                baro_noise_why=probe_baro.get("noise_why"),
-                               gnss_bias_why=(probe.get("gnss_drift") or {}).get("bias_why"),
+                               gnss_bias_why=spec.why_of(*GNSS_BIAS_KEYS) or (
+                                   probe.get("gnss_drift") or {}).get("bias_why"),
                                mag_inclination=probe_mag.get("inclination"),
                                mag_inclination_why=probe_mag.get("inclination_why")),
                   params=params) if nav
@@ -599,7 +612,8 @@ def replay_samples(
     wall = time.perf_counter() - wall0 - sum(r.smooth_seconds for r in runners)
     scorer.finish()
     stream.summary["imu_gap_fraction"] = gaps.fraction(stream.summary.get("imu_source"))
-    return ({"wall_s": wall, "refs": refs, "model": decision, "nav": nav_scorer},
+    return ({"wall_s": wall, "refs": refs, "model": decision, "nav": nav_scorer,
+             **({"sensor_spec": spec.as_dict()} if spec.as_dict() else {})},
             stream, runners, scorer, coll)
 
 
@@ -698,6 +712,8 @@ def replay(
     doc = _doc_header(path, cfg, src, stream, info, ref_name, refs, rejected)
     nav = out["model"]["value"] == "nav"
     doc["model"] = out["model"]
+    if "sensor_spec" in out:
+        doc["sensor_spec"] = out["sensor_spec"]
     nsc: NavScorer = out["nav"]
     doc.update(_position_fields(nsc, src.params, sm, nav))
     frame = getattr(stream, "frame", None)
@@ -721,6 +737,8 @@ def _open_log(path: str | Path, cfg: ReplayConfig, on_source: Callable | None):
         on_source(src)
     if cfg.declination is None and src.format in ("tlog", "dataflash", "dataflash-text"):
         src.prescan_geo()  # the GPS fix and date, for the magnetic model if needed
+    if cfg.model != "attitude" and hasattr(src, "prescan_params"):
+        src.prescan_params(SPEC_PARAMS, SPEC_PRESCAN_MESSAGES)  # the vehicle's sensor spec
     return src
 
 

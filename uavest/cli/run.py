@@ -289,7 +289,6 @@ def demo(args) -> dict:
     """Run the simulator and the live estimator side by side; returns the result doc."""
     from ..scenarios import load_typed
     from ..sim import Simulator
-    from ..sim.sensors import GNSS_DELAY_S, spec_noise
 
     if not args.speed > 0:
         raise InputError(f"--speed must be > 0 for a live demo, got {args.speed}")
@@ -310,19 +309,8 @@ def demo(args) -> dict:
     th.start()
     cfg = _cfg(args, f"udpin:127.0.0.1:{port}")
     cfg.heartbeat_timeout = 15.0
-    if cfg.model == "nav":  # the simulator's sensor spec, where the options leave it open
-        if cfg.gnss_delay is None:
-            # its receiver stamps each fix at the time it measures: a delay known (else the
-            # fixes' velocities are widened for an unknown one, docs/navigation.md)
-            cfg.gnss_delay = GNSS_DELAY_S
-            cfg.gnss_delay_why = ("the simulator's sensor spec: its receiver stamps each fix "
-                                  "at the time it measures (--gnss-delay S to set one)")
-        spec = {k: v for k, v in spec_noise(sc).items() if k not in cfg.noise}
-        if spec:
-            cfg.noise = {**spec, **cfg.noise}
-            cfg.noise_why = (f"the simulator's sensor spec (scenario '{args.scenario}': "
-                             + ", ".join(f"{k} {v:.3g}" for k, v in spec.items())
-                             + "; --noise KEY=VALUE to set one)")
+    # the simulator states its sensors' datasheet as SPEC_* parameters, which the live
+    # run takes where the options leave a value open (uavest.apps.sensor_spec)
     # uavest's simulator sends SIMSTATE, not ArduPilot SITL's SIM_STATE (whose presence
     # would put the navigation frame on ArduPilot's sphere): not asked, not "missing"
     cfg.streams = {k: v for k, v in cfg.streams.items() if k != "SIM_STATE"}

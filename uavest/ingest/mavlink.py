@@ -10,8 +10,9 @@ import logging
 import math
 import os
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -752,22 +753,54 @@ class MavlinkSource:
         """Find the first GPS fix with its date before the replay (``params.geo``): a
         DataFlash log records its boot parameters (``COMPASS_DEC`` 0 with auto-declination)
         long before the GPS lock. Reads at most ``max_messages`` messages; counts nothing."""
+        systime: dict[int, float] = {}
+
+        def visit(msg, rx) -> bool:
+            if rx is not None and self.params.date is None:
+                self.params.set_date(rx, "tlog's receive times")
+            name = msg.get_type()
+            if name == "SYSTEM_TIME" and msg.time_boot_ms and msg.time_unix_usec:
+                systime[msg.get_srcSystem()] = (msg.time_unix_usec * 1e-6
+                                                - msg.time_boot_ms * 1e-3)
+            elif name in ("GPS", "GPS_RAW_INT"):
+                sysid = 0 if self.format.startswith("dataflash") else msg.get_srcSystem()
+                _gps_geo(msg, self.params, systime.get(sysid))
+            return self.params.geo is not None
+
+        self._prescan(visit, max_messages)
+
+    def prescan_params(self, names: Iterable[str], max_messages: int = 20_000) -> None:
+        """Read the parameters ``names`` from the start of the log into ``params`` before
+        the replay (a live session's tlog holds the vehicle's answers to the parameters the
+        run asked for at its start: :mod:`uavest.link.spec`), up to ``max_messages``
+        messages or until all are found; counts nothing."""
+        want = set(names) - set(self.params)
+
+        def visit(msg, rx) -> bool:
+            name = msg.get_type()
+            if name in ("PARAM_VALUE", "PARM"):
+                pid = getattr(msg, "param_id" if name == "PARAM_VALUE" else "Name", None)
+                pid = pid.decode("ascii", "replace") if isinstance(pid, bytes) else pid
+                pid = str(pid or "").rstrip("\x00")
+                if pid in want:
+                    self._param(pid, getattr(
+                        msg, "param_value" if name == "PARAM_VALUE" else "Value", None))
+                    want.discard(pid)
+            return not want
+
+        if want:
+            self._prescan(visit, max_messages)
+
+    def _prescan(self, visit: Callable[[Any, float | None], bool], max_messages: int) -> None:
+        """``visit(msg, receive time)`` each message from the start until it returns True
+        or ``max_messages`` were read; the reader's counts are left as they were, and a
+        damaged log only ends the pre-scan."""
         keep, keep_undecoded = self.stats, self.undecoded
         self.stats = IngestStats()
-        systime: dict[int, float] = {}
         try:
             for i, (msg, rx) in enumerate(self._read()):
-                if msg is None or i >= max_messages or self.params.geo is not None:
+                if msg is None or i >= max_messages or visit(msg, rx):
                     break
-                if rx is not None and self.params.date is None:
-                    self.params.set_date(rx, "tlog's receive times")
-                name = msg.get_type()
-                if name == "SYSTEM_TIME" and msg.time_boot_ms and msg.time_unix_usec:
-                    systime[msg.get_srcSystem()] = (msg.time_unix_usec * 1e-6
-                                                    - msg.time_boot_ms * 1e-3)
-                elif name in ("GPS", "GPS_RAW_INT"):
-                    sysid = 0 if self.format.startswith("dataflash") else msg.get_srcSystem()
-                    _gps_geo(msg, self.params, systime.get(sysid))
         except Exception:  # noqa: BLE001 - a pre-scan never fails the replay
             pass
         finally:

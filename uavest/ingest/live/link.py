@@ -8,7 +8,7 @@ import logging
 import queue
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -24,6 +24,7 @@ from ...link import (  # (sets MAVLINK20 before any pymavlink.mavutil import: si
     split_conn,
     unregister_vehicle_endpoint,
 )
+from ...link.spec import SPEC_PARAMS
 from ..mavlink import BURST_END, MavlinkSource
 from ..types import IngestError, LinkEvent
 from .declination import Declination
@@ -41,8 +42,9 @@ class LinkTimeout(IngestError):
 
 #: Parameters asked for at the start (not awaited) for the estimators: ArduPilot's IMU
 #: low-pass, whose group delay the navigation model takes off the IMU's time stamps
-#: (:func:`uavest.engine.navigation.imu_filter_delay`).
-ASKED_PARAMS = ("INS_GYRO_FILTER",)
+#: (:func:`uavest.engine.navigation.imu_filter_delay`), and the sensors' datasheet
+#: (:mod:`uavest.link.spec`; a vehicle without them does not answer).
+ASKED_PARAMS = ("INS_GYRO_FILTER", *SPEC_PARAMS)
 
 
 # ------------------------------------------------------------------ the link
@@ -304,6 +306,13 @@ class LiveLink(MavlinkSource):
         ts, tc = self._target()
         for name in names:
             self._mav.param_request_read_send(ts, tc, name.encode("ascii"), -1)
+
+    def answered_params(self, names: Iterable[str]) -> dict[str, float]:
+        """The parameters among ``names`` the vehicle has answered so far (those asked at
+        the start, :data:`ASKED_PARAMS`, are in by the time :meth:`start` returns when
+        the vehicle answers in order: the declination, awaited, was asked after them)."""
+        with self._replies.cond:
+            return {n: self._replies.params[n] for n in names if n in self._replies.params}
 
     def _read_param(self, name: str, timeout: float) -> float | None:
         self._replies.forget(name)
