@@ -551,7 +551,7 @@ def replay_samples(
     wall0 = time.perf_counter()
     delay_doc = None
     window_set = "gnss_vel_window" in cfg.noise  # by the option
-    spec = with_sensor_spec(params or {} if nav else {}, cfg.noise, cfg.gnss_delay)
+    spec = with_sensor_spec((params or {}) if nav else {}, cfg.noise, cfg.gnss_delay)
     noise, delay = spec.merged(cfg.noise, cfg.gnss_delay)
     cfg = replace(cfg, noise=noise, gnss_delay=delay)
     if nav and cfg.estimate_delay and (cfg.gnss_delay is None or cfg.mag_delay is None

@@ -328,6 +328,13 @@ class _Pass:
                     self.stats.bad(kind, stat_key(raw))
 
 
+def _param_name(name: Any) -> str:
+    """A parameter's name as a log holds it (bytes or str, NUL-padded), as text."""
+    if isinstance(name, bytes):
+        name = name.decode("ascii", "replace")
+    return str(name or "").rstrip("\x00")
+
+
 class MavlinkSource:
     """Iterable of measurements from a tlog or a DataFlash log (live links: ``LiveLink``).
 
@@ -779,12 +786,10 @@ class MavlinkSource:
         def visit(msg, rx) -> bool:
             name = msg.get_type()
             if name in ("PARAM_VALUE", "PARM"):
-                pid = getattr(msg, "param_id" if name == "PARAM_VALUE" else "Name", None)
-                pid = pid.decode("ascii", "replace") if isinstance(pid, bytes) else pid
-                pid = str(pid or "").rstrip("\x00")
-                if pid in want:
-                    self._param(pid, getattr(
-                        msg, "param_value" if name == "PARAM_VALUE" else "Value", None))
+                pid, value = ((msg.param_id, msg.param_value) if name == "PARAM_VALUE"
+                              else (getattr(msg, "Name", None), getattr(msg, "Value", None)))
+                if (pid := _param_name(pid)) in want:
+                    self._param(pid, value)
                     want.discard(pid)
             return not want
 
@@ -807,11 +812,9 @@ class MavlinkSource:
             self.stats, self.undecoded = keep, keep_undecoded
 
     def _param(self, name, value) -> None:
-        if isinstance(name, bytes):
-            name = name.decode("ascii", "replace")
+        name = _param_name(name)
         if not name or value is None:
             return
-        name = str(name).rstrip("\x00")
         try:
             v = float(value)
         except (TypeError, ValueError):
