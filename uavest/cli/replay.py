@@ -382,7 +382,9 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
                    help="magnetic declination in degrees, east positive (default: from the "
                    "log's COMPASS_DEC / ATT_MAG_DECL, else 0)")
     p.add_argument("--noise", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a noise parameter (repeatable), e.g. --noise mag_noise=0.1")
+                   help="override a noise parameter (repeatable), e.g. --noise mag_noise=0.1; "
+                   "the navigation model's win over the sensor spec a log may carry (its "
+                   "SPEC_* parameters: a uavest sim recording)")
     p.add_argument("--imu", help="IMU source name (default: the stream's choice)")
     p.add_argument("--accel-comp", default="auto", choices=("auto", "none"),
                    help="remove the vehicle's own acceleration (causal difference of the "
@@ -401,9 +403,10 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
                    "the log carries a GNSS fix stream, attitude-only otherwise; "
                    "docs/navigation.md)")
     p.add_argument("--gnss-delay", type=float, default=None, metavar="S",
-                   help="navigation model: GNSS measurement delay in s (default: estimated "
-                   "from the log, the lag of the GNSS velocity behind the IMU; 0 when the "
-                   "log has too little manoeuvring)")
+                   help="navigation model: GNSS measurement delay in s (default: the log's "
+                   "sensor spec, SPEC_GPS_DLY, if it carries one; else estimated from the "
+                   "log, the lag of the GNSS velocity behind the IMU; 0 when the log has too "
+                   "little manoeuvring)")
     p.add_argument("--baro-delay", type=float, default=None, metavar="S",
                    help="navigation model: barometer measurement delay in s, a reading "
                    "stamped t applied to the height at t - S (default: estimated from the "

@@ -75,9 +75,9 @@ def _common(p: argparse.ArgumentParser) -> None:
                    "navigation model (attitude, velocity, position, gyro and accelerometer "
                    "biases) from the raw GNSS stream (docs/navigation.md)")
     p.add_argument("--gnss-delay", type=float, default=None, metavar="S",
-                   help="with --model nav: the GNSS measurement delay, s (default: "
-                   "estimated during the run from 60 s after its first step, the model's 0 "
-                   "until then)")
+                   help="with --model nav: the GNSS measurement delay, s (default: the "
+                   "vehicle's sensor spec, SPEC_GPS_DLY, if it states one; else estimated "
+                   "during the run from 60 s after its first step, the model's 0 until then)")
     p.add_argument("--aiding-from", metavar="FILE",
                    help="with --model nav: start with what a previous run or replay of this "
                    "vehicle learned (its --json result): the GNSS delay and velocity window "
@@ -85,7 +85,9 @@ def _common(p: argparse.ArgumentParser) -> None:
                    "has them, and options given here win (docs/live.md)")
     p.add_argument("--noise", action="append", default=[], metavar="KEY=VALUE",
                    help="override a noise parameter of the model (repeatable), e.g. --noise "
-                   "mag_noise=0.01 (names and units: docs/navigation.md, docs/attitude.md)")
+                   "mag_noise=0.01 (names and units: docs/navigation.md, docs/attitude.md); "
+                   "with --model nav it wins over the vehicle's sensor spec (its SPEC_* "
+                   "parameters, which uavest sim states)")
     add_geodesy_option(p)
 
 
