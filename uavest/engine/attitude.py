@@ -372,8 +372,7 @@ def turn_yaw(g: Any, angle: float) -> Any:
     declination's change, which its updates would take out over tens of seconds,
     through its gyro bias."""
     x = np.array(g.x, float)
-    qz = np.array([np.cos(0.5 * angle), 0.0, 0.0, np.sin(0.5 * angle)])
-    x[:4] = quat_mul(qz, x[:4])
+    x[:4] = quat_mul(quat_exp(np.array([0.0, 0.0, angle])), x[:4])
     return type(g)(x, np.array(g.P, float))
 
 
