@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from ..link.framing import param_name
 from .convert import Raw, check, convert_dataflash, convert_mavlink, stat_key
 from .skip import TLOG_DECODED, DataflashSkipper, Skipped, TlogFramer, _map
 from .timebase import UNIX_US_MIN, RxFilter, StreamGate, VehicleClock, retime_unix
@@ -326,13 +327,6 @@ class _Pass:
             for raw in raws:
                 if raw.primary:
                     self.stats.bad(kind, stat_key(raw))
-
-
-def _param_name(name: Any) -> str:
-    """A parameter's name as a log holds it (bytes or str, NUL-padded), as text."""
-    if isinstance(name, bytes):
-        name = name.decode("ascii", "replace")
-    return str(name or "").rstrip("\x00")
 
 
 class MavlinkSource:
@@ -788,7 +782,7 @@ class MavlinkSource:
             if name in ("PARAM_VALUE", "PARM"):
                 pid, value = ((msg.param_id, msg.param_value) if name == "PARAM_VALUE"
                               else (getattr(msg, "Name", None), getattr(msg, "Value", None)))
-                if (pid := _param_name(pid)) in want:
+                if (pid := param_name(pid)) in want:
                     self._param(pid, value)
                     want.discard(pid)
             return not want
@@ -812,7 +806,7 @@ class MavlinkSource:
             self.stats, self.undecoded = keep, keep_undecoded
 
     def _param(self, name, value) -> None:
-        name = _param_name(name)
+        name = param_name(name)
         if not name or value is None:
             return
         try:

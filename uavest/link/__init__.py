@@ -25,6 +25,7 @@ from .framing import (  # noqa: E402
     FrameEncoder,
     TlogWriter,
     bad_data_kind,
+    param_name,
     reset_parser,
     tlog_record,
 )
@@ -41,7 +42,7 @@ from .transport import (  # noqa: E402
 )
 
 __all__ = ["Disconnected", "FrameEncoder", "SIGNING_EPOCH", "TlogWriter", "Transport", "Writer",
-           "bad_data_kind",
+           "bad_data_kind", "param_name",
            "enable_signing", "endpoint_key", "is_vehicle_endpoint",
            "register_vehicle_endpoint", "reset_parser", "signing_key_bytes", "split_conn",
            "tlog_record", "unregister_vehicle_endpoint"]

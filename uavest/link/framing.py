@@ -1,4 +1,5 @@
-"""MAVLink 2 frames as bytes: the encoder's buffer, the tlog record, the parser's leftovers.
+"""MAVLink 2 frames as bytes: the encoder's buffer, the tlog record, the parser's leftovers,
+and a parameter's name as a message carries it (:func:`param_name`).
 
 A tlog (MAVProxy's telemetry log) is a sequence of records: an 8-byte big-endian UNIX time
 in microseconds, then one frame as sent or received.
@@ -11,13 +12,22 @@ import time
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-__all__ = ["FrameEncoder", "PRINTABLE", "TlogWriter", "bad_data_kind", "reset_parser",
-           "tlog_record"]
+__all__ = ["FrameEncoder", "PRINTABLE", "TlogWriter", "bad_data_kind", "param_name",
+           "reset_parser", "tlog_record"]
 
 #: Bytes of text (a boot banner, a shell prompt): what is not MAVLink on a serial/TCP port.
 PRINTABLE = frozenset(range(0x20, 0x7F)) | {0x09, 0x0A, 0x0D}
 
 _TLOG_TIME = struct.Struct(">Q")
+
+
+def param_name(raw: object) -> str:
+    """A parameter's name as a message holds it (PARAM_VALUE / PARAM_SET /
+    PARAM_REQUEST_READ ``param_id``, DataFlash PARM ``Name``: bytes or str, NUL-padded to
+    16), as text; undecodable bytes replaced, never an error."""
+    if isinstance(raw, bytes):
+        raw = raw.decode("ascii", "replace")
+    return str(raw or "").rstrip("\x00")
 
 
 def tlog_record(t_us: int, frame: bytes) -> bytes:

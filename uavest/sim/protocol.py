@@ -23,6 +23,7 @@ from ..errors import InputError
 from ..geometry.geodesy import LocalFrame
 from ..geometry.rotation import G0
 from ..link import FrameEncoder
+from ..link.framing import param_name
 from .truth import Chunk
 
 __all__ = ["ADSB_FLAGS", "EVENT", "ID_TO_NAME", "PERIODIC", "STREAMS", "STREAM_CAP_HZ",
@@ -244,8 +245,7 @@ class Protocol:
                 self.set_stream(msg.req_stream_id, msg.req_message_rate if msg.start_stop else 0)
         elif typ == "PARAM_REQUEST_READ" and self._for_me(msg):
             names = list(self.params)
-            pid = msg.param_id.rstrip("\x00") if isinstance(msg.param_id, str) else \
-                msg.param_id.decode(errors="replace").rstrip("\x00")
+            pid = param_name(msg.param_id)
             if msg.param_index >= 0:
                 if msg.param_index < len(names):
                     self.send_param(names[msg.param_index], t_us)
@@ -255,8 +255,7 @@ class Protocol:
             for name in self.params:
                 self.send_param(name, t_us)
         elif typ == "PARAM_SET" and self._for_me(msg):
-            pid = msg.param_id.rstrip("\x00") if isinstance(msg.param_id, str) else \
-                msg.param_id.decode(errors="replace").rstrip("\x00")
+            pid = param_name(msg.param_id)
             if pid in self.params:  # stored (what the autopilot believes), physics unchanged
                 self.params[pid] = (float(np.float32(msg.param_value)), self.params[pid][1])
                 self.send_param(pid, t_us)

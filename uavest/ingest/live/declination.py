@@ -8,6 +8,8 @@ import math
 from datetime import UTC, datetime
 from typing import Any
 
+from ...link.framing import param_name
+
 log = logging.getLogger("uavest.live")
 
 
@@ -68,6 +70,5 @@ class Declination:
         if name == "GLOBAL_POSITION_INT" and (m.lat or m.lon):
             return self.on_gps(m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3)
         if name == "PARAM_VALUE":
-            pid = m.param_id.decode() if isinstance(m.param_id, bytes) else str(m.param_id)
-            self.on_param(pid.rstrip("\x00"), float(m.param_value))
+            self.on_param(param_name(m.param_id), float(m.param_value))
         return False

@@ -15,7 +15,15 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from ...link import Disconnected, TlogWriter, Transport, Writer, bad_data_kind, reset_parser
+from ...link import (
+    Disconnected,
+    TlogWriter,
+    Transport,
+    Writer,
+    bad_data_kind,
+    param_name,
+    reset_parser,
+)
 from ..types import LinkEvent
 from .replies import Replies
 from .streams import RateMeter
@@ -203,9 +211,6 @@ class Reader:
         if name == "COMMAND_ACK":
             self.replies.ack(int(m.command), int(m.result))
         elif name == "PARAM_VALUE":
-            pid = m.param_id
-            if isinstance(pid, bytes):
-                pid = pid.decode("ascii", "replace")
-            self.replies.param(str(pid).rstrip("\x00"), float(m.param_value))
+            self.replies.param(param_name(m.param_id), float(m.param_value))
         if self.tlog is not None:
             self.tlog.add(rx_us, bytes(m.get_msgbuf()))
