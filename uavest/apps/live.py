@@ -80,7 +80,7 @@ from ..seeding import filter_stream, rng
 from ..sinks.base import Sink
 from ..tracking.tracker import Tracker, TrackerConfig
 from .replay import _NavScore, _Score, check_attitude_noise, model_filters
-from .sensor_spec import GNSS_BIAS_KEYS, SpecStart, with_sensor_spec
+from .sensor_spec import GNSS_BIAS_KEYS, SpecStart, read_log_spec, with_sensor_spec
 
 Array = np.ndarray
 
@@ -994,8 +994,8 @@ def replay_session(cfg: LiveConfig, *, sinks=(), command: str = "",
     from ..ingest import open_source
 
     src = open_source(cfg.connect, sysid=cfg.sysid, reorder_window=cfg.reorder_window)
-    if cfg.model == "nav" and hasattr(src, "prescan_params"):
-        src.prescan_params(SPEC_PARAMS)  # what the vehicle answered at the session's start
+    if cfg.model == "nav":
+        read_log_spec(src)  # what the vehicle answered at the session's start
     cfg = with_vehicle_spec(cfg, src.params)
     info = RunInfo(command, cfg.connect, cfg.seed, config=_config(cfg),
                    versions=package_versions())

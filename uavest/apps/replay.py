@@ -42,12 +42,11 @@ from ..ingest.types import (
     NoSamplesError,
     PositionSample,
 )
-from ..link.spec import SPEC_PARAMS
 from ..models.navigation import NavNoise, names_gnss_bias, nav_dim
 from ..presets import resolve_list, spec_labels
 from ..seeding import filter_stream, rng
 from ..sinks.base import Collector, Sink
-from .sensor_spec import GNSS_BIAS_KEYS, with_sensor_spec
+from .sensor_spec import GNSS_BIAS_KEYS, read_log_spec, with_sensor_spec
 
 if TYPE_CHECKING:
     from ..engine.gnss_delay import BaroEstimate, DelayEstimate, DriftEstimate, MagEstimate
@@ -65,10 +64,6 @@ MODEL_PEEK_S = 60.0
 MODELS = ("auto", "nav", "attitude")
 #: ... and wants this many 3-D fixes of one receiver (a fix stream, not a few fixes).
 MIN_FIXES = 10
-#: A replay looks this far into a MAVLink log (messages) for the vehicle's sensor spec
-#: (``SPEC_*``: a ``uavest sim --params`` log has it first, a live session's tlog within its
-#: first seconds, where the run asked for it).
-SPEC_PRESCAN_MESSAGES = 5000
 
 
 @dataclass
@@ -737,8 +732,8 @@ def _open_log(path: str | Path, cfg: ReplayConfig, on_source: Callable | None):
         on_source(src)
     if cfg.declination is None and src.format in ("tlog", "dataflash", "dataflash-text"):
         src.prescan_geo()  # the GPS fix and date, for the magnetic model if needed
-    if cfg.model != "attitude" and hasattr(src, "prescan_params"):
-        src.prescan_params(SPEC_PARAMS, SPEC_PRESCAN_MESSAGES)  # the vehicle's sensor spec
+    if cfg.model != "attitude":
+        read_log_spec(src)
     return src
 
 

@@ -14,9 +14,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..link.spec import PARAM_OF, describe, sensor_spec
+from ..link.spec import PARAM_OF, SPEC_PARAMS, describe, sensor_spec
 
-__all__ = ["GNSS_BIAS_KEYS", "SpecStart", "with_sensor_spec"]
+__all__ = ["GNSS_BIAS_KEYS", "SPEC_PRESCAN_MESSAGES", "SpecStart", "read_log_spec",
+           "with_sensor_spec"]
+
+#: A run over a MAVLink log looks this far into it (messages) for the vehicle's sensor spec
+#: (a ``uavest sim --params`` log has it first, a live session's tlog within its first
+#: seconds, where the run asked for it).
+SPEC_PRESCAN_MESSAGES = 5000
 
 #: the GNSS bias states' noise names, which one decision line says together
 GNSS_BIAS_KEYS = ("gnss_bias_h", "gnss_bias_v", "gnss_bias_tau")
@@ -58,6 +64,15 @@ class SpecStart:
         if not self.stated and not self.skipped:
             return None
         return {"taken": self.taken, "stated": self.stated, "skipped": self.skipped}
+
+
+def read_log_spec(src: Any) -> None:
+    """Read the vehicle's sensor spec from the start of the log source ``src`` into its
+    parameters before the run (``uavest replay``, the live job over a session's tlog):
+    the first :data:`SPEC_PRESCAN_MESSAGES` messages of a MAVLink log; a source without
+    a pre-scan (a ULog: its parameters are in its header) is left as it is."""
+    if hasattr(src, "prescan_params"):
+        src.prescan_params(SPEC_PARAMS, SPEC_PRESCAN_MESSAGES)
 
 
 def with_sensor_spec(params: dict[str, Any], noise: dict[str, float],

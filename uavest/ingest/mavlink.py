@@ -770,7 +770,7 @@ class MavlinkSource:
 
         self._prescan(visit, max_messages)
 
-    def prescan_params(self, names: Iterable[str], max_messages: int = 20_000) -> None:
+    def prescan_params(self, names: Iterable[str], max_messages: int) -> None:
         """Read the parameters ``names`` from the start of the log into ``params`` before
         the replay (a live session's tlog holds the vehicle's answers to the parameters the
         run asked for at its start: :mod:`uavest.link.spec`), up to ``max_messages``
