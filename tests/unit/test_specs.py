@@ -228,6 +228,30 @@ def test_duplicates_are_judged_in_the_preset_not_with_core_defaults():
         presets.resolve_list("ekf,,ukf", "bench", dim=1)
 
 
+@pytest.mark.parametrize("model, filters, refused_in", [
+    ("attitude", "hybrid,hybrid(tau=0.9)", "attitude"),
+    ("nav", "hybrid,hybrid(tau=0.9)", "nav"),
+    ("auto", "hybrid,hybrid(tau=0.9)", "attitude"),  # one filter in both presets
+    ("nav", "hybrid(reinflate=false),hybrid", None),  # two filters in the nav preset
+    ("auto", "hybrid(reinflate=false),hybrid", None),  # judged once the model is chosen
+    ("attitude", "hybrid(reinflate=false),hybrid", "attitude"),
+])
+def test_replay_judges_two_labels_in_its_models_preset(tmp_path, capsys, model, filters,
+                                                       refused_in):
+    """``uavest replay --filters`` before any work: in the preset of ``--model``; with
+    ``auto`` a list that is a slip in both presets is refused at once and one that is two
+    filters in the nav preset (where the hybrid re-spreads) goes on."""
+    from uavest.cli import main
+
+    missing = str(tmp_path / "none.tlog")
+    assert main(["replay", missing, "--model", model, "--filters", filters]) == 2
+    err = capsys.readouterr().err
+    if refused_in:
+        assert f"resolve to the same filter in preset {refused_in}" in err, err
+    else:
+        assert "same filter" not in err and "none.tlog" in err, err
+
+
 def test_distinct_false_lets_two_labels_of_one_filter_through_but_not_one_label_twice():
     # benchmarks/radar_bound.py runs one filter under two labels (two random streams)
     text = "hybrid,hybrid(update_mode=local,n_cloud=64)"

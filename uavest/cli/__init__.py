@@ -197,7 +197,31 @@ def _check_filters(args) -> None:
 
         args.filter_specs = split_filter_list(text)
         return
+    if preset == "attitude":
+        _check_model_filters(args, text, dim)
+        return
     args.filter_specs = resolve_list(text, preset, dim)
+
+
+def _check_model_filters(args, text: str, dim: int) -> None:
+    """``--filters`` of replay / run / demo, whose preset is their model's: "hybrid" and
+    "hybrid(reinflate=false)" are one filter in the attitude preset and two in the nav
+    preset. With ``--model`` given the list is checked in its preset here; with ``auto``
+    a slip in both presets fails here, one in only the nav or the attitude preset once
+    the model is chosen (:func:`uavest.apps.replay.model_filters`)."""
+    from ..core.spec import SpecError
+    from ..models.navigation import nav_dim
+    from ..presets import resolve_list
+
+    model = getattr(args, "model", "attitude")
+    if model == "nav":
+        resolve_list(text, "nav", nav_dim({}))
+    elif model == "auto":
+        try:
+            resolve_list(text, "nav", nav_dim({}))
+        except SpecError:
+            resolve_list(text, "attitude", dim)  # raises if the attitude preset refuses too
+    args.filter_specs = resolve_list(text, "attitude", dim, distinct=model == "attitude")
 
 
 def main(argv: list[str] | None = None) -> int:
