@@ -11,8 +11,9 @@ true initial yaw uniform in [-pi, pi), every filter starts at yaw 0 with std pi/
 magnetometer heading off by 30 deg for 20 s. One table per case; every trial r of every
 filter sees the same flight and start (``uavest.seeding`` streams of (seed, r)), so the
 numbers do not depend on ``--runs``, ``--jobs`` or the other filters (cost apart).
-Filters are resolved in the ``attitude`` preset (what ``uavest replay`` runs:
-``hybrid`` = n_cloud 16, tau 0.9, M = 527 members on the 15-dim state) and guarded.
+Filters are resolved in the ``nav`` preset (what ``uavest replay`` runs with the
+navigation model: ``hybrid`` = n_cloud 16, tau 0.9, re-spread, M = 527 members on the
+15-dim state; ``ukf`` = alpha 0.1) and guarded.
 
 Columns: ``conv s`` median time to converge (yaw error < 5 deg from then to the end; inf
 when not converged), ``n/c`` trials not converged at the end (divergences), ``conv|ok``
@@ -79,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cases", default="heading,outage,magdist",
                     help=f"comma list of {', '.join(nav.CASES)}")
     ap.add_argument("--filters", default="ekf,ukf,hybrid",
-                    help="filter specs (attitude preset); include ukf for the xUKF column")
+                    help="filter specs (nav preset); include ukf for the xUKF column")
     ap.add_argument("--gate", default="", help="gate these aiding sensors: gnss, mag")
     ap.add_argument("--filter-rate", type=int, default=nav.NavSim().filter_rate,
                     help="filter steps per s (IMU at 200 Hz averaged into them)")

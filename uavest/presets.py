@@ -76,8 +76,13 @@ PRESETS: dict[str, Preset] = {
     # the attitude preset's hybrid, re-spread after each shift: the navigation state's
     # position, velocity and biases are long-memory states that an ensemble's gain
     # otherwise shrinks (docs/filters.md, "Long memory")
+    # and the unscented filters' sigma points at 0.1 of the Van der Merwe spread: with
+    # alpha 1 they lie sqrt(n) = 3.9-4.2 std out on the 15-18-dim state, +-60 deg of yaw
+    # at the start's 15 deg std, and the UKF aligned in flight far slower than the EKF
+    # (docs/navigation.md, "The UKF's sigma-point spread")
     "nav": Preset("nav", "uavest replay / run / demo with the navigation model",
-                  {"hybrid": {"n_cloud": 16, "tau": 0.9, "reinflate": True}}),
+                  {"hybrid": {"n_cloud": 16, "tau": 0.9, "reinflate": True},
+                   "ukf": {"alpha": 0.1}, "srukf": {"alpha": 0.1}}),
     "radar": Preset(
         "radar", "uavest track, uavest bench (radar scenarios)",
         {"hybrid": {"update_mode": "local", "n_cloud": 64}},
@@ -210,7 +215,8 @@ def _changed(spec: FilterSpec) -> str:
     return f"{spec.name}(" + ", ".join(f"{k}={value_text(spec.params[k])}" for k in keep) + ")"
 
 
-def describe_presets(names: Sequence[str] = ("hybrid", "enkf", "etkf")) -> str:
+def describe_presets(names: Sequence[str] = ("hybrid", "enkf", "etkf", "ukf", "srukf")
+                     ) -> str:
     """What ``hybrid`` (and any other filter a preset changes) resolves to in each
     preset, as the values that differ from the core defaults (for ``uavest list``)."""
     lines = ["presets (what a filter name means in each command; spec parameters win):"]

@@ -263,6 +263,17 @@ def test_distinct_false_lets_two_labels_of_one_filter_through_but_not_one_label_
         presets.resolve_list("hybrid,hybrid", "radar", dim=4, distinct=False)
 
 
+def test_the_navigation_preset_narrows_the_unscented_filters_sigma_points():
+    # alpha 0.1: sigma points at 0.1 sqrt(n) std instead of sqrt(n) (about 4 std on the
+    # navigation state); the other presets keep the core's alpha 1
+    for name in ("ukf", "ukf_sh", "srukf"):
+        assert presets.resolve(name, "nav", dim=15).params["alpha"] == 0.1
+        assert presets.resolve(name, "attitude", dim=6).params["alpha"] == 1.0
+    assert presets.resolve("ukf(alpha=1)", "nav", dim=15).params["alpha"] == 1.0
+    text = presets.describe_presets()
+    assert "ukf     -> ukf(alpha=0.1)" in text and "srukf   -> srukf(alpha=0.1)" in text
+
+
 def test_describe_presets_says_what_hybrid_is_in_each_command():
     text = presets.describe_presets()
     lines = text.splitlines()

@@ -414,7 +414,7 @@ def trial_metrics(case: NavCase, fl: Flight, out: dict) -> dict:
 def run_trial(case: NavCase, specs: Sequence[str], seed: int, r: int,
               sim: NavSim | None = None) -> dict[str, dict]:
     """Per-filter metrics of trial ``r`` (a pure function of its arguments, apart from
-    ``us_per_step``): every filter of ``specs`` (resolved in the ``attitude`` preset,
+    ``us_per_step``): every filter of ``specs`` (resolved in the ``nav`` preset,
     wrapped in the guard) on the same flight and start."""
     sim = sim or NavSim()
     fl = flight(case, sim, seed, r)
