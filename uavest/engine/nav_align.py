@@ -144,31 +144,21 @@ def fix_prior(fix: _Aid, dt: float, noise: NavNoise) -> tuple[Array, Array, list
 
 
 def start_inclination(recent: Iterable[_Raw], params: dict[str, Any],
-                      inclination: float | None, why: str | None, use_wmm: bool,
-                      a_body: Array | None = None) -> tuple[float | None, str]:
+                      inclination: float | None, why: str | None, use_wmm: bool
+                      ) -> tuple[float | None, str]:
     """(inclination rad or None, why) at the first start: ``inclination`` when given
     (with ``why``, else "option"), else the angle between the accelerometer and the
     magnetometer over the alignment window ``recent``, replaced by the World Magnetic
     Model's (from ``params``) when ``use_wmm`` and within :data:`WMM_INCLINATION_TOL` of
-    it; None without magnetometer samples in the window. ``a_body``: the vehicle's own
-    acceleration over the window (body FRD, m/s^2; the GNSS acceleration turned by the
-    levelled attitude, as :func:`level` takes it out), taken out of each accelerometer
-    sample first: in flight the accelerometer is not gravity (0.2 m/s^2 tilts it by 1.2
-    deg, beyond the tolerance, and the window's angle then held the pitch 1.1 deg off
-    for the run on a simulated start)."""
+    it; None without magnetometer samples in the window."""
     pairs = [(x.a, x.mag) for x in recent if x.mag is not None and x.a is not None]
     inc, why = None, why or "option"
     if inclination is not None:
         inc = float(inclination)
     elif pairs:
-        acc = np.array([p[0] for p in pairs], float)
-        moving = a_body is not None and bool(np.any(a_body))
-        if moving:
-            acc = acc - np.asarray(a_body, float)
-        inc = inclination_from_samples(acc, np.array([p[1] for p in pairs]))
-        why = ("the angle between the accelerometer"
-               + (" less the GNSS acceleration" if moving else "")
-               + " and the magnetometer at the start")
+        inc = inclination_from_samples(np.array([p[0] for p in pairs]),
+                                       np.array([p[1] for p in pairs]))
+        why = "the angle between the accelerometer and the magnetometer at the start"
         wmm, wwhy = (inclination_from_params(params) if use_wmm else (None, ""))
         if use_wmm and wmm is not None and abs(wmm - inc) <= WMM_INCLINATION_TOL:
             inc, why = wmm, (f"the magnetic model ({wwhy}; the accelerometer's angle "

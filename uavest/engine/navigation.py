@@ -56,7 +56,6 @@ from ..core.guard import nis_gate
 from ..errors import InputError
 from ..geometry.geodesy import GEODESIES, LocalFrame, SphereFrame, make_frame
 from ..geometry.navigation import NavSpace
-from ..geometry.rotation import quat_rotate_inv
 from ..ingest.types import (
     AttitudeRef,
     BaroSample,
@@ -843,8 +842,6 @@ class NavStream(LateDeclination, StreamSnapshots):
         a_ned = gnss_acceleration(al.vfix, r.t - o.align_s - 0.25)
         q, syaw, ywhy = level(al.recent, a_ned, mags if use_mag else [], vh, self.noise,
                               self.declination)
-        if first:
-            self._first_inclination(r, quat_rotate_inv(q, a_ned))
         n = self.noise
         # moving, the compensation rests on a differenced GNSS velocity: a wider tilt prior
         tilt = n.init_tilt if speed < o.yaw_speed else 3.0 * n.init_tilt
@@ -875,7 +872,6 @@ class NavStream(LateDeclination, StreamSnapshots):
             self._model = ImuTransition(self.noise, lat=UNAIDED_LAT, h=0.0)
         q, syaw, ywhy = level(self._align.recent, np.zeros(3), mags, np.zeros(2), self.noise,
                               self.declination)
-        self._first_inclination(r, np.zeros(3))
         x, P = unaided_start(q, syaw, n)
         self._align.done()
         self._align.unaided = True
@@ -934,14 +930,9 @@ class NavStream(LateDeclination, StreamSnapshots):
         self._decide("declination", f"{np.degrees(self.declination):.2f} deg", r.t,
                      src + (" (taken later if the log gives one)" if self._decl_pending
                             else ""))
-
-    def _first_inclination(self, r: _Raw, a_body: Array) -> None:
-        """The magnetic reference's inclination, at the first start, once the window is
-        levelled (``a_body``: the vehicle's acceleration in the body, m/s^2)."""
-        o = self.opts
         if self._mag is not None and o.mag_mode == "field":
             inc, why = start_inclination(self._align.recent, self.params, o.mag_inclination,
-                                         o.mag_inclination_why, o.inclination_wmm, a_body)
+                                         o.mag_inclination_why, o.inclination_wmm)
             if inc is not None:
                 self._mref = mag_reference(self.declination, inc)
                 self.summary["inclination_rad"] = float(inc)
