@@ -747,12 +747,13 @@ def with_vehicle_spec(cfg: LiveConfig, params: dict) -> LiveConfig:
     # a delay from --aiding-from counts as given: an option, over the spec
     sp = with_sensor_spec(params, cfg.noise, cfg.gnss_delay if cfg.gnss_delay is not None
                           else cfg.aiding.get("gnss_delay"))
-    if sp.as_dict() is None:
+    doc = sp.as_dict()
+    if doc is None:
         return cfg
     noise, delay = sp.merged(cfg.noise, cfg.gnss_delay)
     given, why = sorted(cfg.noise), sp.why
     return replace(
-        cfg, noise=noise, gnss_delay=delay, sensor_spec=sp.as_dict(),
+        cfg, noise=noise, gnss_delay=delay, sensor_spec=doc,
         noise_why=cfg.noise_why if why is None else why + (
             f"; option --noise: {', '.join(given)}" if given else ""),
         gnss_delay_why=sp.why_of("gnss_delay") or cfg.gnss_delay_why)

@@ -608,7 +608,7 @@ def replay_samples(
     scorer.finish()
     stream.summary["imu_gap_fraction"] = gaps.fraction(stream.summary.get("imu_source"))
     return ({"wall_s": wall, "refs": refs, "model": decision, "nav": nav_scorer,
-             **({"sensor_spec": spec.as_dict()} if spec.as_dict() else {})},
+             **({"sensor_spec": d} if (d := spec.as_dict()) else {})},
             stream, runners, scorer, coll)
 
 
