@@ -171,6 +171,14 @@ def test_live_navigation_model_against_the_simulator_and_its_tlog_replays_the_sa
         # the receiver's correlated error in the state: the position NEES in its band
         # (without the bias states it is above it on 0.99 of the steps, docs/navigation.md)
         assert row["nees"]["position"]["in_band95"] >= 0.8, row["nees"]
+        # scored again from --settle (default 10 s) after the filter's first estimate
+        t = coll.arrays(label)["t"]
+        st = row["settled"]
+        assert st["after_s"] == LiveConfig.settle_s and 0 < st["n"] < len(t)
+        assert st["t"][0] >= t[0] + LiveConfig.settle_s and st["vel_rmse_ms"] is not None
+    from uavest.cli.run import format_live
+
+    assert "settled (from 10 s after each filter's first estimate" in format_live(doc)
     again = Collector()
     doc2 = run_live(LiveConfig(connect=str(tlog), sysid=doc["link"]["vehicle_sysid"],
                                trackers=(), model="nav", filters=("ekf", "hybrid")),

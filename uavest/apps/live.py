@@ -168,6 +168,11 @@ class LiveConfig:
     #: navigation: the vehicle's sensor spec as taken (:meth:`SpecStart.as_dict
     #: <uavest.apps.sensor_spec.SpecStart.as_dict>`; None: it states none)
     sensor_spec: dict | None = None
+    #: s after each estimator's first step from which its ``settled`` scores count
+    #: (:meth:`NavScorer.scores <uavest.eval.navigation.NavScorer.scores>`): a start in
+    #: flight aligns on a moving vehicle and takes some seconds to converge, which a short
+    #: run's whole-run figure is mostly made of (docs/live.md, "Settled"); 0: none
+    settle_s: float = 10.0
 
     @property
     def on_arrival(self) -> bool:
@@ -732,6 +737,8 @@ def check_live_config(cfg: LiveConfig) -> None:
         raise InputError(f"--reorder-window must be from 0 to 5 s, got {cfg.reorder_window}")
     if cfg.on_arrival and not (math.isfinite(cfg.history_s) and 0 < cfg.history_s <= 5):
         raise InputError(f"--history must be more than 0 and at most 5 s, got {cfg.history_s}")
+    if not (math.isfinite(cfg.settle_s) and 0 <= cfg.settle_s <= 3600):
+        raise InputError(f"--settle must be from 0 to 3600 s, got {cfg.settle_s}")
     if cfg.model == "nav":
         NavOptions(noise=cfg.noise)  # checks the --noise names
     else:
@@ -907,7 +914,8 @@ def _attitude_result(cfg: LiveConfig, att: _GapAware, runners: list,
         **({"sensor_spec": cfg.sensor_spec} if cfg.sensor_spec is not None else {}),
         "attitude": {r.label: {**(scorer.scores(r.label, ref, truth) if ref else {}),
                                **(nav_scorer.scores(r.label, ref if truth else None,
-                                                    getattr(att.stream, "frame", None))
+                                                    getattr(att.stream, "frame", None),
+                                                    settle_s=cfg.settle_s)
                                   if nav_scorer is not None else {}),
                                "resets": r.resets,
                                "us_per_step": r.us_per_step}

@@ -22,7 +22,7 @@ from ..sinks.table import table
 from .progress import progress
 from .record import add_recording_options, finish_recording, recording_sinks
 
-__all__ = ["add_replay_parser", "cmd_replay", "format_doc"]
+__all__ = ["NAV_COLS", "add_replay_parser", "cmd_replay", "flat_row", "format_doc"]
 
 
 #: Filters that need linear models (the attitude and radar models are nonlinear).
@@ -117,12 +117,12 @@ def decision_lines(doc: dict) -> list[str]:
     return lines
 
 
-#: Navigation columns of the replay table (``_flat`` of a filter's row).
+#: Navigation columns of the replay table (``flat_row`` of a filter's row).
 NAV_COLS = ["vel_rmse_ms", "hpos_rmse_m", "vpos_rmse_m", "nees_att_in95", "nees_vel_in95",
             "nees_pos_in95"]
 
 
-def _flat(row: dict) -> dict:
+def flat_row(row: dict) -> dict:
     """A result row with its NEES blocks as columns (share of steps in the 95 % band) and
     the aiding updates every gate rejected."""
     out = dict(row)
@@ -223,10 +223,10 @@ def _table_lines(doc: dict) -> list[str]:
             "us_per_step"]
     nav = (doc.get("model") or {}).get("value") == "nav"
     if nav:
-        rows = {k: _flat(r) for k, r in rows.items()}
+        rows = {k: flat_row(r) for k, r in rows.items()}
         cols = cols[:4] + NAV_COLS + ["rejected"] + cols[4:]
     lines = [table(rows, cols)]
-    air = {k: _flat(r["airborne"]) for k, r in doc["filters"].items() if r.get("airborne")}
+    air = {k: flat_row(r["airborne"]) for k, r in doc["filters"].items() if r.get("airborne")}
     if air:
         a0 = next(iter(doc["filters"].values())).get("airborne") or {}
         t = a0.get("t") or [math.nan, math.nan]

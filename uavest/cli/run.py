@@ -17,7 +17,7 @@ from ..ingest.adsb_radar import RadarConfig
 from ..sinks.jsonout import write_json
 from ..sinks.table import table
 from .record import add_recording_options, finish_recording, recording_sinks
-from .replay import add_geodesy_option, decision_lines, parse_noise
+from .replay import NAV_COLS, add_geodesy_option, decision_lines, flat_row, parse_noise
 
 __all__ = ["add_demo_parser", "add_run_parser", "format_live"]
 
@@ -69,6 +69,10 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="on arrival: s of vehicle time kept to apply late samples at their "
                    "time (re-stepping the filters from before them; older ones are counted "
                    f"late and skipped; default {LiveConfig.history_s:g})")
+    p.add_argument("--settle", type=float, default=LiveConfig.settle_s, metavar="S",
+                   help="score each filter again from S s after its first estimate (the "
+                   "'settled' table and JSON block: a start in flight converges first); "
+                   f"0 for none (default {LiveConfig.settle_s:g})")
     p.add_argument("--no-status", action="store_true", help="no live status line")
     p.add_argument("--model", default="attitude", choices=("attitude", "nav"),
                    help="attitude: attitude + gyro bias (default); nav: the GNSS-aided "
@@ -144,7 +148,7 @@ def _cfg(args, connect: str) -> LiveConfig:
         seed=args.seed, sysid=getattr(args, "sysid", None),
         signing_key=getattr(args, "signing_key", None), tlog=args.tlog,
         heartbeat_timeout=getattr(args, "heartbeat_timeout", 30.0),
-        reorder_window=args.reorder_window, history_s=args.history,
+        reorder_window=args.reorder_window, history_s=args.history, settle_s=args.settle,
         duration=args.duration, rate_hz=args.rate,
         update_hz=getattr(args, "update_rate", None),
         radar_source=args.radar_source, radar=_radar(args), model=args.model,
@@ -172,6 +176,7 @@ def format_live(doc: dict) -> str:
         lines.append("noise: " + ", ".join(f"{k} {v:.4g}" for k, v in nz["overrides"].items())
                      + f" ({nz['why']})")
     lines += [title, table(doc["attitude"], cols)]
+    lines += _settled_lines(doc)
     live = doc.get("gnss_delay_live")
     tries = (live or {}).get("tries") or []
     if live and live.get("given") is None and live["delay"] is None:
@@ -212,6 +217,20 @@ def format_live(doc: dict) -> str:
                      f"applied at their time (history {hist['history_s']:g} s), "
                      f"{sum(v['late'] for v in lanes)} older skipped (counted late)")
     return "\n".join(lines)
+
+
+def _settled_lines(doc: dict) -> list[str]:
+    """The ``settled`` table: each filter's scores from ``after_s`` after its first
+    estimate (RMSE, and the share of steps with the NEES in its 95 % band per block)."""
+    rows = {k: flat_row(r["settled"]) for k, r in doc["attitude"].items()
+            if isinstance(r.get("settled"), dict)}
+    if not rows:
+        return []
+    after = next(iter(rows.values())).get("after_s")
+    cols = ["roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg"] + (
+        NAV_COLS if doc.get("model") == "nav" else ["nees_att_in95"])
+    return [f"settled (from {after:g} s after each filter's first estimate; --settle):",
+            table(rows, cols)]
 
 
 def _wait(msg: str) -> None:

@@ -16,7 +16,10 @@ them at the end (:meth:`NavScorer.scores`):
   above are kept too, 0.025 each for a consistent filter);
 * the same over the **airborne** steps: the reference height more than
   :data:`AIRBORNE_M` above its lowest value in the run (the ground the vehicle took off
-  from or landed on), with roll/pitch/yaw RMSE (deg) there.
+  from or landed on), with roll/pitch/yaw RMSE (deg) there;
+* on request, the same over the **settled** steps: those at least ``settle_s`` seconds
+  after the estimator's first step (a start in flight: the part after the alignment's
+  transient, which a 30-s whole-run figure is mostly made of).
 
 References are linearly interpolated (slerp for attitude) at step times; a step more
 than :data:`MAX_REF_GAP_S` from a reference sample on either side is not scored.
@@ -140,14 +143,18 @@ class NavScorer:
         """The position/velocity reference source (:func:`choose_position_ref`)."""
         return choose_position_ref([k for k, v in self.pos.items() if len(v) >= 10])
 
-    def scores(self, label: str, att_ref: str | None, frame: Any = None) -> dict[str, Any]:
+    def scores(self, label: str, att_ref: str | None, frame: Any = None,
+               settle_s: float | None = None) -> dict[str, Any]:
         """Scores of ``label`` (module docstring) against the attitude truth ``att_ref``
         (None: no attitude block) and the position reference, its positions moved into
         ``frame`` (a :class:`~uavest.geometry.geodesy.LocalFrame`; None: no position
         block; positions before :attr:`pos_from` are not scored). Keys: ``vel_rmse_ms``,
         ``hpos_rmse_m``, ``vpos_rmse_m``, ``nees`` {attitude, velocity, position: {mean,
-        in_band95, n}}, ``airborne`` {t, n,
-        roll/pitch/yaw_rmse_deg, vel/hpos/vpos RMSE, nees}; only what can be scored."""
+        in_band95, n}}, ``airborne`` {t, n, height_above_lowest_m,
+        roll/pitch/yaw_rmse_deg, vel/hpos/vpos RMSE, nees}, and with ``settle_s`` (s,
+        > 0) ``settled`` {the same keys, ``after_s`` in place of the height} over the
+        steps ``settle_s`` or more after ``label``'s first step; only what can be
+        scored (no ``settled`` block when the run is not longer than ``settle_s``)."""
         rows = self.est.get(label)
         if not rows:
             return {}
@@ -170,7 +177,13 @@ class NavScorer:
             dof["velocity"] = 2
         out["nees"] = {k: _block(v, dof[k]) for k, v in nees.items()}
         if air is not None and air.any():
-            out["airborne"] = _airborne(t, air, nees, masks, errs, dof)
+            out["airborne"] = {**_window(t, air, nees, masks, errs, dof),
+                               "height_above_lowest_m": AIRBORNE_M}
+        if settle_s is not None and settle_s > 0:
+            late = t >= t[0] + settle_s
+            if late.any():
+                out["settled"] = {**_window(t, late, nees, masks, errs, dof),
+                                  "after_s": float(settle_s)}
         return out
 
     def _attitude_errors(self, att_ref: str, t: Array, x: Array, P: Array,
@@ -229,12 +242,12 @@ class NavScorer:
         return air
 
 
-def _airborne(t: Array, air: Array, nees: dict[str, Array], masks: dict[str, Array],
-              errs: dict[str, Array], dof: dict[str, int]) -> dict[str, Any]:
-    """The ``airborne`` block of :meth:`NavScorer.scores`: the scores over the steps
-    ``air`` only (time span in s, Euler RMSE in deg, velocity/position RMSE, NEES)."""
-    a: dict[str, Any] = {"t": [float(t[air][0]), float(t[air][-1])],
-                         "n": int(air.sum()), "height_above_lowest_m": AIRBORNE_M}
+def _window(t: Array, air: Array, nees: dict[str, Array], masks: dict[str, Array],
+            errs: dict[str, Array], dof: dict[str, int]) -> dict[str, Any]:
+    """The ``airborne`` or ``settled`` block of :meth:`NavScorer.scores`: the scores over
+    the steps ``air`` only (time span in s, Euler RMSE in deg, velocity/position RMSE,
+    NEES)."""
+    a: dict[str, Any] = {"t": [float(t[air][0]), float(t[air][-1])], "n": int(air.sum())}
     if "attitude" in masks:
         sel = air[masks["attitude"]]
         eu = errs["euler"][sel]
