@@ -68,6 +68,7 @@ from ..ingest.types import (
     GnssSample,
     ImuSample,
     LinkEvent,
+    MagSample,
     NoSamplesError,
     PositionSample,
 )
@@ -591,8 +592,9 @@ class _GapAware:
 
 
 class _LearnGnss(Sink):
-    """Hands each GNSS fix, once as it arrives, to the live GNSS delay's learner when it is
-    from the navigation stream's receiver."""
+    """Hands each GNSS fix, baro and magnetometer sample, once as it arrives, to the live
+    learner (the GNSS delay, the inclination) when it is from the navigation stream's
+    sensor of that kind."""
 
     def __init__(self, learner: LiveDelayLearner, att: _GapAware) -> None:
         self.learner = learner
@@ -603,6 +605,8 @@ class _LearnGnss(Sink):
             self.learner.add_gnss(s, getattr(self.att.stream, "gnss_source", None))
         elif isinstance(s, BaroSample):
             self.learner.add_baro(s, getattr(self.att.stream, "baro_source", None))
+        elif isinstance(s, MagSample):
+            self.learner.add_mag(s, getattr(self.att.stream, "mag_source", None))
 
 
 class _NoEvents:

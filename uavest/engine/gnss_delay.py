@@ -829,6 +829,26 @@ def estimate_gnss_delay(samples: Iterable[Any], opts: NavOptions, params: dict[s
 #: replay's probe, it looks at the start of the flight only).
 LIVE_FIRST_S = 60.0
 LIVE_CHECK_S = 30.0
+#: A live run whose start had to choose the magnetometer's inclination between the
+#: accelerometer-magnetometer angle and the magnetic model's
+#: (:attr:`NavStream.inclination_choice <uavest.engine.navigation.NavStream.inclination_choice>`)
+#: judges the choice from this many seconds (vehicle time) after its first step, every
+#: :data:`INCL_CHECK_S` s until :data:`INCL_LAST_S` s: the field's inclination estimated
+#: from the run's first filter (:meth:`DelayProbe.estimate_mag`, the tilt corrected by the
+#: GNSS velocity changes) on at least :data:`INCL_MIN_READINGS` readings, and the model's
+#: taken when the estimate is nearer to it than to the start's angle. On the simulator's
+#: 60-s flights the estimate is within 0.5 deg of the true field from 15 s on seven seeds,
+#: and on the eighth (an accelerating start, 1.23 deg off) 0.57-0.65 deg nearer the true
+#: field than the start's angle at 20-25 s (docs/live.md, "Settled").
+INCL_FIRST_S = 20.0
+INCL_CHECK_S = 5.0
+INCL_LAST_S = 60.0
+INCL_MIN_READINGS = 200
+#: The model's inclination is taken when the estimate has moved this share of the way
+#: from the start's angle towards it: less than half, for the estimate leans towards the
+#: field in use (the filter's tilt follows that field, and the GNSS corrects it only as
+#: the vehicle manoeuvres).
+INCL_SHARE = 0.4
 
 
 class LiveDelayLearner:
@@ -884,6 +904,18 @@ class LiveDelayLearner:
         self._t0: float | None = None
         self._next = 0.0
         self._refining = False
+        #: the magnetometer's inclination judged live (rad; None: the start's kept or not
+        #: judged), when (s) and why, and every try; fed by its own probe
+        self.inclination: float | None = None
+        self.t_inclination: float | None = None
+        self.inclination_why = ""
+        self.inclination_tries: list[dict[str, Any]] = []
+        self._choice: tuple[float, float, str] | None = None
+        self._iprobe = DelayProbe()
+        self._incl_done = False
+        self._it0: float | None = None
+        self._inext = 0.0
+        self._last_mag: Array | None = None
 
     # ---------------------------------------------------------------- feeding
     def tap(self, runner: Any) -> _Tap:
@@ -895,29 +927,55 @@ class LiveDelayLearner:
     def add_gnss(self, s: GnssSample, source: str | None) -> None:
         """A fix as it arrives (each once: the sinks' ``sample``), when it is from the
         stream's receiver ``source`` (None: none chosen yet)."""
-        if not self.done and source is not None and s.source == source:
+        if source is None or s.source != source:
+            return
+        if not self.done:
             self._probe.add_gnss(s)
+        if not self._incl_done:
+            self._iprobe.add_gnss(s)
+
+    def add_mag(self, s: MagSample, source: str | None) -> None:
+        """A magnetometer sample as it arrives, when it is from the stream's magnetometer
+        ``source``: each new reading once (a reading repeated in every IMU message, as a
+        RAW_IMU's, is one), until the inclination is judged."""
+        if self._incl_done or source is None or s.source != source:
+            return
+        f = np.asarray(s.field, float)
+        if self._last_mag is None or not np.array_equal(f, self._last_mag):
+            self._last_mag = f
+            self._iprobe.add_mag(s.t, f)
 
     def add_baro(self, s: BaroSample, source: str | None) -> None:
         """A baro sample as it arrives, when it is from the stream's barometer ``source``."""
         if not self.done and source is not None and s.source == source:
             self._probe.add_baro(s.t, baro_height(s))
 
-    def _mark(self) -> tuple[int, tuple[int, int]]:
-        return self._gen, self._probe.mark()
+    def _mark(self) -> tuple[int, tuple[int, int], tuple[int, int]]:
+        return self._gen, self._probe.mark(), self._iprobe.mark()
 
-    def _rewind(self, mark: tuple[int, tuple[int, int]]) -> None:
+    def _rewind(self, mark: tuple[int, tuple[int, int], tuple[int, int]]) -> None:
         """Back to ``mark`` (the history restored the filter): the steps after it are made
-        again. GNSS fixes come once, from the sinks' side, and stay."""
-        gen, at = mark
+        again. GNSS fixes and magnetometer readings come once, from the sinks' side, and
+        stay."""
+        gen, at, iat = mark
         # a probe made after the mark (the refinement's): all of its steps are re-made
         self._probe.rewind(at if gen == self._gen else (0, 0))
+        self._iprobe.rewind(iat)
 
     def _start(self) -> None:
         if not self.done:
             self._probe.start()
+        if not self._incl_done:
+            self._iprobe.start()
 
     def _step(self, st: Step, x: Array) -> None:
+        if not self._incl_done:
+            self._iprobe.add_step(st, x)
+            if self._it0 is None:
+                self._it0 = float(st.t)
+                self._inext = self._it0 + INCL_FIRST_S
+            elif st.t >= self._inext:
+                self._judge(float(st.t))
         if self.done:
             return
         self._probe.add_step(st, x)
@@ -966,6 +1024,33 @@ class LiveDelayLearner:
         else:
             self._next = t + self.check_s
 
+    def _judge(self, t: float) -> None:
+        """Judge the start's inclination choice (:data:`INCL_FIRST_S`)."""
+        assert self._it0 is not None
+        if self._choice is None:  # the start had none to make
+            self._incl_done = True
+            return
+        start, wmm, wwhy = self._choice
+        span = t - self._it0
+        d = self.delay if self.delay is not None else (self.given or 0.0)
+        est = self._iprobe.estimate_mag(gnss_delay=d)
+        inc = est.inclination if est.tilt_corrected >= INCL_MIN_READINGS else None
+        self.inclination_tries.append({"t": t, "span_s": span, "inclination": inc,
+                                       "readings": est.tilt_corrected})
+        if inc is not None and (inc - start) / (wmm - start) > INCL_SHARE:
+            self.inclination, self.t_inclination = wmm, t
+            self.inclination_why = (
+                f"the magnetic model ({wwhy}), judged live: the field estimated from "
+                f"{self.label}'s attitude with its tilt corrected by the GNSS velocity "
+                f"changes ({est.tilt_corrected} readings over {span:.0f} s) is at "
+                f"{np.degrees(inc):.2f} deg, more than {INCL_SHARE:g} of the way to it from the "
+                f"start's {np.degrees(start):.2f} deg (an accelerating start)")
+            self._incl_done = True
+        elif span + INCL_CHECK_S > INCL_LAST_S:
+            self._incl_done = True
+        else:
+            self._inext = t + INCL_CHECK_S
+
     def _aids(self, est: DelayEstimate, d: float, span: float) -> None:
         """The velocity window and the baro delay that go with a delay ``d`` found."""
         what = (f"{self.label}, over {span:.0f} s of "
@@ -1001,10 +1086,15 @@ class LiveDelayLearner:
         if getattr(stream, "_builder", None) is None:
             return
         self._frame = getattr(stream, "frame", None)
+        self._choice = getattr(stream, "inclination_choice", None)
+        if self.inclination is not None and \
+                stream.summary.get("inclination_rad") != self.inclination:
+            stream.set_mag_inclination(self.inclination, float(self.t_inclination or 0.0),
+                                       self.inclination_why)
         if self.t_decided is None:
             rate = float(stream.summary.get("align_rate_hz") or 0.0)
             if not self.done and 0 < rate < PROBE_MIN_IMU_HZ:
-                self.done = True
+                self.done = self._incl_done = True
                 self.estimates.append({"t": None, "why": (
                     f"the IMU at {rate:.1f} Hz is too coarse to time the aiding against "
                     f"(needs {PROBE_MIN_IMU_HZ:g} Hz)")})
@@ -1034,7 +1124,11 @@ class LiveDelayLearner:
                 "window": self.window, "baro_delay": self.baro_delay,
                 "baro_spread": self.baro_spread, "baro_noise": self.baro_noise,
                 "gnss_drift": self.drift, "gnss_bias": self.bias,
-                "filter": self.label or None, "tries": self.estimates}
+                "filter": self.label or None, "tries": self.estimates,
+                "inclination": {
+                    "choice": None if self._choice is None else list(self._choice[:2]),
+                    "value": self.inclination, "t": self.t_inclination,
+                    "why": self.inclination_why or None, "tries": self.inclination_tries}}
 
 
 class _Tap:

@@ -67,6 +67,7 @@ from ..ingest.types import (
 )
 from ..models.attitude import (
     declination_and_source,
+    inclination_from_params,
     mag_reference,
 )
 from ..models.navigation import (
@@ -100,6 +101,7 @@ from .nav_align import (
     level,
     start_inclination,
     unaided_start,
+    widen_tilt,
     with_gnss_bias,
 )
 from .records import NavAnchor, Start, Step
@@ -380,6 +382,8 @@ class NavStream(LateDeclination, StreamSnapshots):
         self._vfix_last: tuple[float, Array] | None = None
         self._aid_noise: NavNoise | None = None  # the aids' noise (:meth:`_noise_for_aids`)
         self._bias_pending = False  # GNSS bias states set: restart with them at next step
+        #: rad^2 to add to the tilt variance at the next step (a new inclination)
+        self._tilt_pending = 0.0
         #: the last steps released (end s, length s, rate, specific force) while a
         #: velocity window needs them (:func:`~uavest.engine.nav_aiding.window_force`)
         self._recent: deque[tuple[float, float, Array, Array]] = deque()
@@ -419,6 +423,12 @@ class NavStream(LateDeclination, StreamSnapshots):
         self._k = 0
         self._imu_n = [0, 0.0, 0.0]
         self._mref: Array | None = None
+        #: (the start's accelerometer-magnetometer angle, the magnetic model's
+        #: inclination, the model's why), rad, when the start took the first for being
+        #: beyond the tolerance of the second: an accelerating start and a local field
+        #: look alike, and a live run's learner judges between them later
+        #: (:meth:`set_mag_inclination`); None otherwise
+        self.inclination_choice: tuple[float, float, str] | None = None
         self._decl_pending = False
         self._decl_seen: tuple[int, bool] | None = None
         self._yaw_turn = 0.0  # LateDeclination
@@ -788,7 +798,8 @@ class NavStream(LateDeclination, StreamSnapshots):
         """The restarts due before the step of ``r``, each from every filter's running
         estimate: the yaw turned by a declination learnt since the last step
         (:meth:`_check_declination`), the GNSS bias states appended once set
-        (:meth:`set_gnss_bias`)."""
+        (:meth:`set_gnss_bias`), the tilt variance widened for a new inclination
+        (:meth:`set_mag_inclination`)."""
         t0 = self._stamp(r)
         out = self._turn_start(r.t, t0, self._size_prior)
         if self._bias_pending:
@@ -796,6 +807,10 @@ class NavStream(LateDeclination, StreamSnapshots):
             out.append(Start(t0, self._size_prior(), self.space,
                              reason="GNSS bias states",
                              augment=partial(add_gnss_bias, noise=self.noise)))
+        if self._tilt_pending:
+            var, self._tilt_pending = self._tilt_pending, 0.0
+            out.append(Start(t0, self._size_prior(), self.space, reason="inclination",
+                             augment=partial(widen_tilt, var=var)))
         return out
 
     def _size_prior(self) -> Gaussian:
@@ -937,6 +952,25 @@ class NavStream(LateDeclination, StreamSnapshots):
                 self._mref = mag_reference(self.declination, inc)
                 self.summary["inclination_rad"] = float(inc)
                 self._decide("inclination", f"{np.degrees(inc):.2f} deg", r.t, why)
+                if o.mag_inclination is None and o.inclination_wmm:
+                    wmm, wwhy = inclination_from_params(self.params)
+                    if wmm is not None and wmm != inc:
+                        self.inclination_choice = (float(inc), float(wmm), wwhy)
+
+    def set_mag_inclination(self, inc: float, t: float, why: str) -> None:
+        """From now on the magnetometer's reference field has the inclination ``inc``
+        (rad, down positive; a live run's judgement of :attr:`inclination_choice`),
+        decided at ``t`` (s) because ``why``. Nothing before the first start or without
+        a 3-D field reference."""
+        if self._builder is None or self._mref is None:
+            return
+        old = float(np.arcsin(np.clip(self._mref[2], -1.0, 1.0)))
+        self._mref = mag_reference(self.declination, float(inc))
+        self.summary["inclination_rad"] = float(inc)
+        # the filters' tilt was held to the old field: its error can be that far off
+        self._tilt_pending += (float(inc) - old) ** 2
+        self._decide("inclination", f"{np.degrees(inc):.2f} deg", t,
+                     why + "; the filters' tilt variance widened by the change")
 
     def _yaw_from_mag(self) -> tuple[bool, str]:
         """:meth:`LateDeclination._yaw_from_mag`: until a fix has shown a ground speed of
