@@ -836,10 +836,11 @@ LIVE_CHECK_S = 30.0
 #: :data:`INCL_CHECK_S` s until :data:`INCL_LAST_S` s: the field's inclination estimated
 #: from the run's first filter (:meth:`DelayProbe.estimate_mag`, the tilt corrected by the
 #: GNSS velocity changes) on at least :data:`INCL_MIN_READINGS` readings, and the model's
-#: taken when the estimate is nearer to it than to the start's angle. On the simulator's
-#: 60-s flights the estimate is within 0.5 deg of the true field from 15 s on seven seeds,
-#: and on the eighth (an accelerating start, 1.23 deg off) 0.57-0.65 deg nearer the true
-#: field than the start's angle at 20-25 s (docs/live.md, "Settled").
+#: taken once the estimate has moved :data:`INCL_SHARE` of the way to it. On the
+#: simulator's 60-s flights the estimate at 15-20 s is within 0.36 deg of the true field
+#: on the seven seeds whose start took the model, and on the eighth (an accelerating
+#: start, 1.23 deg off) 0.48 of the way at 20 s (docs/live.md, "The start's inclination,
+#: judged live").
 INCL_FIRST_S = 20.0
 INCL_CHECK_S = 5.0
 INCL_LAST_S = 60.0

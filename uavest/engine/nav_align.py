@@ -186,7 +186,7 @@ def widen_tilt(g: Any, var: float, gravity: float = G0) -> Any:
     reference changed mid-run, which had held the tilt to the old field. A tilt error and
     a horizontal accelerometer bias look alike until the vehicle turns, and the filter
     has put part of the old field's pull into its bias: widening the tilt alone left the
-    bias to pull the tilt back (an accelerating start of the simulator: the pitch 0.8-1.1
+    bias to pull the tilt back (an accelerating start of the simulator: the pitch 0.55-1.06
     deg off for 25 s after the change, against under 0.11 deg 4 s after it with both)."""
     P = np.array(g.P, float)
     for i in (0, 1):
