@@ -176,9 +176,16 @@ def test_live_navigation_model_against_the_simulator_and_its_tlog_replays_the_sa
         st = row["settled"]
         assert st["after_s"] == LiveConfig.settle_s and 0 < st["n"] < len(t)
         assert st["t"][0] >= t[0] + LiveConfig.settle_s and st["vel_rmse_ms"] is not None
+        # the gates' counts per sensor, as a replay's (none rejected on this clean flight)
+        g = row["gates"]
+        assert g["gnss_pos"]["accepted"] > 10 and g["gnss_vel"]["accepted"] > 10, g
+        assert sum(v["rejected"] for v in g.values()) <= 2, g
     from uavest.cli.run import format_live
 
-    assert "settled (from 10 s after each filter's first estimate" in format_live(doc)
+    text = format_live(doc)
+    assert "settled (from 10 s after each filter's first estimate" in text
+    assert "rejected" in text.splitlines()[text.splitlines().index(
+        next(ln for ln in text.splitlines() if ln.startswith("navigation model"))) + 1]
     again = Collector()
     doc2 = run_live(LiveConfig(connect=str(tlog), sysid=doc["link"]["vehicle_sysid"],
                                trackers=(), model="nav", filters=("ekf", "hybrid")),

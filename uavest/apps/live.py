@@ -921,6 +921,8 @@ def _attitude_result(cfg: LiveConfig, att: _GapAware, runners: list,
                                                     getattr(att.stream, "frame", None),
                                                     settle_s=cfg.settle_s)
                                   if nav_scorer is not None else {}),
+                               **({"gates": {k: dict(v) for k, v in r.gates.items()}}
+                                  if getattr(r, "gates", None) else {}),
                                "resets": r.resets,
                                "us_per_step": r.us_per_step}
                      for r in runners},

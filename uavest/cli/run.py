@@ -165,8 +165,11 @@ def format_live(doc: dict) -> str:
     cols = ["roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg", "nees_mean", "resets",
             "us_per_step"]
     title = f"attitude against {what}; RMSE in degrees"
+    rows = doc["attitude"]
     if doc.get("model") == "nav":
-        cols[4:4] = ["vel_rmse_ms", "hpos_rmse_m", "vpos_rmse_m"]
+        # "rejected": the aiding updates the filter's gates dropped (JSON ``gates``)
+        cols[4:4] = ["vel_rmse_ms", "hpos_rmse_m", "vpos_rmse_m", "rejected"]
+        rows = {k: flat_row(r) for k, r in rows.items()}
         pref = next((r["position_reference"] for r in doc["attitude"].values()
                      if r.get("position_reference")), None)
         title = (f"navigation model; attitude against {what}, RMSE in degrees; velocity "
@@ -175,7 +178,7 @@ def format_live(doc: dict) -> str:
     if nz.get("overrides"):
         lines.append("noise: " + ", ".join(f"{k} {v:.4g}" for k, v in nz["overrides"].items())
                      + f" ({nz['why']})")
-    lines += [title, table(doc["attitude"], cols)]
+    lines += [title, table(rows, cols)]
     lines += _settled_lines(doc)
     live = doc.get("gnss_delay_live")
     tries = (live or {}).get("tries") or []
