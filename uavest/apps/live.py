@@ -169,8 +169,8 @@ class LiveConfig:
     #: navigation: the vehicle's sensor spec as taken (:meth:`SpecStart.as_dict
     #: <uavest.apps.sensor_spec.SpecStart.as_dict>`; None: it states none)
     sensor_spec: dict | None = None
-    #: s after each estimator's first step from which its ``settled`` scores count
-    #: (:meth:`NavScorer.scores <uavest.eval.navigation.NavScorer.scores>`): a start in
+    #: navigation: s after each estimator's first step from which its ``settled`` scores
+    #: count (:meth:`NavScorer.scores <uavest.eval.navigation.NavScorer.scores>`): a start in
     #: flight aligns on a moving vehicle and takes some seconds to converge, which a short
     #: run's whole-run figure is mostly made of (docs/live.md, "Settled"); 0: none
     settle_s: float = 10.0

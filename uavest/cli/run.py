@@ -70,9 +70,9 @@ def _common(p: argparse.ArgumentParser) -> None:
                    "time (re-stepping the filters from before them; older ones are counted "
                    f"late and skipped; default {LiveConfig.history_s:g})")
     p.add_argument("--settle", type=float, default=LiveConfig.settle_s, metavar="S",
-                   help="score each filter again from S s after its first estimate (the "
-                   "'settled' table and JSON block: a start in flight converges first); "
-                   f"0 for none (default {LiveConfig.settle_s:g})")
+                   help="with --model nav: score each filter again from S s after its "
+                   "first estimate (the 'settled' table and JSON block: a start in flight "
+                   f"converges first); 0 for none (default {LiveConfig.settle_s:g})")
     p.add_argument("--no-status", action="store_true", help="no live status line")
     p.add_argument("--model", default="attitude", choices=("attitude", "nav"),
                    help="attitude: attitude + gyro bias (default); nav: the GNSS-aided "
