@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 
 from uavest.apps.live import LiveConfig, run_live
+from uavest.apps.replay import ReplayConfig, replay
 from uavest.engine.gnss_delay import INCL_FIRST_S, INCL_LAST_S
-from uavest.engine.nav_align import widen_tilt
+from uavest.engine.nav_align import HEADING_SCALE_MAX, heading_noise_scale, widen_tilt
 from uavest.geometry.rotation import G0
 
 SIM = [sys.executable, "-m", "uavest.cli.sim", "sim_default", "--out", "none", "--speed",
@@ -30,6 +31,12 @@ def _record(tmp_path, seed: int):
     tlog = tmp_path / f"seed{seed}.tlog"
     subprocess.run([*SIM, "--seed", str(seed), "--tlog", str(tlog)], check=True, timeout=300)
     return tlog
+
+
+@pytest.fixture(scope="module")
+def seed0(tmp_path_factory):
+    """Seed 0's 30-s flight (its start takes the magnetic model), recorded once."""
+    return _record(tmp_path_factory.mktemp("seed0"), 0)
 
 
 def test_widen_tilt_opens_the_tilt_and_the_horizontal_accelerometer_bias_only():
@@ -73,11 +80,37 @@ def test_an_accelerating_start_takes_the_magnetic_model_once_judged_live(tmp_pat
 
 
 @pytest.mark.slow
-def test_a_start_that_took_the_magnetic_model_has_nothing_to_judge(tmp_path):
-    tlog = _record(tmp_path, 0)
-    doc = run_live(LiveConfig(connect=str(tlog), model="nav", filters=("ekf",), trackers=()),
+def test_a_start_that_took_the_magnetic_model_has_nothing_to_judge(seed0):
+    doc = run_live(LiveConfig(connect=str(seed0), model="nav", filters=("ekf",), trackers=()),
                    status=False)
     inc = [d for d in doc["decisions"] if d["what"] == "inclination"]
     assert len(inc) == 1 and "the magnetic model" in inc[0]["why"], inc
     live = doc["gnss_delay_live"]["inclination"]
     assert live["choice"] is None and live["value"] is None and live["tries"] == []
+
+
+def test_the_heading_noise_is_the_field_direction_noise_over_the_horizontal_share():
+    for deg in (0.0, 30.0, 63.5, 80.0):
+        scale, why = heading_noise_scale(np.deg2rad(deg), "the magnetic model")
+        assert scale == pytest.approx(1.0 / np.cos(np.deg2rad(deg)), rel=1e-12)
+        assert f"cos({deg:.2f} deg)" in why and "the magnetic model" in why
+    # near the magnetic poles the horizontal field says little: capped, not infinite
+    assert heading_noise_scale(np.deg2rad(89.9), "x")[0] == HEADING_SCALE_MAX
+    assert heading_noise_scale(None, "x") == (1.0, heading_noise_scale(np.nan, "x")[1])
+
+
+@pytest.mark.slow
+def test_heading_mode_from_a_start_in_flight_holds_with_the_spec_noise(seed0):
+    """``--mag-mode heading`` with the simulator's own magnetometer noise (SPEC_MAG_NSR,
+    0.00625 rad per axis of the field's direction): the heading's noise is that over
+    cos(63.5 deg). Taken as the heading's own, the heading held the tilt 5x too hard
+    through its coupling at this inclination: 5.6 / 10.4 / 1.4 deg, 4.9 m/s, 10.7 m over
+    this flight (docs/live.md, "Settled")."""
+    doc = replay(seed0, ReplayConfig(filters=("ekf",), mag_mode="heading", model="nav"))
+    hd = [d for d in doc["decisions"] if d["what"] == "magnetometer heading noise"]
+    assert len(hd) == 1, hd
+    want = 0.00625 / np.cos(np.deg2rad(63.5))
+    assert float(hd[0]["value"].split()[0]) == pytest.approx(want, abs=0.0006), hd
+    row = doc["filters"]["ekf"]
+    assert row["resets"] == 0
+    assert row["vel_rmse_ms"] < 1.0 and row["hpos_rmse_m"] < 3.0, row

@@ -91,6 +91,7 @@ from ..models.attitude import (
     initial_attitude,
     mag_reference,
     noise_for_source,
+    reference_inclination,
     triad_attitude,
 )
 from .history import restore_vars, snapshot_vars
@@ -416,7 +417,7 @@ class LateDeclination:
         turn = float(decl) - self.declination
         self.declination = float(decl)
         if self._mref is not None:
-            self._mref = mag_reference(self.declination, float(np.arcsin(self._mref[2])))
+            self._mref = mag_reference(self.declination, reference_inclination(self._mref))
         self.summary.update(declination_rad=self.declination, declination_source=src,
                             declination_from_t=float(t))
         alone, what = self._yaw_from_mag()
@@ -882,7 +883,7 @@ class AttitudeStream(LateDeclination, StreamSnapshots):
             self._mref = mag_reference(
                 decl, inclination_from_samples(np.array(acc).reshape(-1, 3),
                                                np.array(fld).reshape(-1, 3)))
-            self.summary["inclination_rad"] = float(np.arcsin(self._mref[2]))
+            self.summary["inclination_rad"] = reference_inclination(self._mref)
         q0 = initial_attitude(first.accel, mag0 if self._mag is not None else None, decl)
         P0 = np.diag([noise.init_tilt**2, noise.init_tilt**2, noise.init_yaw**2]
                      + [noise.init_bias**2] * 3)

@@ -347,11 +347,13 @@ class AidQueues:
 
     def mag_updates(self, mag: _Aid, stamp: float, w: Array, mref: Array | None,
                     declination: float, noise: NavNoise, ups: list[tuple[Array, Any]],
-                    sensors: list[str]) -> None:
+                    sensors: list[str], heading_scale: float = 1.0) -> None:
         """Append the update of a magnetometer aid taken by the step ending at ``stamp``
         (s) with the rate ``w`` (rad/s) to ``ups`` (counted ``used``), at most every
         :data:`MAG_MIN_INTERVAL_S`: the 3-D field direction against the unit reference
-        ``mref`` (NED), or without one the heading against ``declination`` (rad)."""
+        ``mref`` (NED), or without one the heading against ``declination`` (rad), its
+        std ``mag_noise`` times ``heading_scale`` (the field's direction noise seen in its
+        horizontal part: :func:`~uavest.engine.nav_align.heading_noise_scale`)."""
         if mag.vec is None or mag.t - self.t_mag < MAG_MIN_INTERVAL_S:
             return
         self.t_mag = mag.t
@@ -362,7 +364,7 @@ class AidQueues:
                 MagField(mref, np.eye(3) * n.mag_noise**2), back, w)))
         else:
             ups.append((np.array([declination]), OnNav(
-                MagHeading(f, np.array([[n.mag_noise**2]])), back, w)))
+                MagHeading(f, np.array([[(n.mag_noise * heading_scale)**2]])), back, w)))
         sensors.append("mag")
         self.count("mag", "used")
 

@@ -145,25 +145,50 @@ def fix_prior(fix: _Aid, dt: float, noise: NavNoise) -> tuple[Array, Array, list
 
 def start_inclination(recent: Iterable[_Raw], params: dict[str, Any],
                       inclination: float | None, why: str | None, use_wmm: bool
-                      ) -> tuple[float | None, str]:
-    """(inclination rad or None, why) at the first start: ``inclination`` when given
-    (with ``why``, else "option"), else the angle between the accelerometer and the
-    magnetometer over the alignment window ``recent``, replaced by the World Magnetic
+                      ) -> tuple[float | None, str, tuple[float, str] | None]:
+    """(inclination rad or None, why, the model's) at the first start: ``inclination``
+    when given (with ``why``, else "option"), else the angle between the accelerometer and
+    the magnetometer over the alignment window ``recent``, replaced by the World Magnetic
     Model's (from ``params``) when ``use_wmm`` and within :data:`WMM_INCLINATION_TOL` of
-    it; None without magnetometer samples in the window."""
+    it; None without magnetometer samples in the window. The third is (the model's
+    inclination, where it came from) when the window's angle was taken over it (a choice
+    a live run judges later), else None."""
     pairs = [(x.a, x.mag) for x in recent if x.mag is not None and x.a is not None]
     inc, why = None, why or "option"
     if inclination is not None:
-        inc = float(inclination)
-    elif pairs:
-        inc = inclination_from_samples(np.array([p[0] for p in pairs]),
-                                       np.array([p[1] for p in pairs]))
-        why = "the angle between the accelerometer and the magnetometer at the start"
-        wmm, wwhy = (inclination_from_params(params) if use_wmm else (None, ""))
-        if use_wmm and wmm is not None and abs(wmm - inc) <= WMM_INCLINATION_TOL:
-            inc, why = wmm, (f"the magnetic model ({wwhy}; the accelerometer's angle "
-                             f"{np.degrees(abs(inc - wmm)):.2f} deg from it)")
-    return inc, why
+        return float(inclination), why, None
+    if not pairs:
+        return None, why, None
+    inc = inclination_from_samples(np.array([p[0] for p in pairs]),
+                                   np.array([p[1] for p in pairs]))
+    why = "the angle between the accelerometer and the magnetometer at the start"
+    wmm, wwhy = (inclination_from_params(params) if use_wmm else (None, ""))
+    if wmm is None:
+        return inc, why, None
+    if abs(wmm - inc) <= WMM_INCLINATION_TOL:
+        return wmm, (f"the magnetic model ({wwhy}; the accelerometer's angle "
+                     f"{np.degrees(abs(inc - wmm)):.2f} deg from it)"), None
+    return inc, why, (float(wmm), wwhy)
+
+
+#: The heading std is at most this many times the field-direction std (an inclination
+#: of 84.3 deg; near the magnetic poles the horizontal field says little).
+HEADING_SCALE_MAX = 10.0
+
+
+def heading_noise_scale(inc: float | None, why: str) -> tuple[float, str]:
+    """(scale, why) of ``--mag-mode heading``'s noise: ``mag_noise`` is the std of the
+    field's direction per axis (rad), and a heading is the angle of the horizontal part
+    alone, ``cos(inc)`` of the field: its std is ``mag_noise / cos(inc)``, at most
+    :data:`HEADING_SCALE_MAX` times it. ``inc`` (rad) from :func:`start_inclination` with
+    its ``why``; without one (no magnetometer reading in the alignment window) 1."""
+    if inc is None or not np.isfinite(inc):
+        return 1.0, ("the field-direction noise itself: no inclination at the start (no "
+                     "magnetometer reading in the alignment window)")
+    c = float(np.cos(inc))
+    scale = 1.0 / max(c, 1.0 / HEADING_SCALE_MAX)
+    return scale, (f"the field-direction noise over cos({np.degrees(inc):.2f} deg), the "
+                   f"horizontal field's share (the inclination: {why})")
 
 
 def fix_start(q: Array, tilt: float, syaw: float, v: Array, p: Array, pv: list[float],

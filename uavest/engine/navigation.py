@@ -67,8 +67,8 @@ from ..ingest.types import (
 )
 from ..models.attitude import (
     declination_and_source,
-    inclination_from_params,
     mag_reference,
+    reference_inclination,
 )
 from ..models.navigation import (
     GnssPosition,
@@ -98,6 +98,7 @@ from .nav_align import (
     fix_prior,
     fix_start,
     gnss_acceleration,
+    heading_noise_scale,
     level,
     start_inclination,
     unaided_start,
@@ -429,6 +430,9 @@ class NavStream(LateDeclination, StreamSnapshots):
         #: look alike, and a live run's learner judges between them later
         #: (:meth:`set_mag_inclination`); None otherwise
         self.inclination_choice: tuple[float, float, str] | None = None
+        #: ``--mag-mode heading``: the heading std is ``mag_noise`` times this
+        #: (:func:`~uavest.engine.nav_align.heading_noise_scale`, set at the first start)
+        self._heading_scale = 1.0
         self._decl_pending = False
         self._decl_seen: tuple[int, bool] | None = None
         self._yaw_turn = 0.0  # LateDeclination
@@ -945,17 +949,20 @@ class NavStream(LateDeclination, StreamSnapshots):
         self._decide("declination", f"{np.degrees(self.declination):.2f} deg", r.t,
                      src + (" (taken later if the log gives one)" if self._decl_pending
                             else ""))
-        if self._mag is not None and o.mag_mode == "field":
-            inc, why = start_inclination(self._align.recent, self.params, o.mag_inclination,
-                                         o.mag_inclination_why, o.inclination_wmm)
-            if inc is not None:
-                self._mref = mag_reference(self.declination, inc)
-                self.summary["inclination_rad"] = float(inc)
-                self._decide("inclination", f"{np.degrees(inc):.2f} deg", r.t, why)
-                if o.mag_inclination is None and o.inclination_wmm:
-                    wmm, wwhy = inclination_from_params(self.params)
-                    if wmm is not None and wmm != inc:
-                        self.inclination_choice = (float(inc), float(wmm), wwhy)
+        if self._mag is None:
+            return
+        inc, why, alt = start_inclination(self._align.recent, self.params, o.mag_inclination,
+                                          o.mag_inclination_why, o.inclination_wmm)
+        if o.mag_mode == "heading":
+            self._heading_scale, hwhy = heading_noise_scale(inc, why)
+            self._decide("magnetometer heading noise",
+                         f"{self.noise.mag_noise * self._heading_scale:.4f} rad", r.t, hwhy)
+        elif inc is not None:
+            self._mref = mag_reference(self.declination, inc)
+            self.summary["inclination_rad"] = float(inc)
+            self._decide("inclination", f"{np.degrees(inc):.2f} deg", r.t, why)
+            if alt is not None:
+                self.inclination_choice = (float(inc), *alt)
 
     def set_mag_inclination(self, inc: float, t: float, why: str) -> None:
         """From now on the magnetometer's reference field has the inclination ``inc``
@@ -964,7 +971,7 @@ class NavStream(LateDeclination, StreamSnapshots):
         a 3-D field reference."""
         if self._builder is None or self._mref is None:
             return
-        old = float(np.arcsin(np.clip(self._mref[2], -1.0, 1.0)))
+        old = reference_inclination(self._mref)
         self._mref = mag_reference(self.declination, float(inc))
         self.summary["inclination_rad"] = float(inc)
         # the filters' tilt was held to the old field: its error can be that far off
@@ -1027,7 +1034,7 @@ class NavStream(LateDeclination, StreamSnapshots):
         mag = next((a for a in reversed(aids) if a.sensor == "mag"), None)
         if mag is not None:
             self._aids.mag_updates(mag, stamp, r.w, self._mref, self.declination, n,
-                                   ups, sensors)
+                                   ups, sensors, self._heading_scale)
         if self._align.unaided and r.t - self._t_hold >= HOLD_INTERVAL_S:
             self._t_hold = r.t
             ups.append((np.zeros(3), GnssPosition(np.eye(3) * n.nofix_pos_noise**2,

@@ -65,6 +65,7 @@ __all__ = [
     "inclination_from_samples",
     "inclination_from_params",
     "mag_reference",
+    "reference_inclination",
     "declination_from_params",
     "initial_attitude",
     "noise_for_source",
@@ -604,6 +605,12 @@ def mag_reference(declination: float, inclination: float) -> Array:
     (rad, positive when the field points down: northern hemisphere)."""
     ci = np.cos(inclination)
     return np.array([ci * np.cos(declination), ci * np.sin(declination), np.sin(inclination)])
+
+
+def reference_inclination(mref: Array) -> float:
+    """The inclination (rad, positive down) of a unit NED field ``mref``
+    (:func:`mag_reference`'s inverse for it)."""
+    return float(np.arcsin(np.clip(mref[2], -1.0, 1.0)))
 
 
 def inclination_from_samples(accel: Array, field: Array) -> float:

@@ -93,7 +93,8 @@ class NavNoise:
         An ArduPilot SITL's GPS_RAW_INT velocity is such a mean over about 0.35 s
         (docs/navigation.md).
     baro_noise: barometric height std, m.
-    mag_noise: heading / field-direction std, rad.
+    mag_noise: the magnetic field's direction std per axis, rad (with a heading
+        measurement, the heading's std is this over cos(inclination)).
     gate_chi2: innovation gate, chi-square value per measurement dimension group
         (applied as the 99.9 % quantile for the dimension when None).
     init_tilt, init_yaw: prior std of roll/pitch and yaw, rad (yaw from the
