@@ -283,6 +283,31 @@ def test_bad_aiding_is_gated_and_counted_never_a_reset_storm():
         assert rms(e[:, 6:8]) < 2.0 and rms(e[:, 3:6]) < 0.5
 
 
+@pytest.mark.parametrize("spec", ["ekf", *SLOW_SPECS])
+def test_a_filter_locked_out_of_the_gnss_velocity_resets_and_comes_back(spec, monkeypatch):
+    """A 4 m/s^2 accelerometer fault for 10 s drives the velocity off faster than any
+    state explains: the GNSS velocity is rejected at the gate. Once rejected for
+    LOCKOUT_S the filter resets (counted, with a reason) from its estimate widened and
+    comes back to the GNSS; without it (one update on the gate per REANCHOR_S) the
+    velocity error grew to 37 m/s by the end of this flight and never came back."""
+    samples, ts, xs = flight(3, mag=False)
+    bad = [ImuSample(s.t, s.gyro, s.accel + [4.0, 0.0, 0.0], s.source)
+           if isinstance(s, ImuSample) and 115.0 <= s.t < 125.0 else s for s in samples]
+    stream, runners, coll = run_nav(bad, [spec])
+    r = runners[0]
+    assert 1 <= r.resets <= 3 and r.gates["gnss_vel"]["reset"] == r.resets, r.gates
+    why = [rec.reason for rec in coll.records[r.label] if rec.reset]
+    assert len(why) == r.resets and all("gnss_vel rejected for" in w for w in why), why
+    e, _ = errors(stream, coll, r.label, ts, xs, 132.0)
+    assert rms(e[:, 3:6]) < 0.5, rms(e[:, 3:6])
+    # the same flight without the reset: the GNSS velocity stays locked out
+    monkeypatch.setattr(navigation, "LOCKOUT_SENSORS", frozenset())
+    stream, runners, coll = run_nav(bad, [spec])
+    assert runners[0].resets == 0 and runners[0].gates["gnss_vel"]["reset"] == 0
+    e, _ = errors(stream, coll, runners[0].label, ts, xs, 132.0)
+    assert rms(e[:, 3:6]) > 10.0
+
+
 def test_bad_noise_option_is_one_line():
     with pytest.raises(InputError, match="not a parameter"):
         NavOptions(noise={"accel_deweight": 1.0})

@@ -45,7 +45,7 @@ from __future__ import annotations
 import copy
 from collections import deque
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from functools import partial
 from typing import Any
 
@@ -105,7 +105,7 @@ from .nav_align import (
     widen_tilt,
     with_gnss_bias,
 )
-from .records import NavAnchor, Start, Step
+from .records import NavAnchor, Start, Step, StepRecord
 from .runner import FilterRunner
 
 Array = np.ndarray
@@ -118,6 +118,20 @@ GATE_PROB = 0.999
 #: Consecutive rejections of one sensor for this long (s) and its next update is taken
 #: with R scaled to put it on the gate (one re-anchoring, counted; not a reset).
 REANCHOR_S = 10.0
+#: ... except the GNSS velocity: rejected for :data:`LOCKOUT_S`, the filter has left it (a tilt the
+#: first turn shows wrong, a start's tilt error that the GNSS velocity then sees growing),
+#: and one update on the gate does not bring it back (the velocity error grew on to 9-39
+#: m/s on the simulator's 60-s flights, docs/live.md). It is a reset, as an autopilot's
+#: EKF resets its velocity and position to the GNSS after a timeout: the running
+#: estimate with its velocity variance widened by the innovation squared, its position
+#: variance by the innovation times the time rejected, squared, and its tilt and
+#: horizontal accelerometer bias as a start's (:data:`LOCKOUT_TILT`), then the update.
+LOCKOUT_SENSORS = frozenset({"gnss_vel"})
+#: ... after this long (s) of consecutive rejections.
+LOCKOUT_S = 5.0
+#: The tilt std (rad) a GNSS lock-out reset widens the tilt by (``NavNoise.init_tilt``'s
+#: default, a start's at rest), with the horizontal accelerometer bias by ``g`` times it.
+LOCKOUT_TILT = float(np.deg2rad(5.0))
 _CHI2: dict[int, float] = {}  # GATE_PROB quantile by dimension
 #: A start (or re-alignment) levels from at least this share of ``NavOptions.align_s`` of
 #: IMU data (the steps seen while waiting for the fix).
@@ -1182,15 +1196,17 @@ class NavRunner(FilterRunner):
     (``Step.info["sensors"]`` names them): the update is dropped when its NIS (the
     filter's own innovation, as :func:`~uavest.models.navigation.innovation_gate`
     computes it) is above the :data:`GATE_PROB` chi-square quantile, and
-    counts per sensor what was ``accepted``, ``rejected`` and ``reanchored`` (after
+    counts per sensor what was ``accepted``, ``rejected``, ``reanchored`` (after
     :data:`REANCHOR_S` of consecutive rejections one update is taken with R scaled onto
-    the gate, so a filter that drifted away from a sensor comes back without a reset).
-    Steps without sensors run as in :class:`FilterRunner`."""
+    the gate, so a filter that drifted away from a sensor comes back without a reset) and
+    ``reset`` (the GNSS velocity instead, :data:`LOCKOUT_SENSORS`: a reset, reported as
+    the guard's are). Steps without sensors run as in :class:`FilterRunner`."""
 
     def __init__(self, *args: Any, **kw: Any) -> None:
         super().__init__(*args, **kw)
         self.gates: dict[str, dict[str, int]] = {}
         self._rej_since: dict[str, float] = {}
+        self._reset_why = ""  # a lock-out reset in the step running, why
 
     def start(self, st: Start) -> None:
         super().start(st)
@@ -1214,7 +1230,8 @@ class NavRunner(FilterRunner):
         computed and dropped, so the gate costs nothing when it passes."""
         f: Any = self.filter
         s1, inn = f.update(s, z, m, self.rng)
-        c = self.gates.setdefault(sensor, {"accepted": 0, "rejected": 0, "reanchored": 0})
+        c = self.gates.setdefault(sensor, {"accepted": 0, "rejected": 0, "reanchored": 0,
+                                           "reset": 0})
         if inn is None:
             return s1, None
         k = len(inn.nu)
@@ -1227,6 +1244,10 @@ class NavRunner(FilterRunner):
             c["accepted"] += 1
             return s1, inn
         t0 = self._rej_since.setdefault(sensor, t)
+        if t - t0 >= LOCKOUT_S and np.isfinite(d2) and sensor in LOCKOUT_SENSORS:
+            self._rej_since.pop(sensor, None)
+            c["reset"] += 1
+            return self._lockout_reset(s, z, m, inn, sensor, t - t0)
         if t - t0 >= REANCHOR_S and np.isfinite(d2):
             # R scaled so that S' = S d2 / chi2: the update lands on the gate
             r = d2 / chi2
@@ -1237,6 +1258,35 @@ class NavRunner(FilterRunner):
             return f.update(s, z, m2, self.rng)  # type: ignore[no-any-return]
         c["rejected"] += 1
         return s, None
+
+    def _lockout_reset(self, s: Any, z: Array, m: Any, inn: Any, sensor: str,
+                       held: float) -> tuple[Any, Any]:
+        """(state, innovation) of a :data:`LOCKOUT_SENSORS` reset: ``sensor`` rejected
+        for ``held`` s, its last innovation ``inn``; the filter restarts from its running
+        estimate widened (:data:`LOCKOUT_SENSORS`) and takes the update ``(z, m)``."""
+        f: Any = self.filter
+        g = f.estimate(s)
+        nu2 = float(np.sum(np.square(inn.nu)))  # (m/s)^2
+        P = np.array(g.P, float)
+        P[3:6, 3:6] += np.eye(3) * nu2
+        P[6:9, 6:9] += np.eye(3) * nu2 * held**2
+        g = widen_tilt(Gaussian(np.array(g.x, float), P), LOCKOUT_TILT**2)
+        resets = int(getattr(s, "resets", 0)) + 1
+        s2 = f.init(g, self.space, self.rng)
+        if hasattr(s2, "resets"):
+            s2 = replace(s2, resets=resets)
+        self._reset_why = (f"{sensor} rejected for {held:.1f} s (innovation "
+                           f"{np.sqrt(nu2):.2f}): velocity, position and tilt widened")
+        return f.update(s2, z, m, self.rng)  # type: ignore[no-any-return]
+
+    def step(self, st: Step) -> StepRecord:
+        """:meth:`FilterRunner.step`, its record marked as a reset (with why) when a
+        lock-out reset (:meth:`_lockout_reset`) took place in it."""
+        self._reset_why = ""
+        rec = super().step(st)
+        if self._reset_why:
+            rec = replace(rec, reset=True, reason=self._reset_why)
+        return rec
 
     def update(self, s: Any, z: Array, m: Any, st: Step, i: int) -> tuple[Any, Any]:
         """The ``i``-th update of ``st``, gated when the step names its sensors."""
