@@ -4,6 +4,9 @@ bad aiding data gated and counted."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -306,6 +309,55 @@ def test_a_filter_locked_out_of_the_gnss_velocity_resets_and_comes_back(spec, mo
     assert runners[0].resets == 0 and runners[0].gates["gnss_vel"]["reset"] == 0
     e, _ = errors(stream, coll, runners[0].label, ts, xs, 132.0)
     assert rms(e[:, 3:6]) > 10.0
+
+
+def test_a_receiver_whose_velocity_stays_wrong_is_no_reset_storm():
+    """GNSS velocities 5 m/s off from 115 s to the end (80 s of flight): a lock-out
+    reset 5 s into it, the filter then follows the receiver (its positions rejected and
+    re-anchored): no second within 15 s."""
+    samples, _, _ = flight(3, mag=False, T=80.0)
+    bad = [replace(s, vel_ned=s.vel_ned + [5.0, 0.0, 0.0])
+           if isinstance(s, GnssSample) and s.t >= 115.0 else s for s in samples]
+    stream, runners, coll = run_nav(bad, ["ekf"])
+    r = runners[0]
+    t = [rec.t for rec in coll.records[r.label] if rec.reset]
+    assert 1 <= r.resets <= 2 and len(t) == r.resets == r.gates["gnss_vel"]["reset"], t
+    assert 119.0 <= t[0] <= 122.0 and bool(np.all(np.diff(t) >= 15.0)), t
+
+
+def test_lockout_resets_of_a_sensor_that_stays_rejected_back_off():
+    """A filter whose GNSS velocity is never accepted (each update's NIS 1e6): the first
+    two lock-out resets 5 s apart, then 10, 20 and 40 s (the wait doubles for each reset
+    in the last LOCKOUT_MEMORY_S but the first); the other sensors only re-anchor."""
+    from uavest.core.gaussian import Gaussian
+    from uavest.core.states import Innovation
+
+    class Never:
+        def update(self, s, z, m, rng):
+            return s, Innovation(np.array([3.0, 0.0, 0.0]), np.eye(3), 1e6)
+
+        def estimate(self, s):
+            return Gaussian(np.r_[1.0, np.zeros(15)], np.eye(15))
+
+        def init(self, prior, space, rng):
+            return "restarted"
+
+    r = NavRunner("never", Never(), np.random.default_rng(0), guard=False)
+    m = SimpleNamespace(R=np.eye(3))
+    resets, anchors = [], []
+    for k in range(int(160 / 0.2)):
+        t = 100.0 + k * 0.2
+        n = r.gates.get("gnss_vel", {}).get("reset", 0)
+        a = r.gates.get("baro", {}).get("reanchored", 0)
+        r._gated_update("state", np.zeros(3), m, "gnss_vel", t)
+        r._gated_update("state", np.zeros(1), m, "baro", t)
+        if r.gates["gnss_vel"]["reset"] > n:
+            resets.append(round(t - 100.0, 1))
+        if r.gates["baro"]["reanchored"] > a:
+            anchors.append(round(t - 100.0, 1))
+    assert np.allclose(np.diff(resets), [5.2, 10.2, 20.2, 40.2]), resets
+    assert r.gates["baro"]["reset"] == 0 and len(anchors) >= 10, anchors
+    assert "gnss_vel rejected for" in r._reset_why
 
 
 def test_bad_noise_option_is_one_line():

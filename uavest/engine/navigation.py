@@ -127,8 +127,12 @@ REANCHOR_S = 10.0
 #: variance by the innovation times the time rejected, squared, and its tilt and
 #: horizontal accelerometer bias as a start's (:data:`LOCKOUT_TILT`), then the update.
 LOCKOUT_SENSORS = frozenset({"gnss_vel"})
-#: ... after this long (s) of consecutive rejections.
+#: ... after this long (s) of consecutive rejections (the re-anchorings among them do not
+#: end the run), doubled for each such reset of the sensor but the first in the last
+#: :data:`LOCKOUT_MEMORY_S`: the second comes as soon as the first (an IMU fault that
+#: ends undoes what the first reset learnt), then 10, 20, 40 s: never a reset storm.
 LOCKOUT_S = 5.0
+LOCKOUT_MEMORY_S = 300.0
 #: The tilt std (rad) a GNSS lock-out reset widens the tilt by (``NavNoise.init_tilt``'s
 #: default, a start's at rest), with the horizontal accelerometer bias by ``g`` times it.
 LOCKOUT_TILT = float(np.deg2rad(5.0))
@@ -1207,21 +1211,27 @@ class NavRunner(FilterRunner):
         self.gates: dict[str, dict[str, int]] = {}
         self._rej_since: dict[str, float] = {}
         self._reset_why = ""  # a lock-out reset in the step running, why
+        self._lock_since: dict[str, float] = {}  # LOCKOUT_SENSORS: rejected since (s)
+        self._lockouts: dict[str, list[float]] = {}  # LOCKOUT_SENSORS: reset times (s)
 
     def start(self, st: Start) -> None:
         super().start(st)
         self._rej_since.clear()
+        self._lock_since.clear()
 
     def snapshot(self) -> tuple[Any, ...]:
         """:meth:`FilterRunner.snapshot` with the gate counts and rejection times."""
         return (super().snapshot(), {k: dict(v) for k, v in self.gates.items()},
-                dict(self._rej_since))
+                dict(self._rej_since), dict(self._lock_since),
+                {k: list(v) for k, v in self._lockouts.items()})
 
     def restore(self, snap: tuple[Any, ...]) -> None:
-        base, gates, rej = snap
+        base, gates, rej, lock, lockouts = snap
         super().restore(base)
         self.gates = {k: dict(v) for k, v in gates.items()}
         self._rej_since = dict(rej)
+        self._lock_since = dict(lock)
+        self._lockouts = {k: list(v) for k, v in lockouts.items()}
 
     def _gated_update(self, s: Any, z: Array, m: Any, sensor: str, t: float
                       ) -> tuple[Any, Any]:
@@ -1241,13 +1251,19 @@ class NavRunner(FilterRunner):
         d2 = float(inn.nis)
         if np.isfinite(d2) and d2 <= chi2:
             self._rej_since.pop(sensor, None)
+            self._lock_since.pop(sensor, None)
             c["accepted"] += 1
             return s1, inn
         t0 = self._rej_since.setdefault(sensor, t)
-        if t - t0 >= LOCKOUT_S and np.isfinite(d2) and sensor in LOCKOUT_SENSORS:
-            self._rej_since.pop(sensor, None)
-            c["reset"] += 1
-            return self._lockout_reset(s, z, m, inn, sensor, t - t0)
+        if sensor in LOCKOUT_SENSORS and np.isfinite(d2):
+            tl = self._lock_since.setdefault(sensor, t)
+            past = [u for u in self._lockouts.get(sensor, []) if t - u < LOCKOUT_MEMORY_S]
+            if t - tl >= LOCKOUT_S * 2 ** max(len(past) - 1, 0):
+                self._rej_since.pop(sensor, None)
+                self._lock_since.pop(sensor, None)
+                self._lockouts[sensor] = [*past, t]
+                c["reset"] += 1
+                return self._lockout_reset(s, z, m, inn, sensor, t - tl)
         if t - t0 >= REANCHOR_S and np.isfinite(d2):
             # R scaled so that S' = S d2 / chi2: the update lands on the gate
             r = d2 / chi2
