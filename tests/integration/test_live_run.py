@@ -106,7 +106,7 @@ def test_sim_to_live_estimator_matches_truth_and_its_tlog_replays_the_same(tmp_p
     tlog = tmp_path / "live.tlog"
     coll = Collector()
     with _Sim(port):
-        doc = run_live(_cfg(port, tlog=str(tlog)), sinks=[coll], status=False)
+        doc = run_live(_cfg(port, tlog=str(tlog), settle_s=4.0), sinks=[coll], status=False)
     assert doc["reference"] == "SIMSTATE" and doc["reference_kind"] == "truth"
     for label in ("ekf", "ukf", "hybrid"):
         row = doc["attitude"][label]
@@ -114,6 +114,10 @@ def test_sim_to_live_estimator_matches_truth_and_its_tlog_replays_the_same(tmp_p
         for axis in ("roll", "pitch", "yaw"):  # stated tolerance: 3 deg RMS per axis
             assert row[f"{axis}_rmse_deg"] < 3.0, (label, row)
         assert row["resets"] == 0
+        # the attitude model's settled block: the steps 4 s or more after its first
+        st = row["settled"]
+        assert st["after_s"] == 4.0 and 0 < st["n"] < row["n"], st
+        assert st["nees_mean"] > 0 and st["yaw_rmse_deg"] < 3.0, st
     assert doc["targets_seen"] >= 2
     for label in ("ekf", "ukf"):
         t = doc["tracks"][label]

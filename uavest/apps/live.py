@@ -169,10 +169,11 @@ class LiveConfig:
     #: navigation: the vehicle's sensor spec as taken (:meth:`SpecStart.as_dict
     #: <uavest.apps.sensor_spec.SpecStart.as_dict>`; None: it states none)
     sensor_spec: dict | None = None
-    #: navigation: s after each estimator's first step from which its ``settled`` scores
-    #: count (:meth:`NavScorer.scores <uavest.eval.navigation.NavScorer.scores>`): a start in
-    #: flight aligns on a moving vehicle and takes some seconds to converge, which a short
-    #: run's whole-run figure is mostly made of (docs/live.md, "Settled"); 0: none
+    #: s after each estimator's first step from which its ``settled`` scores count
+    #: (:meth:`NavScorer.scores <uavest.eval.navigation.NavScorer.scores>`, attitude-only:
+    #: :class:`~uavest.eval.attitude.AttitudeScorer`'s): a start in flight aligns on a
+    #: moving vehicle and takes some seconds to converge, which a short run's whole-run
+    #: figure is mostly made of (docs/live.md, "Settled"); 0: none
     settle_s: float = 10.0
 
     @property
@@ -820,7 +821,8 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
     nav_scorer = NavScorer()
     lane = TrackLane(cfg, cfg.seed)
     trackers = _track_runners(cfg, lane, tspecs)
-    scorer = AttitudeScorer()
+    # settled scores: the navigation scorer's (with velocity and position), else these
+    scorer = AttitudeScorer(settle_s=None if nav else cfg.settle_s)
     tscore = _TrackScore(lane)
     st = _Status(link, status)
     info = info or RunInfo("", cfg.connect, cfg.seed)

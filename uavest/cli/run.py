@@ -70,9 +70,9 @@ def _common(p: argparse.ArgumentParser) -> None:
                    "time (re-stepping the filters from before them; older ones are counted "
                    f"late and skipped; default {LiveConfig.history_s:g})")
     p.add_argument("--settle", type=float, default=LiveConfig.settle_s, metavar="S",
-                   help="with --model nav: score each filter again from S s after its "
-                   "first estimate (the 'settled' table and JSON block: a start in flight "
-                   f"converges first); 0 for none (default {LiveConfig.settle_s:g})")
+                   help="score each filter again from S s after its first estimate (the "
+                   "'settled' table and JSON block: a start in flight converges first); 0 "
+                   f"for none (default {LiveConfig.settle_s:g})")
     p.add_argument("--no-status", action="store_true", help="no live status line")
     p.add_argument("--model", default="attitude", choices=("attitude", "nav"),
                    help="attitude: attitude + gyro bias (default); nav: the GNSS-aided "
@@ -231,7 +231,7 @@ def _settled_lines(doc: dict) -> list[str]:
         return []
     after = next(iter(rows.values())).get("after_s")
     cols = ["roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg"] + (
-        NAV_COLS if doc.get("model") == "nav" else ["nees_att_in95"])
+        NAV_COLS if doc.get("model") == "nav" else ["nees_mean"])
     return [f"settled (from {after:g} s after each filter's first estimate; --settle):",
             table(rows, cols)]
 

@@ -203,9 +203,13 @@ class AttitudeScorer:
     are not scored against it. :meth:`scores` then gives per-estimator rows against any
     reference, and rows for the other references scored against it. Equal, up to
     rounding, to the batch functions over whole arrays; at most ``max_pending`` steps wait
-    for a late reference (older ones are scored without it, counted in ``unscored``)."""
+    for a late reference (older ones are scored without it, counted in ``unscored``).
 
-    def __init__(self, max_pending: int = 50_000) -> None:
+    With ``settle_s`` (s, > 0) each estimator is also scored over its steps ``settle_s``
+    or more after its own first step (:meth:`scores`' ``settled`` block: a start in
+    flight converges first), as :class:`~uavest.eval.navigation.NavScorer` does."""
+
+    def __init__(self, max_pending: int = 50_000, settle_s: float | None = None) -> None:
         self.refs: dict[str, _RefTrack] = {}
         self.pending: list = []  # [t, {label: (q, P3)}, {ref: q or None}, score refs]
         self.head = 0  # index of the first unfinished pending entry
@@ -215,6 +219,9 @@ class AttitudeScorer:
         self.t_new: float | None = None
         self.t_first: float | None = None  # first step time (the scored window's start)
         self._done: list = []
+        self.settle_s = settle_s if settle_s is not None and settle_s > 0 else None
+        self.first: dict[str, float] = {}  # each estimator's first step time (s)
+        self.acc_settled: dict[tuple[str, str], list] = {}
 
     def add_estimate(self, t: float, label: str, q: Array, P: Array) -> None:
         """One estimator's attitude ``q`` (4,) and tangent covariance ``P`` at step
@@ -222,6 +229,7 @@ class AttitudeScorer:
         p = self.pending
         if self.t_first is None:
             self.t_first = t
+        self.first.setdefault(label, t)
         if len(p) > self.head and p[-1][0] == t:
             p[-1][1][label] = (q, P[:3, :3])
             self.t_new = t
@@ -309,15 +317,18 @@ class AttitudeScorer:
                 else:
                     q, P3 = np.array([v for _, v in sel]), None
                 err = euler_errors_deg(q, qr[idx])
-                a = self.acc.setdefault((name, rname), [np.zeros(3), 0, 0.0, 0])
-                a[0] += np.sum(err * err, axis=0)
-                a[1] += err.shape[0]
+                ne = None
                 if P3 is not None:
                     P = np.zeros((len(idx), 6, 6))
                     P[:, :3, :3] = P3
                     ne = nees_attitude(q, P, qr[idx])
-                    a[2] += float(np.sum(ne))
-                    a[3] += ne.shape[0]
+                _accumulate(self.acc, (name, rname), err, ne)
+                if where == 1 and self.settle_s is not None:
+                    t = np.array([done[rows[j]][0] for j in idx])
+                    late = t >= self.first[name] + self.settle_s
+                    if late.any():
+                        _accumulate(self.acc_settled, (name, rname), err[late],
+                                    None if ne is None else ne[late])
 
     @property
     def window(self) -> tuple[float, float] | None:
@@ -336,14 +347,35 @@ class AttitudeScorer:
 
     def scores(self, name: str, ref: str, truth: bool) -> dict:
         """Roll/pitch/yaw RMSE (deg), count ``n`` and, against truth, ``nees_mean``, of
-        estimator or reference ``name`` against reference ``ref``."""
-        a = self.acc.get((name, ref))
-        if a is None or a[1] == 0:
-            nan = float("nan")
-            return {"roll_rmse_deg": nan, "pitch_rmse_deg": nan, "yaw_rmse_deg": nan, "n": 0}
-        r = np.sqrt(a[0] / a[1])
-        d = {"roll_rmse_deg": float(r[0]), "pitch_rmse_deg": float(r[1]),
-             "yaw_rmse_deg": float(r[2]), "n": int(a[1])}
-        if truth and a[3]:
-            d["nees_mean"] = a[2] / a[3]
+        estimator or reference ``name`` against reference ``ref``; with ``settle_s``, an
+        estimator's ``settled`` block (the same keys and ``after_s``) when it has steps
+        that late."""
+        d = _row(self.acc.get((name, ref)), truth)
+        late = self.acc_settled.get((name, ref))
+        if late is not None and late[1]:
+            d["settled"] = {**_row(late, truth), "after_s": float(self.settle_s or 0.0)}
         return d
+
+
+def _accumulate(acc: dict, key: tuple[str, str], err: Array, ne: Array | None) -> None:
+    """Add the Euler errors ``err`` (N, 3) deg and the NEES ``ne`` (N,) to ``acc[key]``
+    (sum of squares, count, NEES sum, NEES count)."""
+    a = acc.setdefault(key, [np.zeros(3), 0, 0.0, 0])
+    a[0] += np.sum(err * err, axis=0)
+    a[1] += err.shape[0]
+    if ne is not None:
+        a[2] += float(np.sum(ne))
+        a[3] += ne.shape[0]
+
+
+def _row(a: list | None, truth: bool) -> dict:
+    """The scores of one accumulator (:func:`_accumulate`)."""
+    if a is None or a[1] == 0:
+        nan = float("nan")
+        return {"roll_rmse_deg": nan, "pitch_rmse_deg": nan, "yaw_rmse_deg": nan, "n": 0}
+    r = np.sqrt(a[0] / a[1])
+    d = {"roll_rmse_deg": float(r[0]), "pitch_rmse_deg": float(r[1]),
+         "yaw_rmse_deg": float(r[2]), "n": int(a[1])}
+    if truth and a[3]:
+        d["nees_mean"] = a[2] / a[3]
+    return d
