@@ -301,6 +301,9 @@ def test_a_filter_locked_out_of_the_gnss_velocity_resets_and_comes_back(spec, mo
     assert 1 <= r.resets <= 3 and r.gates["gnss_vel"]["reset"] == r.resets, r.gates
     why = [rec.reason for rec in coll.records[r.label] if rec.reset]
     assert len(why) == r.resets and all("gnss_vel rejected for" in w for w in why), why
+    # the runner's log of them (the replay's "resets_why", its "filter resets:" line)
+    assert r.reset_log == [(rec.t, rec.reason) for rec in coll.records[r.label]
+                           if rec.reset]
     e, _ = errors(stream, coll, r.label, ts, xs, 132.0)
     assert rms(e[:, 3:6]) < 0.5, rms(e[:, 3:6])
     # the same flight without the reset: the GNSS velocity stays locked out
@@ -344,6 +347,7 @@ def test_lockout_resets_of_a_sensor_that_stays_rejected_back_off():
 
     r = NavRunner("never", Never(), np.random.default_rng(0), guard=False)
     m = SimpleNamespace(R=np.eye(3))
+    before = r.snapshot()
     resets, anchors = [], []
     for k in range(int(160 / 0.2)):
         t = 100.0 + k * 0.2
@@ -358,6 +362,10 @@ def test_lockout_resets_of_a_sensor_that_stays_rejected_back_off():
     assert np.allclose(np.diff(resets), [5.2, 10.2, 20.2, 40.2]), resets
     assert r.gates["baro"]["reset"] == 0 and len(anchors) >= 10, anchors
     assert "gnss_vel rejected for" in r._reset_why
+    # a lane's history rewinding to before them takes them back, counts and times
+    r.reset_log.append((100.0, "x"))
+    r.restore(before)
+    assert r.reset_log == [] and r.gates == {} and r._lockouts == {}
 
 
 def test_bad_noise_option_is_one_line():

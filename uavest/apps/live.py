@@ -926,6 +926,9 @@ def _attitude_result(cfg: LiveConfig, att: _GapAware, runners: list,
                                **({"gates": {k: dict(v) for k, v in r.gates.items()}}
                                   if getattr(r, "gates", None) else {}),
                                "resets": r.resets,
+                               # when and why (the guard's, a GNSS lock-out's)
+                               **({"resets_why": [[t, w] for t, w in r.reset_log]}
+                                  if getattr(r, "reset_log", None) else {}),
                                "us_per_step": r.us_per_step}
                      for r in runners},
     }

@@ -883,6 +883,11 @@ def _add_run_health(doc: dict, src, runners: list[FilterRunner], summary: dict,
     doc["bad_data"] = bad
     doc["repaired"] = {k: bad[k] for k in ("time_outlier",) if bad.get(k)}
     doc["guard_resets"] = {r.label: r.resets for r in runners}
+    # when and why each filter reset (its guard, or a GNSS lock-out: docs/navigation.md)
+    why = {r.label: [[t, w] for t, w in r.reset_log] for r in runners
+           if getattr(r, "reset_log", None)}
+    if why:
+        doc["resets_why"] = why
     doc["unreliable"] = reliability(doc, summary)
     doc["wall_s"] = wall
     dur = float(summary.get("duration_s") or 0.0)
@@ -929,7 +934,10 @@ def reliability(doc: dict, summary: dict) -> list[str]:
                    f"(> {100 * MAX_BAD_FRACTION:g} %): the numbers may be off")
     resets = {k: v for k, v in doc["guard_resets"].items() if v}
     if resets:
-        out.append("filter guard resets: " + ", ".join(f"{k} {v}" for k, v in resets.items()))
+        why = doc.get("resets_why") or {}
+        out.append("filter resets: " + ", ".join(
+            f"{k} {v}" + (f" (first at t={why[k][0][0]:.1f} s: {why[k][0][1]})"
+                          if why.get(k) else "") for k, v in resets.items()))
     gapf = float(summary.get("imu_gap_fraction") or 0.0)
     if gapf > MAX_IMU_GAP and float(summary.get("imu_rate_hz") or 0.0) >= 20.0:
         out.append(f"{100 * gapf:.1f} % of the IMU time is in gaps (> {100 * MAX_IMU_GAP:g} %): "

@@ -1296,13 +1296,15 @@ class NavRunner(FilterRunner):
         return f.update(s2, z, m, self.rng)  # type: ignore[no-any-return]
 
     def step(self, st: Step) -> StepRecord:
-        """:meth:`FilterRunner.step`, its record marked as a reset (with why) when a
-        lock-out reset (:meth:`_lockout_reset`) took place in it."""
         self._reset_why = ""
-        rec = super().step(st)
+        return super().step(st)
+
+    def _finish(self, rec: StepRecord) -> StepRecord:
+        """:meth:`FilterRunner._finish`, the record marked as a reset (with why) when a
+        lock-out reset (:meth:`_lockout_reset`) took place in its step."""
         if self._reset_why:
             rec = replace(rec, reset=True, reason=self._reset_why)
-        return rec
+        return super()._finish(rec)
 
     def update(self, s: Any, z: Array, m: Any, st: Step, i: int) -> tuple[Any, Any]:
         """The ``i``-th update of ``st``, gated when the step names its sensors."""

@@ -63,6 +63,8 @@ class FilterRunner:
         self.timed_seconds = 0.0  # wall time of the steps after the first WARMUP_STEPS
         self.timed_steps = 0
         self._last: Any = None
+        #: (step time s, why) of every step whose record says the filter reset
+        self.reset_log: list[tuple[float, str]] = []
 
     def start(self, st: Start) -> None:
         self.space = st.space
@@ -123,10 +125,16 @@ class FilterRunner:
         if self.steps > WARMUP_STEPS:
             self.timed_seconds += wall
             self.timed_steps += 1
-        return StepRecord(
+        return self._finish(StepRecord(
             self.label, st.k, st.t, g.x, g.P, tuple(ups), bool(getattr(s, "reset", False)),
             getattr(s, "reason", ""), int(getattr(s, "resets", 0)), wall, x_pred, P_pred, C,
-        )
+        ))
+
+    def _finish(self, rec: StepRecord) -> StepRecord:
+        """The step's record, its reset (if any) logged in :attr:`reset_log`."""
+        if rec.reset:
+            self.reset_log.append((float(rec.t), rec.reason))
+        return rec
 
     def update(self, s: Any, z: Array, m: Any, st: Step, i: int) -> tuple[Any, Any]:
         """(state, innovation or None) after the ``i``-th update ``(z, m)`` of step
@@ -143,12 +151,13 @@ class FilterRunner:
         estimate, the generator's state and the step counters."""
         return (self.state, self.space, self._last, self.rng.bit_generator.state,
                 self.steps, self.seconds, self.timed_steps, self.timed_seconds,
-                self.smooth_seconds)
+                self.smooth_seconds, len(self.reset_log))
 
     def restore(self, snap: tuple[Any, ...]) -> None:
         (self.state, self.space, self._last, st, self.steps, self.seconds,
-         self.timed_steps, self.timed_seconds, self.smooth_seconds) = snap
+         self.timed_steps, self.timed_seconds, self.smooth_seconds, nlog) = snap
         self.rng.bit_generator.state = st
+        del self.reset_log[nlog:]
 
     @property
     def us_per_step(self) -> float:
