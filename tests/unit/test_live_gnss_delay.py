@@ -80,6 +80,12 @@ def test_live_run_estimates_the_gnss_delay_window_and_baro_delay_and_uses_them()
            "lag" in text, text
     assert "position (m) against SIM_STATE" in text
     assert "not estimated live" not in format_live(given)
+    assert "filter resets:" not in format_live(given)
+    import copy
+
+    reset = copy.deepcopy(given)
+    reset["attitude"]["ekf"].update(resets=1, resets_why=[[12.5, "gnss_vel rejected"]])
+    assert "filter resets: ekf 1 (first at t=12.5 s: gnss_vel rejected)" in format_live(reset)
     c = given["attitude"]["ekf"]
     assert abs(c["vel_rmse_ms"] - on_arrival["attitude"]["ekf"]["vel_rmse_ms"]) < 0.01, c
     a, b = on_arrival["attitude"]["ekf"], none["attitude"]["ekf"]

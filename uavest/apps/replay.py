@@ -917,6 +917,17 @@ MAX_IMU_GAP = 0.02
 MAX_NEES = 30.0
 
 
+def resets_line(counts: dict[str, int], why: dict[str, list]) -> str | None:
+    """"filter resets: ekf 1 (first at t=29.4 s: why), ..." from each filter's reset
+    count and its ``[[t, why], ...]`` (a runner's ``reset_log``); None without a reset."""
+    resets = {k: v for k, v in counts.items() if v}
+    if not resets:
+        return None
+    return "filter resets: " + ", ".join(
+        f"{k} {v}" + (f" (first at t={why[k][0][0]:.1f} s: {why[k][0][1]})"
+                      if why.get(k) else "") for k, v in resets.items())
+
+
 def reliability(doc: dict, summary: dict) -> list[str]:
     """Reasons the result ``doc`` should not be trusted as it stands (empty: none):
     nothing to score against, a large share of bad data, filters reset by their guard,
@@ -932,12 +943,9 @@ def reliability(doc: dict, summary: dict) -> list[str]:
     if total and damage / total > MAX_BAD_FRACTION:
         out.append(f"{100 * damage / total:.2g} % of the log's records were bad "
                    f"(> {100 * MAX_BAD_FRACTION:g} %): the numbers may be off")
-    resets = {k: v for k, v in doc["guard_resets"].items() if v}
-    if resets:
-        why = doc.get("resets_why") or {}
-        out.append("filter resets: " + ", ".join(
-            f"{k} {v}" + (f" (first at t={why[k][0][0]:.1f} s: {why[k][0][1]})"
-                          if why.get(k) else "") for k, v in resets.items()))
+    line = resets_line(doc["guard_resets"], doc.get("resets_why") or {})
+    if line:
+        out.append(line)
     gapf = float(summary.get("imu_gap_fraction") or 0.0)
     if gapf > MAX_IMU_GAP and float(summary.get("imu_rate_hz") or 0.0) >= 20.0:
         out.append(f"{100 * gapf:.1f} % of the IMU time is in gaps (> {100 * MAX_IMU_GAP:g} %): "

@@ -12,6 +12,7 @@ import threading
 
 from ..apps.aiding import aiding_hint, read_aiding
 from ..apps.live import TRACKER_DIM, LiveConfig, run_live
+from ..apps.replay import resets_line
 from ..errors import InputError
 from ..ingest.adsb_radar import RadarConfig
 from ..sinks.jsonout import write_json
@@ -180,6 +181,11 @@ def format_live(doc: dict) -> str:
                      + f" ({nz['why']})")
     lines += [title, table(rows, cols)]
     lines += _settled_lines(doc)
+    reset = resets_line({k: r.get("resets", 0) for k, r in doc["attitude"].items()},
+                        {k: r["resets_why"] for k, r in doc["attitude"].items()
+                         if r.get("resets_why")})
+    if reset:
+        lines.append(reset)
     live = doc.get("gnss_delay_live")
     tries = (live or {}).get("tries") or []
     if live and live.get("given") is None and live["delay"] is None:

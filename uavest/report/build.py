@@ -863,7 +863,8 @@ def _resets_fig(series: dict, events: list) -> tuple:
     ax.set_ylabel("resets (cumulative)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    ax.set_title(f"Divergence-guard resets: {total} in total (red lines: warnings in /log)")
+    ax.set_title(f"Filter resets (divergence guard, GNSS lock-out): {total} in total "
+                 "(red lines: warnings in /log)")
     return ("fig-resets", "Resets", _fig_png(fig), "Cumulative resets per estimator.")
 
 
