@@ -154,7 +154,7 @@ def start_inclination(recent: Iterable[_Raw], params: dict[str, Any],
     inclination, where it came from) when the window's angle was taken over it (a choice
     a live run judges later), else None."""
     pairs = [(x.a, x.mag) for x in recent if x.mag is not None and x.a is not None]
-    inc, why = None, why or "option"
+    why = why or "option"
     if inclination is not None:
         return float(inclination), why, None
     if not pairs:

@@ -55,7 +55,7 @@ from ..core.gaussian import Gaussian
 from ..core.guard import nis_gate
 from ..errors import InputError
 from ..geometry.geodesy import GEODESIES, LocalFrame, SphereFrame, make_frame
-from ..geometry.navigation import NavSpace
+from ..geometry.navigation import DP, DV, NavSpace
 from ..ingest.types import (
     AttitudeRef,
     BaroSample,
@@ -1284,8 +1284,8 @@ class NavRunner(FilterRunner):
         g = f.estimate(s)
         nu2 = float(np.sum(np.square(inn.nu)))  # (m/s)^2
         P = np.array(g.P, float)
-        P[3:6, 3:6] += np.eye(3) * nu2
-        P[6:9, 6:9] += np.eye(3) * nu2 * held**2
+        P[DV, DV] += np.eye(3) * nu2
+        P[DP, DP] += np.eye(3) * nu2 * held**2
         g = widen_tilt(Gaussian(np.array(g.x, float), P), LOCKOUT_TILT**2)
         resets = int(getattr(s, "resets", 0)) + 1
         s2 = f.init(g, self.space, self.rng)
@@ -1295,15 +1295,12 @@ class NavRunner(FilterRunner):
                            f"{np.sqrt(nu2):.2f}): velocity, position and tilt widened")
         return f.update(s2, z, m, self.rng)  # type: ignore[no-any-return]
 
-    def step(self, st: Step) -> StepRecord:
-        self._reset_why = ""
-        return super().step(st)
-
     def _finish(self, rec: StepRecord) -> StepRecord:
         """:meth:`FilterRunner._finish`, the record marked as a reset (with why) when a
         lock-out reset (:meth:`_lockout_reset`) took place in its step."""
-        if self._reset_why:
-            rec = replace(rec, reset=True, reason=self._reset_why)
+        why, self._reset_why = self._reset_why, ""
+        if why:
+            rec = replace(rec, reset=True, reason=why)
         return super()._finish(rec)
 
     def update(self, s: Any, z: Array, m: Any, st: Step, i: int) -> tuple[Any, Any]:
