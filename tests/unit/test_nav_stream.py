@@ -161,9 +161,20 @@ def test_before_the_first_fix_the_stream_runs_unaided_then_anchors(spec):
     e, _ = errors(stream, coll, runners[0].label, ts, xs, 120.0)
     el, _ = errors(late, lc, lr[0].label, ts, xs, 120.0)
     assert rms(e[:, 3:6]) < 0.3 and rms(e[:, 6:8]) < 1.0
-    for sl in (slice(0, 2), slice(2, 3)):  # tilt, yaw
-        assert rms(e[:, sl]) < 1.1 * rms(el[:, sl]), (sl, rms(e[:, sl]), rms(el[:, sl]))
     assert lc.arrays(lr[0].label)["t"][0] >= 115.0 and late.fix_from is None
+    # the hybrid's draws alone move one run's yaw RMSE by +-10 % (seeds 0-3: the ratio
+    # early / late 0.93-1.12): it is compared over three filter seeds
+    errs, lates = [e], [el]
+    for seed in (1, 2) if spec == "hybrid" else ():
+        st, ru, co = run_nav(samples, [spec], seed=seed)
+        errs.append(errors(st, co, ru[0].label, ts, xs, 120.0)[0])
+        la, lr, lc = run_nav(samples, [spec], NavOptions(integration="hold", before_fix=False),
+                             seed=seed)
+        lates.append(errors(la, lc, lr[0].label, ts, xs, 120.0)[0])
+    for sl in (slice(0, 2), slice(2, 3)):  # tilt, yaw
+        a = np.mean([rms(x[:, sl]) for x in errs])
+        b = np.mean([rms(x[:, sl]) for x in lates])
+        assert a < 1.1 * b, (sl, a, b)
 
 
 def test_without_magnetometer_yaw_comes_from_the_gnss_course():
