@@ -421,53 +421,6 @@ def _float_vector(z: object, m: int) -> bool:
     return type(z) is np.ndarray and z.dtype == np.float64 and z.shape == (m,)
 
 
-def _unseen(model: Measurement, n: int) -> Array | None:
-    """The tangent rows ``model`` cannot inform (:meth:`Measurement.unseen_rows`) as an
-    index array, None when it may inform them all (or does not say)."""
-    f = getattr(model, "unseen_rows", None)
-    rows = None if f is None else f(n)
-    return None if rows is None or len(rows) == 0 else np.asarray(rows, dtype=np.intp)
-
-
-def _wcov(B: Array, w: Array) -> Array:
-    """The weighted covariance of rows ``B`` (M, k) already centred under ``w``, in the
-    unbiased form of :func:`~uavest.core.states.ensemble_moments` (the estimate's)."""
-    return _dot(B.T * w, B) / max(1.0 - float(_dot(w, w)), 1e-12)
-
-
-def keep_unseen(E0: Ensemble, w0: Array, Xb: Array, X: Array, w: Array, rows: Array
-                ) -> Array:
-    """Variable localisation of one update (:meth:`Measurement.unseen_rows`): the members
-    ``X`` after the update with their tangent ``rows`` (at the prior's mean) put back to
-    what they were before the shift, ``Xb``, recentred and rescaled so that under the
-    update's weights ``w`` their weighted mean and covariance are the prior's (``E0``
-    under its weights ``w0``).
-
-    Why both: a member's weight is one number for all its states, so the confidence
-    weights would move these rows' mean and reshape their spread through the members'
-    chance correlations (on the hybrid's expanded ensemble, whose members stand at up to
-    gamma std along one axis each, the reshaping is large: a magnetometer update that
-    weights down the members spread along the attitude axes weights up those spread
-    along the position axes). The rescale is B A with A = Ln^-T Lo^T (Ln, Lo the
-    Cholesky factors of the rows' covariance under ``w`` and under ``w0``); a
-    covariance that is not positive definite keeps the recentring only."""
-    space = E0.space
-    x0 = ensemble_moments(E0)[0]
-    B0 = space.local(x0, E0.X)[:, rows]
-    mo = _dot(w0, B0)
-    Bn = B0 if Xb is E0.X else space.local(x0, Xb)[:, rows]
-    Bn = Bn - _dot(w, Bn)
-    try:
-        A = np.linalg.solve(chol(_wcov(Bn, w)).T, chol(_wcov(B0 - mo, w0)).T)
-        Bn = _dot(Bn, A)
-    except (NotPositiveDefinite, np.linalg.LinAlgError):
-        pass
-    T = space.local(x0, X)
-    T[:, rows] = mo + Bn
-    res: Array = space.retract(x0, T)
-    return res
-
-
 def sampling_shrink(Pyy: Array, R: Array, w: Array) -> float:
     """The share by which one EnKF shift with a gain from sample moments shrinks the
     members' spread beyond what the exact gain would, to first order: tr(S^-1 Pyy) / N,
@@ -695,7 +648,7 @@ class HybridShift(_HybridBase):
         is not plain on a vector space, a ``z`` that is not the model's float64 vector).
         A failure hands the drawn normals to :meth:`_update_numpy`."""
         if not (self.stages == self.shifts == 1 and not self.reinflate and _plain_vector(model)
-                and _float_vector(z, model.dim) and _unseen(model, E.space.dim) is None):
+                and _float_vector(z, model.dim)):
             return None
         M = E.M
         w = _equal_writable(M) if E.w is None else E.w
@@ -721,7 +674,6 @@ class HybridShift(_HybridBase):
         space = model.space
         M = E.M
         w = equal_weights(M) if E.w is None else E.w
-        E0, w0, unseen = E, w, _unseen(model, space.dim)
         Y = model.h(E.X)
         r = model.residual(z, Y)
         ybar = model.mean(Y, w)
@@ -785,8 +737,6 @@ class HybridShift(_HybridBase):
                 d = _dot(w, D)
                 a = math.sqrt(1.0 + sampling_shrink(Pyy, Rt, w))
                 X = space.retract(x, d + a * (D - d))
-        if unseen is not None:
-            X = keep_unseen(E0, w0, E.X, X, w, unseen)
         return Ensemble(X, E.space, None if self.weights == "equal" else w), innov
 
 

@@ -59,20 +59,6 @@ class Measurement:
         """Jacobian of ``h`` w.r.t. the tangent-space state error at ``x`` (m x n)."""
         return fd_jacobian(self.h, self.space, None, x)
 
-    def unseen_rows(self, n: int) -> Array | None:
-        """Variable localisation: the tangent rows (indices into the n-dim tangent) of
-        the states this measurement cannot inform, whatever an ensemble's sample
-        correlations say; None (the default): it may inform every row.
-
-        Read by the hybrid's shift update only (:class:`uavest.core.hybrid.HybridShift`):
-        it leaves these rows' weighted mean and covariance as they were before the update,
-        so sampling noise in a cross-covariance and the confidence weights do not move
-        a state the measurement has no relation to (Kang, Kalnay, Liu, Fung, Miyoshi and
-        Ide, "Variable localization in an ensemble Kalman filter: application to the
-        carbon cycle data assimilation", J. Geophys. Res. 2011). Gaussian filters compute
-        their cross-covariances rather than sample them and ignore it."""
-        return None
-
     def h_H(self, x: Array) -> tuple[Array, Array]:
         """(h(x), H(x)) of one state ``x``: what the EKF's update needs. Models whose
         measurement and Jacobian share work override it (the radar)."""

@@ -503,18 +503,6 @@ class BaroHeight(_Block):
             H[0, 17] = -1.0
         return H
 
-    def unseen_rows(self, n: int) -> Array:
-        """The horizontal position and GNSS bias (tangent rows 6, 7 and 15, 16): a
-        height has no relation to them (variable localisation in the hybrid,
-        :meth:`uavest.core.interfaces.Measurement.unseen_rows`)."""
-        return _UNSEEN_BY_BARO[:2] if n < 18 else _UNSEEN_BY_BARO
-
-
-#: tangent rows an attitude measurement / a baro height cannot inform (the first part on
-#: a state without the GNSS bias states)
-_UNSEEN_BY_ATTITUDE = np.array([6, 7, 8, 15, 16, 17])
-_UNSEEN_BY_BARO = np.array([6, 7, 15, 16])
-
 
 class OnNav(Measurement):
     """An attitude measurement (MagHeading, MagField, GravityDirection: reading only
@@ -567,14 +555,6 @@ class OnNav(Measurement):
 
     def mean(self, Y: Array, w: Array) -> Array:
         return self.inner.mean(Y, w)
-
-    def unseen_rows(self, n: int) -> Array:
-        """The position and the GNSS bias (tangent rows 6-8 and 15-17): an attitude
-        measurement informs them only through the velocity, never directly (variable
-        localisation in the hybrid, :meth:`uavest.core.interfaces.Measurement.unseen_rows`;
-        without it the hybrid's horizontal position wandered by a metre with the
-        magnetometer's updates, docs/navigation.md)."""
-        return _UNSEEN_BY_ATTITUDE[:3] if n < 18 else _UNSEEN_BY_ATTITUDE
 
 
 def innovation_gate(nu: Array, S: Array, chi2: float) -> bool:
