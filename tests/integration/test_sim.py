@@ -117,8 +117,11 @@ def live(request):
 
 def test_heartbeat_only_then_set_message_interval(live):
     # radar and ADS-B off: they are sent unrequested when on (see the next check)
+    # 600 s of flight at 20x (30 s wall) that the test never reaches: with the default 60 s
+    # (3 s wall) a loaded machine's client, reading the backlog, could find the simulator
+    # finished before its last commands (CI: no COMMAND_ACK)
     lv = live(sc_sets=["radar.enabled=false", "adsb.enabled=false"], speed=20.0,
-              imu_rate=500.0)
+              imu_rate=500.0, duration=600.0)
     lv.hello()
     seen = []
     hb = lv.until(lambda m: m.get_type() == "HEARTBEAT")  # 1 s of sim time passes
