@@ -156,21 +156,24 @@ def test_before_the_first_fix_the_stream_runs_unaided_then_anchors(spec):
     assert np.degrees(rms(e0[pre, :2])) < 3.0  # tilt before the fix, deg
     assert rms(e0[pre, 3:6]) < 1.5  # held near rest: velocity m/s
     assert runners[0].resets == 0
-    late, lr, lc = run_nav(samples, [spec], NavOptions(integration="hold", before_fix=False))
+    late_opts = NavOptions(integration="hold", before_fix=False)
+
+    def after_fix(run):
+        """Tangent errors from 120 s of one ``run_nav`` result."""
+        st, ru, co = run
+        return errors(st, co, ru[0].label, ts, xs, 120.0)[0]
+
+    late, lr, lc = run_nav(samples, [spec], late_opts)
     # after the fix at least as good as a stream that starts there (what it learnt kept)
-    e, _ = errors(stream, coll, runners[0].label, ts, xs, 120.0)
-    el, _ = errors(late, lc, lr[0].label, ts, xs, 120.0)
+    e, el = after_fix((stream, runners, coll)), after_fix((late, lr, lc))
     assert rms(e[:, 3:6]) < 0.3 and rms(e[:, 6:8]) < 1.0
     assert lc.arrays(lr[0].label)["t"][0] >= 115.0 and late.fix_from is None
     # the hybrid's draws alone move one run's yaw RMSE by +-10 % (seeds 0-3: the ratio
     # early / late 0.93-1.12): it is compared over three filter seeds
     errs, lates = [e], [el]
     for seed in (1, 2) if spec == "hybrid" else ():
-        st, ru, co = run_nav(samples, [spec], seed=seed)
-        errs.append(errors(st, co, ru[0].label, ts, xs, 120.0)[0])
-        la, lr, lc = run_nav(samples, [spec], NavOptions(integration="hold", before_fix=False),
-                             seed=seed)
-        lates.append(errors(la, lc, lr[0].label, ts, xs, 120.0)[0])
+        errs.append(after_fix(run_nav(samples, [spec], seed=seed)))
+        lates.append(after_fix(run_nav(samples, [spec], late_opts, seed=seed)))
     for sl in (slice(0, 2), slice(2, 3)):  # tilt, yaw
         a = np.mean([rms(x[:, sl]) for x in errs])
         b = np.mean([rms(x[:, sl]) for x in lates])
