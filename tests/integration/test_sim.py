@@ -478,6 +478,22 @@ def test_hil_state_quaternion_is_the_true_state(tmp_path):
                                    atol=1e-6)
 
 
+@pytest.mark.parametrize("sets, acc", [
+    ((), (800, 1500, 150)),  # the default receiver: sigma_h, sigma_v, 1.5 x sigma_vel
+    (("gps.sigma_h=2.5", "gps.sigma_v=4", "gps.sigma_vel=0.2", "gps.speed_acc_scale=1"),
+     (2500, 4000, 200)),
+    (("gps.sigma_h=0",), (1, 1500, 150)),  # 0 would be "not reported"
+])
+def test_gps_raw_int_reports_the_scenarios_accuracies(tmp_path, sets, acc):
+    """GPS_RAW_INT's h_acc / v_acc / vel_acc (mm, mm/s) are the scenario's receiver, not
+    the default's: a filter takes them as the fix's accuracy."""
+    _, path = make_log(tmp_path, sets=sets, duration=3.0, imu_rate=100.0,
+                       rates={"RAW_IMU": 1, "GPS_RAW_INT": 5})
+    fixes = [m for _, m in read_tlog(path) if m.get_type() == "GPS_RAW_INT" and m.fix_type == 3]
+    assert len(fixes) >= 10
+    assert {(m.h_acc, m.v_acc, m.vel_acc) for m in fixes} == {acc}
+
+
 def test_adsb_matches_targets(tmp_path):
     pm = pytest.importorskip("pymap3d")
     sim, path = make_log(tmp_path, duration=30.0, imu_rate=100.0, rates={"RAW_IMU": 1})

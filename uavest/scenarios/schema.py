@@ -345,6 +345,9 @@ class Gps:
     sigma_v: float = F(1.5, "float", "vertical error std", "m", **NONNEG)
     tau_s: float = F(60.0, "float", "error correlation time", "s", lo=0.0, lo_open=True)
     sigma_vel: float = F(0.1, "float", "white velocity noise", "m/s", **NONNEG)
+    speed_acc_scale: float = F(1.5, "float", "the speed accuracy the receiver reports "
+                               "(GPS_RAW_INT vel_acc) over sigma_vel; its h_acc / v_acc "
+                               "are sigma_h / sigma_v", "", **NONNEG)
 
 
 @dataclass(frozen=True)

@@ -309,12 +309,14 @@ class Protocol:
                 return e.gps_raw_int_encode(0, 1, 0, 0, 0, 65535, 65535, 65535, 65535, 0)
             vn, ve, vd = f["vel"]
             cog = int(round(math.degrees(math.atan2(ve, vn)) * 100)) % 36000
+            # the receiver's accuracies, mm and mm/s (at least 1: 0 is "not reported")
+            h_acc, v_acc, vel_acc = (max(1, int(round(a * 1e3))) for a in f["acc"])
             # time_usec: the fix's UNIX (GNSS) time, as ArduPilot sends it, not boot time
             return e.gps_raw_int_encode(
                 int(self.epoch * 1e6) + f["t_us"], 3, _deg_e7(f["lat"]), _deg_e7(f["lon"]),
                 int(round(f["alt"] * 1e3)),
                 70, 110, int(round(math.hypot(vn, ve) * 100)), cog, 14,
-                int(round(f["alt"] * 1e3)), 800, 1500, 150, 0, 0)
+                int(round(f["alt"] * 1e3)), h_acc, v_acc, vel_acc, 0, 0)
         if name in ("GLOBAL_POSITION_INT", "LOCAL_POSITION_NED"):
             p = tr.pos[i] + ch.nav_err[i]
             v = tr.vel[i] + ch.vel_err[i]

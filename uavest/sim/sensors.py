@@ -183,7 +183,8 @@ class NavSensors:
     Per IMU chunk, :meth:`errors` gives the attitude (rad), position (m), velocity (m/s)
     and barometer (m) errors of the autopilot's estimates at each step; at the GPS rate,
     :meth:`gps_update` makes a fix (:attr:`fix`: ``t_us``, ``lat``/``lon`` deg, ``alt``
-    m, ``vel`` NED m/s) from the truth.
+    m, ``vel`` NED m/s, ``acc`` the reported accuracies: horizontal, vertical m and
+    speed m/s) from the truth.
     """
 
     def __init__(self, scenario: Any, imu_rate: float, seed: int, frame: LocalFrame) -> None:
@@ -194,6 +195,11 @@ class NavSensors:
         self.gps_err = GaussMarkov([g.sigma_h] * 2 + [g.sigma_v],
                                    float(g.tau_s), dt_gps, stream_rng(seed, "gps"))
         self.gps_vel_sigma = float(g.sigma_vel)
+        #: what the receiver reports as its accuracy (GPS_RAW_INT h_acc / v_acc / vel_acc,
+        #: m and m/s): its position error's std, and ``speed_acc_scale`` times its
+        #: velocity noise's (a receiver's own speed accuracy is conservative)
+        self.gps_acc = (float(g.sigma_h), float(g.sigma_v),
+                        float(g.speed_acc_scale) * float(g.sigma_vel))
         self.gps_rng = stream_rng(seed, "gps.vel")
         ah = scenario.ahrs
         dt = 1.0 / imu_rate
@@ -221,7 +227,7 @@ class NavSensors:
         la, lo, hh = self.frame.ned_to_geodetic(p)
         v = vel + self.gps_rng.standard_normal(3) * self.gps_vel_sigma
         self.fix = {"t_us": int(t_us), "lat": float(la), "lon": float(lo),
-                    "alt": float(hh), "vel": v}
+                    "alt": float(hh), "vel": v, "acc": self.gps_acc}
 
 
 class AdsbReports:
