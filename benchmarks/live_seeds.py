@@ -1,0 +1,160 @@
+"""`uavest run` attached to `uavest sim`, over many simulated flights: per seed and IMU
+rate, the simulator's own tlog (made as fast as it can, sending what the live job asks
+for and its SPEC parameters, as it does live) and then the live job over it (`uavest run
+--connect TLOG`: the estimates of a live run, docs/live.md), then per filter the mean and
+worst over the seeds of the whole-run and settled RMSE and NEES in-band shares, and how
+many seeds meet issue 19's targets. One live session is one realisation of the flight's
+noise and start; this shows the spread (docs/live.md, "Over many flights").
+
+    OMP_NUM_THREADS=1 python benchmarks/live_seeds.py [--seeds 0-7] [--rates 200,400]
+        [--filters ekf] [--duration 32] [--settle 10] [--jobs 2] [--rows]
+        [--noise KEY=VALUE ...] [--set KEY=VALUE ...] [--keep DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import tempfile  # noqa: E402
+from concurrent.futures import ProcessPoolExecutor  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from uavest.apps.live import LIVE_STREAMS, LiveConfig, run_live  # noqa: E402
+from uavest.scenarios import load_typed  # noqa: E402
+from uavest.sim.mavlink import Simulator  # noqa: E402
+from uavest.sim.protocol import PERIODIC  # noqa: E402
+
+#: issue 19's targets: roll / pitch / yaw RMSE deg, velocity RMSE m/s, horizontal
+#: position RMSE m, and the share of steps with each NEES block in its 95 % band
+TARGETS = {"rpy": (0.26, 0.24, 0.9), "vel": 0.3, "hpos": 1.5, "in95": 0.8}
+BLOCKS = ("attitude", "velocity", "position")
+
+
+def session_tlog(path: str | Path, seed: int, rate: float, duration: float,
+                 sets: list[str]) -> None:
+    """The simulator's tlog of one flight (``seed``, IMU ``rate`` Hz, ``duration`` s,
+    scenario overrides ``sets``) with the periodic messages the live job asks for at its
+    rates (:data:`~uavest.apps.live.LIVE_STREAMS`) and the parameter list."""
+    rates = {k: v for k, v in LIVE_STREAMS.items() if k in PERIODIC}
+    sim = Simulator(load_typed("sim_default", list(sets)), seed=seed, imu_rate=rate,
+                    rates=rates)
+    sim.run(None, duration=duration, speed=0, tlog=path, send_params=True)
+
+
+def scores(r: dict) -> dict:
+    """One filter's figures from a live JSON block (``doc["attitude"][label]``): for
+    ``whole`` and ``settled``, roll / pitch / yaw RMSE (deg), velocity and horizontal
+    position RMSE and the three NEES blocks' in-band shares."""
+    def part(d: dict) -> dict:
+        return {"rpy": [d[k] for k in ("roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg")],
+                "vel": d["vel_rmse_ms"], "hpos": d["hpos_rmse_m"],
+                "in95": [d["nees"][b]["in_band95"] for b in BLOCKS]}
+    return {"whole": part(r), "settled": part(r["settled"])}
+
+
+def meets(p: dict) -> bool:
+    """Every target met by one part (:func:`scores`)."""
+    rpy_ok = all(v <= t for v, t in zip(p["rpy"], TARGETS["rpy"], strict=True))
+    return (rpy_ok and p["vel"] <= TARGETS["vel"] and p["hpos"] <= TARGETS["hpos"]
+            and min(p["in95"]) >= TARGETS["in95"])
+
+
+def trial(seed: int, rate: float, filters: tuple[str, ...], duration: float, settle: float,
+          noise: dict, sets: list[str], keep: str | None) -> dict[str, dict]:
+    """{filter label: :func:`scores`} of the live job over one simulated flight."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(keep or tmp) / f"seed{seed}_{rate:g}hz.tlog"
+        session_tlog(path, seed, rate, duration, sets)
+        cfg = LiveConfig(connect=str(path), filters=filters, trackers=(), seed=0,
+                         model="nav", settle_s=settle, noise=dict(noise))
+        doc = run_live(cfg, status=False, on_note=lambda _: None)
+    return {lab: scores(r) for lab, r in doc["attitude"].items() if "settled" in r}
+
+
+def seed_list(text: str) -> list[int]:
+    """``0-7`` or ``0,2,5`` (or both, comma separated)."""
+    out: list[int] = []
+    for part in text.split(","):
+        a, _, b = part.partition("-")
+        out += list(range(int(a), int(b) + 1)) if b else [int(a)]
+    return out
+
+
+def summary(runs: dict[int, dict[str, dict]], label: str) -> dict:
+    """Mean and worst over the seeds of one filter's figures, and the seeds meeting every
+    target (whole run, settled)."""
+    per = [runs[s][label] for s in sorted(runs) if label in runs[s]]
+    out = {"n": len(per)}
+    for part in ("whole", "settled"):
+        rpy = np.array([p[part]["rpy"] for p in per])
+        in95 = np.array([p[part]["in95"] for p in per])
+        out[part] = {"rpy_mean": rpy.mean(0), "rpy_max": rpy.max(0),
+                     "vel_mean": float(np.mean([p[part]["vel"] for p in per])),
+                     "hpos_mean": float(np.mean([p[part]["hpos"] for p in per])),
+                     "hpos_max": float(np.max([p[part]["hpos"] for p in per])),
+                     "in95_mean": in95.mean(0), "in95_min": in95.min(0),
+                     "meets": sum(meets(p[part]) for p in per)}
+    return out
+
+
+def _f(a) -> str:
+    return " / ".join(f"{v:.3f}" for v in np.atleast_1d(a))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seeds", default="0-7", help="simulator seeds: 0-7 or 0,3,5")
+    ap.add_argument("--rates", default="200,400", help="IMU rates, Hz")
+    ap.add_argument("--filters", default="ekf")
+    ap.add_argument("--duration", type=float, default=32.0, help="simulated s per flight")
+    ap.add_argument("--settle", type=float, default=10.0)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--rows", action="store_true", help="also print every seed's row")
+    ap.add_argument("--noise", action="append", default=[], metavar="KEY=VALUE")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="scenario override, as uavest sim --set")
+    ap.add_argument("--keep", help="keep the tlogs in this directory")
+    a = ap.parse_args()
+    seeds = seed_list(a.seeds)
+    rates = [float(r) for r in a.rates.split(",")]
+    filters = tuple(a.filters.split(","))
+    noise = {k: float(v) for k, v in (kv.split("=", 1) for kv in a.noise)}
+    if a.keep:
+        Path(a.keep).mkdir(parents=True, exist_ok=True)
+    jobs = [(s, r) for r in rates for s in seeds]
+    with ProcessPoolExecutor(max(1, a.jobs)) as ex:
+        futs = {j: ex.submit(trial, j[0], j[1], filters, a.duration, a.settle, noise,
+                             a.set, a.keep) for j in jobs}
+        res = {j: f.result() for j, f in futs.items()}
+    print(f"live job over the simulator's flights: seeds {a.seeds}, {a.duration:g} s, "
+          f"settled from {a.settle:g} s; noise {noise or 'the spec'}; sets {a.set or 'none'}")
+    print("RMSE roll / pitch / yaw deg; in95 attitude / velocity / position; targets "
+          f"{_f(TARGETS['rpy'])} deg, vel {TARGETS['vel']} m/s, hpos {TARGETS['hpos']} m, "
+          f"in95 {TARGETS['in95']}")
+    for r in rates:
+        runs = {s: res[(s, r)] for s in seeds}
+        for lab in filters:
+            sm = summary(runs, lab)
+            print(f"\n{r:g} Hz, {lab}, {sm['n']} seeds")
+            for part in ("whole", "settled"):
+                p = sm[part]
+                print(f"  {part:7s} RMSE mean {_f(p['rpy_mean'])} max {_f(p['rpy_max'])} | "
+                      f"vel {p['vel_mean']:.3f} | hpos mean {p['hpos_mean']:.3f} max "
+                      f"{p['hpos_max']:.3f} | in95 mean {_f(p['in95_mean'])} min "
+                      f"{_f(p['in95_min'])} | every target: {p['meets']} of {sm['n']}")
+            if a.rows:
+                for s in seeds:
+                    if lab in runs[s]:
+                        w, st = runs[s][lab]["whole"], runs[s][lab]["settled"]
+                        print(f"    seed {s}: whole {_f(w['rpy'])}, in95 {_f(w['in95'])}; "
+                              f"settled {_f(st['rpy'])}, in95 {_f(st['in95'])}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,48 @@
+"""benchmarks/live_seeds.py: the live job over the simulator's own flights. Its figures
+are those `uavest run --connect TLOG --json` gives for the same tlog (a real subprocess),
+and its tlog carries what a live session's does: the streams the live job asks for and
+the simulator's sensor spec."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+from conftest import load_benchmark
+from pymavlink import mavutil
+
+
+@pytest.mark.slow
+def test_benchmark_figures_are_the_cli_runs(tmp_path):
+    bench = load_benchmark("live_seeds")
+    got = bench.trial(3, 200.0, ("ekf",), 14.0, 4.0, {}, [], str(tmp_path))
+    tlog = tmp_path / "seed3_200hz.tlog"
+    names, params = set(), set()
+    m = mavutil.mavlink_connection(str(tlog))
+    while (msg := m.recv_match()) is not None:
+        names.add(msg.get_type())
+        if msg.get_type() == "PARAM_VALUE":
+            params.add(msg.param_id)
+    m.close()
+    assert {"HIGHRES_IMU", "GPS_RAW_INT", "SCALED_PRESSURE", "SIMSTATE",
+            "HIL_STATE_QUATERNION"} <= names
+    assert {"SPEC_GYR_NSD", "SPEC_MAG_NSR", "COMPASS_DEC"} <= params
+
+    out = tmp_path / "run.json"
+    subprocess.run([sys.executable, "-m", "uavest", "run", "--connect", str(tlog),
+                    "--model", "nav", "--filters", "ekf", "--trackers", "none",
+                    "--settle", "4", "--json", str(out)],
+                   check=True, capture_output=True, timeout=300)
+    want = bench.scores(json.loads(out.read_text())["attitude"]["ekf"])
+    assert got["ekf"] == want
+    s = bench.summary({3: got}, "ekf")
+    assert s["n"] == 1 and s["settled"]["meets"] == int(bench.meets(want["settled"]))
+    assert list(s["whole"]["rpy_max"]) == want["whole"]["rpy"]
+
+
+def test_seed_list():
+    bench = load_benchmark("live_seeds")
+    assert bench.seed_list("0-3,7") == [0, 1, 2, 3, 7]
+    assert bench.seed_list("5") == [5]
