@@ -152,8 +152,9 @@ def main() -> None:
                 for s in seeds:
                     if lab in runs[s]:
                         w, st = runs[s][lab]["whole"], runs[s][lab]["settled"]
-                        print(f"    seed {s}: whole {_f(w['rpy'])}, in95 {_f(w['in95'])}; "
-                              f"settled {_f(st['rpy'])}, in95 {_f(st['in95'])}")
+                        print(f"    seed {s}: whole {_f(w['rpy'])}, hpos {w['hpos']:.3f}, "
+                              f"in95 {_f(w['in95'])}; settled {_f(st['rpy'])}, hpos "
+                              f"{st['hpos']:.3f}, in95 {_f(st['in95'])}")
 
 
 if __name__ == "__main__":
