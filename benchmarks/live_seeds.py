@@ -26,6 +26,8 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from uavest.apps.live import LIVE_STREAMS, LiveConfig, run_live  # noqa: E402
+from uavest.errors import InputError  # noqa: E402
+from uavest.models.navigation import NavNoise  # noqa: E402
 from uavest.scenarios import load_typed  # noqa: E402
 from uavest.sim.mavlink import Simulator  # noqa: E402
 from uavest.sim.protocol import PERIODIC  # noqa: E402
@@ -103,6 +105,17 @@ def summary(runs: dict[int, dict[str, dict]], label: str) -> dict:
     return out
 
 
+def _key_value(text: str) -> tuple[str, float]:
+    """``KEY=VALUE`` with a number (argparse type: a one-line error otherwise)."""
+    key, eq, value = text.partition("=")
+    try:
+        if not (key and eq):
+            raise ValueError
+        return key, float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected KEY=NUMBER, not {text!r}") from None
+
+
 def _f(a) -> str:
     return " / ".join(f"{v:.3f}" for v in np.atleast_1d(a))
 
@@ -116,7 +129,8 @@ def main() -> None:
     ap.add_argument("--settle", type=float, default=10.0)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--rows", action="store_true", help="also print every seed's row")
-    ap.add_argument("--noise", action="append", default=[], metavar="KEY=VALUE")
+    ap.add_argument("--noise", action="append", default=[], metavar="KEY=VALUE",
+                    type=_key_value, help="a navigation noise parameter, as uavest run")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="scenario override, as uavest sim --set")
     ap.add_argument("--keep", help="keep the tlogs in this directory")
@@ -124,7 +138,15 @@ def main() -> None:
     seeds = seed_list(a.seeds)
     rates = [float(r) for r in a.rates.split(",")]
     filters = tuple(a.filters.split(","))
-    noise = {k: float(v) for k, v in (kv.split("=", 1) for kv in a.noise)}
+    noise = dict(a.noise)
+    try:
+        NavNoise().with_(**noise)
+    except TypeError:
+        ap.error(f"unknown --noise name in {sorted(noise)}")
+    try:
+        load_typed("sim_default", list(a.set))
+    except InputError as e:
+        ap.error(f"--set: {e}")
     if a.keep:
         Path(a.keep).mkdir(parents=True, exist_ok=True)
     jobs = [(s, r) for r in rates for s in seeds]

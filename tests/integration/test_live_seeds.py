@@ -46,3 +46,16 @@ def test_seed_list():
     bench = load_benchmark("live_seeds")
     assert bench.seed_list("0-3,7") == [0, 1, 2, 3, 7]
     assert bench.seed_list("5") == [5]
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--noise", "mag_noise"], "expected KEY=NUMBER"),
+    (["--noise", "nope=1"], "unknown --noise name"),
+    (["--set", "gps.nope=1"], "unknown scenario key"),
+])
+def test_bad_arguments_are_one_line_errors(args, says):
+    from conftest import REPO_ROOT
+
+    p = subprocess.run([sys.executable, str(REPO_ROOT / "benchmarks" / "live_seeds.py"),
+                        *args], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2 and says in p.stderr and "Traceback" not in p.stderr
