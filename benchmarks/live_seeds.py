@@ -26,8 +26,8 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from uavest.apps.live import LIVE_STREAMS, LiveConfig, run_live  # noqa: E402
+from uavest.cli.replay import parse_noise  # noqa: E402
 from uavest.errors import InputError  # noqa: E402
-from uavest.models.navigation import NavNoise  # noqa: E402
 from uavest.scenarios import load_typed  # noqa: E402
 from uavest.sim.mavlink import Simulator  # noqa: E402
 from uavest.sim.protocol import PERIODIC  # noqa: E402
@@ -105,15 +105,23 @@ def summary(runs: dict[int, dict[str, dict]], label: str) -> dict:
     return out
 
 
-def _key_value(text: str) -> tuple[str, float]:
-    """``KEY=VALUE`` with a number (argparse type: a one-line error otherwise)."""
-    key, eq, value = text.partition("=")
+def _seeds(text: str) -> list[int]:
+    """:func:`seed_list` as an argparse type (a one-line error for bad text)."""
     try:
-        if not (key and eq):
-            raise ValueError
-        return key, float(value)
+        return seed_list(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected KEY=NUMBER, not {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected seeds as 0-7 or 0,3,5, not {text!r}") from None
+
+
+def _rates(text: str) -> list[float]:
+    """Comma-separated IMU rates (Hz, > 0) as an argparse type."""
+    try:
+        rates = [float(r) for r in text.split(",")]
+    except ValueError:
+        rates = []
+    if not rates or not all(np.isfinite(r) and r > 0 for r in rates):
+        raise argparse.ArgumentTypeError(f"expected rates in Hz as 200,400, not {text!r}")
+    return rates
 
 
 def _f(a) -> str:
@@ -122,31 +130,27 @@ def _f(a) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--seeds", default="0-7", help="simulator seeds: 0-7 or 0,3,5")
-    ap.add_argument("--rates", default="200,400", help="IMU rates, Hz")
+    ap.add_argument("--seeds", default="0-7", type=_seeds,
+                    help="simulator seeds: 0-7 or 0,3,5")
+    ap.add_argument("--rates", default="200,400", type=_rates, help="IMU rates, Hz")
     ap.add_argument("--filters", default="ekf")
     ap.add_argument("--duration", type=float, default=32.0, help="simulated s per flight")
     ap.add_argument("--settle", type=float, default=10.0)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--rows", action="store_true", help="also print every seed's row")
     ap.add_argument("--noise", action="append", default=[], metavar="KEY=VALUE",
-                    type=_key_value, help="a navigation noise parameter, as uavest run")
+                    help="a navigation noise parameter, as uavest run")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="scenario override, as uavest sim --set")
     ap.add_argument("--keep", help="keep the tlogs in this directory")
     a = ap.parse_args()
-    seeds = seed_list(a.seeds)
-    rates = [float(r) for r in a.rates.split(",")]
+    seeds, rates = a.seeds, a.rates
     filters = tuple(a.filters.split(","))
-    noise = dict(a.noise)
-    try:
-        NavNoise().with_(**noise)
-    except TypeError:
-        ap.error(f"unknown --noise name in {sorted(noise)}")
-    try:
+    try:  # uavest run's own checks of --noise (name, number, >= 0) and the scenario's
+        noise = parse_noise(a.noise)
         load_typed("sim_default", list(a.set))
     except InputError as e:
-        ap.error(f"--set: {e}")
+        ap.error(str(e))
     if a.keep:
         Path(a.keep).mkdir(parents=True, exist_ok=True)
     jobs = [(s, r) for r in rates for s in seeds]
@@ -154,7 +158,8 @@ def main() -> None:
         futs = {j: ex.submit(trial, j[0], j[1], filters, a.duration, a.settle, noise,
                              a.set, a.keep) for j in jobs}
         res = {j: f.result() for j, f in futs.items()}
-    print(f"live job over the simulator's flights: seeds {a.seeds}, {a.duration:g} s, "
+    print(f"live job over the simulator's flights: seeds {','.join(map(str, seeds))}, "
+          f"{a.duration:g} s, "
           f"settled from {a.settle:g} s; noise {noise or 'the spec'}; sets {a.set or 'none'}")
     print("RMSE roll / pitch / yaw deg; in95 attitude / velocity / position; targets "
           f"{_f(TARGETS['rpy'])} deg, vel {TARGETS['vel']} m/s, hpos {TARGETS['hpos']} m, "

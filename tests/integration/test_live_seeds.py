@@ -49,9 +49,12 @@ def test_seed_list():
 
 
 @pytest.mark.parametrize("args, says", [
-    (["--noise", "mag_noise"], "expected KEY=NUMBER"),
-    (["--noise", "nope=1"], "unknown --noise name"),
+    (["--noise", "mag_noise"], "--noise expects KEY=VALUE"),
+    (["--noise", "nope=1"], "--noise: unknown parameter 'nope'"),
+    (["--noise", "mag_noise=-1"], "must be a finite number >= 0"),
     (["--set", "gps.nope=1"], "unknown scenario key"),
+    (["--seeds", "a-b"], "expected seeds as 0-7"),
+    (["--rates", "200,0"], "expected rates in Hz"),
 ])
 def test_bad_arguments_are_one_line_errors(args, says):
     from conftest import REPO_ROOT
