@@ -154,7 +154,8 @@ def skip_kf_nonlinear(spec: str, prob: Problem) -> None:
 # --------------------------------------------------------------------------------- spaces
 
 SPACES = {"vector3": VectorSpace(3), "attitude": AttitudeSpace(), "nav": NavSpace(),
-          "nav_gnss_bias": NavSpace(extra=3)}
+          "nav_gnss_bias": NavSpace(extra=3), "nav_mag_ref": NavSpace(mag=2),
+          "nav_gnss_bias_mag_ref": NavSpace(extra=3, mag=2)}
 
 
 def random_point(space, rng):
@@ -165,7 +166,8 @@ def random_point(space, rng):
         q = rng.normal(size=4)
         return np.concatenate([q / np.linalg.norm(q), rng.normal(size=3) * 5.0,
                                rng.normal(size=3) * 100.0, rng.normal(size=3) * 0.01,
-                               rng.normal(size=3) * 0.1, rng.normal(size=space.extra)])
+                               rng.normal(size=3) * 0.1,
+                               rng.normal(size=space.extra + space.mag)])
     return rng.normal(size=space.size)
 
 

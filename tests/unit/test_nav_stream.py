@@ -389,6 +389,30 @@ def test_bad_noise_option_is_one_line():
         NavOptions(gnss_delay=-1.0)
 
 
+def test_a_re_alignment_keeps_the_imu_biases_and_the_magnetic_reference_states():
+    """An IMU gap re-aligns at the next fix (attitude, velocity and position from it); the
+    running gyro and accelerometer biases and the magnetic reference's errors are kept,
+    whatever other states the state has (here the GNSS bias states too: 20 dimensions)."""
+    samples, ts, xs = flight(4, T=40.0)
+    samples = [s for s in samples if not (isinstance(s, ImuSample) and 120.0 < s.t < 122.0)]
+    noise = {"gnss_bias_h": 0.5, "gnss_bias_v": 1.0, "gnss_bias_tau": 30.0,
+             "mag_ref_inc": 0.02, "mag_ref_dec": 0.02}
+    stream, runners, coll = run_nav(samples, opts=NavOptions(integration="hold", noise=noise))
+    assert stream.space == NavSpace(extra=3, mag=2)
+    assert any(d["what"] == "alignment" and d["value"] == "re-aligned"
+               for d in stream.summary["decisions"])
+    a = coll.arrays(runners[0].label)
+    t, x = a["t"], a["x"]
+    before, after = np.flatnonzero(t < 120.0)[-1], np.flatnonzero(t > 122.0)[0]
+    assert x.shape[1] == 21 and np.all(np.isfinite(x))
+    assert np.abs(x[before, 10:13]).max() > 3e-3  # the gyro bias learnt (truth 0.01 rad/s)
+    np.testing.assert_allclose(x[after, 10:13], x[before, 10:13], atol=2e-3)
+    # the accelerometer bias moves with the new start's tilt in the step after it
+    assert np.abs(x[before, 13:16]).max() > 0.05
+    np.testing.assert_allclose(x[after, 13:16], x[before, 13:16], atol=0.02)
+    np.testing.assert_allclose(x[after, 19:21], x[before, 19:21], atol=1e-3)
+
+
 def test_a_held_magnetometer_reading_is_used_once():
     """The same field repeated in every IMU message (a MAVLink RAW_IMU's compass value,
     held between readings) is one measurement: each distinct reading updates once and

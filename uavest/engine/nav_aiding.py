@@ -21,7 +21,14 @@ from ..geometry.geodesy import LocalFrame, SphereFrame
 from ..geometry.rotation import quat_exp, quat_mul, quat_rotate_inv
 from ..ingest.types import BaroSample, GnssSample, MagSample
 from ..models.attitude import MagField, MagHeading
-from ..models.navigation import BaroHeight, GnssPosition, GnssVelocity, NavNoise, OnNav
+from ..models.navigation import (
+    BaroHeight,
+    GnssPosition,
+    GnssVelocity,
+    MagFieldRef,
+    NavNoise,
+    OnNav,
+)
 from .attitude import DEFAULT_MAX_RATE_HZ
 from .history import restore_vars, snapshot_vars
 
@@ -347,19 +354,25 @@ class AidQueues:
 
     def mag_updates(self, mag: _Aid, stamp: float, w: Array, mref: Array | None,
                     declination: float, noise: NavNoise, ups: list[tuple[Array, Any]],
-                    sensors: list[str], heading_scale: float = 1.0) -> None:
+                    sensors: list[str], heading_scale: float = 1.0,
+                    space: Any = None) -> None:
         """Append the update of a magnetometer aid taken by the step ending at ``stamp``
         (s) with the rate ``w`` (rad/s) to ``ups`` (counted ``used``), at most every
         :data:`MAG_MIN_INTERVAL_S`: the 3-D field direction against the unit reference
         ``mref`` (NED), or without one the heading against ``declination`` (rad), its
         std ``mag_noise`` times ``heading_scale`` (the field's direction noise seen in its
-        horizontal part: :func:`~uavest.engine.nav_align.heading_noise_scale`)."""
+        horizontal part: :func:`~uavest.engine.nav_align.heading_noise_scale`). On a
+        ``space`` with the magnetic reference states the field is against ``mref`` with
+        their errors (:class:`~uavest.models.navigation.MagFieldRef`)."""
         if mag.vec is None or mag.t - self.t_mag < MAG_MIN_INTERVAL_S:
             return
         self.t_mag = mag.t
         f, n = mag.vec, noise
         back = stamp - mag.t  # s the sample is older than the step (< 0: newer)
-        if mref is not None:
+        if mref is not None and space is not None and space.mag:
+            ups.append((f / np.linalg.norm(f), MagFieldRef(
+                mref, np.eye(3) * n.mag_noise**2, space, back, w)))
+        elif mref is not None:
             ups.append((f / np.linalg.norm(f), OnNav(
                 MagField(mref, np.eye(3) * n.mag_noise**2), back, w)))
         else:

@@ -200,7 +200,7 @@ def fix_start(q: Array, tilt: float, syaw: float, v: Array, p: Array, pv: list[f
     x = np.concatenate([q, v, p, np.zeros(6)])
     P = np.diag([tilt**2] * 2 + [syaw**2] + pv
                 + [n.init_gyro_bias**2] * 3 + [n.init_accel_bias**2] * 3)
-    return with_gnss_bias(x, P, n, from_fix=True)
+    return with_mag_ref(*with_gnss_bias(x, P, n, from_fix=True), n)
 
 
 def widen_tilt(g: Any, var: float, gravity: float = G0) -> Any:
@@ -221,11 +221,22 @@ def widen_tilt(g: Any, var: float, gravity: float = G0) -> Any:
 
 
 def add_gnss_bias(g: Any, noise: NavNoise) -> Any:
-    """A running navigation estimate ``g`` (a Gaussian, 16 components) with the GNSS bias
-    states of ``noise`` appended: its position has been fitted to fixes that carry the
-    bias, so it is taken as a fix's (:func:`with_gnss_bias`, ``from_fix``)."""
-    x, P = with_gnss_bias(np.asarray(g.x, float)[:16], np.asarray(g.P, float)[:15, :15],
-                          noise, from_fix=True)
+    """A running navigation estimate ``g`` (a Gaussian, 16 components, then the magnetic
+    reference's errors when ``noise`` has them) with the GNSS bias states of ``noise``
+    inserted after the 16: its position has been fitted to fixes that carry the bias, so
+    it is taken as a fix's (:func:`with_gnss_bias`, ``from_fix``); the magnetic
+    reference's errors keep their estimate and covariances."""
+    gx, gP = np.asarray(g.x, float), np.asarray(g.P, float)
+    x, P = with_gnss_bias(gx[:16], gP[:15, :15], noise, from_fix=True)
+    k = len(gx) - 16  # the magnetic reference's errors after the 16
+    if k:
+        d = len(P)
+        P2 = np.zeros((d + k, d + k))
+        P2[:d, :d] = P
+        P2[d:, d:] = gP[15:, 15:]
+        P2[:15, d:] = gP[:15, 15:]
+        P2[d:, :15] = gP[15:, :15]
+        x, P = np.concatenate([x, gx[16:]]), P2
     return type(g)(x, P)
 
 
@@ -246,6 +257,27 @@ def with_gnss_bias(x: Array, P: Array, noise: NavNoise, from_fix: bool) -> tuple
     return np.concatenate([x, np.zeros(3)]), P2
 
 
+def with_mag_ref(x: Array, P: Array, noise: NavNoise) -> tuple[Array, Array]:
+    """``(x, P)`` of a start (with its GNSS bias states, if any) with the magnetic
+    reference's error states appended when ``noise`` has them (:attr:`NavNoise.mag_ref`):
+    zero, at their prior std."""
+    if not noise.mag_ref:
+        return x, P
+    d = len(P)
+    P2 = np.zeros((d + 2, d + 2))
+    P2[:d, :d] = P
+    P2[d:, d:] = np.diag(noise.mag_ref_sd**2)
+    return np.concatenate([x, np.zeros(2)]), P2
+
+
+def kept_biases(space: Any) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """``(x indices, tangent indices)`` of the IMU biases and the magnetic reference's
+    errors of a navigation ``space``: what a re-alignment keeps of the running estimate
+    (``Start.keep_x`` / ``keep_P``; the GNSS bias states are the new fix's)."""
+    mx = tuple(range(space.size - space.mag, space.size))
+    return (*range(10, 16), *mx), (*range(9, 15), *(i - 1 for i in mx))
+
+
 def unaided_start(q: Array, syaw: float, noise: NavNoise) -> tuple[Array, Array]:
     """(x, P) of a start without a fix: attitude ``q`` (yaw std ``syaw`` rad), velocity
     0 +- ``init_vel``, position at the provisional origin +- ``nofix_pos_noise``, biases
@@ -255,7 +287,7 @@ def unaided_start(q: Array, syaw: float, noise: NavNoise) -> tuple[Array, Array]
     P = np.diag([n.init_tilt**2] * 2 + [syaw**2] + [n.init_vel**2] * 3
                 + [n.nofix_pos_noise**2] * 3
                 + [n.init_gyro_bias**2] * 3 + [n.init_accel_bias**2] * 3)
-    return with_gnss_bias(x, P, n, from_fix=False)
+    return with_mag_ref(*with_gnss_bias(x, P, n, from_fix=False), n)
 
 
 def anchor_start(v: Array, p: Array, pv: list[float], noise: NavNoise
@@ -267,4 +299,4 @@ def anchor_start(v: Array, p: Array, pv: list[float], noise: NavNoise
     x = np.concatenate([[1.0, 0.0, 0.0, 0.0], v, p, np.zeros(6)])
     P = np.diag([n.init_tilt**2] * 3 + pv + [n.init_gyro_bias**2] * 3
                 + [n.init_accel_bias**2] * 3)
-    return with_gnss_bias(x, P, n, from_fix=True)
+    return with_mag_ref(*with_gnss_bias(x, P, n, from_fix=True), n)

@@ -99,11 +99,13 @@ from .nav_align import (
     fix_start,
     gnss_acceleration,
     heading_noise_scale,
+    kept_biases,
     level,
     start_inclination,
     unaided_start,
     widen_tilt,
     with_gnss_bias,
+    with_mag_ref,
 )
 from .records import NavAnchor, Start, Step, StepRecord
 from .runner import FilterRunner
@@ -182,12 +184,6 @@ BARO_RECENT_S = 3.0
 #: Provisional latitude (rad) for gravity before the first fix gives the true one
 #: (normal gravity differs by at most 0.026 m/s^2 from its value here).
 UNAIDED_LAT = float(np.deg2rad(45.0))
-#: The navigation state's attitude and bias components: kept when the first fix
-#: re-anchors velocity and position (indices into x, and into the tangent P).
-KEEP_ATT_BIAS_X = (0, 1, 2, 3, *range(10, 16))
-KEEP_ATT_BIAS_P = (0, 1, 2, *range(9, 15))
-
-
 class NavNotStarted(NoSamplesError):
     """The stream ended before the navigation model could start (no good GNSS fix, or
     no magnetometer and never fast enough for the course)."""
@@ -279,6 +275,9 @@ class NavOptions:
         if bad:
             raise InputError(f"--noise {bad[0]}: not a parameter of the navigation model; "
                              f"known: {', '.join(sorted(known))}")
+        if self.mag_mode == "heading" and NavNoise().with_(**self.noise).mag_ref:
+            raise InputError("--noise mag_ref_inc / mag_ref_dec: the magnetic reference "
+                             "states are for the 3-D field update, not --mag-mode heading")
         for d, option, model in ((self.gnss_delay, "--gnss-delay", ""),
                                  (self.mag_delay, "--mag-delay", " for the navigation model"),
                                  (self.baro_delay, "--baro-delay", "")):
@@ -838,7 +837,8 @@ class NavStream(LateDeclination, StreamSnapshots):
     def _size_prior(self) -> Gaussian:
         """A prior of the state's size for a restart from the running estimates
         (``Start.augment``: it only gives the size)."""
-        x, P = with_gnss_bias(np.r_[1.0, np.zeros(15)], np.eye(15), self.noise, False)
+        x, P = with_mag_ref(*with_gnss_bias(np.r_[1.0, np.zeros(15)], np.eye(15),
+                                            self.noise, False), self.noise)
         return Gaussian(x, P)
 
     def _try_start(self, r: _Raw, aids: list[_Aid]) -> list[Start | Step]:
@@ -894,10 +894,10 @@ class NavStream(LateDeclination, StreamSnapshots):
         why = (f"roll/pitch from the accelerometer{comp}, yaw from {ywhy}, velocity and "
                f"position from the {self._aids.gnss} fix at t={g.t:.1f} s")
         self._decide("alignment", "done" if first else "re-aligned", r.t, why)
-        keep = 0 if first or al.switched else 6
+        kx, kp = ((), ()) if first or al.switched else kept_biases(self.space)
         al.switched = False
         return [Start(self._stamp(r), Gaussian(x, P), self.space,
-                      reason="start" if first else "gap", keep_tail=keep)]
+                      reason="start" if first else "gap", keep_x=kx, keep_P=kp)]
 
     def _start_unaided(self, r: _Raw, mags: list[Any]) -> list[Start | Step]:
         """The first start without a GNSS fix (``NavOptions.before_fix``): level from the
@@ -941,7 +941,8 @@ class NavStream(LateDeclination, StreamSnapshots):
 
     def _anchor(self, r: _Raw, fix: _Aid) -> list[Start | Step]:
         """The first good fix after an unaided start: velocity and position from it, the
-        running attitude and biases kept (:data:`KEEP_ATT_BIAS_X`)."""
+        running attitude, IMU biases and magnetic reference errors kept
+        (:func:`~uavest.engine.nav_align.kept_biases`)."""
         n, g = self.noise, fix.gnss
         assert g is not None
         v, p, pv = fix_prior(fix, self._stamp(r) - fix.t + 0.5 * fix.span, self.noise)
@@ -951,8 +952,9 @@ class NavStream(LateDeclination, StreamSnapshots):
         self._decide("alignment", "velocity and position from the first fix", r.t,
                      f"the {self._aids.gnss} fix at t={g.t:.1f} s; attitude and biases kept "
                      "from the unaided start")
+        kx, kp = kept_biases(self.space)
         return [Start(self._stamp(r), Gaussian(x, P), self.space, reason="first fix",
-                      keep_x=KEEP_ATT_BIAS_X, keep_P=KEEP_ATT_BIAS_P)]
+                      keep_x=(0, 1, 2, 3, *kx), keep_P=(0, 1, 2, *kp))]
 
     def _first_start(self, r: _Raw) -> None:
         """Declination and the magnetic reference, at the first start."""
@@ -1052,13 +1054,13 @@ class NavStream(LateDeclination, StreamSnapshots):
         mag = next((a for a in reversed(aids) if a.sensor == "mag"), None)
         if mag is not None:
             self._aids.mag_updates(mag, stamp, r.w, self._mref, self.declination, n,
-                                   ups, sensors, self._heading_scale)
+                                   ups, sensors, self._heading_scale, self.space)
         if self._align.unaided and r.t - self._t_hold >= HOLD_INTERVAL_S:
             self._t_hold = r.t
             ups.append((np.zeros(3), GnssPosition(np.eye(3) * n.nofix_pos_noise**2,
                                                   biased=False)))
             sensors.append("hold")
-        if self.space.extra:  # the models read the state with its GNSS bias states
+        if self.space.extra or self.space.mag:  # the models read the state's extra states
             for _, m in ups:
                 m.space = self.space
         self._k += 1
@@ -1164,6 +1166,13 @@ class NavStream(LateDeclination, StreamSnapshots):
             self._decide("magnetometer noise", f"{self.noise.mag_noise:.3f} rad", t_first,
                          o.mag_noise_why or ("option --noise" if "mag_noise" in o.noise
                                              else "default for the IMU source"))
+            n = self.noise
+            if n.mag_ref:
+                self._decide("magnetic reference states",
+                             f"inclination +- {np.degrees(n.mag_ref_inc):.2f} deg, "
+                             f"declination +- {np.degrees(n.mag_ref_dec):.2f} deg",
+                             t_first, f"option --noise (random walk {n.mag_ref_walk:g} "
+                             "rad/sqrt(s))")
         self._builder = _NavBuilder(integ, factor, o.on_arrival)
         self._builder.gap_s = max(GAP_MIN_S, GAP_MEDIANS * med)
         self.summary["imu_gap_threshold_s"] = self._builder.gap_s

@@ -22,7 +22,10 @@ Everything is vectorised over rows: ``x`` (16,) or (M, 16) against ``dx`` (M, 15
 
 ``NavSpace(extra=3)`` appends Euclidean components after ``ba`` (``x`` size 19, ``dx``
 dim 18): the navigation model's GNSS receiver bias ``bp`` (m, NED) when it has one
-(:class:`uavest.models.navigation.NavNoise`, ``gnss_bias_tau``).
+(:class:`uavest.models.navigation.NavNoise`, ``gnss_bias_tau``). ``mag=2`` appends two
+more after those: the errors (rad) of the magnetic reference's inclination and declination
+(``NavNoise.mag_ref_inc`` / ``mag_ref_dec``), so ``NavSpace(extra=3, mag=2)`` has ``x``
+size 21 and ``dx`` dim 20. Every appended component is Euclidean.
 """
 
 from __future__ import annotations
@@ -86,19 +89,28 @@ class NavSpace:
     """SO(3) x R^3 (v NED) x R^3 (p NED) x R^3 (gyro bias) x R^3 (accel bias).
 
     ``size`` 16, tangent ``dim`` 15 (``extra`` more of each: Euclidean components after
-    the accelerometer bias); see the module docstring for the layout and units.
+    the accelerometer bias, then ``mag`` more: the magnetic reference's errors); see the
+    module docstring for the layout and units.
     """
 
-    def __init__(self, extra: int = 0) -> None:
+    def __init__(self, extra: int = 0, mag: int = 0) -> None:
         self.extra = int(extra)
-        self.dim = DIM + self.extra
-        self.size = SIZE + self.extra
+        self.mag = int(mag)
+        self.dim = DIM + self.extra + self.mag
+        self.size = SIZE + self.extra + self.mag
+
+    @property
+    def mag_slice(self) -> slice:
+        """The magnetic reference's error components in ``x`` (empty without them); in the
+        tangent they are one index lower."""
+        return slice(self.size - self.mag, self.size)
 
     def __eq__(self, other: object) -> bool:
-        return isinstance(other, NavSpace) and other.extra == self.extra
+        return (isinstance(other, NavSpace) and other.extra == self.extra
+                and other.mag == self.mag)
 
     def __hash__(self) -> int:
-        return hash(("NavSpace", self.extra))
+        return hash(("NavSpace", self.extra, self.mag))
 
     def retract(self, x: Array, dx: Array) -> Array:
         if dx.ndim == 2 and x.ndim <= 2 and (x.ndim == 1 or x.shape[0] == dx.shape[0]):
@@ -147,4 +159,5 @@ class NavSpace:
 
     def __repr__(self) -> str:
         extra = f", +{self.extra}" if self.extra else ""
+        extra += f", +{self.mag} mag" if self.mag else ""
         return f"NavSpace(q*Exp(dtheta), v+dv, p+dp, bg+dbg, ba+dba{extra})"

@@ -66,7 +66,10 @@ def nav_dim(overrides: dict[str, float]) -> int:
 
 def nav_space(noise: NavNoise) -> NavSpace:
     """The state space for ``noise``: :data:`SPACE_GNSS_BIAS` when it has GNSS bias
-    states, else :data:`SPACE`."""
+    states, else :data:`SPACE`; with the magnetic reference states
+    (:attr:`NavNoise.mag_ref`) two more components after those."""
+    if noise.mag_ref:
+        return NavSpace(extra=3 if noise.gnss_bias else 0, mag=2)
     return SPACE_GNSS_BIAS if noise.gnss_bias else SPACE
 
 
@@ -111,6 +114,15 @@ class NavNoise:
         receiver's accuracy leaves beyond them (``sqrt(h_acc^2 - gnss_bias_h^2)``, at least
         the floors). ``gnss_bias_tau`` 0 (default): no such states (15, not 18), the fixes'
         errors independent.
+    mag_ref_inc, mag_ref_dec, mag_ref_walk: the magnetic reference's errors as two
+        states (rad, after the GNSS bias states when there are): the field the 3-D
+        magnetometer update expects has the inclination and declination it was given
+        (the magnetic model's, the log's COMPASS_DEC...) plus these. ``mag_ref_inc`` and
+        ``mag_ref_dec`` are their prior stds (rad; both 0, the default: no such states,
+        the reference taken as exact), ``mag_ref_walk`` their random walk, rad/sqrt(s) (a
+        local anomaly changes as the vehicle moves). A site's field is often a degree or
+        more off the model, and a magnetometer trusted to its white noise otherwise puts
+        that error into the tilt (docs/navigation.md, "The magnetic reference states").
     """
 
     gyro_noise: float = 0.003
@@ -137,6 +149,21 @@ class NavNoise:
     gnss_bias_h: float = 0.0
     gnss_bias_v: float = 0.0
     gnss_bias_tau: float = 0.0
+    mag_ref_inc: float = 0.0
+    mag_ref_dec: float = 0.0
+    mag_ref_walk: float = 1e-5
+
+    @property
+    def mag_ref(self) -> bool:
+        """True when the model carries the magnetic reference states (a non-zero prior
+        std for the inclination's or the declination's error)."""
+        return self.mag_ref_inc > 0 or self.mag_ref_dec > 0
+
+    @property
+    def mag_ref_sd(self) -> Array:
+        """The magnetic reference states' prior std, rad (inclination, declination; at
+        least 1e-6: a zero would leave the covariance singular)."""
+        return np.maximum([self.mag_ref_inc, self.mag_ref_dec], 1e-6)
 
     @property
     def gnss_bias(self) -> bool:
@@ -268,7 +295,7 @@ class ImuTransition(Transition):
         out[:, 7:10] = X[:, 7:10] + X[:, 4:7] * dt + 0.5 * dt * dt * a
         if self.space.extra:  # the GNSS bias decays towards 0
             out[:, 16:19] = X[:, 16:19] * self._phi(dt)
-        return out[0] if one else out
+        return out[0] if one else out  # the magnetic reference's errors: constant
 
     def _phi(self, dt: float) -> float:
         """The GNSS bias states' decay over ``dt`` s."""
@@ -286,6 +313,12 @@ class ImuTransition(Transition):
         if self.space.extra:  # exact first-order Gauss-Markov discretisation
             Qb = np.diag(n.gnss_bias_sd**2 * (1.0 - self._phi(dt) ** 2) + 1e-14)
             Q = np.block([[Q, np.zeros((15, 3))], [np.zeros((3, 15)), Qb]])
+        if self.space.mag:  # the magnetic reference's random walk
+            k = Q.shape[0]
+            Q2 = np.zeros((k + 2, k + 2))
+            Q2[:k, :k] = Q
+            Q2[k:, k:] = np.eye(2) * (n.mag_ref_walk**2 * dt + 1e-16)
+            Q = Q2
         return Q
 
     def F(self, x: Array, t: float, dt: float, u: Array | None = None) -> Array:
@@ -310,6 +343,12 @@ class ImuTransition(Transition):
         F[6:9, 9:12] = 0.5 * dt * dt * da_dbg
         F[6:9, 12:15] = -0.5 * dt * dt * Rh
         return F
+
+
+def _gnss_biased(m: Measurement, size: int) -> bool:
+    """A state of ambient ``size`` carries the GNSS bias states (``x[16:19]``, before the
+    magnetic reference's errors, of which the model ``m`` is told by its ``space``)."""
+    return size - getattr(m.space, "mag", 0) > 16
 
 
 def _qstep(q: Array, w: Array, dt: float) -> Array:
@@ -422,16 +461,19 @@ class GnssPosition(_Carried):
 
     def h(self, X: Array) -> Array:
         y = super().h(X)
-        if self.biased and X.shape[-1] > 16:
+        if self._bias(X):
             y = y + X[..., 16:19][..., list(self.rows)]
         return y
 
+    def _bias(self, X: Array) -> bool:
+        return self.biased and _gnss_biased(self, X.shape[-1])
+
     def H(self, x: Array) -> Array:
-        return self.H_rows(x[None, :])[0] if x.shape[-1] > 16 else super().H(x)
+        return self.H_rows(x[None, :])[0] if self._bias(x) else super().H(x)
 
     def H_rows(self, X: Array) -> Array:
         H = super().H_rows(X)
-        if self.biased and X.shape[-1] > 16:
+        if self._bias(X):
             H = np.array(H)
             H[:, np.arange(len(self.rows)), 15 + np.array(self.rows)] = 1.0
         return H
@@ -492,13 +534,13 @@ class BaroHeight(_Block):
 
     def h(self, X: Array) -> Array:
         y = -(X[..., 9:10] - self.back * X[..., 6:7]) + self._offset
-        if X.shape[-1] > 16:  # the offset is to the GNSS height: it carries its bias
+        if _gnss_biased(self, X.shape[-1]):  # the offset is to the GNSS height: its bias
             y = y - X[..., 18:19]
         return y
 
     def _H_for(self, size: int) -> Array:
         H = super()._H_for(size)
-        if size > 16:
+        if _gnss_biased(self, size):
             H = H.copy()
             H[0, 17] = -1.0
         return H
@@ -562,3 +604,49 @@ def innovation_gate(nu: Array, S: Array, chi2: float) -> bool:
     ``nu^T S^-1 nu <= chi2`` (a 100 m GNSS jump fails it; callers count rejections)."""
     d2 = float(nu @ np.linalg.solve(S, nu))
     return bool(np.isfinite(d2) and d2 <= chi2)
+
+
+class MagFieldRef(OnNav):
+    """The magnetometer's 3-D field direction (:class:`~uavest.models.attitude.MagField`
+    on the navigation state, as :class:`OnNav`) against a reference field whose
+    inclination and declination errors are states (``x[space.mag_slice]``, rad,
+    :attr:`NavNoise.mag_ref`): ``h = R(q_b)^T m(I + dI, D + dD)``, ``m(I, D) = (cos I cos
+    D, cos I sin D, sin I)`` NED, ``q_b`` the attitude ``back`` s before the state's time.
+    ``ref``: the unit reference field (NED) the errors are relative to."""
+
+    def __init__(self, ref: Array, R: Array, space: NavSpace, back: float = 0.0,
+                 w: Array | None = None) -> None:
+        from uavest.models.attitude import MagField
+
+        ref = np.asarray(ref, float)
+        super().__init__(MagField(ref, R), back, w)
+        self.space = space
+        self.inc = float(np.arcsin(np.clip(ref[2], -1.0, 1.0)))
+        self.dec = float(np.arctan2(ref[1], ref[0]))
+
+    def _angles(self, X: Array) -> tuple[Array, Array]:
+        e = X[..., self.space.mag_slice]
+        return self.inc + e[..., 0], self.dec + e[..., 1]
+
+    def _m(self, X: Array) -> Array:
+        """The reference field (unit, NED) of each row of ``X``."""
+        inc, dec = self._angles(X)
+        ci = np.cos(inc)
+        return np.stack([ci * np.cos(dec), ci * np.sin(dec), np.sin(inc)], axis=-1)
+
+    def h(self, X: Array) -> Array:
+        res: Array = quat_rotate_inv(self._q(X), self._m(X))
+        return res
+
+    def H(self, x: Array) -> Array:
+        from uavest.models.attitude import MagField
+
+        m = self._m(x)
+        H = OnNav(MagField(m, self.R), self.back, self.w).H(x)
+        inc, dec = self._angles(x)
+        si, ci, sd, cd = np.sin(inc), np.cos(inc), np.sin(dec), np.cos(dec)
+        dm = np.array([[-si * cd, -ci * sd], [-si * sd, ci * cd], [ci, 0.0]])  # d m / d(I, D)
+        Rb = quat_to_dcm(self._q(x))
+        k = self.space.dim - self.space.mag
+        H[:, k:k + 2] = Rb.T @ dm
+        return H
