@@ -128,13 +128,41 @@ def test_the_magnetic_reference_states_replay_and_smooth(tmp_path):
         assert r.returncode == 0, r.stderr
         assert ("decision: magnetic reference states: inclination +- 1.00 deg" in r.stdout) \
             == (name == "ref"), r.stdout
+        assert ("magnetic field learnt (the reference: inclination 63.52 deg" in r.stdout) \
+            == (name == "ref"), r.stdout
         rows[name] = json.loads(path.read_text())["filters"]["ekf"]
     ref, plain = rows["ref"], rows["plain"]
+    # the simulator's field: 63.5 deg (the magnetic model's 63.52), 3.0 deg (COMPASS_DEC)
+    m = ref["mag_ref"]
+    assert abs(m["inclination_deg"] - 63.5) < max(0.1, 3 * m["inclination_sd_deg"]), m
+    assert abs(m["declination_deg"] - 3.0) < max(0.1, 3 * m["declination_sd_deg"]), m
+    assert m["inclination_sd_deg"] < 0.5 and "mag_ref" not in plain
     assert ref["nees"]["attitude"]["in_band95"] >= 0.9
     assert ref["nees"]["attitude"]["in_band95"] > plain["nees"]["attitude"]["in_band95"] + 0.1
     for row in (ref, ref["smoothed"]):
         for axis in ("roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg"):
             assert np.isfinite(row[axis]) and row[axis] < 1.0, (axis, row[axis])
+
+
+@pytest.mark.slow
+def test_a_live_run_reports_the_field_its_magnetic_reference_states_learnt(tmp_path):
+    """``uavest run`` (the live job, here over the simulator's tlog) with the magnetic
+    reference states: its JSON row and its printed line give the field each filter
+    learnt, within its std of the simulator's."""
+    path = tmp_path / "run.json"
+    r = subprocess.run([sys.executable, "-c", CODE, "run", "--connect",
+                        str(REPO_ROOT / "logs" / "sim_200hz.tlog"), "--model", "nav",
+                        "--filters", "ekf,hybrid", "--trackers", "none", "--duration", "60",
+                        "--noise", "mag_ref_inc=0.0175", "--noise", "mag_ref_dec=0.0175",
+                        "--json", str(path)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    line = next(ln for ln in r.stdout.splitlines() if ln.startswith("magnetic field learnt"))
+    rows = json.loads(path.read_text())["attitude"]
+    for label in ("ekf", "hybrid"):
+        m = rows[label]["mag_ref"]
+        assert f"{label} inclination {m['inclination_deg']:.2f}" in line
+        assert abs(m["inclination_deg"] - 63.5) < max(0.1, 3 * m["inclination_sd_deg"]), m
+        assert m["reference_declination_deg"] == pytest.approx(3.0, abs=1e-6)
 
 
 @pytest.mark.slow

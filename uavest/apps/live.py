@@ -32,7 +32,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -903,6 +903,15 @@ def _track_runners(cfg: LiveConfig, lane: TrackLane, tspecs: list) -> list[Track
     ]
 
 
+def _mag_ref_row(stream: Any, runner: Any) -> dict:
+    """``{"mag_ref": the field learnt}`` of a navigation filter with the magnetic
+    reference states (:meth:`~uavest.engine.navigation.NavStream.mag_ref_learnt`), else
+    empty."""
+    learnt = getattr(stream, "mag_ref_learnt", None)
+    got = learnt(runner) if learnt is not None else None
+    return {"mag_ref": got} if got else {}
+
+
 def _attitude_result(cfg: LiveConfig, att: _GapAware, runners: list,
                      scorer: AttitudeScorer, nav_scorer: NavScorer | None) -> dict:
     """The result document's reference, model and per-filter ``attitude`` scores (with the
@@ -925,6 +934,7 @@ def _attitude_result(cfg: LiveConfig, att: _GapAware, runners: list,
                                   if nav_scorer is not None else {}),
                                **({"gates": {k: dict(v) for k, v in r.gates.items()}}
                                   if getattr(r, "gates", None) else {}),
+                               **_mag_ref_row(att.stream, r),
                                "resets": r.resets,
                                # when and why (the guard's, a GNSS lock-out's)
                                **({"resets_why": [[t, w] for t, w in r.reset_log]}

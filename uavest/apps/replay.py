@@ -824,6 +824,9 @@ def _filter_row(r: FilterRunner, cfg: ReplayConfig, out: dict, stream, scorer: A
     row.update({k: v for k, v in extra.items() if v or k == "airborne"})
     if nav:
         row["gates"] = dict(getattr(r, "gates", {}))
+        learnt = stream.mag_ref_learnt(r)
+        if learnt is not None:
+            row["mag_ref"] = learnt
     row["us_per_step"] = r.us_per_step  # without the one-time warm-up
     row["resets"] = r.resets
     if cfg.smooth and coll is not None:
@@ -926,6 +929,22 @@ def resets_line(counts: dict[str, int], why: dict[str, list]) -> str | None:
     return "filter resets: " + ", ".join(
         f"{k} {v}" + (f" (first at t={why[k][0][0]:.1f} s: {why[k][0][1]})"
                       if why.get(k) else "") for k, v in resets.items())
+
+
+def mag_ref_line(rows: dict[str, dict]) -> str | None:
+    """"magnetic field learnt: ekf inclination 64.48 +- 0.05 deg, declination 3.10 +-
+    0.60 deg; ..." from the filters' result ``rows`` with a ``mag_ref`` (the magnetic
+    reference states); None without one."""
+    got = [(k, r["mag_ref"]) for k, r in rows.items() if r.get("mag_ref")]
+    if not got:
+        return None
+    m0 = got[0][1]
+    return ("magnetic field learnt (the reference: inclination "
+            f"{m0['reference_inclination_deg']:.2f} deg, declination "
+            f"{m0['reference_declination_deg']:.2f} deg): " + "; ".join(
+                f"{k} inclination {m['inclination_deg']:.2f} +- "
+                f"{m['inclination_sd_deg']:.2f} deg, declination {m['declination_deg']:.2f}"
+                f" +- {m['declination_sd_deg']:.2f} deg" for k, m in got))
 
 
 def reliability(doc: dict, summary: dict) -> list[str]:

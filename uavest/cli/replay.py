@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 from ..apps.aiding import aiding_hint
-from ..apps.replay import DEFAULT_FILTERS, ReplayConfig, replay
+from ..apps.replay import DEFAULT_FILTERS, ReplayConfig, mag_ref_line, replay
 from ..core.spec import FilterSpec
 from ..engine.attitude import DEFAULT_MAX_RATE_HZ
 from ..errors import InputError
@@ -235,6 +235,9 @@ def _table_lines(doc: dict) -> list[str]:
                      "lowest):")
         acols = ["roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg"]
         lines.append(table(air, acols + (NAV_COLS if nav else ["nees_att_in95"])))
+    learnt = mag_ref_line(doc["filters"])
+    if learnt:
+        lines.append(learnt)
     return lines
 
 

@@ -984,6 +984,26 @@ class NavStream(LateDeclination, StreamSnapshots):
             if alt is not None:
                 self.inclination_choice = (float(inc), *alt)
 
+    def mag_ref_learnt(self, runner: FilterRunner) -> dict[str, float] | None:
+        """The magnetic field a filter has learnt with the magnetic reference states
+        (:attr:`NavNoise.mag_ref`): the reference's inclination and declination plus
+        the filter's last estimate of their errors, with its std (deg; JSON
+        ``mag_ref``); None without the states, a 3-D reference or an estimate."""
+        if not self.space.mag or self._mref is None or runner.state is None:
+            return None
+        g = runner.filter.estimate(runner.state)
+        if len(g.x) != self.space.size:
+            return None
+        e, sd = g.x[self.space.mag_slice], np.sqrt(np.diag(g.P)[-2:])
+        inc0 = reference_inclination(self._mref)
+        dec0 = float(np.arctan2(self._mref[1], self._mref[0]))
+        return {"inclination_deg": float(np.degrees(inc0 + e[0])),
+                "inclination_sd_deg": float(np.degrees(sd[0])),
+                "declination_deg": float(np.degrees(dec0 + e[1])),
+                "declination_sd_deg": float(np.degrees(sd[1])),
+                "reference_inclination_deg": float(np.degrees(inc0)),
+                "reference_declination_deg": float(np.degrees(dec0))}
+
     def set_mag_inclination(self, inc: float, t: float, why: str) -> None:
         """From now on the magnetometer's reference field has the inclination ``inc``
         (rad, down positive; a live run's judgement of :attr:`inclination_choice`),
