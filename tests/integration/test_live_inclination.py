@@ -114,3 +114,24 @@ def test_heading_mode_from_a_start_in_flight_holds_with_the_spec_noise(seed0):
     row = doc["filters"]["ekf"]
     assert row["resets"] == 0
     assert row["vel_rmse_ms"] < 1.0 and row["hpos_rmse_m"] < 3.0, row
+
+
+@pytest.mark.slow
+def test_with_the_magnetic_reference_states_the_start_is_not_judged_but_learnt(tmp_path):
+    """The same accelerating start with the magnetic reference states: nothing is judged
+    (a later change of the reference would move the field the filters learn relative to
+    it), and the filter learns the simulator's 63.5-deg field from the start's 64.75 once
+    the turn at 22 s separates it from the tilt."""
+    tlog = _record(tmp_path, 5)
+    doc = run_live(LiveConfig(connect=str(tlog), model="nav", filters=("ekf",), trackers=(),
+                              noise={"mag_ref_inc": 0.0175, "mag_ref_dec": 0.0175},
+                              settle_s=25.0), status=False)
+    inc = [d for d in doc["decisions"] if d["what"] == "inclination"]
+    assert len(inc) == 1 and "reference states learn its error" in inc[0]["why"], inc
+    start = float(inc[0]["value"].split()[0])
+    assert abs(start - 63.5) > 1.0  # the accelerating start's angle
+    assert doc["gnss_delay_live"]["inclination"]["choice"] is None
+    row = doc["attitude"]["ekf"]
+    m = row["mag_ref"]
+    assert abs(m["inclination_deg"] - 63.5) < 0.3 and m["inclination_sd_deg"] < 0.3, m
+    assert row["settled"]["pitch_rmse_deg"] < 0.3, row["settled"]

@@ -980,8 +980,13 @@ class NavStream(LateDeclination, StreamSnapshots):
         elif inc is not None:
             self._mref = mag_reference(self.declination, inc)
             self.summary["inclination_rad"] = float(inc)
+            if self.space.mag:
+                why += ("; the filters' magnetic reference states learn its error (no "
+                        "later judgement of it)")
             self._decide("inclination", f"{np.degrees(inc):.2f} deg", r.t, why)
-            if alt is not None:
+            # with the states, a later change of the reference would move the field the
+            # filters have learnt (relative to this one) by the change
+            if alt is not None and not self.space.mag:
                 self.inclination_choice = (float(inc), *alt)
 
     def mag_ref_learnt(self, runner: FilterRunner) -> dict[str, float] | None:
@@ -1008,8 +1013,8 @@ class NavStream(LateDeclination, StreamSnapshots):
         """From now on the magnetometer's reference field has the inclination ``inc``
         (rad, down positive; a live run's judgement of :attr:`inclination_choice`),
         decided at ``t`` (s) because ``why``. Nothing before the first start or without
-        a 3-D field reference."""
-        if self._builder is None or self._mref is None:
+        a 3-D field reference, or with the magnetic reference states (which learn it)."""
+        if self._builder is None or self._mref is None or self.space.mag:
             return
         old = reference_inclination(self._mref)
         self._mref = mag_reference(self.declination, float(inc))
