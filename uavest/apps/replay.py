@@ -932,9 +932,10 @@ def resets_line(counts: dict[str, int], why: dict[str, list]) -> str | None:
 
 
 def mag_ref_line(rows: dict[str, dict]) -> str | None:
-    """"magnetic field learnt: ekf inclination 64.48 +- 0.05 deg, declination 3.10 +-
-    0.60 deg; ..." from the filters' result ``rows`` with a ``mag_ref`` (the magnetic
-    reference states); None without one."""
+    """"magnetic field learnt (the reference: inclination 63.52 deg, declination 3.00
+    deg): ekf inclination 64.51 +- 0.01 deg, declination 3.10 +- 0.17 deg; ..." from the
+    filters' result ``rows`` with a ``mag_ref`` (the magnetic reference states); None
+    without one."""
     got = [(k, r["mag_ref"]) for k, r in rows.items() if r.get("mag_ref")]
     if not got:
         return None

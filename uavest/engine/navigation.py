@@ -184,6 +184,8 @@ BARO_RECENT_S = 3.0
 #: Provisional latitude (rad) for gravity before the first fix gives the true one
 #: (normal gravity differs by at most 0.026 m/s^2 from its value here).
 UNAIDED_LAT = float(np.deg2rad(45.0))
+
+
 class NavNotStarted(NoSamplesError):
     """The stream ended before the navigation model could start (no good GNSS fix, or
     no magnetometer and never fast enough for the course)."""
