@@ -120,8 +120,9 @@ def test_heading_mode_from_a_start_in_flight_holds_with_the_spec_noise(seed0):
 def test_with_the_magnetic_reference_states_the_start_is_not_judged_but_learnt(tmp_path):
     """The same accelerating start with the magnetic reference states: nothing is judged
     (a later change of the reference would move the field the filters learn relative to
-    it), and the filter learns the simulator's 63.5-deg field from the start's 64.75 once
-    the turn at 22 s separates it from the tilt."""
+    it), the inclination's prior std is widened to the start's angle's distance from the
+    magnetic model's, and the filter learns the simulator's 63.5-deg field from the
+    start's 64.75 once the turn at 22 s separates it from the tilt."""
     tlog = _record(tmp_path, 5)
     doc = run_live(LiveConfig(connect=str(tlog), model="nav", filters=("ekf",), trackers=(),
                               noise={"mag_ref_inc": 0.0175, "mag_ref_dec": 0.0175},
@@ -130,6 +131,8 @@ def test_with_the_magnetic_reference_states_the_start_is_not_judged_but_learnt(t
     assert len(inc) == 1 and "reference states learn its error" in inc[0]["why"], inc
     start = float(inc[0]["value"].split()[0])
     assert abs(start - 63.5) > 1.0  # the accelerating start's angle
+    # its distance from the model's (63.52) is beyond the 1-deg prior: the prior covers it
+    assert f"prior std widened to {abs(start - 63.52):.2f} deg" in inc[0]["why"], inc
     assert doc["gnss_delay_live"]["inclination"]["choice"] is None
     row = doc["attitude"]["ekf"]
     m = row["mag_ref"]

@@ -985,6 +985,13 @@ class NavStream(LateDeclination, StreamSnapshots):
             if self.space.mag:
                 why += ("; the filters' magnetic reference states learn its error (no "
                         "later judgement of it)")
+                gap = abs(float(inc) - alt[0]) if alt is not None else 0.0
+                if gap > self.noise.mag_ref_inc:
+                    # the window's angle and the model's disagree by that much: a prior
+                    # narrower than that would hold the filters to the angle taken
+                    self.noise = self.noise.with_(mag_ref_inc=gap)
+                    why += (f", its prior std widened to {np.degrees(gap):.2f} deg, the "
+                            "distance from the magnetic model's")
             self._decide("inclination", f"{np.degrees(inc):.2f} deg", r.t, why)
             # with the states, a later change of the reference would move the field the
             # filters have learnt (relative to this one) by the change
