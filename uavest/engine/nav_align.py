@@ -11,6 +11,7 @@ from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
+from scipy.linalg import block_diag
 
 from ..geometry.rotation import G0, euler_to_quat, quat_rotate, quat_rotate_inv, wrap_pi
 from ..models.attitude import inclination_from_params, inclination_from_samples
@@ -263,11 +264,7 @@ def with_mag_ref(x: Array, P: Array, noise: NavNoise) -> tuple[Array, Array]:
     zero, at their prior std."""
     if not noise.mag_ref:
         return x, P
-    d = len(P)
-    P2 = np.zeros((d + 2, d + 2))
-    P2[:d, :d] = P
-    P2[d:, d:] = np.diag(noise.mag_ref_sd**2)
-    return np.concatenate([x, np.zeros(2)]), P2
+    return np.concatenate([x, np.zeros(2)]), block_diag(P, np.diag(noise.mag_ref_sd**2))
 
 
 def kept_biases(space: Any) -> tuple[tuple[int, ...], tuple[int, ...]]:

@@ -68,6 +68,7 @@ from ..ingest.types import (
 from ..models.attitude import (
     declination_and_source,
     mag_reference,
+    reference_declination,
     reference_inclination,
 )
 from ..models.navigation import (
@@ -1009,8 +1010,7 @@ class NavStream(LateDeclination, StreamSnapshots):
         if len(g.x) != self.space.size:
             return None
         e, sd = g.x[self.space.mag_slice], np.sqrt(np.diag(g.P)[-2:])
-        inc0 = reference_inclination(self._mref)
-        dec0 = float(np.arctan2(self._mref[1], self._mref[0]))
+        inc0, dec0 = reference_inclination(self._mref), reference_declination(self._mref)
         return {"inclination_deg": float(np.degrees(inc0 + e[0])),
                 "inclination_sd_deg": float(np.degrees(sd[0])),
                 "declination_deg": float(np.degrees(dec0 + e[1])),

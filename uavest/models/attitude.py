@@ -600,17 +600,25 @@ class Stacked(Measurement):
             [m.mean(Y[:, c[i]:c[i + 1]], w) for i, m in enumerate(self.models)])
 
 
-def mag_reference(declination: float, inclination: float) -> Array:
+def mag_reference(declination: float | Array, inclination: float | Array) -> Array:
     """Unit Earth field in NED from declination (rad, east positive) and inclination
-    (rad, positive when the field points down: northern hemisphere)."""
+    (rad, positive when the field points down: northern hemisphere): (3,), or (..., 3) for
+    arrays of angles."""
     ci = np.cos(inclination)
-    return np.array([ci * np.cos(declination), ci * np.sin(declination), np.sin(inclination)])
+    return np.stack([ci * np.cos(declination), ci * np.sin(declination), np.sin(inclination)],
+                    axis=-1)
 
 
 def reference_inclination(mref: Array) -> float:
     """The inclination (rad, positive down) of a unit NED field ``mref``
     (:func:`mag_reference`'s inverse for it)."""
     return float(np.arcsin(np.clip(mref[2], -1.0, 1.0)))
+
+
+def reference_declination(mref: Array) -> float:
+    """The declination (rad, east positive) of a NED field ``mref`` (:func:`mag_reference`'s
+    inverse for it)."""
+    return float(np.arctan2(mref[1], mref[0]))
 
 
 def inclination_from_samples(accel: Array, field: Array) -> float:

@@ -30,6 +30,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
+from scipy.linalg import block_diag
 
 from uavest.core.interfaces import Measurement, Transition
 from uavest.geometry.geodesy import EARTH_RATE, gravity
@@ -42,7 +43,14 @@ from uavest.geometry.rotation import (
     right_jacobian,
     skew,
 )
-from uavest.models.attitude import GyroTransition, sensor_family
+from uavest.models.attitude import (
+    GyroTransition,
+    MagField,
+    mag_reference,
+    reference_declination,
+    reference_inclination,
+    sensor_family,
+)
 
 Array = np.ndarray
 
@@ -314,11 +322,7 @@ class ImuTransition(Transition):
             Qb = np.diag(n.gnss_bias_sd**2 * (1.0 - self._phi(dt) ** 2) + 1e-14)
             Q = np.block([[Q, np.zeros((15, 3))], [np.zeros((3, 15)), Qb]])
         if self.space.mag:  # the magnetic reference's random walk
-            k = Q.shape[0]
-            Q2 = np.zeros((k + 2, k + 2))
-            Q2[:k, :k] = Q
-            Q2[k:, k:] = np.eye(2) * (n.mag_ref_walk**2 * dt + 1e-16)
-            Q = Q2
+            Q = block_diag(Q, np.eye(2) * (n.mag_ref_walk**2 * dt + 1e-16))
         return Q
 
     def F(self, x: Array, t: float, dt: float, u: Array | None = None) -> Array:
@@ -616,13 +620,10 @@ class MagFieldRef(OnNav):
 
     def __init__(self, ref: Array, R: Array, space: NavSpace, back: float = 0.0,
                  w: Array | None = None) -> None:
-        from uavest.models.attitude import MagField
-
         ref = np.asarray(ref, float)
         super().__init__(MagField(ref, R), back, w)
         self.space = space
-        self.inc = float(np.arcsin(np.clip(ref[2], -1.0, 1.0)))
-        self.dec = float(np.arctan2(ref[1], ref[0]))
+        self.inc, self.dec = reference_inclination(ref), reference_declination(ref)
 
     def _angles(self, X: Array) -> tuple[Array, Array]:
         e = X[..., self.space.mag_slice]
@@ -631,16 +632,13 @@ class MagFieldRef(OnNav):
     def _m(self, X: Array) -> Array:
         """The reference field (unit, NED) of each row of ``X``."""
         inc, dec = self._angles(X)
-        ci = np.cos(inc)
-        return np.stack([ci * np.cos(dec), ci * np.sin(dec), np.sin(inc)], axis=-1)
+        return mag_reference(dec, inc)
 
     def h(self, X: Array) -> Array:
         res: Array = quat_rotate_inv(self._q(X), self._m(X))
         return res
 
     def H(self, x: Array) -> Array:
-        from uavest.models.attitude import MagField
-
         m = self._m(x)
         H = OnNav(MagField(m, self.R), self.back, self.w).H(x)
         inc, dec = self._angles(x)
