@@ -73,22 +73,29 @@ def test_the_command_line_refuses_it_for_the_attitude_model(tmp_path, capsys):
 
 @pytest.mark.parametrize("spread, want", [(0.1, 0.1), (0.5, 0.2), (0.004, 0.02)])
 def test_the_baro_noise_a_live_run_records_is_capped_by_its_sources_profile(spread, want):
-    """The baro noise a live run records for a next one is its baro's spread within
-    [BARO_NOISE_MIN, the IMU source's profile], not within the noise the run itself had:
-    a run started with a previous run's 0.02 m would otherwise never record more."""
+    """The baro noise a live run records for a next one, and takes itself from then on
+    with the offset learnt with it, is its baro's spread within [BARO_NOISE_MIN, the IMU
+    source's profile], not within the noise the run itself had: a run started with a
+    previous run's 0.02 m would otherwise never record more."""
     from types import SimpleNamespace
 
     from uavest.engine.gnss_delay import LiveDelayLearner
     from uavest.models.navigation import NavNoise
 
     learner = LiveDelayLearner()
-    learner.t_decided, learner.baro_spread = 64.5, spread
+    learner.t_decided, learner.baro_spread, learner.baro_offset = 64.5, spread, -0.03
+    fits = []
     stream = SimpleNamespace(_builder=object(), frame=None, noise=NavNoise(baro_noise=0.02),
-                             source_noise=NavNoise(baro_noise=0.2),
-                             opts=SimpleNamespace(noise={"baro_noise": 0.02}))
+                             source_noise=NavNoise(baro_noise=0.2), baro_fit=None,
+                             opts=SimpleNamespace(noise={"baro_noise": 0.02}),
+                             set_baro_fit=lambda *a: fits.append(a))
     learner.apply(stream)
     assert learner.baro_noise == pytest.approx(want)
     assert learner.as_dict()["baro_noise"] == pytest.approx(want)
+    assert learner.as_dict()["baro_offset"] == -0.03
+    (noise, offset, t, why), = fits
+    assert noise == pytest.approx(want) and offset == -0.03 and t == 64.5
+    assert why.startswith("estimated live: the spread of the baro height"), why
 
 
 def test_a_run_that_learned_its_timing_says_how_to_start_the_next_with_it(tmp_path):

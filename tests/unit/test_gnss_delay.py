@@ -302,6 +302,10 @@ def test_a_known_baro_delay_is_found(delay):
     assert est.delay is not None, est.why
     assert abs(est.delay - delay) < 0.01
     assert est.spread is not None and 0.02 < est.spread < 0.06  # the two noises
+    # the offset at the last baro sample inside the fixes (the GNSS's last height is at
+    # 118.8 - 0.08 s): the 400 m and the drift to there, not its mean over the stretch
+    # (0.12 m less)
+    assert est.offset is not None and abs(est.offset - (400.0 + 0.002 * 118.7)) < 0.01
 
 
 def test_a_level_flight_gives_no_baro_delay():

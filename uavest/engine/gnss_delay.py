@@ -251,6 +251,9 @@ class BaroEstimate:
     spread: float | None = None
     #: the baro noise (m) the probe's stream took for its IMU source
     noise_default: float | None = None
+    #: baro height minus GNSS altitude (m) at the last baro sample, at the delay found:
+    #: the fitted offset and drift's line there (None: no delay found)
+    offset: float | None = None
     grid: Array = field(default_factory=lambda: np.zeros(0))
     cost: Array = field(default_factory=lambda: np.zeros(0))
 
@@ -454,6 +457,9 @@ class DelayProbe:
                        "climbing or descending)")
             return est
         est.delay = d
+        r = bh - np.interp(bt - d, ht, hh)
+        c, *_ = np.linalg.lstsq(A, r, rcond=None)
+        est.offset = float(c[0] + c[1] * (bt[-1] - bt.mean()))
         return est
 
     def add_mag(self, t: float, field: Array) -> None:
@@ -886,11 +892,15 @@ class LiveDelayLearner:
         self.baro_delay: float | None = None
         self.baro_why = ""
         #: the baro's spread against the GNSS height at that delay (m; None: not
-        #: estimated) and the noise a next run may start with (``--aiding-from``; not used
-        #: here: the baro offset this run averaged before its timing was known is off by
-        #: more than that noise, docs/live.md)
+        #: estimated), the noise taken from it (within [:data:`BARO_NOISE_MIN`, the IMU
+        #: source's profile]: this run's from then on, and what a next run may start with,
+        #: ``--aiding-from``), and the baro's offset to the GNSS altitude at that delay (m,
+        #: :attr:`BaroEstimate.offset`: the stream's running offset, averaged while the
+        #: baro's timing was not known, is off by more than that noise, docs/live.md)
         self.baro_spread: float | None = None
         self.baro_noise: float | None = None
+        self.baro_noise_why = ""
+        self.baro_offset: float | None = None
         self.estimates: list[dict[str, Any]] = []
         #: GNSS bias states sized from the fixes' drift with the delay (None: none), why,
         #: and the drift (``DriftEstimate`` fields)
@@ -1080,6 +1090,7 @@ class LiveDelayLearner:
                              f"GNSS heights at the GNSS delay, spread least ({what}, "
                              f"standard error {best.sd * 1e3:.1f} ms)")
             self.baro_spread, self.baro_noise = best.spread, None
+            self.baro_offset = best.offset
 
     def apply(self, stream: Any) -> None:
         """Give ``stream`` (a :class:`NavStream`) the delay found, if it does not have it
@@ -1113,8 +1124,12 @@ class LiveDelayLearner:
         if self.baro_spread is not None and self.baro_noise is None:
             # at most the source's profile, not the noise this run has: one started with
             # a previous run's (``--aiding-from``) would otherwise never suggest more
-            self.baro_noise = baro_noise_from_spread(self.baro_spread,
-                                                     stream.source_noise.baro_noise)[0]
+            self.baro_noise, self.baro_noise_why = baro_noise_from_spread(
+                self.baro_spread, stream.source_noise.baro_noise)
+        if self.baro_noise is not None and stream.baro_fit != (self.baro_noise,
+                                                               self.baro_offset):
+            stream.set_baro_fit(self.baro_noise, self.baro_offset, self.t_decided,
+                                f"estimated live: {self.baro_noise_why}")
         if self.bias is not None and not stream.noise.gnss_bias:
             stream.set_gnss_bias(self.bias, self.t_decided, self.bias_why)
 
@@ -1124,6 +1139,7 @@ class LiveDelayLearner:
                 "why": self.why or None,
                 "window": self.window, "baro_delay": self.baro_delay,
                 "baro_spread": self.baro_spread, "baro_noise": self.baro_noise,
+                "baro_offset": self.baro_offset,
                 "gnss_drift": self.drift, "gnss_bias": self.bias,
                 "filter": self.label or None, "tries": self.estimates,
                 "inclination": {
