@@ -19,6 +19,7 @@ from uavest.models.navigation import (
     OnNav,
     innovation_gate,
     nav_dim,
+    nav_space,
 )
 
 SP = NavSpace()
@@ -330,6 +331,38 @@ def _gm_flight(seed, steps=3000, dt=0.02, sigma=2.0, tau=10.0):
     return out
 
 
+#: The flights' start covariance: attitude, velocity, position, gyro and accel biases.
+P0_FLIGHT = np.diag([0.05**2] * 3 + [1.0] * 3 + [9.0] * 3 + [0.01**2] * 3 + [0.2**2] * 3)
+
+
+def _filter_flight(data, noise, spec, seed, prior, Rp, Rv, step=None):
+    """The registry's filter ``spec`` over the seeded flight ``data`` on ``noise``'s state
+    space (its random draws from ``seed``): the truth's start at :data:`P0_FLIGHT`, the
+    extra states (GNSS bias, magnetic reference) appended at zero with the covariance
+    ``prior``; at each fix its position and velocity with ``Rp`` / ``Rv``; after them
+    ``step(k, xt, s, f, space, rng)`` returns the state with any other update. Yields
+    ``(k, xt, estimate, space)`` per IMU step."""
+    from scipy.linalg import block_diag
+
+    tr = ImuTransition(noise)
+    sp = tr.space
+    x0, P0 = data[0][0].copy(), P0_FLIGHT
+    if sp.dim > 15:
+        x0, P0 = np.concatenate([x0, np.zeros(sp.dim - 15)]), block_diag(P0, prior)
+    rng = np.random.default_rng(seed)
+    f = make_filter(spec)
+    s = f.init(Gaussian(x0, P0), sp, rng)
+    for k, (xt, u, zp, zv) in enumerate(data):
+        s = f.predict(s, tr, k * 0.02, 0.02, u, rng)
+        if zp is not None:
+            for z, m in ((zp, GnssPosition(Rp)), (zv, GnssVelocity(Rv))):
+                m.space = sp
+                s, _ = f.update(s, z, m, rng)
+        if step is not None:
+            s = step(k, xt, s, f, sp, rng)
+        yield k, xt, f.estimate(s), sp
+
+
 @pytest.mark.slow
 def test_gnss_bias_states_make_the_position_nees_consistent():
     """The same seeded flight, fixes with a 10-s Gauss-Markov error of 2 m: the EKF that
@@ -341,32 +374,15 @@ def test_gnss_bias_states_make_the_position_nees_consistent():
     lo, hi = nees_band(3)
     res = {}
     for noise in (NavNoise(), NavNoise(gnss_bias_h=2.0, gnss_bias_v=2.0, gnss_bias_tau=10.0)):
-        tr = ImuTransition(noise)
-        sp = tr.space
-        x0 = data[0][0].copy()
-        P0 = np.diag([0.05**2] * 3 + [1.0] * 3 + [9.0] * 3 + [0.01**2] * 3 + [0.2**2] * 3)
-        if sp.extra:
-            x0 = np.concatenate([x0, np.zeros(3)])
-            P0 = np.pad(P0, ((0, 3), (0, 3)))
-            P0[15:, 15:] = np.eye(3) * 4.0
-        f = make_filter("ekf")
-        rng = np.random.default_rng(1)
-        s = f.init(Gaussian(x0, P0), sp, rng)
         inb, err = [], []
-        for k, (xt, u, zp, zv) in enumerate(data):
-            s = f.predict(s, tr, k * 0.02, 0.02, u, rng)
-            if zp is not None:
-                mp, mv = GnssPosition(np.eye(3) * 0.01), GnssVelocity(np.eye(3) * 0.01)
-                mp.space = mv.space = sp
-                s, _ = f.update(s, zp, mp, rng)
-                s, _ = f.update(s, zv, mv, rng)
-            g = f.estimate(s)
+        for k, xt, g, _ in _filter_flight(data, noise, "ekf", 1, np.eye(3) * 4.0,
+                                          np.eye(3) * 0.01, np.eye(3) * 0.01):
             if k > 500:
                 e = g.x[7:10] - xt[7:10]
                 d = float(e @ np.linalg.solve(g.P[6:9, 6:9], e))
                 inb.append(lo <= d <= hi)
                 err.append(e)
-        res[sp.dim] = (np.mean(inb), np.sqrt(np.mean(np.square(err))))
+        res[nav_space(noise).dim] = (np.mean(inb), np.sqrt(np.mean(np.square(err))))
     assert res[15][0] < 0.3, res
     assert res[18][0] >= 0.8, res
     assert res[18][1] <= 1.1 * res[15][1], res
@@ -451,32 +467,20 @@ def test_mag_ref_states_learn_a_field_off_the_model(spec):
     res = {}
     for noise in (NavNoise(), NavNoise(mag_ref_inc=np.deg2rad(2.0),
                                        mag_ref_dec=np.deg2rad(2.0))):
-        tr = ImuTransition(noise)
-        sp = tr.space
-        rng = np.random.default_rng(2)
-        x0 = data[0][0].copy()
-        P0 = np.diag([0.05**2] * 3 + [1.0] * 3 + [9.0] * 3 + [0.01**2] * 3 + [0.2**2] * 3)
-        if sp.mag:
-            x0 = np.concatenate([x0, np.zeros(2)])
-            P0 = np.pad(P0, ((0, 2), (0, 2)))
-            P0[15:, 15:] = np.diag(noise.mag_ref_sd**2)
-        f = make_filter(spec)
-        s = f.init(Gaussian(x0, P0), sp, rng)
+
+        def mag(k, xt, s, f, sp, rng):
+            if k % 5:  # 10 Hz magnetometer, 0.005 rad per axis
+                return s
+            zb = quat_rotate_inv(xt[:4], m_true) + rng.normal(size=3) * 0.005
+            R = np.eye(3) * 0.005**2
+            m = MagFieldRef(m_given, R, sp) if sp.mag else OnNav(MagField(m_given, R))
+            m.space = sp
+            return f.update(s, zb / np.linalg.norm(zb), m, rng)[0]
+
         inb, err = [], []
-        for k, (xt, u, zp, zv) in enumerate(data):
-            s = f.predict(s, tr, k * 0.02, 0.02, u, rng)
-            if zp is not None:
-                for z, m in ((zp, GnssPosition(np.diag([0.25, 0.25, 1.0]))),
-                             (zv, GnssVelocity(np.eye(3) * 0.01))):
-                    m.space = sp
-                    s, _ = f.update(s, z, m, rng)
-            if k % 5 == 0:  # 10 Hz magnetometer, 0.005 rad per axis
-                zb = quat_rotate_inv(xt[:4], m_true) + rng.normal(size=3) * 0.005
-                R = np.eye(3) * 0.005**2
-                m = MagFieldRef(m_given, R, sp) if sp.mag else OnNav(MagField(m_given, R))
-                m.space = sp
-                s, _ = f.update(s, zb / np.linalg.norm(zb), m, rng)
-            g = f.estimate(s)
+        for k, xt, g, sp in _filter_flight(data, noise, spec, 2,
+                                           np.diag(noise.mag_ref_sd**2),
+                                           np.diag([0.25, 0.25, 1.0]), np.eye(3) * 0.01, mag):
             if k > 1250:  # 5 s after the turn has begun (at 10 s)
                 e = sp.local(g.x, xt if not sp.mag else np.r_[xt, d_inc, d_dec])[:3]
                 d = float(e @ np.linalg.solve(g.P[:3, :3], e))
