@@ -544,7 +544,9 @@ class NavStream(LateDeclination, StreamSnapshots):
         running one kept), both learnt at the baro's delay (``why``). The running offset,
         averaged while the baro's timing was not known, is off by more than the noise: a
         live ArduCopter SITL's 6 cm against its 0.02 m (docs/live.md). The running mean
-        goes on from the new offset."""
+        goes on from the new offset (in a WGS84 tangent frame the GNSS height is the
+        altitude less the origin's less the Earth's curvature, d^2 / 2R: 7 mm at 300 m from
+        the origin, left to the running mean)."""
         if self._builder is None:
             return
         self.baro_fit = (float(noise), offset)
