@@ -25,8 +25,11 @@ __all__ = ["ScenarioError", "load_scenario", "load_typed", "list_scenarios",
 
 
 def scenario_dirs() -> list[Path]:
+    """Where scenarios are looked up by name: ``./scenarios`` (the user's own, first), then
+    the package's; each once, resolved (the repository's top-level ``scenarios`` is a link
+    to the package's)."""
     here = Path(__file__).resolve().parent
-    return [Path.cwd() / "scenarios", here]
+    return list(dict.fromkeys([(Path.cwd() / "scenarios").resolve(), here]))
 
 
 def find_scenario(name_or_path: str) -> Path | None:
