@@ -5,9 +5,12 @@ subprocesses on the shared logs (skipped when they are absent)."""
 
 from __future__ import annotations
 
+import functools
 import json
 import subprocess
 import sys
+import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -186,17 +189,27 @@ def test_a_long_imu_interval_below_the_gap_threshold_is_predicted_in_sub_steps(t
     assert "long IMU intervals: " in r.stdout
 
 
+@functools.cache
+def _sitl_copter_run(extra: tuple[str, ...]) -> tuple[str, str]:
+    """``uavest replay logs/sitl_copter.tlog --filters ekf`` with the ``extra`` options:
+    (stdout, the JSON document's text). Cached: three tests compare against the default
+    run, each a 206-s replay (the file's tests share a worker, pyproject.toml)."""
+    log = str(REPO_ROOT / "logs" / "sitl_copter.tlog")
+    with tempfile.TemporaryDirectory() as d:
+        out = Path(d) / "run.json"
+        r = _replay(log, "--filters", "ekf", "--json", str(out), *extra)
+        assert r.returncode == 0, r.stderr
+        return r.stdout, out.read_text()
+
+
 def _sitl_copter_runs(tmp_path, runs: dict[str, tuple[str, ...]]
                       ) -> tuple[dict[str, str], dict[str, dict]]:
     """``uavest replay logs/sitl_copter.tlog --filters ekf`` with each run's extra options:
     (stdout, JSON document) per run name."""
-    log = str(REPO_ROOT / "logs" / "sitl_copter.tlog")
     outs, docs = {}, {}
     for name, extra in runs.items():
-        out = tmp_path / f"{name}.json"
-        r = _replay(log, "--filters", "ekf", "--json", str(out), *extra)
-        assert r.returncode == 0, r.stderr
-        outs[name], docs[name] = r.stdout, json.loads(out.read_text())
+        stdout, text = _sitl_copter_run(tuple(extra))
+        outs[name], docs[name] = stdout, json.loads(text)
     return outs, docs
 
 
