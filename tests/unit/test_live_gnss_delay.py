@@ -8,6 +8,7 @@ samples held in time order (no rewind), and against no delay."""
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import pytest
@@ -20,15 +21,24 @@ ROOT = Path(__file__).resolve().parents[2]
 LOG = ROOT / "logs" / "sitl_copter.tlog"
 
 
-def _run(**kw):
+def _run(sinks=(), **kw):
     cfg = LiveConfig(connect=str(LOG), model="nav", filters=("ekf",), trackers=(), **kw)
     src = open_source(LOG, reorder_window=cfg.reorder_window)
-    return run_samples(src, cfg, params=src.params, status=False)
+    return run_samples(src, cfg, params=src.params, status=False, sinks=list(sinks))
+
+
+@functools.cache
+def _default_run():
+    """The live job over the log with the default options, once for this file's three
+    tests that need it (a 206-s navigation run), the EKF's and SIM_STATE's heights
+    captured (:class:`_Heights`): (result document, sink)."""
+    sink = _Heights()
+    return _run(sinks=[sink]), sink
 
 
 @pytest.mark.slow  # three navigation runs over a 206 s log
 def test_live_run_estimates_the_gnss_delay_window_and_baro_delay_and_uses_them():
-    on_arrival = _run()
+    on_arrival = _default_run()[0]
     ordered = _run(reorder_window=1.0)
     none = _run(gnss_delay=0.0)
     given = _run(gnss_delay=0.083)
@@ -105,7 +115,7 @@ def test_a_live_run_started_with_a_previous_runs_aiding_has_the_takeoffs_tilt(tm
     from uavest.apps.aiding import read_aiding
     from uavest.sinks.jsonout import write_json
 
-    first = _run()
+    first = _default_run()[0]
     path = write_json(tmp_path / "first.json", first)
     aiding, why = read_aiding(path)
     assert set(aiding) == {"gnss_delay", "gnss_vel_window", "baro_noise"}, aiding
@@ -159,12 +169,7 @@ def test_a_live_run_takes_the_baro_noise_and_offset_it_learns():
     19 mm with the profile's noise and the running offset)."""
     import numpy as np
 
-    from uavest.apps.live import LiveConfig, run_samples
-
-    sink = _Heights()
-    cfg = LiveConfig(connect=str(LOG), model="nav", filters=("ekf",), trackers=())
-    src = open_source(LOG, reorder_window=cfg.reorder_window)
-    doc = run_samples(src, cfg, params=src.params, status=False, sinks=[sink])
+    doc, sink = _default_run()
     learned = doc["gnss_delay_live"]
     assert learned["baro_noise"] == pytest.approx(0.02) and learned["baro_offset"] is not None
     t_fit = learned["tries"][0]["t"]
