@@ -27,11 +27,20 @@ def spreads(log: str, filters: str, seed: int, skip: float, gnss_delay: float | 
             ) -> dict[str, tuple[float, float, float, float]]:
     """{label: (median attitude, velocity, position variance ratio to the first filter,
     RMS position std m)} over the steps ``skip`` s after the first."""
+    return spread_table(replay_estimates(log, filters, seed, gnss_delay), skip)
+
+
+def replay_estimates(log: str, filters: str, seed: int, gnss_delay: float | None) -> dict:
+    """The navigation replay of ``log`` with ``filters``: {label: [(t s, x, P), ...]}."""
     src = open_source(log)
     cfg = ReplayConfig(filters=tuple(filters.split(",")), model="nav", seed=seed,
                        gnss_delay=gnss_delay)
-    out = replay_samples(src, cfg, params=src.params)[0]
-    est = out["nav"].est
+    est: dict = replay_samples(src, cfg, params=src.params)[0]["nav"].est
+    return est
+
+
+def spread_table(est: dict, skip: float) -> dict[str, tuple[float, float, float, float]]:
+    """:func:`spreads` of the estimates ``est`` (:func:`replay_estimates`)."""
     labels = list(est)
     per = {}
     for lab in labels:

@@ -213,16 +213,24 @@ def _sitl_copter_runs(tmp_path, runs: dict[str, tuple[str, ...]]
     return outs, docs
 
 
-def _truth_inclination(log: str, age: float) -> float:
-    """The field's inclination (deg) the simulator's own attitude (SIM_STATE) gives the
-    new magnetometer readings of ``log`` taken ``age`` s before their stamps: their mean
-    direction in NED."""
-    from uavest.geometry.rotation import quat_rotate, quat_slerp_interp
+@functools.cache
+def _sitl_copter_samples() -> tuple:
+    """logs/sitl_copter.tlog's samples as the replay reads them, once for the four tests
+    that compare with its truth (a few seconds of reading each)."""
     from uavest.ingest import open_source
+
+    return tuple(open_source(str(REPO_ROOT / "logs" / "sitl_copter.tlog")))
+
+
+def _truth_inclination(age: float) -> float:
+    """The field's inclination (deg) the simulator's own attitude (SIM_STATE) gives the
+    new magnetometer readings of logs/sitl_copter.tlog taken ``age`` s before their
+    stamps: their mean direction in NED."""
+    from uavest.geometry.rotation import quat_rotate, quat_slerp_interp
     from uavest.ingest.types import AttitudeRef, MagSample
 
     rt, rq, mt, mf, last = [], [], [], [], None
-    for smp in open_source(log):
+    for smp in _sitl_copter_samples():
         if isinstance(smp, AttitudeRef) and smp.source == "SIM_STATE":
             rt.append(smp.t)
             rq.append(smp.q)
@@ -237,14 +245,13 @@ def _truth_inclination(log: str, age: float) -> float:
     return float(np.degrees(np.arcsin(u[2] / np.linalg.norm(u))))
 
 
-def _truth_lag(log: str) -> float:
-    """The lag (s) of the GNSS velocity behind the simulator's (SIM_STATE) in a log: the
-    shift of least RMS difference, every 5 ms from 0 to 0.3 s."""
-    from uavest.ingest import open_source
+def _truth_lag() -> float:
+    """The lag (s) of the GNSS velocity behind the simulator's (SIM_STATE) in
+    logs/sitl_copter.tlog: the shift of least RMS difference, every 5 ms from 0 to 0.3 s."""
     from uavest.ingest.types import GnssSample, PositionSample
 
     gt, gv, rt, rv = [], [], [], []
-    for smp in open_source(log):
+    for smp in _sitl_copter_samples():
         if isinstance(smp, GnssSample):
             gt.append(smp.t)
             gv.append(smp.vel_ned[:2])
@@ -264,7 +271,6 @@ def test_sitl_copter_gnss_delay_is_estimated_and_pays(tmp_path):
     within 10 ms of the lag of the GNSS velocity behind the simulator's own (SIM_STATE),
     estimates the magnetometer's age, scores against SIM_STATE, and its run is closer to
     the truth than the same replay told the GNSS delay is 0."""
-    log = str(REPO_ROOT / "logs" / "sitl_copter.tlog")
     outs, docs = _sitl_copter_runs(tmp_path, {"est": (), "zero": ("--gnss-delay", "0")})
     for name, stdout in outs.items():
         line = next(ln for ln in stdout.splitlines()
@@ -273,13 +279,13 @@ def test_sitl_copter_gnss_delay_is_estimated_and_pays(tmp_path):
         assert "decision: magnetometer delay:" in stdout
         assert "decision: geodesy: ArduPilot's sphere" in stdout  # SIM_STATE: a SITL
     est = docs["est"]["gnss_delay_estimate"]
-    assert abs(est["delay"] - _truth_lag(log)) < 0.01 and est["sd"] < 0.005
+    assert abs(est["delay"] - _truth_lag()) < 0.01 and est["sd"] < 0.005
     assert est["mag"]["delay"] is not None and est["mag"]["delay_used"] > 0.0
     # the SITL's fixes do not drift against their velocities (on its sphere: 1 cm in 10 s)
     assert not est["gnss_drift"]["correlated"] and est["gnss_drift"]["long_m"] < 0.03
     # the inclination, corrected for the probe's tilt error, against the one the
     # simulator's attitude gives the same readings (63.13 deg): closer than uncorrected
-    truth = _truth_inclination(log, est["mag"]["delay_used"])
+    truth = _truth_inclination(est["mag"]["delay_used"])
     err, err0 = (abs(np.degrees(est["mag"][k]) - truth)
                  for k in ("inclination", "inclination_uncorrected"))
     assert err < 0.03 and err < err0, (err, err0)
@@ -300,11 +306,10 @@ def test_sitl_copter_lat_lon_are_on_ardupilots_sphere():
     matches its lat/lon displacement read with ArduPilot's scaling to within 0.05 %, and
     read as WGS84 it is 0.13 % off north and 0.18 % east."""
     from uavest.geometry.geodesy import LocalFrame, SphereFrame
-    from uavest.ingest import open_source
     from uavest.ingest.types import PositionSample
 
     t, v, lla = [], [], []
-    for smp in open_source(str(REPO_ROOT / "logs" / "sitl_copter.tlog")):
+    for smp in _sitl_copter_samples():
         if isinstance(smp, PositionSample) and smp.source == "SIM_STATE":
             t.append(smp.t)
             v.append(smp.vel_ned)
@@ -342,11 +347,10 @@ def test_sitl_copter_gnss_velocity_is_a_window_mean():
     horizontal residual falls from 0.014 to 0.004 m/s (the 0.01 m/s rounding's 0.003)."""
     from scipy.interpolate import CubicSpline
 
-    from uavest.ingest import open_source
     from uavest.ingest.types import GnssSample, PositionSample
 
     fixes, truth = [], {}
-    for smp in open_source(str(REPO_ROOT / "logs" / "sitl_copter.tlog")):
+    for smp in _sitl_copter_samples():
         if isinstance(smp, GnssSample) and smp.fix_type >= 3:
             fixes.append((smp.t, *smp.vel_ned[:2]))
         elif isinstance(smp, PositionSample) and smp.source == "SIM_STATE":

@@ -11,9 +11,10 @@ LOG = REPO_ROOT / "logs" / "sim_200hz.tlog"
 
 def test_the_ukfs_covariance_follows_the_ekfs_and_a_too_long_skip_is_refused():
     bench = load_benchmark("nav_spread")
-    res = bench.spreads(str(LOG), "ekf,ukf", 0, 20.0, None)
+    est = bench.replay_estimates(str(LOG), "ekf,ukf", 0, None)
+    res = bench.spread_table(est, 20.0)
     assert res["ekf"][:3] == (1.0, 1.0, 1.0)
     assert all(0.8 < r < 1.25 for r in res["ukf"][:3]), res
     assert 0.01 < res["ekf"][3] < 5.0  # the position std, m
     with pytest.raises(SystemExit, match="lower --skip"):
-        bench.spreads(str(LOG), "ekf", 0, 600.0, None)
+        bench.spread_table(est, 600.0)  # the same replay's steps
