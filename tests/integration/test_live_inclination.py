@@ -15,11 +15,19 @@ import sys
 import numpy as np
 import pytest
 
-from uavest.apps.live import LiveConfig, run_live
+from uavest.apps.live import (
+    LIVE_MAG_REF_INC,
+    LIVE_MAG_REF_WHY,
+    LiveConfig,
+    live_mag_ref,
+    nav_options,
+    run_live,
+)
 from uavest.apps.replay import ReplayConfig, replay
 from uavest.engine.gnss_delay import INCL_FIRST_S, INCL_LAST_S
 from uavest.engine.nav_align import HEADING_SCALE_MAX, heading_noise_scale, widen_tilt
 from uavest.geometry.rotation import G0
+from uavest.models.navigation import NavNoise
 
 SIM = [sys.executable, "-m", "uavest.cli.sim", "sim_default", "--out", "none", "--speed",
        "0", "--duration", "30", "--params", "--rate", "RAW_IMU=400", "--rate",
@@ -60,8 +68,11 @@ def test_widen_tilt_opens_the_tilt_and_the_horizontal_accelerometer_bias_only():
 @pytest.mark.slow
 def test_an_accelerating_start_takes_the_magnetic_model_once_judged_live(tmp_path):
     tlog = _record(tmp_path, 5)
+    # without the magnetic reference states (a live run's default since they are on)
     doc = run_live(LiveConfig(connect=str(tlog), model="nav", filters=("ekf",), trackers=(),
-                              settle_s=25.0), status=False)
+                              settle_s=25.0, noise={"mag_ref_inc": 0.0}), status=False)
+    assert not [d for d in doc["decisions"] if d["what"] == "magnetic reference states"]
+    assert "mag_ref" not in doc["attitude"]["ekf"]
     inc = [d for d in doc["decisions"] if d["what"] == "inclination"]
     assert len(inc) == 2, inc
     assert "the angle between the accelerometer and the magnetometer" in inc[0]["why"]
@@ -79,14 +90,41 @@ def test_an_accelerating_start_takes_the_magnetic_model_once_judged_live(tmp_pat
     assert row["settled"]["vel_rmse_ms"] < 0.3, row["settled"]
 
 
+def test_a_live_navigation_run_gives_its_filters_an_inclination_state_unless_told():
+    """The live default (no probe estimates the field before a live run): an inclination
+    state of 0.25 deg, which ``--noise`` replaces (``mag_ref_inc=0``: none) or takes with
+    the declination's; the attitude model has none."""
+    cfg = LiveConfig(model="nav")
+    assert LIVE_MAG_REF_INC == pytest.approx(np.radians(0.25))
+    assert live_mag_ref(cfg) == {"mag_ref_inc": LIVE_MAG_REF_INC}
+    opts = nav_options(cfg, None)
+    assert opts.noise["mag_ref_inc"] == LIVE_MAG_REF_INC and opts.mag_ref_why == LIVE_MAG_REF_WHY
+    assert NavNoise().with_(**opts.noise).mag_ref
+    for noise in ({"mag_ref_inc": 0.0}, {"mag_ref_inc": 0.0175}, {"mag_ref_dec": 0.01}):
+        told = LiveConfig(model="nav", noise=noise)
+        assert live_mag_ref(told) == {}, noise
+        o = nav_options(told, None)
+        assert o.noise == noise and o.mag_ref_why is None, noise
+    assert not NavNoise().with_(**nav_options(LiveConfig(model="nav", noise={
+        "mag_ref_inc": 0.0}), None).noise).mag_ref
+    assert live_mag_ref(LiveConfig(model="attitude")) == {}
+
+
 @pytest.mark.slow
 def test_a_start_that_took_the_magnetic_model_has_nothing_to_judge(seed0):
+    """... and learns the field's error from it with the default inclination state: the
+    simulator's field is 63.5 deg, the magnetic model's 63.52."""
     doc = run_live(LiveConfig(connect=str(seed0), model="nav", filters=("ekf",), trackers=()),
                    status=False)
     inc = [d for d in doc["decisions"] if d["what"] == "inclination"]
     assert len(inc) == 1 and "the magnetic model" in inc[0]["why"], inc
     live = doc["gnss_delay_live"]["inclination"]
     assert live["choice"] is None and live["value"] is None and live["tries"] == []
+    ref = [d for d in doc["decisions"] if d["what"] == "magnetic reference states"]
+    assert len(ref) == 1 and ref[0]["value"].startswith("inclination +- 0.25 deg"), ref
+    assert ref[0]["why"].startswith(LIVE_MAG_REF_WHY), ref
+    m = doc["attitude"]["ekf"]["mag_ref"]
+    assert abs(m["inclination_deg"] - 63.5) < 0.1 and m["inclination_sd_deg"] < 0.25, m
 
 
 def test_the_heading_noise_is_the_field_direction_noise_over_the_horizontal_share():

@@ -106,14 +106,16 @@ def test_sim_to_live_estimator_matches_truth_and_its_tlog_replays_the_same(tmp_p
     tlog = tmp_path / "live.tlog"
     coll = Collector()
     with _Sim(port):
-        doc = run_live(_cfg(port, tlog=str(tlog), settle_s=4.0), sinks=[coll], status=False)
+        # 16 s of wall time: the first test of a fresh worker process loads its imports
+        # and compiled kernels inside them (10 s left it 48 scored steps, from its last
+        # second, and on a loaded machine none 4 s after the first, the settled block's;
+        # 800 with 16 s)
+        doc = run_live(_cfg(port, tlog=str(tlog), settle_s=4.0, duration=16.0), sinks=[coll],
+                       status=False)
     assert doc["reference"] == "SIMSTATE" and doc["reference_kind"] == "truth"
     for label in ("ekf", "ukf", "hybrid"):
         row = doc["attitude"][label]
-        # scored steps in the 10 s of wall time: 48 when this test is the first of a fresh
-        # process (its imports and compiled kernels loaded inside those 10 s), more after
-        # other tests; the bound is that the run scored several seconds
-        assert row["n"] > 30, row
+        assert row["n"] > 200, row
         for axis in ("roll", "pitch", "yaw"):  # stated tolerance: 3 deg RMS per axis
             assert row[f"{axis}_rmse_deg"] < 3.0, (label, row)
         assert row["resets"] == 0

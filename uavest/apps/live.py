@@ -113,6 +113,19 @@ LIVE_STREAMS = {
 #: 3-D: position and velocity, m and m/s), which the tracker specs are resolved for.
 TRACKER_DIM = 6
 
+#: The prior std (rad) of the inclination state a live navigation run gives its filters
+#: when ``--noise`` names neither ``mag_ref_inc`` nor ``mag_ref_dec`` (the magnetic
+#: reference states, docs/navigation.md): 0.25 deg, about the magnetic model's own
+#: accuracy. A replay's probe estimates the field's inclination from the whole log before
+#: the run; a live run has only its start's angle, and a site's field is often a degree or
+#: more off the model. With the state every filter learns the field after the first turn
+#: (on a field 1 deg off the model: 0.05 deg of pitch after it, 0.55 without), and the
+#: attitude NEES comes into its band (docs/live.md, "The inclination state, on by default
+#: live"). ``--noise mag_ref_inc=0`` runs without it.
+LIVE_MAG_REF_INC = float(np.radians(0.25))
+LIVE_MAG_REF_WHY = ("default for a live run (no probe estimates the field before it; "
+                    "--noise mag_ref_inc=0 for none)")
+
 
 @dataclass
 class LiveConfig:
@@ -771,6 +784,15 @@ def with_vehicle_spec(cfg: LiveConfig, params: dict) -> LiveConfig:
         gnss_delay_why=sp.why_of("gnss_delay") or cfg.gnss_delay_why)
 
 
+def live_mag_ref(cfg: LiveConfig) -> dict[str, float]:
+    """The magnetic reference state a live navigation run adds to ``cfg.noise``:
+    ``{"mag_ref_inc": LIVE_MAG_REF_INC}``, or nothing for the attitude model or when
+    ``cfg.noise`` names either reference state (an option, or the vehicle's sensor spec)."""
+    if cfg.model != "nav" or {"mag_ref_inc", "mag_ref_dec"} & set(cfg.noise):
+        return {}
+    return {"mag_ref_inc": LIVE_MAG_REF_INC}
+
+
 def nav_options(cfg: LiveConfig, declination: float | None) -> NavOptions:
     """The navigation stream's options of a live run: ``cfg``'s, with ``declination``
     (rad; None: the source's parameters), and what ``cfg.aiding`` gives where the options
@@ -785,6 +807,8 @@ def nav_options(cfg: LiveConfig, declination: float | None) -> NavOptions:
         gnss_delay, gnss_why = a["gnss_delay"], why
     from_file = {k: a[k] for k in ("gnss_vel_window", "baro_noise") if k in a and k not in noise}
     noise.update(from_file)
+    mag_ref = live_mag_ref(cfg)
+    noise.update(mag_ref)
     return NavOptions(rate_hz=cfg.rate_hz, declination=declination, gnss_delay=gnss_delay,
                       gnss_delay_why=gnss_why, on_arrival=cfg.on_arrival,
                       geodesy=cfg.geodesy, noise=noise,
@@ -793,7 +817,8 @@ def nav_options(cfg: LiveConfig, declination: float | None) -> NavOptions:
                       baro_noise_why=kept if "baro_noise" in from_file else None,
                       gnss_vel_window_why=why if "gnss_vel_window" in from_file else None,
                       gnss_bias_why=spec.why_of(*GNSS_BIAS_KEYS) or (
-                          cfg.noise_why if names_gnss_bias(cfg.noise) else None))
+                          cfg.noise_why if names_gnss_bias(cfg.noise) else None),
+                      mag_ref_why=LIVE_MAG_REF_WHY if mag_ref else cfg.noise_why)
 
 
 def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
@@ -809,7 +834,8 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
     source's or the link's :class:`~uavest.ingest.types.IngestStats`)."""
     check_live_config(cfg)
     nav = cfg.model == "nav"
-    specs = model_filters(cfg.filters, nav, cfg.noise) if cfg.filters else []
+    specs = model_filters(cfg.filters, nav, {**cfg.noise, **live_mag_ref(cfg)}
+                          ) if cfg.filters else []
     tspecs = (build_filters(resolve_list(cfg.trackers, "radar", dim=TRACKER_DIM))
               if cfg.trackers else [])
     runner_cls = NavRunner if nav else FilterRunner

@@ -209,7 +209,8 @@ class NavOptions:
     the ``mag_noise`` of ``noise`` came from (None: an option or the default), and
     ``gnss_vel_window_why`` where its ``gnss_vel_window`` came from, ``baro_delay_why``
     and ``baro_noise_why`` where the baro's delay and noise came from, ``gnss_bias_why``
-    where the GNSS bias states' ``gnss_bias_*`` came from; ``mag_inclination`` rad
+    where the GNSS bias states' ``gnss_bias_*`` came from, ``mag_ref_why`` where the
+    magnetic reference states' priors came from; ``mag_inclination`` rad
     (None: the World Magnetic Model's within
     :data:`~uavest.engine.nav_align.WMM_INCLINATION_TOL` of the alignment window's
     accelerometer-magnetometer angle, else that angle; ``inclination_wmm`` False: always
@@ -250,6 +251,9 @@ class NavOptions:
     baro_delay_why: str | None = None
     baro_noise_why: str | None = None
     gnss_bias_why: str | None = None
+    #: where the magnetic reference states' priors (``mag_ref_inc`` / ``mag_ref_dec`` of
+    #: ``noise``) came from (None: the option --noise)
+    mag_ref_why: str | None = None
     mag_inclination: float | None = None
     mag_inclination_why: str | None = None
     inclination_wmm: bool = True
@@ -1236,8 +1240,8 @@ class NavStream(LateDeclination, StreamSnapshots):
                 self._decide("magnetic reference states",
                              f"inclination +- {np.degrees(n.mag_ref_inc):.2f} deg, "
                              f"declination +- {np.degrees(n.mag_ref_dec):.2f} deg",
-                             t_first, f"option --noise (random walk {n.mag_ref_walk:g} "
-                             "rad/sqrt(s))")
+                             t_first, f"{o.mag_ref_why or 'option --noise'} (random walk "
+                             f"{n.mag_ref_walk:g} rad/sqrt(s))")
         self._builder = _NavBuilder(integ, factor, o.on_arrival)
         self._builder.gap_s = max(GAP_MIN_S, GAP_MEDIANS * med)
         self.summary["imu_gap_threshold_s"] = self._builder.gap_s
