@@ -121,7 +121,7 @@ def test_a_start_that_took_the_magnetic_model_has_nothing_to_judge(seed0):
     live = doc["gnss_delay_live"]["inclination"]
     assert live["choice"] is None and live["value"] is None and live["tries"] == []
     ref = [d for d in doc["decisions"] if d["what"] == "magnetic reference states"]
-    assert len(ref) == 1 and ref[0]["value"].startswith("inclination +- 0.25 deg"), ref
+    assert len(ref) == 1 and ref[0]["value"] == "inclination +- 0.25 deg, declination fixed", ref
     assert ref[0]["why"].startswith(LIVE_MAG_REF_WHY), ref
     m = doc["attitude"]["ekf"]["mag_ref"]
     assert abs(m["inclination_deg"] - 63.5) < 0.1 and m["inclination_sd_deg"] < 0.25, m

@@ -176,7 +176,9 @@ def test_live_navigation_model_against_the_simulator_and_its_tlog_replays_the_sa
         assert row["hpos_rmse_m"] is not None and row["hpos_rmse_m"] < 3.0, row
         # against the simulator's true state, not its simulated autopilot's estimate
         assert row["position_reference"] == "HIL_STATE_QUATERNION", row
-        assert coll.arrays(label)["x"].shape[1] == 19  # with the GNSS bias states
+        # with the GNSS bias states (3) and a live run's magnetic reference states (2)
+        assert coll.arrays(label)["x"].shape[1] == 21
+        assert 0.0 < row["mag_ref"]["inclination_sd_deg"] < 0.3, row["mag_ref"]  # its prior
         # the receiver's correlated error in the state: the position NEES in its band
         # (without the bias states it is above it on 0.99 of the steps, docs/navigation.md)
         assert row["nees"]["position"]["in_band95"] >= 0.8, row["nees"]
@@ -391,10 +393,12 @@ def test_live_run_sizes_gnss_bias_states_from_the_drift_it_learns(tmp_path):
     assert len(dec) == 1 and dec[0]["why"].startswith("estimated live"), dec
     recs = colls["learned"].records["ekf"]
     sizes = [len(r.x) for r in recs]
-    k = sizes.index(19)  # the switch: 16 components before, 19 after, no reset
-    assert set(sizes[:k]) == {16} and set(sizes[k:]) == {19}
+    # the switch: 18 components before (16 and a live run's inclination state's 2, the
+    # magnetic reference states'), 21 after, no reset
+    k = sizes.index(21)
+    assert set(sizes[:k]) == {18} and set(sizes[k:]) == {21}
     assert abs(recs[k].t - dec[0]["t"]) < 0.1, (recs[k].t, dec[0]["t"])
     assert docs["learned"]["attitude"]["ekf"]["resets"] == 0
-    assert all(len(r.x) == 16 for r in colls["off"].records["ekf"])
+    assert all(len(r.x) == 18 for r in colls["off"].records["ekf"])
     pos = {n: d["attitude"]["ekf"]["nees"]["position"]["in_band95"] for n, d in docs.items()}
     assert pos["learned"] > pos["off"] + 0.2, pos

@@ -92,7 +92,9 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="override a noise parameter of the model (repeatable), e.g. --noise "
                    "mag_noise=0.01 (names and units: docs/navigation.md, docs/attitude.md); "
                    "with --model nav it wins over the vehicle's sensor spec (its SPEC_* "
-                   "parameters, which uavest sim states)")
+                   "parameters, which uavest sim states); a navigation run gives its "
+                   "filters an inclination state of 0.25 deg unless told mag_ref_inc or "
+                   "mag_ref_dec (mag_ref_inc=0: none)")
     add_geodesy_option(p)
 
 

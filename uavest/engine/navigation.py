@@ -1237,9 +1237,12 @@ class NavStream(LateDeclination, StreamSnapshots):
                                              else "default for the IMU source"))
             n = self.noise
             if n.mag_ref:
+                def prior(x: float) -> str:
+                    return f"+- {np.degrees(x):.2f} deg" if x > 0 else "fixed"
+
                 self._decide("magnetic reference states",
-                             f"inclination +- {np.degrees(n.mag_ref_inc):.2f} deg, "
-                             f"declination +- {np.degrees(n.mag_ref_dec):.2f} deg",
+                             f"inclination {prior(n.mag_ref_inc)}, "
+                             f"declination {prior(n.mag_ref_dec)}",
                              t_first, f"{o.mag_ref_why or 'option --noise'} (random walk "
                              f"{n.mag_ref_walk:g} rad/sqrt(s))")
         self._builder = _NavBuilder(integ, factor, o.on_arrival)
