@@ -191,13 +191,16 @@ def test_a_long_imu_interval_below_the_gap_threshold_is_predicted_in_sub_steps(t
 
 @functools.cache
 def _sitl_copter_run(extra: tuple[str, ...]) -> tuple[str, str]:
-    """``uavest replay logs/sitl_copter.tlog --filters ekf`` with the ``extra`` options:
-    (stdout, the JSON document's text). Cached: three tests compare against the default
-    run, each a 206-s replay (the file's tests share a worker, pyproject.toml)."""
+    """``uavest replay logs/sitl_copter.tlog --filters ekf --end 130`` with the ``extra``
+    options: (stdout, the JSON document's text). Cached: three tests compare against the
+    default run (the file's tests share a worker, pyproject.toml). To 130 s of the 206:
+    the probe, the takeoff and 80 s of flight, every check as on the whole log (the
+    delay 1.3 ms from the truth's lag, the inclination 0.012 deg from the truth's), 20 %
+    less CPU."""
     log = str(REPO_ROOT / "logs" / "sitl_copter.tlog")
     with tempfile.TemporaryDirectory() as d:
         out = Path(d) / "run.json"
-        r = _replay(log, "--filters", "ekf", "--json", str(out), *extra)
+        r = _replay(log, "--filters", "ekf", "--end", "130", "--json", str(out), *extra)
         assert r.returncode == 0, r.stderr
         return r.stdout, out.read_text()
 
