@@ -15,8 +15,8 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 
-#: The test files that take the most CPU (``python -m pytest -q --durations=60``: 80-190 s
-#: each on 2 cores, together a third of the suite), sent to the worker processes first
+#: The test files that take the most CPU (``python -m pytest -q --durations=60``: about a
+#: minute or more each on 2 cores, together a third of the suite), sent to the workers first
 #: (pyproject.toml's ``--dist loadfile --no-loadscope-reorder``): xdist's default order, the
 #: files with the most tests first, left them to the end, where one worker ran them while
 #: the other was idle (a 581-s suite for 1010 s of CPU). The order is only a schedule: every
