@@ -205,10 +205,10 @@ def _sitl_copter_run(extra: tuple[str, ...]) -> tuple[str, str]:
         return r.stdout, out.read_text()
 
 
-def _sitl_copter_runs(tmp_path, runs: dict[str, tuple[str, ...]]
+def _sitl_copter_runs(runs: dict[str, tuple[str, ...]]
                       ) -> tuple[dict[str, str], dict[str, dict]]:
-    """``uavest replay logs/sitl_copter.tlog --filters ekf`` with each run's extra options:
-    (stdout, JSON document) per run name."""
+    """:func:`_sitl_copter_run` with each run's extra options: (stdout, JSON document) per
+    run name."""
     outs, docs = {}, {}
     for name, extra in runs.items():
         stdout, text = _sitl_copter_run(tuple(extra))
@@ -269,12 +269,12 @@ def _truth_lag() -> float:
 
 
 @pytest.mark.slow
-def test_sitl_copter_gnss_delay_is_estimated_and_pays(tmp_path):
+def test_sitl_copter_gnss_delay_is_estimated_and_pays():
     """logs/sitl_copter.tlog: the replay estimates the GNSS delay (a decision line) to
     within 10 ms of the lag of the GNSS velocity behind the simulator's own (SIM_STATE),
     estimates the magnetometer's age, scores against SIM_STATE, and its run is closer to
     the truth than the same replay told the GNSS delay is 0."""
-    outs, docs = _sitl_copter_runs(tmp_path, {"est": (), "zero": ("--gnss-delay", "0")})
+    outs, docs = _sitl_copter_runs({"est": (), "zero": ("--gnss-delay", "0")})
     for name, stdout in outs.items():
         line = next(ln for ln in stdout.splitlines()
                     if ln.startswith("decision: GNSS delay:"))
@@ -331,11 +331,11 @@ def test_sitl_copter_lat_lon_are_on_ardupilots_sphere():
 
 
 @pytest.mark.slow
-def test_sitl_copter_positions_are_better_on_ardupilots_sphere(tmp_path):
+def test_sitl_copter_positions_are_better_on_ardupilots_sphere():
     """The replay of logs/sitl_copter.tlog on ArduPilot's sphere (chosen: SIM_STATE in the
     stream) against the same replay told ``--geodesy wgs84``: the horizontal position is
     closer to the truth, the attitude the same."""
-    _, docs = _sitl_copter_runs(tmp_path, {"auto": (), "wgs84": ("--geodesy", "wgs84")})
+    _, docs = _sitl_copter_runs({"auto": (), "wgs84": ("--geodesy", "wgs84")})
     assert docs["auto"]["geodesy"] == "sphere" and docs["wgs84"]["geodesy"] == "wgs84"
     a, w = (docs[k]["filters"]["ekf"]["airborne"] for k in ("auto", "wgs84"))
     assert a["hpos_rmse_m"] < 0.7 * w["hpos_rmse_m"]
@@ -378,12 +378,12 @@ def test_sitl_copter_gnss_velocity_is_a_window_mean():
 
 
 @pytest.mark.slow
-def test_sitl_copter_velocity_window_pays(tmp_path):
+def test_sitl_copter_velocity_window_pays():
     """The replay of logs/sitl_copter.tlog with the GNSS velocity window its probe
     estimates (a decision line: 0.35 s) against the same replay told there is none
     (``--noise gnss_vel_window=0``): velocity, horizontal position and every attitude
     axis closer to the truth."""
-    outs, docs = _sitl_copter_runs(tmp_path, {"win": (), "none": (
+    outs, docs = _sitl_copter_runs({"win": (), "none": (
         "--noise", "gnss_vel_window=0")})
     assert "decision: GNSS velocity window: 0.3" in outs["win"]
     assert "GNSS velocity window: 0.000 s" in outs["none"]

@@ -29,11 +29,11 @@ LOG = ROOT / "logs" / "sitl_copter.tlog"
 END_S = 130.0
 
 
-def _run(sinks=(), until: float | None = END_S, **kw):
-    """The live job over the log (to its samples stamped ``until`` s, None: all of it)."""
+def _run(sinks=(), **kw):
+    """The live job over the log, to its samples stamped :data:`END_S` s."""
     cfg = LiveConfig(connect=str(LOG), model="nav", filters=("ekf",), trackers=(), **kw)
     src = open_source(LOG, reorder_window=cfg.reorder_window)
-    samples = src if until is None else itertools.takewhile(lambda s: s.t < until, src)
+    samples = itertools.takewhile(lambda s: s.t < END_S, src)
     return run_samples(samples, cfg, params=src.params, status=False, sinks=list(sinks),
                        stats=src.stats)
 
