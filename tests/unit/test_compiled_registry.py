@@ -111,3 +111,60 @@ def test_the_one_cholesky_refuses_non_finite_pivots(numba_on):
     assert ok
     np.testing.assert_allclose(L2 @ solve_lower(L2, np.array([1.0, -2.0])), [1.0, -2.0],
                                rtol=1e-14)
+
+
+_NEW_SIGNATURES = r"""
+import importlib, json, sys
+from uavest.apps.live import load_kernels
+from uavest.cli import main
+from uavest.compiled import REGISTRY
+
+load_kernels(lambda s: None)
+
+
+def signatures():
+    out = {}
+    for k in REGISTRY.values():
+        m = importlib.import_module(k.module)
+        for name, f in vars(m).items():
+            if hasattr(f, "signatures") and getattr(f, "__module__", None) == m.__name__:
+                out[f"{k.name}.{name}"] = {str(s) for s in f.signatures}
+    return out
+
+
+before = signatures()
+for args in json.loads(sys.argv[1]):
+    try:
+        main(args)
+    except SystemExit as e:
+        assert not e.code, (args, e.code)
+new = {k: sorted(v - before.get(k, set())) for k, v in signatures().items()}
+print(json.dumps({k: v for k, v in new.items() if v}))
+"""
+
+
+@pytest.mark.slow  # a subprocess: three short runs
+def test_a_run_compiles_nothing_after_the_self_checks(numba_on, tmp_path):
+    """The self-checks compile every kernel specialisation (argument types, state and
+    measurement sizes) that the shipped runs use, so that ``load_kernels`` (before a live
+    run opens its link) leaves nothing to compile at the first estimates: the 2-D and 3-D
+    radar scenarios' local hybrid trackers and the attitude model's filters run in a fresh
+    process without a new signature. (Before: a fresh install's live job compiled the
+    local hybrid's kernels for n = 4 and 6 and read-only weights at its first scans, and
+    the attitude-manifold mean and inverse rotation at its first estimates.)"""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    from conftest import REPO_ROOT as ROOT
+
+    runs = [["track", "radar_crossing", "--filters", "hybrid", "--seed", "0"],
+            ["track", "radar_uav", "--filters", "hybrid", "--seed", "0"],
+            ["replay", str(ROOT / "logs" / "sim_200hz.tlog"), "--model", "attitude",
+             "--end", "3", "--filters", "ukf,hybrid", "--json", str(tmp_path / "r.json")]]
+    r = subprocess.run([sys.executable, "-c", _NEW_SIGNATURES, json.dumps(runs)],
+                       capture_output=True, text=True, cwd=tmp_path, timeout=600,
+                       env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert json.loads(r.stdout.strip().splitlines()[-1]) == {}

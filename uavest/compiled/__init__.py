@@ -40,7 +40,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-__all__ = ["REGISTRY", "Kernels", "bitgen_pointers", "register", "status"]
+__all__ = ["REGISTRY", "Kernels", "bitgen_pointers", "read_only", "register", "status"]
 
 #: (label, compiled result, numpy reference result) of one self-check comparison
 Case = tuple[str, Any, Any]
@@ -130,6 +130,18 @@ def _disagreement(k: Kernels, nb: ModuleType) -> str | None:
             with np.errstate(invalid="ignore"):
                 return f"{label}: max difference {np.max(np.abs(a - b)):.3g}"
     return None
+
+
+def read_only(a: Any) -> np.ndarray:
+    """``a`` as a read-only, C-contiguous float64 array (a view; a copy only if it is not
+    float64 C already), for a kernel argument the kernel only reads. numba compiles a
+    kernel once per argument type, and an array's type includes its writeable flag: one
+    flag for every caller is one compilation, the one the self-check makes (without it a
+    run's read-only weights compiled the radar's and the local hybrid's kernels again at
+    the first scans)."""
+    v = np.ascontiguousarray(a, dtype=float).view()
+    v.flags.writeable = False
+    return v
 
 
 #: id(bit generator) -> (the bit generator, its pointers): a strong reference keeps the

@@ -45,7 +45,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..compiled import bitgen_pointers, register
+from ..compiled import bitgen_pointers, read_only, register
 from ..geometry.spaces import Space, VectorSpace
 from .contract import EnsembleFilter, FilterBase
 from .ensemble import propagate_members
@@ -888,12 +888,14 @@ class HybridLocal(_HybridBase):
         h = self.bandwidth or silverman_bandwidth(M, n)
         a = math.sqrt(1.0 - h * h)
         tg = nb.tag(n)
+        # (the weights read-only whoever made them: one numba type, the self-check's)
         if E.moments is None:
-            w = equal_weights(M) if E.w is None else E.w
+            w = read_only(equal_weights(M) if E.w is None else E.w)
             x, dX, P, C = nb.prior_moments(E.X, w, a, tg)
             object.__setattr__(E, "moments", (x, dX, w, P))  # as ensemble_moments does
         else:
             x, dX, w, P = E.moments
+            w = read_only(w)
             C = nb.centres(x, dX, a, tg)
         B = (h * h) * P
         Hs, nu, dY, nubar = model.linearise_rows(C, z, w)  # (M, m, n), (M, m) x 2, (m,)
@@ -938,34 +940,51 @@ def _innovation2(nu: Array, S: Array) -> Innovation:
 
 def _local_cases(nb: ModuleType) -> Iterator[tuple[str, Any, Any]]:
     """The self-check (:mod:`uavest.compiled`): :meth:`HybridLocal._update_compiled`
-    against :meth:`HybridLocal._update_numpy` (members, weights, innovation) on small
-    linear cases: m = 2, 1 and 3, a weighted and an equally weighted ensemble, one that
-    resamples and one that does not."""
+    against :meth:`HybridLocal._update_numpy` (members, weights, innovation), and the
+    process noise of :meth:`HybridLocal._propagate` against numpy's draws, on linear cases
+    of the ``radar`` preset's shapes, so that the kernels a tracker runs are the ones
+    compiled here (numba compiles per state and measurement size; left to the first scans,
+    a fresh install's tracker compiled them there): n = 4, m = 2 (the 2-D radar's
+    constant velocity): an equally weighted ensemble that resamples, then the same
+    ensemble weighted that does not; n = 6, m = 3 (the 3-D radar: the Cholesky path);
+    the last two twice (the second update on the posterior's moments:
+    :func:`~uavest.core._compiled_local.centres`). Other sizes (m = 1...) compile at
+    their first use; the unit tests compare them all."""
     from .interfaces import LinearMeasurement
 
     g = np.random.default_rng(7)
-    X = g.standard_normal((15, 3)) * [1.0, 2.0, 0.5]
     f = HybridLocal(n_cloud=2)
-    cases = (  # (H, R, weights, z): the first resamples (ESS < M / 2), the second not
-        (np.array([[1.0, 0.5, 0.0], [0.0, 1.0, -1.0]]), np.diag([0.01, 0.04]),
-         None, np.array([1.5, -1.0])),
-        (np.array([[0.5, -1.0, 2.0]]), np.array([[25.0]]), g.dirichlet(np.full(15, 9.0)),
-         np.array([1.0])),
-        (np.array([[1.0, 0.0, 0.5], [0.2, 1.0, 0.0], [0.0, -0.3, 1.0]]),  # m = 3: Cholesky
-         np.array([[0.5, 0.1, 0.0], [0.1, 0.4, 0.05], [0.0, 0.05, 0.3]]), None,
-         np.array([0.4, -1.2, 0.3])),
+    M = 15
+    X4 = g.standard_normal((M, 4)) * [1.0, 2.0, 0.5, 1.5]
+    X6 = g.standard_normal((M, 6)) * [1.0, 2.0, 0.5, 1.5, 0.7, 1.2]
+    H3 = np.array([[1.0, 0.0, 0.5, 0.0, 0.0, 0.1], [0.2, 1.0, 0.0, 0.0, 0.3, 0.0],
+                   [0.0, -0.3, 1.0, 0.1, 0.0, 0.0]])
+    cases = (  # (X, H, R, weights, z, updates): the first resamples (ESS < M / 2)
+        (X4, np.array([[1.0, 0.5, 0.0, 0.0], [0.0, 1.0, -1.0, 0.0]]), np.diag([0.01, 0.04]),
+         None, np.array([1.5, -1.0]), 1),
+        (X4, np.array([[0.5, -1.0, 2.0, 0.0], [0.0, 0.0, 0.3, 1.0]]), np.diag([25.0, 16.0]),
+         g.dirichlet(np.full(M, 9.0)), np.array([1.0, 0.5]), 2),
+        (X6, H3, np.array([[0.5, 0.1, 0.0], [0.1, 0.4, 0.05], [0.0, 0.05, 0.3]]), None,
+         np.array([0.4, -1.2, 0.3]), 2),
     )
-    for i, (H, R, w, z) in enumerate(cases):
+    for i, (X, H, R, w, z, updates) in enumerate(cases):
         model = LinearMeasurement(H, R)
         out = []
         for upd in (lambda *a: f._update_compiled(nb, *a), f._update_numpy):
-            E1, inn = upd(Ensemble(X.copy(), model.space, w), z, model,
-                          np.random.default_rng(3))
+            E1, rng = Ensemble(X.copy(), model.space, w), np.random.default_rng(3)
+            for _ in range(updates):
+                E1, inn = upd(E1, z, model, rng)
             out.append((E1.X, np.array([E1.w is None]),
-                        equal_weights(15) if E1.w is None else E1.w, inn.S,
+                        equal_weights(M) if E1.w is None else E1.w, inn.S,
                         np.array([inn.nis])))
         for label, a, b in zip(("X", "resampled", "w", "S", "nis"), *out, strict=True):
             yield f"case {i} {label}", a, b
+    for X in (X4, X6):  # the process noise: L z_j, z_j numpy's normals in its order
+        n = X.shape[1]
+        L = np.tril(g.standard_normal((n, n))) + 3.0 * np.eye(n)
+        yield (f"process noise n = {n}", nb.add_noise(
+            bitgen_pointers(np.random.default_rng(4)), X, L, nb.tag(n)),
+               X + np.random.default_rng(4).standard_normal(X.shape) @ L.T)
 
 
 #: The compiled kernels of :meth:`HybridLocal.update` and its process noise on vector

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..compiled import register
+from ..compiled import read_only, register
 from ..core.interfaces import Measurement
 from ..errors import InputError
 from ..geometry.spaces import VectorSpace
@@ -49,7 +49,6 @@ COMPONENTS = ("range", "azimuth", "elevation", "range_rate")
 _EPS = 1e-9  # m, floor of range / horizontal range in divisions
 _I2 = np.eye(2)
 _TWO_PI = 2.0 * math.pi
-_F8 = np.dtype(np.float64)
 
 
 def wrap_angle(a: Array | float) -> Array:
@@ -316,9 +315,8 @@ class RadarMeasurement(Measurement):
         ``linearise3`` in 3-D), or None if the arguments are not (M, >= d) rows, (d,)
         and (M,) with d = ndim (the default then raises or broadcasts as it does)."""
         d = self.ndim
-        X = np.ascontiguousarray(X, dtype=_F8)  # (no copy of a float64 C array)
-        w = np.ascontiguousarray(w, dtype=_F8)
-        z = np.ascontiguousarray(z, dtype=_F8)
+        # (views, no copies of float64 C arrays: one numba type whatever the caller's flags)
+        X, z, w = read_only(X), read_only(z), read_only(w)
         if X.ndim != 2 or X.shape[1] < d or z.shape != (d,) or w.shape != (X.shape[0],):
             return None
         memo = self.__dict__.get("_kpose")
