@@ -198,3 +198,30 @@ def test_raw_imu_instance_is_the_field_not_the_message_id():
 
     msg = mav2.MAVLink_raw_imu_message(1, 0, 0, -1000, 0, 0, 0, 0, 0, 0, 2, 0)
     assert _by_cat(convert_mavlink(msg))["imu"].instance == 2
+
+
+def test_the_fast_check_of_imu_and_mag_items_is_the_numpy_check():
+    """``check`` takes IMU and magnetometer items (float 3-vectors) on Python floats: the
+    same kind as the numpy reference (``check_any``) on every edge: NaN, infinities,
+    all zero, at and beyond the limits, overflowing squares, float32, lists (the
+    reference's own path)."""
+    from uavest.ingest.convert import MAX_ACCEL, MAX_GYRO, MAX_MAG, check_any
+
+    nan, inf = float("nan"), float("inf")
+    vecs = [[0.0, 0.0, 0.0], [0.1, -0.2, 9.8], [nan, 0, 0], [0, inf, 0], [0, 0, -inf],
+            [1e200, 0, 0], [1e-320, 0, 0], [MAX_GYRO, 0, 0], [0, -MAX_GYRO * 1.0001, 0],
+            [MAX_ACCEL * 0.6, MAX_ACCEL * 0.8, 0.0], [MAX_ACCEL, 1.0, 0.0],
+            [MAX_MAG * 0.6, 0.0, MAX_MAG * 0.8], [0.0, MAX_MAG + 1e-9, 0.0]]
+    seen = set()
+    for dtype in (np.float64, np.float32):
+        arrays = [np.array(v, dtype=dtype) for v in vecs]
+        for a in arrays:
+            items = [Raw("mag", "MAG[0]", 0, (a,))]
+            items += [Raw("imu", "IMU[0]", 0, (a, b)) for b in arrays]
+            for r in items:
+                want = check_any(r)
+                assert check(r) == want, (r.values, check(r), want)
+                seen.add(want)
+    assert seen == {None, "nan", "empty", "out_of_range"}
+    listed = Raw("imu", "IMU[0]", 0, ([0.0, 0.0, 0.0], [0.0, 0.0, 0.0]))
+    assert check(listed) == check_any(listed) == "empty"

@@ -66,8 +66,47 @@ def normalize_quat(q) -> np.ndarray:
 # --------------------------------------------------------------------------- checks
 
 
+_F64 = np.dtype(np.float64)
+
+
+def _vec3(v: object) -> tuple[float, float, float] | None:
+    """The components of a float64 array (3,) as Python floats, else None (other types
+    take the reference: a float32 norm rounds at the limits as float32)."""
+    if type(v) is np.ndarray and v.shape == (3,) and v.dtype == _F64:
+        x, y, z = v.tolist()
+        return x, y, z
+    return None
+
+
+def _check_vectors(cat: str, values: tuple) -> str | None | bool:
+    """:func:`check` of an IMU or magnetometer item whose vectors are float64 arrays (3,),
+    on Python floats (numpy's reductions on 3-vectors were a third of the check, the
+    check a quarter of decoding a log), or False for an item it does not handle. The
+    same kinds in the same order: ``nan``, ``empty``, ``out_of_range``."""
+    vs = [_vec3(v) for v in values]
+    if None in vs:
+        return False
+    if not all(math.isfinite(c) for v in vs for c in v):
+        return "nan"
+    if not any(c != 0.0 for v in vs for c in v):
+        return "empty"
+    lim = (MAX_GYRO, MAX_ACCEL) if cat == "imu" else (MAX_MAG,)
+    if any(math.hypot(*v) > m for v, m in zip(vs, lim, strict=True)):
+        return "out_of_range"
+    return None
+
+
 def check(raw: Raw) -> str | None:
     """Return the bad-data kind for a converted item, or None if it is plausible."""
+    if raw.cat == "imu" or raw.cat == "mag":
+        fast = _check_vectors(raw.cat, raw.values)
+        if fast is not False:
+            return fast  # type: ignore[return-value]
+    return check_any(raw)
+
+
+def check_any(raw: Raw) -> str | None:
+    """:func:`check` in numpy for every kind of item (the reference of its fast path)."""
     if raw.cat == "gnss":
         return check_gnss(raw)
     if raw.cat == "baro":
