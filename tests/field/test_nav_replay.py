@@ -98,15 +98,24 @@ def test_nav_option_errors_are_one_line(argv):
     assert r.stderr.count("\n") == 1
 
 
+@functools.cache
+def _sim_run(extra: tuple[str, ...]) -> tuple[str, str]:
+    """``uavest replay logs/sim_200hz.tlog --filters ekf`` with the ``extra`` options:
+    (stdout, the JSON document's text). Cached: the smoother's test and the magnetic
+    reference states' plain run are the same ``--smooth`` run."""
+    with tempfile.TemporaryDirectory() as d:
+        out = Path(d) / "run.json"
+        r = _replay(str(REPO_ROOT / "logs" / "sim_200hz.tlog"), "--filters", "ekf",
+                    "--json", str(out), *extra)
+        assert r.returncode == 0, r.stderr
+        return r.stdout, out.read_text()
+
+
 @pytest.mark.slow
-def test_the_navigation_model_smooths(tmp_path):
+def test_the_navigation_model_smooths():
     """--smooth runs the RTS smoother on the navigation state (15 error dimensions) and
     the smoothed attitude beats the filtered one against the simulator's truth."""
-    path = tmp_path / "smooth.json"
-    r = _replay(str(REPO_ROOT / "logs" / "sim_200hz.tlog"), "--filters", "ekf", "--smooth",
-                "--json", str(path))
-    assert r.returncode == 0, r.stderr
-    out = json.loads(path.read_text())
+    out = json.loads(_sim_run(("--smooth",))[1])
     assert out["model"]["value"] == "nav"
     row = out["filters"]["ekf"]
     sm = row["smoothed"]
@@ -117,23 +126,21 @@ def test_the_navigation_model_smooths(tmp_path):
 
 
 @pytest.mark.slow
-def test_the_magnetic_reference_states_replay_and_smooth(tmp_path):
+def test_the_magnetic_reference_states_replay_and_smooth():
     """``--noise mag_ref_inc=... mag_ref_dec=...`` gives the navigation state the
     magnetic reference's errors (20 dimensions with the log's GNSS bias states): the run
     says so, filters and smooths, and its attitude NEES is in band on more steps than
     without them (the filter no longer holds its tilt to a field taken as exact)."""
-    log = str(REPO_ROOT / "logs" / "sim_200hz.tlog")
     rows = {}
-    for name, extra in (("plain", []), ("ref", ["--noise", "mag_ref_inc=0.0175",
-                                                "--noise", "mag_ref_dec=0.0175", "--smooth"])):
-        path = tmp_path / f"{name}.json"
-        r = _replay(log, "--filters", "ekf", "--json", str(path), *extra)
-        assert r.returncode == 0, r.stderr
-        assert ("decision: magnetic reference states: inclination +- 1.00 deg" in r.stdout) \
-            == (name == "ref"), r.stdout
-        assert ("magnetic field learnt (the reference: inclination 63.52 deg" in r.stdout) \
-            == (name == "ref"), r.stdout
-        rows[name] = json.loads(path.read_text())["filters"]["ekf"]
+    for name, extra in (("plain", ("--smooth",)),  # (the smoother's test's run)
+                        ("ref", ("--noise", "mag_ref_inc=0.0175", "--noise",
+                                 "mag_ref_dec=0.0175", "--smooth"))):
+        stdout, text = _sim_run(extra)
+        assert ("decision: magnetic reference states: inclination +- 1.00 deg" in stdout) \
+            == (name == "ref"), stdout
+        assert ("magnetic field learnt (the reference: inclination 63.52 deg" in stdout) \
+            == (name == "ref"), stdout
+        rows[name] = json.loads(text)["filters"]["ekf"]
     ref, plain = rows["ref"], rows["plain"]
     # the simulator's field: 63.5 deg (the magnetic model's 63.52), 3.0 deg (COMPASS_DEC)
     m = ref["mag_ref"]
