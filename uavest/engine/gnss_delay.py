@@ -1068,6 +1068,7 @@ class LiveDelayLearner:
                 f"{'the run with the first estimate' if self._refining else 'navigation'}"
                 + ("" if self.given is None else
                    f", at the given GNSS delay {d:g} s{est.given_note()}"))
+        self.estimates[-1]["window"] = est.window  # (each try's: JSON tries[].window)
         if est.window is not None:
             self.window = est.window
             self.window_why = (
