@@ -12,6 +12,7 @@ Every filter's randomness comes from ``uavest.seeding.rng(seed, 0, "filter:<labe
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, fields, replace
@@ -499,11 +500,23 @@ class _ImuGaps(Sink):
         return self.gap.get(src, 0.0) / span if span > 0 else 0.0
 
 
-def _windowed(samples: Iterable, window: Callable[[float], bool]) -> Iterator:
-    """The samples inside the replay's time window."""
+#: s: a replay stops reading its log at the first sample this far past ``--end`` (the
+#: sources deliver their samples in time order within their reorder windows, 1 s at
+#: most, and the vehicle clock runs on across reboots); until then the window filters
+WINDOW_STOP_S = 10.0
+
+
+def _windowed(samples: Iterable, window: Callable[[float], bool], end: float | None
+              ) -> Iterator:
+    """The samples inside the replay's time window, read up to :data:`WINDOW_STOP_S`
+    past its ``end`` (s; None: to the log's end). Reading on to the log's end decoded
+    what the window drops: ``--end 3`` on logs/sim_200hz.tlog (60 s) took 7.8 s."""
+    stop = math.inf if end is None else end + WINDOW_STOP_S
     for s in samples:
         if window(s.t):
             yield s
+        elif s.t > stop:
+            return
 
 
 def samples_from_arrays(
@@ -538,7 +551,7 @@ def replay_samples(
     collector for callers that report more."""
     opts = cfg.attitude_options()
     windowed = (samples if opts.start is None and opts.end is None
-                else _windowed(samples, opts.in_window))
+                else _windowed(samples, opts.in_window, opts.end))
     windowed, decision = choose_model(windowed, cfg.model, cfg.model_why)
     nav = decision["value"] == "nav"
     if not nav:
