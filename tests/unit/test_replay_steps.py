@@ -160,3 +160,26 @@ def test_trapezoid_preintegration_of_snapshots():
     for st in steps:
         q2 = quat_mul(q2, quat_exp(st.u * st.dt))
     np.testing.assert_allclose(quat_log(q), quat_log(q2), atol=1e-9)
+
+
+def test_a_window_stops_reading_the_log_past_its_end():
+    """``--end``: the replay's window takes every sample up to its end, one a little out
+    of order too, and stops reading at the first sample :data:`WINDOW_STOP_S` past it
+    (reading on decoded the rest of the log only to drop it); without an end it reads
+    everything."""
+    from uavest.apps.replay import WINDOW_STOP_S, _windowed
+
+    opts = AttitudeOptions(end=20.0)
+    read: list[float] = []
+
+    def log():
+        for t in [*np.arange(0.0, 20.5, 0.5), 19.9, *np.arange(21.0, 100.0, 1.0)]:
+            read.append(float(t))
+            yield ImuSample(float(t), np.zeros(3), np.array([0.0, 0.0, -9.8]), "IMU[0]")
+
+    got = [s.t for s in _windowed(log(), opts.in_window, opts.end)]
+    assert got == [t for t in read if t <= 20.0] and 19.9 in got
+    assert max(read) == 20.0 + WINDOW_STOP_S + 1.0  # the first sample past the stop
+    read.clear()
+    everything = list(_windowed(log(), AttitudeOptions().in_window, None))
+    assert len(everything) == len(read) and max(read) == 99.0
