@@ -30,7 +30,6 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
-from scipy.linalg import block_diag
 
 from uavest.core.interfaces import Measurement, Transition
 from uavest.geometry.geodesy import EARTH_RATE, gravity
@@ -316,13 +315,15 @@ class ImuTransition(Transition):
         qp = n.accel_noise**2 * dt**3 / 3.0 + 1e-14
         qbg = n.gyro_bias_walk**2 * dt + 1e-16
         qba = n.accel_bias_walk**2 * dt + 1e-16
-        Q = np.diag([qa] * 3 + [qv] * 3 + [qp] * 3 + [qbg] * 3 + [qba] * 3)
-        Q[3:6, 6:9] = Q[6:9, 3:6] = np.eye(3) * n.accel_noise**2 * dt**2 / 2.0
+        size = self.space.dim
+        Q = np.zeros((size, size))
+        d = Q.reshape(-1)[:: size + 1]  # (its diagonal, a view: filled in place)
+        d[0:3], d[3:6], d[6:9], d[9:12], d[12:15] = qa, qv, qp, qbg, qba
+        Q[_VP_ROWS, _VP_COLS] = Q[_VP_COLS, _VP_ROWS] = n.accel_noise**2 * dt**2 / 2.0
         if self.space.extra:  # exact first-order Gauss-Markov discretisation
-            Qb = np.diag(n.gnss_bias_sd**2 * (1.0 - self._phi(dt) ** 2) + 1e-14)
-            Q = np.block([[Q, np.zeros((15, 3))], [np.zeros((3, 15)), Qb]])
-        if self.space.mag:  # the magnetic reference's random walk
-            Q = block_diag(Q, np.eye(2) * (n.mag_ref_walk**2 * dt + 1e-16))
+            d[15:18] = n.gnss_bias_sd**2 * (1.0 - self._phi(dt) ** 2) + 1e-14
+        if self.space.mag:  # the magnetic reference's random walk (the last two)
+            d[-2:] = n.mag_ref_walk**2 * dt + 1e-16
         return Q
 
     def F(self, x: Array, t: float, dt: float, u: Array | None = None) -> Array:
@@ -347,6 +348,10 @@ class ImuTransition(Transition):
         F[6:9, 9:12] = 0.5 * dt * dt * da_dbg
         F[6:9, 12:15] = -0.5 * dt * dt * Rh
         return F
+
+
+#: the velocity-position covariance's entries of Q (v_i with p_i, i = N, E, D)
+_VP_ROWS, _VP_COLS = np.arange(3, 6), np.arange(6, 9)
 
 
 def _gnss_biased(m: Measurement, size: int) -> bool:
