@@ -99,16 +99,22 @@ def test_nav_option_errors_are_one_line(argv):
 
 
 @functools.cache
-def _sim_run(extra: tuple[str, ...]) -> tuple[str, str]:
-    """``uavest replay logs/sim_200hz.tlog --filters ekf`` with the ``extra`` options:
-    (stdout, the JSON document's text). Cached: the smoother's test and the magnetic
-    reference states' plain run are the same ``--smooth`` run."""
+def _ekf_run(log: str, extra: tuple[str, ...]) -> tuple[str, str]:
+    """``uavest replay logs/<log> --filters ekf`` with the ``extra`` options: (stdout,
+    the JSON document's text). Cached (the file's tests share a worker, pyproject.toml):
+    tests that compare against the same run replay it once."""
     with tempfile.TemporaryDirectory() as d:
         out = Path(d) / "run.json"
-        r = _replay(str(REPO_ROOT / "logs" / "sim_200hz.tlog"), "--filters", "ekf",
-                    "--json", str(out), *extra)
+        r = _replay(str(REPO_ROOT / "logs" / log), "--filters", "ekf", "--json", str(out),
+                    *extra)
         assert r.returncode == 0, r.stderr
         return r.stdout, out.read_text()
+
+
+def _sim_run(extra: tuple[str, ...]) -> tuple[str, str]:
+    """:func:`_ekf_run` of logs/sim_200hz.tlog: the smoother's test and the magnetic
+    reference states' plain run are the same ``--smooth`` run."""
+    return _ekf_run("sim_200hz.tlog", extra)
 
 
 @pytest.mark.slow
@@ -196,20 +202,12 @@ def test_a_long_imu_interval_below_the_gap_threshold_is_predicted_in_sub_steps(t
     assert "long IMU intervals: " in r.stdout
 
 
-@functools.cache
 def _sitl_copter_run(extra: tuple[str, ...]) -> tuple[str, str]:
-    """``uavest replay logs/sitl_copter.tlog --filters ekf --end 130`` with the ``extra``
-    options: (stdout, the JSON document's text). Cached: three tests compare against the
-    default run (the file's tests share a worker, pyproject.toml). To 130 s of the 206:
-    the probe, the takeoff and 80 s of flight, every check as on the whole log (the
-    delay 1.3 ms from the truth's lag, the inclination 0.012 deg from the truth's), 20 %
-    less CPU."""
-    log = str(REPO_ROOT / "logs" / "sitl_copter.tlog")
-    with tempfile.TemporaryDirectory() as d:
-        out = Path(d) / "run.json"
-        r = _replay(log, "--filters", "ekf", "--end", "130", "--json", str(out), *extra)
-        assert r.returncode == 0, r.stderr
-        return r.stdout, out.read_text()
+    """:func:`_ekf_run` of logs/sitl_copter.tlog with ``--end 130``: three tests compare
+    against its default run. To 130 s of the 206: the probe, the takeoff and 80 s of
+    flight, every check as on the whole log (the delay 1.3 ms from the truth's lag, the
+    inclination 0.012 deg from the truth's), 20 % less CPU."""
+    return _ekf_run("sitl_copter.tlog", ("--end", "130", *extra))
 
 
 def _sitl_copter_runs(runs: dict[str, tuple[str, ...]]

@@ -78,14 +78,11 @@ def _vec3(v: object) -> tuple[float, float, float] | None:
     return None
 
 
-def _check_vectors(cat: str, values: tuple) -> str | None | bool:
-    """:func:`check` of an IMU or magnetometer item whose vectors are float64 arrays (3,),
-    on Python floats (numpy's reductions on 3-vectors were a third of the check, the
-    check a quarter of decoding a log), or False for an item it does not handle. The
-    same kinds in the same order: ``nan``, ``empty``, ``out_of_range``."""
-    vs = [_vec3(v) for v in values]
-    if None in vs:
-        return False
+def _check_vectors(cat: str, vs: list[tuple[float, float, float]]) -> str | None:
+    """:func:`check` of an IMU or magnetometer item from its vectors' components ``vs``
+    (:func:`_vec3`), on Python floats (numpy's reductions on 3-vectors were a third of the
+    check, the check a quarter of decoding a log). The same kinds in the same order as
+    :func:`check_any`: ``nan``, ``empty``, ``out_of_range``."""
     if not all(math.isfinite(c) for v in vs for c in v):
         return "nan"
     if not any(c != 0.0 for v in vs for c in v):
@@ -99,9 +96,9 @@ def _check_vectors(cat: str, values: tuple) -> str | None | bool:
 def check(raw: Raw) -> str | None:
     """Return the bad-data kind for a converted item, or None if it is plausible."""
     if raw.cat == "imu" or raw.cat == "mag":
-        fast = _check_vectors(raw.cat, raw.values)
-        if fast is not False:
-            return fast  # type: ignore[return-value]
+        vs = [_vec3(v) for v in raw.values]
+        if None not in vs:  # (float64 3-vectors only: the rest take the reference)
+            return _check_vectors(raw.cat, vs)  # type: ignore[arg-type]
     return check_any(raw)
 
 
