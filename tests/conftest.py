@@ -41,7 +41,7 @@ def pytest_collection_modifyitems(session, config, items) -> None:
 
 #: The compiled kernel modules (uavest.compiled.REGISTRY) in two halves of about equal
 #: compilation time on a cold cache (shift 17 s, ut 4, manifold 3 | local 19, radar 8).
-KERNEL_HALVES = (("shift", "ut", "manifold"), ("local", "radar"))
+KERNEL_HALVES = (("shift", "ut", "manifold", "nav"), ("local", "radar"))
 
 
 def _kernels_cold() -> bool:

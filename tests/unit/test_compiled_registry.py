@@ -32,9 +32,10 @@ def test_every_kernel_module_is_registered_once():
     import uavest.core.hybrid  # noqa: F401 - registers shift and local
     import uavest.core.unscented  # noqa: F401
     import uavest.geometry.rotation  # noqa: F401
+    import uavest.models.navigation  # noqa: F401
     import uavest.models.radar  # noqa: F401
 
-    assert set(compiled.REGISTRY) == {"manifold", "ut", "shift", "local", "radar"}
+    assert set(compiled.REGISTRY) == {"manifold", "ut", "shift", "local", "nav", "radar"}
     mods = [k.module for k in compiled.REGISTRY.values()]
     assert len(set(mods)) == len(mods)
     assert all(v in (None, True, False) for v in compiled.status().values())
@@ -143,13 +144,13 @@ print(json.dumps({k: v for k, v in new.items() if v}))
 """
 
 
-@pytest.mark.slow  # a subprocess: three short runs
+@pytest.mark.slow  # a subprocess: four short runs
 def test_a_run_compiles_nothing_after_the_self_checks(numba_on, tmp_path):
     """The self-checks compile every kernel specialisation (argument types, state and
     measurement sizes) that the shipped runs use, so that ``load_kernels`` (before a live
     run opens its link) leaves nothing to compile at the first estimates: the 2-D and 3-D
-    radar scenarios' local hybrid trackers and the attitude model's filters run in a fresh
-    process without a new signature. (Before: a fresh install's live job compiled the
+    radar scenarios' local hybrid trackers and the attitude and navigation models' filters
+    run in a fresh process without a new signature. (Before: a fresh install's live job compiled the
     local hybrid's kernels for n = 4 and 6 and read-only weights at its first scans, and
     the attitude-manifold mean and inverse rotation at its first estimates.)"""
     import json
@@ -162,7 +163,9 @@ def test_a_run_compiles_nothing_after_the_self_checks(numba_on, tmp_path):
     runs = [["track", "radar_crossing", "--filters", "hybrid", "--seed", "0"],
             ["track", "radar_uav", "--filters", "hybrid", "--seed", "0"],
             ["replay", str(ROOT / "logs" / "sim_200hz.tlog"), "--model", "attitude",
-             "--end", "3", "--filters", "ukf,hybrid", "--json", str(tmp_path / "r.json")]]
+             "--end", "3", "--filters", "ukf,hybrid", "--json", str(tmp_path / "r.json")],
+            ["replay", str(ROOT / "logs" / "sim_200hz.tlog"), "--model", "nav",
+             "--end", "3", "--filters", "ekf,ukf,hybrid"]]
     r = subprocess.run([sys.executable, "-c", _NEW_SIGNATURES, json.dumps(runs)],
                        capture_output=True, text=True, cwd=tmp_path, timeout=600,
                        env=dict(os.environ, PYTHONPATH=str(ROOT)))

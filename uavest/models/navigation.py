@@ -26,11 +26,14 @@ MagField, GravityDirection) onto the navigation state.
 from __future__ import annotations
 
 import copy
+import math
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
+from uavest.compiled import read_only, register
 from uavest.core.interfaces import Measurement, Transition
 from uavest.geometry.geodesy import EARTH_RATE, gravity
 from uavest.geometry.navigation import NavSpace
@@ -45,6 +48,7 @@ from uavest.geometry.rotation import (
 from uavest.models.attitude import (
     GyroTransition,
     MagField,
+    MagHeading,
     mag_reference,
     reference_declination,
     reference_inclination,
@@ -269,6 +273,7 @@ class ImuTransition(Transition):
         self.g = float(gravity(lat, h))
         self.earth_rate = bool(earth_rate)
         self.w_ie = EARTH_RATE * np.array([np.cos(lat), 0.0, -np.sin(lat)])  # NED
+        self._w_ie = read_only(self.w_ie)  # (the compiled kernels' argument)
         self._gyro = GyroTransition()
 
     def with_noise(self, noise: NavNoise) -> ImuTransition:
@@ -286,6 +291,22 @@ class ImuTransition(Transition):
         return w, u[3:6] - X[..., 13:16]
 
     def f(self, X: Array, t: float, dt: float, u: Array | None = None) -> Array:
+        nb = NAV_KERNELS.get()
+        return self._nb_f(nb, X, dt, u) if nb else self._np_f(X, t, dt, u)
+
+    def _nb_f(self, nb: Any, X: Array, dt: float, u: Array | None) -> Array:
+        """:meth:`f` by the compiled ``mech_rows`` of the kernel module ``nb``."""
+        res: Array = nb.mech_rows(read_only(np.atleast_2d(X)), self._u(u), float(dt), self.g,
+                                  self._w_ie, self.earth_rate, self._phi(dt),
+                                  self.space.extra)
+        return res[0] if X.ndim == 1 else res
+
+    @staticmethod
+    def _u(u: Array | None) -> Array:
+        return read_only(np.zeros(6) if u is None else u)
+
+    def _np_f(self, X: Array, t: float, dt: float, u: Array | None = None) -> Array:
+        """:meth:`f` in numpy (the reference of the compiled ``mech_rows``)."""
         u = np.zeros(6) if u is None else np.asarray(u, float)
         one = X.ndim == 1
         X = np.atleast_2d(X)
@@ -305,8 +326,10 @@ class ImuTransition(Transition):
         return out[0] if one else out  # the magnetic reference's errors: constant
 
     def _phi(self, dt: float) -> float:
-        """The GNSS bias states' decay over ``dt`` s."""
-        return float(np.exp(-abs(dt) / self.noise.gnss_bias_tau))
+        """The GNSS bias states' decay over ``dt`` s (1 without such states)."""
+        if not self.space.extra:
+            return 1.0
+        return math.exp(-abs(dt) / self.noise.gnss_bias_tau)
 
     def Q(self, t: float, dt: float, u: Array | None = None) -> Array:
         n, dt = self.noise, abs(dt)
@@ -327,6 +350,18 @@ class ImuTransition(Transition):
         return Q
 
     def F(self, x: Array, t: float, dt: float, u: Array | None = None) -> Array:
+        nb = NAV_KERNELS.get()
+        return self._nb_F(nb, x, dt, u) if nb else self._np_F(x, t, dt, u)
+
+    def _nb_F(self, nb: Any, x: Array, dt: float, u: Array | None) -> Array:
+        """:meth:`F` by the compiled ``mech_F`` of the kernel module ``nb``."""
+        res: Array = nb.mech_F(read_only(x), self._u(u), float(dt), self._w_ie,
+                               self.earth_rate, self._phi(dt), self.space.extra,
+                               self.space.dim)
+        return res
+
+    def _np_F(self, x: Array, t: float, dt: float, u: Array | None = None) -> Array:
+        """:meth:`F` in numpy (the reference of the compiled ``mech_F``)."""
         u = np.zeros(6) if u is None else np.asarray(u, float)
         w, fb = self._rates(x[None], u)
         Fa = self._gyro.F(np.concatenate([x[:4], np.zeros(3)]), t, dt, w[0])
@@ -349,6 +384,54 @@ class ImuTransition(Transition):
         F[6:9, 12:15] = -0.5 * dt * dt * Rh
         return F
 
+
+def _kernel_cases(nb: Any) -> Iterator[tuple[str, Array, Array]]:
+    """The self-check (:mod:`uavest.compiled`): the compiled mechanisation and its
+    Jacobian against :meth:`ImuTransition._np_f` / ``_np_F`` on the spaces the runs use
+    (15 dimensions; with the GNSS bias states, 18; with the magnetic reference's too, 20),
+    with and without the Earth's rate, one row and sigma points, a rotation near zero
+    (the series branches), with the argument types the runs pass."""
+    u = np.array([0.3, -0.2, 0.5, 0.4, -0.3, -9.6])
+    bias = NavNoise(gnss_bias_h=1.0, gnss_bias_v=1.0, gnss_bias_tau=100.0)
+    cases = [(NavNoise(), False, u), (bias, True, u),
+             (replace(bias, mag_ref_inc=0.01, mag_ref_dec=0.02), False, u),
+             (NavNoise(), False, np.array([1e-7, 0.0, 0.0, 0.1, 0.0, -9.8]))]
+    for noise, earth, uu in cases:
+        tr = ImuTransition(noise, lat=0.8, h=100.0, earth_rate=earth)
+        n = tr.space.dim + 1
+        rng = np.random.default_rng(n)
+        X = rng.normal(0.0, 0.3, (5, n))
+        X[:, :4] = np.array([0.9, 0.1, -0.3, 0.2]) + 0.05 * X[:, :4]
+        X[:, :4] /= np.linalg.norm(X[:, :4], axis=1)[:, None]
+        X[:, 10:13] = uu[:3] if uu[0] < 1e-6 else X[:, 10:13]  # (w - b_g = 0)
+        label = f"n={n} earth={earth}"
+        for dt in (0.04, -0.005):
+            yield (f"mech_rows {label}", tr._nb_f(nb, X, dt, uu), tr._np_f(X, 0.0, dt, uu))
+            yield (f"mech_rows one {label}", tr._nb_f(nb, X[0], dt, uu),
+                   tr._np_f(X[0], 0.0, dt, uu))
+            yield (f"mech_F {label}", tr._nb_F(nb, X[1], dt, uu),
+                   tr._np_F(X[1], 0.0, dt, uu))
+        # the magnetometer on this state: heading and field, now and ``back`` s before
+        # (a field straight down: no heading, H 0)
+        for inner in (MagHeading(np.array([0.2, -0.05, 0.4]), np.eye(1)),
+                      MagHeading(np.array([0.0, 0.0, 0.4]), np.eye(1)),
+                      MagField(np.array([0.5, 0.1, 0.85]), np.eye(3))):
+            for back, w in ((0.0, None), (0.02, uu[:3])):
+                m = OnNav(inner, back, w)
+                got = m._nb_h_H(nb, X[2])
+                want = Measurement.h_H(m, X[2])
+                name = f"mag_h_H {type(inner).__name__} back={back} {label}"
+                yield f"{name} h", got[0], want[0]
+                yield f"{name} H", got[1], want[1]
+
+
+#: The compiled IMU mechanisation (:mod:`uavest.models._compiled_nav`)
+NAV_KERNELS = register("nav", "uavest.models._compiled_nav",
+                       "numba navigation mechanisation kernels", _kernel_cases, rtol=0.0,
+                       atol=1e-12)
+
+
+_ZERO3 = np.zeros(3)
 
 #: the velocity-position covariance's entries of Q (v_i with p_i, i = N, E, D)
 _VP_ROWS, _VP_COLS = np.arange(3, 6), np.arange(6, 9)
@@ -585,6 +668,22 @@ class OnNav(Measurement):
 
     def h(self, X: Array) -> Array:
         return self.inner.h(self._q(X))
+
+    def h_H(self, x: Array) -> tuple[Array, Array]:
+        """(h, H) of one state; the compiled ``mag_h_H`` for a magnetometer's heading or
+        field (the EKF's update; the numpy h and H are its reference)."""
+        nb = NAV_KERNELS.get() if type(self) is OnNav else None
+        if nb and type(self.inner) in (MagHeading, MagField):
+            return self._nb_h_H(nb, x)
+        return super().h_H(x)
+
+    def _nb_h_H(self, nb: Any, x: Array) -> tuple[Array, Array]:
+        heading = type(self.inner) is MagHeading
+        vec = self.inner.field if heading else self.inner.ref  # type: ignore[attr-defined]
+        w = _ZERO3 if self.w is None else self.w
+        res: tuple[Array, Array] = nb.mag_h_H(read_only(x), read_only(vec), read_only(w),
+                                              self.back, heading)
+        return res
 
     def H(self, x: Array) -> Array:
         qb = self._q(x)

@@ -1,0 +1,147 @@
+"""The compiled navigation kernels (``uavest.models._compiled_nav``, numba): the IMU
+mechanisation over rows, its tangent Jacobian and the magnetometer's (h, H) on the
+navigation state equal their numpy references (``ImuTransition._np_f`` / ``_np_F``, the
+``h`` and ``H`` of :class:`OnNav`) to rounding on states, spaces and steps the self-check
+does not use, and an EKF run through them equals the numpy run."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import compiled_kernels
+
+from uavest.core.gaussian import Gaussian
+from uavest.core.interfaces import Measurement
+from uavest.core.kalman import EKF
+from uavest.models import navigation as nav_mod
+from uavest.models.attitude import AttitudeNoise, MagField, MagHeading
+from uavest.models.navigation import ImuTransition, MagFieldRef, NavNoise, OnNav
+
+TOL = 1e-12
+
+
+@pytest.fixture
+def nb():
+    return compiled_kernels(nav_mod.NAV_KERNELS.get, "navigation kernels")
+
+
+def _noises():
+    bias = NavNoise(gnss_bias_h=0.5, gnss_bias_v=0.8, gnss_bias_tau=60.0)
+    return {"plain": NavNoise(), "gnss bias": bias,
+            "bias and mag ref": NavNoise(gnss_bias_h=0.5, gnss_bias_v=0.8, gnss_bias_tau=60.0,
+                                         mag_ref_inc=0.02, mag_ref_dec=0.03),
+            "mag ref": NavNoise(mag_ref_inc=0.02)}
+
+
+def _states(tr, M, g):
+    n = tr.space.size
+    X = g.normal(0.0, 1.0, (M, n)) * np.r_[np.ones(4), 5.0 * np.ones(6),
+                                           0.02 * np.ones(3), 0.3 * np.ones(n - 13)]
+    X[:, :4] = g.normal(0.0, 1.0, (M, 4))
+    X[:, :4] /= np.linalg.norm(X[:, :4], axis=1)[:, None]
+    return X
+
+
+@pytest.mark.parametrize("name", list(_noises()))
+@pytest.mark.parametrize("earth", [False, True])
+def test_the_mechanisation_and_its_jacobian_equal_numpy(nb, name, earth, monkeypatch):
+    tr = ImuTransition(_noises()[name], lat=-0.6, h=1500.0, earth_rate=earth)
+    g = np.random.default_rng(7)
+    X = _states(tr, 40, g)
+
+    def boom(*a, **k):
+        raise AssertionError("the numpy path ran")
+    for dt in (0.005, 0.04, 0.3, -0.02):
+        u = np.r_[g.normal(0.0, 2.0, 3), g.normal(0.0, 5.0, 3) + [0, 0, -9.8]]
+        want_rows = tr._np_f(X, 0.0, dt, u)
+        want_one = tr._np_f(X[3], 0.0, dt, u)
+        want_F = tr._np_F(X[5], 0.0, dt, u)
+        with monkeypatch.context() as m:
+            m.setattr(ImuTransition, "_np_f", boom)
+            m.setattr(ImuTransition, "_np_F", boom)
+            got_rows, got_one = tr.f(X, 0.0, dt, u), tr.f(X[3], 0.0, dt, u)
+            got_F = tr.F(X[5], 0.0, dt, u)
+        assert got_rows.shape == want_rows.shape and got_one.shape == want_one.shape
+        np.testing.assert_allclose(got_rows, want_rows, rtol=0, atol=TOL)
+        np.testing.assert_allclose(got_one, want_one, rtol=0, atol=TOL)
+        np.testing.assert_allclose(got_F, want_F, rtol=0, atol=TOL)
+    # no input: a state at rest (u None is zeros)
+    np.testing.assert_allclose(tr.f(X, 0.0, 0.01), tr._np_f(X, 0.0, 0.01), rtol=0, atol=TOL)
+    np.testing.assert_allclose(tr.F(X[0], 0.0, 0.01), tr._np_F(X[0], 0.0, 0.01), rtol=0,
+                               atol=TOL)
+
+
+def test_a_rotation_too_small_for_the_sine_takes_the_series(nb):
+    """w - b_g of 1e-9 rad/s (the series branches of Exp and J_r) and exactly 0."""
+    tr = ImuTransition(NavNoise())
+    X = _states(tr, 3, np.random.default_rng(1))
+    for w in (1e-9, 0.0):
+        X[:, 10:13] = [w, 0.0, -w]
+        u = np.array([2 * w, 0.0, -2 * w, 0.1, 0.2, -9.8])
+        np.testing.assert_allclose(tr.f(X, 0.0, 0.04, u), tr._np_f(X, 0.0, 0.04, u), rtol=0,
+                                   atol=TOL)
+        np.testing.assert_allclose(tr.F(X[0], 0.0, 0.04, u), tr._np_F(X[0], 0.0, 0.04, u),
+                                   rtol=0, atol=TOL)
+
+
+@pytest.mark.parametrize("inner", ["heading", "heading vertical", "field"])
+@pytest.mark.parametrize("back", [0.0, 0.013, -0.01])
+def test_the_magnetometer_h_H_equals_numpy(nb, inner, back, monkeypatch):
+    g = np.random.default_rng(3)
+    tr = ImuTransition(NavNoise(gnss_bias_h=0.5, gnss_bias_tau=60.0))
+    m_in = {"heading": MagHeading(np.array([0.21, -0.07, 0.38]), np.eye(1)),
+            "heading vertical": MagHeading(np.array([0.0, 0.0, 0.4]), np.eye(1)),
+            "field": MagField(np.array([0.48, -0.02, 0.87]), np.eye(3))}[inner]
+    for x in _states(tr, 12, g):
+        w = g.normal(0.0, 1.5, 3)
+        m = OnNav(m_in, back, w if back else None)
+        want = Measurement.h_H(m, x)
+        with monkeypatch.context() as mp:
+            mp.setattr(OnNav, "H", lambda self, x: (_ for _ in ()).throw(AssertionError))
+            got = m.h_H(x)
+        assert got[1].shape == want[1].shape == (m_in.R.shape[0], tr.space.dim)
+        np.testing.assert_allclose(got[0], want[0], rtol=0, atol=TOL)
+        np.testing.assert_allclose(got[1], want[1], rtol=0, atol=TOL)
+
+
+def test_the_magnetic_reference_states_keep_their_own_h_and_H(nb, monkeypatch):
+    """MagFieldRef (an OnNav whose H has the reference's columns) is not the kernel's."""
+    called = []
+    noise = NavNoise(mag_ref_inc=0.02, mag_ref_dec=0.03)
+    space = nav_mod.nav_space(noise)
+    m = MagFieldRef(np.array([0.48, -0.02, 0.87]), np.eye(3), space, 0.01, np.ones(3))
+    monkeypatch.setattr(OnNav, "_nb_h_H", lambda *a: called.append(1))
+    x = _states(ImuTransition(noise), 1, np.random.default_rng(0))[0]
+    h, H = m.h_H(x)
+    assert not called and H.shape == (3, space.dim) and np.any(H[:, -2:] != 0.0)
+
+
+def test_an_ekf_run_through_the_kernels_equals_the_numpy_run(nb, monkeypatch):
+    """200 predict / magnetometer / GNSS-velocity steps of the 18-state EKF, once compiled
+    and once with the kernels switched off, from the same seeded inputs."""
+    tr = ImuTransition(NavNoise(gnss_bias_h=0.5, gnss_bias_v=0.8, gnss_bias_tau=60.0))
+    ekf = EKF()
+
+    def run():
+        g = np.random.default_rng(11)
+        x = np.zeros(tr.space.size)
+        x[0] = 1.0
+        s = Gaussian(x, np.eye(tr.space.dim) * 0.01)
+        out = []
+        for _ in range(200):
+            u = np.r_[g.normal(0.0, 0.3, 3), g.normal(0.0, 1.0, 3) + [0, 0, -9.8]]
+            s = ekf.predict(s, tr, 0.0, 0.04, u)
+            z, mm = MagHeading.from_field(g.normal(0.0, 0.3, 3) + [0.3, 0.0, 0.4],
+                                          AttitudeNoise(), 0.1)
+            s, _ = ekf.update(s, z, OnNav(mm, 0.01, u[:3]))
+            s, _ = ekf.update(s, g.normal(0.0, 0.1, 3),
+                              nav_mod.GnssVelocity(np.eye(3) * 0.01))
+            out.append(s.x)
+        return np.array(out), s.P
+
+    X1, P1 = run()
+    monkeypatch.setattr(nav_mod.NAV_KERNELS, "loaded", False)
+    X0, P0 = run()
+    assert np.all(np.isfinite(X1))
+    np.testing.assert_allclose(X1, X0, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(P1, P0, rtol=0, atol=1e-12)
