@@ -225,3 +225,58 @@ def test_the_fast_check_of_imu_and_mag_items_is_the_numpy_check():
     assert seen == {None, "nan", "empty", "out_of_range"}
     listed = Raw("imu", "IMU[0]", 0, ([0.0, 0.0, 0.0], [0.0, 0.0, 0.0]))
     assert check(listed) == check_any(listed) == "empty"
+
+
+def test_the_fast_check_and_conversion_of_attitude_references_are_the_numpy_ones():
+    """Attitude references (``ref``) are converted from Euler angles and checked on Python
+    floats: the quaternion equals :func:`euler_to_quat` (numpy) to rounding over the whole
+    range and past it, and the check gives the reference's kind (``check_any``) for unit,
+    NaN, infinite, zero, at-the-tolerance and float32 quaternions."""
+    from uavest.geometry.rotation import euler_to_quat
+    from uavest.ingest.convert import QUAT_NORM_TOL, _ref_from_euler, check_any
+
+    g = np.random.default_rng(5)
+    for roll, pitch, yaw in g.uniform(-1.0, 1.0, (500, 3)) * [np.pi, np.pi / 2, 2 * np.pi]:
+        r = _ref_from_euler("ATTITUDE", "autopilot", roll, pitch, yaw)
+        np.testing.assert_allclose(r.values[0], euler_to_quat(roll, pitch, yaw), rtol=0,
+                                   atol=1e-15)
+        assert r.values[0][0] >= 0.0 and check(r) is None
+    nan, inf = float("nan"), float("inf")
+    for e in ((nan, 0.0, 0.0), (0.0, inf, 0.0), (4.0, 0.0, 0.0), (0.0, 0.0, -7.0)):
+        r = _ref_from_euler("SIMSTATE", "truth", *e)
+        assert check(r) == check_any(r) in ("nan", "out_of_range")
+    qs = [[1.0, 0, 0, 0], [nan, 0, 0, 0], [0.5, 0.5, 0.5, -inf], [0.0, 0, 0, 0],
+          [1.0 + QUAT_NORM_TOL * 0.99, 0, 0, 0], [1.0 + QUAT_NORM_TOL * 1.01, 0, 0, 0],
+          [0.0, 0.6, 0.0, 0.8]]
+    seen = set()
+    for dtype in (np.float64, np.float32):
+        for q in qs:
+            r = Raw("ref", "ATTITUDE_QUATERNION", 0, (np.array(q, dtype=dtype),), "autopilot")
+            want = check_any(r)
+            assert check(r) == want, (q, dtype)
+            seen.add(want)
+    assert seen == {None, "nan", "out_of_range"}
+
+
+def test_milli_imu_on_floats_gives_numpys_products():
+    """RAW_IMU / SCALED_IMU* converted on Python floats: bitwise the numpy products of the
+    previous form, a magnetometer item exactly when a field is non-zero or not finite."""
+    from uavest.ingest.convert import MG_TO_MS2, MGAUSS_TO_GAUSS, MRAD_TO_RAD
+
+    g = np.random.default_rng(2)
+    for k in range(200):
+        v = g.integers(-32768, 32768, 9)
+        if k % 3 == 0:
+            v[6:] = 0
+        msg = ml.MAVLink_scaled_imu2_message(5, *(int(a) for a in v))
+        r = _by_cat(convert_mavlink(msg))
+        gyro, accel = r["imu"].values
+        assert np.array_equal(gyro, np.array(v[3:6], dtype=float) * MRAD_TO_RAD)
+        assert np.array_equal(accel, np.array(v[:3], dtype=float) * MG_TO_MS2)
+        assert ("mag" in r) == bool(np.any(v[6:]))
+        if "mag" in r:
+            assert np.array_equal(r["mag"].values[0], np.array(v[6:], dtype=float)
+                                  * MGAUSS_TO_GAUSS)
+    msg = ml.MAVLink_scaled_imu2_message(5, 1, 2, 3, 4, 5, 6, 0, 0, 0)
+    msg.ymag = float("nan")
+    assert check(_by_cat(convert_mavlink(msg))["mag"]) == "nan"

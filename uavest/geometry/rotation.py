@@ -267,6 +267,20 @@ def qexp_f(v: Quat) -> tuple[float, float, float, float]:
     return (math.cos(0.5 * th), s * x, s * y, s * z)
 
 
+def euler_to_quat_f(roll: float, pitch: float, yaw: float
+                    ) -> tuple[float, float, float, float]:
+    """:func:`euler_to_quat` of one ZYX Euler triple (rad) on Python floats (canonical:
+    w >= 0); the ingest converts every attitude reference sample with it."""
+    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
+    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
+    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    w = cr * cp * cy + sr * sp * sy
+    x = sr * cp * cy - cr * sp * sy
+    y = cr * sp * cy + sr * cp * sy
+    z = cr * cp * sy - sr * sp * cy
+    return (-w, -x, -y, -z) if w < 0.0 else (w, x, y, z)
+
+
 def slerp_one(q0: Quat, q1: Quat, s: float) -> tuple[float, float, float, float]:
     """``q0 Exp(s Log(q0^-1 q1))`` of two single quaternions on Python floats: the
     streaming scorer and the recorder interpolate one reference sample pair per step."""

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry.rotation import G0, euler_to_quat, quat_canonical
+from ..geometry.rotation import G0, euler_to_quat_f, quat_canonical
 
 MG_TO_MS2 = G0 * 1e-3  # milli-g -> m/s^2
 MRAD_TO_RAD = 1e-3  # milli-rad/s -> rad/s
@@ -93,12 +93,29 @@ def _check_vectors(cat: str, vs: list[tuple[float, float, float]]) -> str | None
     return None
 
 
+def _is_quat64(q: object) -> bool:
+    return type(q) is np.ndarray and q.shape == (4,) and q.dtype == _F64
+
+
+def _check_quat(q: np.ndarray) -> str | None:
+    """:func:`check` of an attitude reference's float64 quaternion (4,) on Python floats
+    (the same kinds as :func:`check_any`)."""
+    w, x, y, z = q.tolist()
+    if not (math.isfinite(w) and math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+        return "nan"
+    if abs(math.sqrt(w * w + x * x + y * y + z * z) - 1.0) > QUAT_NORM_TOL:
+        return "out_of_range"
+    return None
+
+
 def check(raw: Raw) -> str | None:
     """Return the bad-data kind for a converted item, or None if it is plausible."""
     if raw.cat == "imu" or raw.cat == "mag":
         vs = [_vec3(v) for v in raw.values]
         if None not in vs:  # (float64 3-vectors only: the rest take the reference)
             return _check_vectors(raw.cat, vs)  # type: ignore[arg-type]
+    elif raw.cat == "ref" and len(raw.values) == 1 and _is_quat64(raw.values[0]):
+        return _check_quat(raw.values[0])
     return check_any(raw)
 
 
@@ -229,13 +246,15 @@ def _euler_ok(roll: float, pitch: float, yaw: float) -> bool:
 
 
 def _ref_from_euler(source: str, kind: str, roll: float, pitch: float, yaw: float) -> Raw:
-    vals = np.array([roll, pitch, yaw], dtype=float)
-    if not np.all(np.isfinite(vals)):
+    """An attitude reference from ZYX Euler angles (rad), on Python floats (numpy's
+    per-call cost made this a sixth of decoding a log with ATTITUDE, AHRS2 and SIMSTATE)."""
+    r, p, y = float(roll), float(pitch), float(yaw)
+    if not (math.isfinite(r) and math.isfinite(p) and math.isfinite(y)):
         return Raw("ref", source, 0, (np.full(4, np.nan),), kind)
-    if not _euler_ok(*vals):
+    if not _euler_ok(r, p, y):
         # encode as a deliberately non-unit quaternion so check() flags out_of_range
         return Raw("ref", source, 0, (np.zeros(4),), kind)
-    return Raw("ref", source, 0, (euler_to_quat(*vals),), kind)
+    return Raw("ref", source, 0, (np.array(euler_to_quat_f(r, p, y)),), kind)
 
 
 def _ref_from_quat(source: str, kind: str, w, x, y, z) -> Raw:
@@ -265,15 +284,20 @@ _MILLI_IMU = {"RAW_IMU": 0, "SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}
 def _milli_imu(m, name: str) -> list[Raw]:
     # ArduPilot fills RAW_IMU with the same calibrated, scaled units as SCALED_IMU
     # (milli-g, milli-rad/s, milli-gauss); see docs/ingest.md.
+    # (on Python floats, the same products as numpy's: a third of decoding a tlog was
+    # numpy's per-call cost on these 3-vectors)
     inst = _MILLI_IMU[name]
     if name == "RAW_IMU":
         inst = _instance_field(m)
-    gyro = np.array([m.xgyro, m.ygyro, m.zgyro], dtype=float) * MRAD_TO_RAD
-    accel = np.array([m.xacc, m.yacc, m.zacc], dtype=float) * MG_TO_MS2
-    mag = np.array([m.xmag, m.ymag, m.zmag], dtype=float) * MGAUSS_TO_GAUSS
+    g, a = MRAD_TO_RAD, MG_TO_MS2
+    gyro = np.array([float(m.xgyro) * g, float(m.ygyro) * g, float(m.zgyro) * g])
+    accel = np.array([float(m.xacc) * a, float(m.yacc) * a, float(m.zacc) * a])
     out = [Raw("imu", name, inst, (gyro, accel))]
-    if np.any(mag) or not np.all(np.isfinite(mag)):
-        out.append(Raw("mag", name, inst, (mag,), primary=False))
+    mx, my, mz = float(m.xmag), float(m.ymag), float(m.zmag)
+    if mx or my or mz:  # (a NaN is true: counted as bad by check)
+        k = MGAUSS_TO_GAUSS
+        out.append(Raw("mag", name, inst, (np.array([mx * k, my * k, mz * k]),),
+                       primary=False))
     return out
 
 
