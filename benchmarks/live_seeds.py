@@ -9,6 +9,7 @@ noise and start; this shows the spread (docs/live.md, "Over many flights").
     OMP_NUM_THREADS=1 python benchmarks/live_seeds.py [--seeds 0-7] [--rates 200,400]
         [--filters ekf] [--duration 32] [--settle 10] [--jobs 2] [--rows]
         [--noise KEY=VALUE ...] [--set KEY=VALUE ...] [--keep DIR]
+        [--aiding-from FILE [--aiding-keys mag_inclination,...]]
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from uavest.apps.aiding import read_aiding  # noqa: E402
 from uavest.apps.live import LIVE_STREAMS, LiveConfig, run_live  # noqa: E402
 from uavest.cli.replay import parse_noise  # noqa: E402
 from uavest.errors import InputError  # noqa: E402
@@ -68,13 +70,16 @@ def meets(p: dict) -> bool:
 
 
 def trial(seed: int, rate: float, filters: tuple[str, ...], duration: float, settle: float,
-          noise: dict, sets: list[str], keep: str | None) -> dict[str, dict]:
-    """{filter label: :func:`scores`} of the live job over one simulated flight."""
+          noise: dict, sets: list[str], keep: str | None, aiding: dict | None = None,
+          aiding_why: str | None = None) -> dict[str, dict]:
+    """{filter label: :func:`scores`} of the live job over one simulated flight, started
+    with ``aiding`` (``--aiding-from``, :func:`~uavest.apps.aiding.read_aiding`)."""
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(keep or tmp) / f"seed{seed}_{rate:g}hz.tlog"
         session_tlog(path, seed, rate, duration, sets)
         cfg = LiveConfig(connect=str(path), filters=filters, trackers=(), seed=0,
-                         model="nav", settle_s=settle, noise=dict(noise))
+                         model="nav", settle_s=settle, noise=dict(noise),
+                         aiding=dict(aiding or {}), aiding_why=aiding_why)
         doc = run_live(cfg, status=False, on_note=lambda _: None)
     return {lab: scores(r) for lab, r in doc["attitude"].items() if "settled" in r}
 
@@ -143,24 +148,37 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="scenario override, as uavest sim --set")
     ap.add_argument("--keep", help="keep the tlogs in this directory")
+    ap.add_argument("--aiding-from", metavar="FILE",
+                    help="start every flight's live job with what this result learned, as "
+                    "uavest run --aiding-from (e.g. a replay of another flight)")
+    ap.add_argument("--aiding-keys", metavar="K1,K2",
+                    help="take only these of it (gnss_delay, gnss_vel_window, baro_noise, "
+                    "mag_inclination)")
     a = ap.parse_args()
     seeds, rates = a.seeds, a.rates
     filters = tuple(a.filters.split(","))
     try:  # uavest run's own checks of --noise (name, number, >= 0) and the scenario's
         noise = parse_noise(a.noise)
         load_typed("sim_default", list(a.set))
+        aiding, aiding_why = read_aiding(a.aiding_from) if a.aiding_from else ({}, None)
     except InputError as e:
         ap.error(str(e))
+    if a.aiding_keys:
+        keys = set(a.aiding_keys.split(","))
+        if "mag_inclination" in keys:
+            keys |= {"mag_site_lat", "mag_site_lon"}
+        aiding = {k: v for k, v in aiding.items() if k in keys}
     if a.keep:
         Path(a.keep).mkdir(parents=True, exist_ok=True)
     jobs = [(s, r) for r in rates for s in seeds]
     with ProcessPoolExecutor(max(1, a.jobs)) as ex:
         futs = {j: ex.submit(trial, j[0], j[1], filters, a.duration, a.settle, noise,
-                             a.set, a.keep) for j in jobs}
+                             a.set, a.keep, aiding, aiding_why) for j in jobs}
         res = {j: f.result() for j, f in futs.items()}
     print(f"live job over the simulator's flights: seeds {','.join(map(str, seeds))}, "
           f"{a.duration:g} s, "
-          f"settled from {a.settle:g} s; noise {noise or 'the spec'}; sets {a.set or 'none'}")
+          f"settled from {a.settle:g} s; noise {noise or 'the spec'}; sets {a.set or 'none'}"
+          + (f"; aiding {aiding} ({aiding_why})" if a.aiding_from else ""))
     print("RMSE roll / pitch / yaw deg; in95 attitude / velocity / position; targets "
           f"{_f(TARGETS['rpy'])} deg, vel {TARGETS['vel']} m/s, hpos {TARGETS['hpos']} m, "
           f"in95 {TARGETS['in95']}")

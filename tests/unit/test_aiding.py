@@ -112,3 +112,43 @@ def test_a_run_that_learned_its_timing_says_how_to_start_the_next_with_it(tmp_pa
     nothing = _file(tmp_path, {"model": "nav", "gnss_delay_live": {"delay": None}}, "n.json")
     assert aiding_hint(str(nothing), "run") is None
     assert aiding_hint(str(_file(tmp_path, {"model": "attitude"}, "a.json")), "replay") is None
+
+
+def test_the_fields_inclination_is_read_with_where_it_was_learned(tmp_path):
+    """A replay's probe inclination, a live run's learner's, else its first filter's
+    magnetic reference states': taken with the result's origin (the field is the
+    site's); without an origin, or not finite, or not an inclination: not taken."""
+    import math
+
+    origin = {"lat": 47.39, "lon": 8.54, "alt": 500.0}
+    replay = dict(REPLAY, origin=origin)
+    replay["gnss_delay_estimate"] = dict(REPLAY["gnss_delay_estimate"],
+                                         mag={"inclination": 1.1188})
+    got, _ = read_aiding(_file(tmp_path, replay))
+    assert got["mag_inclination"] == 1.1188
+    assert (got["mag_site_lat"], got["mag_site_lon"]) == (47.39, 8.54)
+    learner = dict(LIVE, origin=origin)
+    learner["gnss_delay_live"] = dict(LIVE["gnss_delay_live"], inclination={"value": 1.12})
+    assert read_aiding(_file(tmp_path, learner))[0]["mag_inclination"] == 1.12
+    states = dict(LIVE, origin=origin, attitude={
+        "ekf": {"mag_ref": {"inclination_deg": 64.2}}, "autopilot": {}})
+    assert read_aiding(_file(tmp_path, states))[0]["mag_inclination"] == pytest.approx(
+        math.radians(64.2))
+    for doc in (dict(replay, origin=None), dict(states, origin={"lat": "x"}),
+                dict(states, attitude={"ekf": {"mag_ref": {"inclination_deg": 95.0}}}),
+                dict(states, attitude={"ekf": {"mag_ref": {"inclination_deg": None}}})):
+        got, _ = read_aiding(_file(tmp_path, doc))
+        assert "mag_inclination" not in got and "mag_site_lat" not in got, doc
+    only = {"model": "nav", "origin": origin, "gnss_delay_live": {
+        "delay": None, "inclination": {"value": -0.5}}}
+    got, _ = read_aiding(_file(tmp_path, only))
+    assert got == {"mag_inclination": -0.5, "mag_site_lat": 47.39, "mag_site_lon": 8.54}
+
+
+def test_the_hint_says_the_inclination_in_degrees(tmp_path):
+    from uavest.apps.aiding import aiding_hint
+
+    doc = dict(LIVE, origin={"lat": 47.39, "lon": 8.54})
+    doc["gnss_delay_live"] = dict(LIVE["gnss_delay_live"], inclination={"value": 1.12})
+    line = aiding_hint(str(_file(tmp_path, doc)), "run")
+    assert "baro noise 0.020 m, field inclination 64.17 deg)" in line, line

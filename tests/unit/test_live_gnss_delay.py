@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 import itertools
+import math
 from pathlib import Path
 
 import pytest
@@ -127,7 +128,8 @@ def test_live_run_estimates_the_gnss_delay_window_and_baro_delay_and_uses_them()
 @pytest.mark.slow  # two navigation runs over 130 s of a log
 def test_a_live_run_started_with_a_previous_runs_aiding_has_the_takeoffs_tilt(tmp_path):
     """``--aiding-from``: a run started with the GNSS delay, velocity window and baro noise
-    a previous run learned (its JSON result, as written) has them from its first step,
+    a previous run learned (its JSON result, as written), and the field's inclination its
+    filters learnt there, has them from its first step,
     where the previous run had them only 60 s in, after the takeoff: its pitch is that of
     a run that knew them (logs/sitl_copter.tlog to 130 s, airborne EKF: 0.25 -> 0.12 deg), its
     NEES in band, and it still learns its own delay and window."""
@@ -137,7 +139,12 @@ def test_a_live_run_started_with_a_previous_runs_aiding_has_the_takeoffs_tilt(tm
     first = _default_run()[0]
     path = write_json(tmp_path / "first.json", first)
     aiding, why = read_aiding(path)
-    assert set(aiding) == {"gnss_delay", "gnss_vel_window", "baro_noise"}, aiding
+    assert set(aiding) == {"gnss_delay", "gnss_vel_window", "baro_noise", "mag_inclination",
+                           "mag_site_lat", "mag_site_lon"}, aiding
+    # the field the first run's EKF learnt (its magnetic reference states), where it flew
+    assert aiding["mag_inclination"] == pytest.approx(
+        math.radians(first["attitude"]["ekf"]["mag_ref"]["inclination_deg"]))
+    assert aiding["mag_site_lat"] == first["origin"]["lat"]
     learned = first["gnss_delay_live"]
     assert aiding["gnss_delay"] == pytest.approx(learned["delay"])
     assert aiding["gnss_vel_window"] == pytest.approx(learned["window"])
@@ -152,6 +159,8 @@ def test_a_live_run_started_with_a_previous_runs_aiding_has_the_takeoffs_tilt(tm
     assert "estimated live" in said[-1]["why"], said
     noise = [d for d in second["decisions"] if d["what"] == "baro noise"]
     assert noise and "first.json" in noise[0]["why"], noise
+    inc = [d for d in second["decisions"] if d["what"] == "inclination"]
+    assert inc and "from --aiding-from" in inc[0]["why"], inc
 
 
 class _Heights(Sink):

@@ -542,3 +542,29 @@ def test_turn_yaw_turns_the_attitude_about_down_only():
                                atol=1e-12)
     np.testing.assert_array_equal(out.x[4:], x[4:])
     np.testing.assert_array_equal(out.P, g.P)
+
+
+@pytest.mark.parametrize("site_km, taken", [(0.0, True), (10.0, True), (100.0, False)])
+def test_a_given_inclination_is_taken_only_near_where_it_was_learned(site_km, taken):
+    """``--aiding-from``'s inclination (NavOptions.mag_inclination with mag_site): the
+    start takes it within MAG_SITE_KM of where it was learned; from farther (another
+    site's field) it takes its own (the accelerometer-magnetometer angle) and says why."""
+    from uavest.engine.nav_align import MAG_SITE_KM
+    from uavest.engine.nav_align import site_km as km_between
+
+    samples, _, _ = flight(1, T=12.0)
+    given = np.deg2rad(61.5)  # the flight's field is at 63 deg
+    site = (ORIGIN[0] + site_km / 111.2, ORIGIN[1])
+    assert abs(km_between(site, *np.deg2rad(ORIGIN[:2])) - site_km) < 0.5
+    opts = NavOptions(integration="hold", mag_inclination=given, mag_site=site,
+                      mag_inclination_why="from --aiding-from: x.json")
+    stream, runners, coll = run_nav(samples, opts=opts)
+    inc = stream.summary["inclination_rad"]
+    said = [d for d in stream.summary["decisions"] if d["what"] == "inclination given"]
+    if taken:
+        assert inc == given and not said
+    else:
+        assert abs(inc - given) > np.deg2rad(1.0), np.degrees(inc)
+        assert said and said[0]["value"] == "not taken", said
+        assert f"more than {MAG_SITE_KM:g} km" in said[0]["why"], said
+    assert len(coll.arrays(runners[0].label)["t"]) > 100

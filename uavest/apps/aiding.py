@@ -10,7 +10,13 @@ so a run can start with what a previous one learned: a ``uavest run --json`` res
 ``gnss_delay_live``) or a ``uavest replay --json`` result of a log of the same vehicle
 (its probe's ``gnss_delay_estimate``). Taken: the GNSS delay, the GNSS velocity's window
 and the baro's noise (its spread against the GNSS height, at least
-:data:`~uavest.engine.gnss_delay.BARO_NOISE_MIN`). Not taken: the baro's delay, which
+:data:`~uavest.engine.gnss_delay.BARO_NOISE_MIN`), and the magnetic field's inclination
+where the result learned one (a replay's probe, a live run's learner or its filters'
+magnetic reference states) with the place it was learned at (the result's ``origin``):
+the field is the site's, not the vehicle's, and a run starting more than
+:data:`~uavest.engine.nav_align.MAG_SITE_KM` km from there does not take it (a live run
+otherwise starts on the angle between its accelerometer and magnetometer, which an
+accelerating start bends: docs/live.md). Not taken: the baro's delay, which
 changed from 44 to 96 ms between sessions of one ArduCopter SITL (taken from the previous
 session, it put the pitch of the next back where it was without any: docs/live.md). The
 run still learns its own and takes them when it has them; options given on the command
@@ -24,15 +30,17 @@ import math
 from pathlib import Path
 from typing import Any
 
+from ..engine.nav_align import MAG_SITE_KM
 from ..errors import InputError
 
-__all__ = ["AIDING", "AIDING_KEYS", "aiding_hint", "read_aiding"]
+__all__ = ["AIDING", "AIDING_KEYS", "MAG_SITE_KM", "aiding_hint", "aiding_words", "read_aiding"]
 
 #: What a result may give, with the words and unit it is said in: the GNSS delay (s), the
 #: GNSS velocity's window (s), the baro's noise (m).
 AIDING = {"gnss_delay": ("GNSS delay", "s"), "gnss_vel_window": ("velocity window", "s"),
-          "baro_noise": ("baro noise", "m")}
+          "baro_noise": ("baro noise", "m"), "mag_inclination": ("field inclination", "rad")}
 AIDING_KEYS = tuple(AIDING)
+
 
 
 def _model(doc: dict[str, Any]) -> Any:
@@ -77,11 +85,47 @@ def read_aiding(path: str | Path) -> tuple[dict[str, float], str]:
                "baro_noise": baro.get("noise_used")}
     else:
         what = ""
-    out = {k: f for k in AIDING_KEYS if (f := _number(got.get(k))) is not None}
+    out = {k: f for k in AIDING_KEYS[:3] if (f := _number(got.get(k))) is not None}
+    out.update(_inclination(doc, live, probe))
     if not out:
         raise InputError(f"--aiding-from {path}: the result learned none of the GNSS delay, "
-                         "the GNSS velocity window and the baro noise")
+                         "the GNSS velocity window, the baro noise and the field's "
+                         "inclination")
     return out, f"{what} in {Path(path).name}"
+
+
+def _inclination(doc: dict[str, Any], live: Any, probe: Any) -> dict[str, float]:
+    """{"mag_inclination": rad, "mag_site_lat", "mag_site_lon": deg} the result ``doc``
+    learned (a replay's probe; a live run's learner, else its first filter's magnetic
+    reference states), or {} (none, or no ``origin`` to say where)."""
+    inc: Any = None
+    if isinstance(live, dict):
+        inc = (live.get("inclination") or {}).get("value")
+        if inc is None:
+            rows = doc.get("attitude") if isinstance(doc.get("attitude"), dict) else {}
+            refs = [r["mag_ref"] for r in rows.values()
+                    if isinstance(r, dict) and isinstance(r.get("mag_ref"), dict)]
+            if refs and refs[0].get("inclination_deg") is not None:
+                inc = math.radians(float(refs[0]["inclination_deg"]))
+    elif isinstance(probe, dict):
+        inc = (probe.get("mag") or {}).get("inclination")
+    origin = doc.get("origin")
+    try:
+        inc, lat, lon = float(inc), float(origin["lat"]), float(origin["lon"])  # type: ignore[index]
+    except (TypeError, ValueError, KeyError):
+        return {}
+    if not (all(map(math.isfinite, (inc, lat, lon))) and abs(inc) < math.pi / 2
+            and abs(lat) <= 90 and abs(lon) <= 180):
+        return {}
+    return {"mag_inclination": inc, "mag_site_lat": lat, "mag_site_lon": lon}
+
+
+def aiding_words(key: str, value: float) -> str:
+    """One aiding value in words: "GNSS delay 0.120 s", "field inclination 64.21 deg"."""
+    name, unit = AIDING[key]
+    if unit == "rad":
+        return f"{name} {math.degrees(value):.2f} deg"
+    return f"{name} {value:.3f} {unit}"
 
 
 def aiding_hint(path: str | Path, what: str) -> str | None:
@@ -92,6 +136,6 @@ def aiding_hint(path: str | Path, what: str) -> str | None:
         got, _ = read_aiding(path)
     except InputError:
         return None
-    said = ", ".join(f"{AIDING[k][0]} {v:.3f} {AIDING[k][1]}" for k, v in got.items())
+    said = ", ".join(aiding_words(k, v) for k, v in got.items() if k in AIDING)
     return (f"a live run against this vehicle can start with what this {what} learned "
             f"({said}): uavest run --model nav --aiding-from {path}")

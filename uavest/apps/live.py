@@ -175,8 +175,8 @@ class LiveConfig:
     noise_why: str | None = None
     #: navigation: what a previous result of the vehicle learned (``--aiding-from``,
     #: :func:`~uavest.apps.aiding.read_aiding`: the GNSS delay and velocity window, the
-    #: baro noise) to start with where the options leave it open (the run still learns
-    #: its own), and where it came from
+    #: baro noise, the field's inclination and where it was learned) to start with where
+    #: the options leave it open (the run still learns its own), and where it came from
     aiding: dict = field(default_factory=dict)
     aiding_why: str | None = None
     #: navigation: the vehicle's sensor spec as taken (:meth:`SpecStart.as_dict
@@ -809,7 +809,12 @@ def nav_options(cfg: LiveConfig, declination: float | None) -> NavOptions:
     noise.update(from_file)
     mag_ref = live_mag_ref(cfg)
     noise.update(mag_ref)
+    inc, site, inc_why = a.get("mag_inclination"), None, None
+    if inc is not None:
+        site = (a["mag_site_lat"], a["mag_site_lon"])
+        inc_why = f"{kept}, learned at {site[0]:.5f}, {site[1]:.5f}"
     return NavOptions(rate_hz=cfg.rate_hz, declination=declination, gnss_delay=gnss_delay,
+                      mag_inclination=inc, mag_inclination_why=inc_why, mag_site=site,
                       gnss_delay_why=gnss_why, on_arrival=cfg.on_arrival,
                       geodesy=cfg.geodesy, noise=noise,
                       mag_noise_why=spec.why_of("mag_noise") or (
@@ -884,6 +889,9 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
            "decisions": att.decisions, "t_first": att.t_first,
            # s the navigation steps are stamped before the IMU sample ending them
            "imu_delay_s": att.stream.summary.get("imu_delay_s"),
+           # the navigation frame's origin (the first fix; deg, deg, m), as a replay's:
+           # where a field learnt here was learnt (--aiding-from)
+           **({"origin": att.stream.summary.get("origin")} if nav else {}),
            **({"gnss_delay_live": learner.as_dict()} if learner is not None else {}),
            "sink_failures": [f.as_dict() for f in failures],
            "history": _history_doc(cfg, lanes),

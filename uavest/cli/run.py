@@ -10,7 +10,7 @@ import socket
 import sys
 import threading
 
-from ..apps.aiding import aiding_hint, read_aiding
+from ..apps.aiding import MAG_SITE_KM, aiding_hint, read_aiding
 from ..apps.live import TRACKER_DIM, LiveConfig, run_live
 from ..apps.replay import mag_ref_line, resets_line
 from ..errors import InputError
@@ -85,9 +85,11 @@ def _common(p: argparse.ArgumentParser) -> None:
                    "during the run from 60 s after its first step, the model's 0 until then)")
     p.add_argument("--aiding-from", metavar="FILE",
                    help="with --model nav: start with what a previous run or replay of this "
-                   "vehicle learned (its --json result): the GNSS delay and velocity window "
-                   "and the baro noise; the run still learns its own and takes them when it "
-                   "has them, and options given here win (docs/live.md)")
+                   "vehicle learned (its --json result): the GNSS delay and velocity window, "
+                   "the baro noise, and the magnetic field's inclination if this run starts "
+                   f"within {MAG_SITE_KM:g} km of where it was learned; the run still learns "
+                   "its own and "
+                   "takes them when it has them, and options given here win (docs/live.md)")
     p.add_argument("--noise", action="append", default=[], metavar="KEY=VALUE",
                    help="override a noise parameter of the model (repeatable), e.g. --noise "
                    "mag_noise=0.01 (names and units: docs/navigation.md, docs/attitude.md); "

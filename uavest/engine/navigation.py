@@ -93,6 +93,7 @@ from .attitude import (
 )
 from .nav_aiding import AidQueues, _Aid, baro_height, carry_force, good_fix, window_force
 from .nav_align import (
+    MAG_SITE_KM,
     AlignWindow,
     add_gnss_bias,
     anchor_start,
@@ -102,6 +103,7 @@ from .nav_align import (
     heading_noise_scale,
     kept_biases,
     level,
+    site_km,
     start_inclination,
     unaided_start,
     widen_tilt,
@@ -215,7 +217,10 @@ class NavOptions:
     :data:`~uavest.engine.nav_align.WMM_INCLINATION_TOL` of the alignment window's
     accelerometer-magnetometer angle, else that angle; ``inclination_wmm`` False: always
     that angle) and
-    ``mag_inclination_why``; ``align_s`` s;
+    ``mag_inclination_why``; ``mag_site`` (lat, lon deg): where that inclination was
+    learned (``--aiding-from``; a start farther than
+    :data:`~uavest.engine.nav_align.MAG_SITE_KM` from it does not take it; None: no such
+    check); ``align_s`` s;
     ``yaw_speed`` m/s, the ground speed from which the GNSS course gives the start yaw
     without a magnetometer; ``imu_delay`` s, the lag of the IMU's samples behind the
     motion (None: :func:`imu_filter_delay` from the log's parameters); ``before_fix``:
@@ -256,6 +261,7 @@ class NavOptions:
     mag_ref_why: str | None = None
     mag_inclination: float | None = None
     mag_inclination_why: str | None = None
+    mag_site: tuple[float, float] | None = None
     inclination_wmm: bool = True
     align_s: float = 1.0
     yaw_speed: float = 3.0
@@ -994,6 +1000,21 @@ class NavStream(LateDeclination, StreamSnapshots):
         return [Start(self._stamp(r), Gaussian(x, P), self.space, reason="first fix",
                       keep_x=(0, 1, 2, 3, *kx), keep_P=(0, 1, 2, *kp))]
 
+    def _given_inclination(self, t: float) -> float | None:
+        """``opts.mag_inclination``, unless it was learned at a place (``opts.mag_site``)
+        more than :data:`~uavest.engine.nav_align.MAG_SITE_KM` from this run's origin
+        (then None, and the decision says why)."""
+        o = self.opts
+        if o.mag_inclination is None or o.mag_site is None or self.frame is None:
+            return o.mag_inclination
+        km = site_km(o.mag_site, float(self.frame.lat0), float(self.frame.lon0))
+        if km <= MAG_SITE_KM:
+            return o.mag_inclination
+        self._decide("inclination given", "not taken", t,
+                     f"{o.mag_inclination_why or 'given'}, learned {km:.0f} km from this "
+                     f"run's origin (more than {MAG_SITE_KM:g} km: another site's field)")
+        return None
+
     def _first_start(self, r: _Raw) -> None:
         """Declination and the magnetic reference, at the first start."""
         o = self.opts
@@ -1009,7 +1030,8 @@ class NavStream(LateDeclination, StreamSnapshots):
                             else ""))
         if self._mag is None:
             return
-        inc, why, alt = start_inclination(self._align.recent, self.params, o.mag_inclination,
+        inc, why, alt = start_inclination(self._align.recent, self.params,
+                                          self._given_inclination(r.t),
                                           o.mag_inclination_why, o.inclination_wmm)
         if o.mag_mode == "heading":
             self._heading_scale, hwhy = heading_noise_scale(inc, why)
