@@ -9,7 +9,12 @@ noise and start; this shows the spread (docs/live.md, "Over many flights").
     OMP_NUM_THREADS=1 python benchmarks/live_seeds.py [--seeds 0-7] [--rates 200,400]
         [--filters ekf] [--duration 32] [--settle 10] [--jobs 2] [--rows]
         [--noise KEY=VALUE ...] [--set KEY=VALUE ...] [--keep DIR]
-        [--aiding-from FILE [--aiding-keys mag_inclination,...]]
+        [--aiding-from FILE | --aiding-flight SEED] [--aiding-keys mag_inclination,...]
+
+``--aiding-flight SEED``: every flight's live job starts with what a replay (navigation
+EKF) of another flight, seed SEED, 60 s at the highest rate with the same ``--set``,
+learned, as ``uavest run --aiding-from`` would take it from that replay's JSON: a
+previous flight at the same site.
 """
 
 from __future__ import annotations
@@ -84,6 +89,20 @@ def trial(seed: int, rate: float, filters: tuple[str, ...], duration: float, set
     return {lab: scores(r) for lab, r in doc["attitude"].items() if "settled" in r}
 
 
+def previous_flight(seed: int, rate: float, sets: list[str]) -> tuple[dict, str]:
+    """What ``uavest run --aiding-from`` takes from the JSON result of a navigation replay
+    (EKF) of the simulator's 60-s flight ``seed`` at ``rate`` Hz with ``sets``."""
+    from uavest.apps.replay import ReplayConfig, replay
+    from uavest.sinks.jsonout import write_json
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / f"seed{seed}_{rate:g}hz.tlog"
+        session_tlog(path, seed, rate, 60.0, sets)
+        doc = replay(str(path), ReplayConfig(filters=("ekf",), model="nav"))
+        got, why = read_aiding(write_json(Path(tmp) / f"seed{seed}.json", doc))
+    return got, f"{why}: a replay of seed {seed}'s flight"
+
+
 def seed_list(text: str) -> list[int]:
     """``0-7`` or ``0,2,5`` (or both, comma separated)."""
     out: list[int] = []
@@ -151,6 +170,8 @@ def main() -> None:
     ap.add_argument("--aiding-from", metavar="FILE",
                     help="start every flight's live job with what this result learned, as "
                     "uavest run --aiding-from (e.g. a replay of another flight)")
+    ap.add_argument("--aiding-flight", type=int, metavar="SEED",
+                    help="as --aiding-from, from a replay of this seed's 60-s flight")
     ap.add_argument("--aiding-keys", metavar="K1,K2",
                     help="take only these of it (gnss_delay, gnss_vel_window, baro_noise, "
                     "mag_inclination)")
@@ -161,6 +182,8 @@ def main() -> None:
         noise = parse_noise(a.noise)
         load_typed("sim_default", list(a.set))
         aiding, aiding_why = read_aiding(a.aiding_from) if a.aiding_from else ({}, None)
+        if a.aiding_flight is not None:
+            aiding, aiding_why = previous_flight(a.aiding_flight, max(rates), a.set)
     except InputError as e:
         ap.error(str(e))
     if a.aiding_keys:
@@ -178,7 +201,7 @@ def main() -> None:
     print(f"live job over the simulator's flights: seeds {','.join(map(str, seeds))}, "
           f"{a.duration:g} s, "
           f"settled from {a.settle:g} s; noise {noise or 'the spec'}; sets {a.set or 'none'}"
-          + (f"; aiding {aiding} ({aiding_why})" if a.aiding_from else ""))
+          + (f"; aiding {aiding} ({aiding_why})" if aiding_why else ""))
     print("RMSE roll / pitch / yaw deg; in95 attitude / velocity / position; targets "
           f"{_f(TARGETS['rpy'])} deg, vel {TARGETS['vel']} m/s, hpos {TARGETS['hpos']} m, "
           f"in95 {TARGETS['in95']}")
