@@ -1005,11 +1005,12 @@ class NavStream(LateDeclination, StreamSnapshots):
         more than :data:`~uavest.engine.nav_align.MAG_SITE_KM` from this run's origin
         (then None, and the decision says why)."""
         o = self.opts
-        if o.mag_inclination is None or o.mag_site is None or self.frame is None:
-            return o.mag_inclination
+        inc: float | None = o.mag_inclination
+        if inc is None or o.mag_site is None or self.frame is None:
+            return inc
         km = site_km(o.mag_site, float(self.frame.lat0), float(self.frame.lon0))
         if km <= MAG_SITE_KM:
-            return o.mag_inclination
+            return inc
         self._decide("inclination given", "not taken", t,
                      f"{o.mag_inclination_why or 'given'}, learned {km:.0f} km from this "
                      f"run's origin (more than {MAG_SITE_KM:g} km: another site's field)")

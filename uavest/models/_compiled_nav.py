@@ -20,18 +20,13 @@ import math
 import numpy as np
 from numba import njit
 
+# (the attitude kernels' quaternion exponential and product; numba's cache does not see an
+# edit there: remove this module's __pycache__/*.nb[ic] after changing them)
+from uavest.geometry._compiled import _qexp, _qmul
+
 __all__ = ["mag_h_H", "mech_F", "mech_rows"]
 
 Array = np.ndarray
-
-
-@njit(cache=True)
-def _qexp(vx: float, vy: float, vz: float
-          ) -> tuple[float, float, float, float]:  # pragma: no cover - compiled
-    th = math.sqrt(vx * vx + vy * vy + vz * vz)
-    h = 0.5 * th
-    s = 0.5 - th * th / 48.0 if th < 1e-5 else math.sin(h) / th
-    return math.cos(h), s * vx, s * vy, s * vz
 
 
 @njit(cache=True)
@@ -39,10 +34,7 @@ def _qstep(qw: float, qx: float, qy: float, qz: float, wx: float, wy: float, wz:
            dt: float) -> tuple[float, float, float, float]:  # pragma: no cover - compiled
     """q * Exp(w dt), normalised (``navigation._qstep``)."""
     ew, ex, ey, ez = _qexp(wx * dt, wy * dt, wz * dt)
-    w = qw * ew - qx * ex - qy * ey - qz * ez
-    a = qw * ex + qx * ew + qy * ez - qz * ey
-    b = qw * ey - qx * ez + qy * ew + qz * ex
-    c = qw * ez + qx * ey - qy * ex + qz * ew
+    w, a, b, c = _qmul(qw, qx, qy, qz, ew, ex, ey, ez)
     n = math.sqrt(w * w + a * a + b * b + c * c)
     return w / n, a / n, b / n, c / n
 
