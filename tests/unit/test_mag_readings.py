@@ -39,3 +39,23 @@ def test_a_constant_field_at_rest_keeps_aiding(rate_hz):
         t = k / rate_hz
         q.add_mag(MagSample(t, np.array([0.2, 0.01 * int(t * 10), 0.4]), "RAW_IMU"), 0.0)
     assert len(q.queues["mag"]) == 200
+
+
+def test_the_streams_float_checks_are_numpys():
+    """finite3 (IMU and magnetometer samples) and NewReadings' equality on Python floats
+    give numpy's answers: NaN, infinities, -0.0 against 0.0, a held field."""
+    import numpy as np
+
+    from uavest.engine.nav_aiding import NewReadings, finite3
+
+    nan, inf = float("nan"), float("inf")
+    vecs = [np.array(v) for v in ([0.1, -2.0, 9.8], [nan, 0, 0], [0, inf, 0], [0, 0, -inf],
+                                   [0.0, -0.0, 0.0], [1e308, -1e308, 5e-324])]
+    for a in vecs:
+        for b in vecs:
+            assert finite3(a, b) == bool(np.isfinite(a).all() and np.isfinite(b).all())
+    for a in vecs:
+        for b in vecs:
+            r = NewReadings()
+            assert r.new(0.0, a)
+            assert r.new(0.1, b) == (not np.array_equal(a, b)), (a, b)

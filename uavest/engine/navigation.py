@@ -91,7 +91,15 @@ from .attitude import (
     failover_rate,
     step_plan,
 )
-from .nav_aiding import AidQueues, _Aid, baro_height, carry_force, good_fix, window_force
+from .nav_aiding import (
+    AidQueues,
+    _Aid,
+    baro_height,
+    carry_force,
+    finite3,
+    good_fix,
+    window_force,
+)
 from .nav_align import (
     MAG_SITE_KM,
     AlignWindow,
@@ -694,7 +702,7 @@ class NavStream(LateDeclination, StreamSnapshots):
         if isinstance(s, ImuSample):
             if s.source != self._imu:
                 return self._failover(s) if self.opts.imu is None else []
-            if not (np.isfinite(s.gyro).all() and np.isfinite(s.accel).all()):
+            if not finite3(s.gyro, s.accel):
                 self._aids.count("imu", "nan")
                 return []
             self._imu_n[0] += 1
@@ -743,7 +751,7 @@ class NavStream(LateDeclination, StreamSnapshots):
         the next good fix (biases not kept: they belong to the other sensor)."""
         b = self._builder
         assert b is not None
-        if not np.isfinite(s.gyro).all() or not np.isfinite(s.accel).all():
+        if not finite3(s.gyro, s.accel):
             return []
         last = b.t_last if b.t_last is not None else s.t
         rate = failover_rate(self._other_imu, s, last, b.gap_s)
