@@ -36,11 +36,13 @@ from ..errors import InputError
 __all__ = ["AIDING", "AIDING_KEYS", "MAG_SITE_KM", "aiding_hint", "aiding_words", "read_aiding"]
 
 #: What a result may give, with the words and unit it is said in: the GNSS delay (s), the
-#: GNSS velocity's window (s), the baro's noise (m).
+#: GNSS velocity's window (s), the baro's noise (m), the field's inclination (rad; read
+#: with where it was learned, ``mag_site_lat`` / ``mag_site_lon`` deg).
 AIDING = {"gnss_delay": ("GNSS delay", "s"), "gnss_vel_window": ("velocity window", "s"),
           "baro_noise": ("baro noise", "m"), "mag_inclination": ("field inclination", "rad")}
 AIDING_KEYS = tuple(AIDING)
-
+#: the timings and noise: non-negative numbers, read alike from either kind of result
+_TIMING_KEYS = ("gnss_delay", "gnss_vel_window", "baro_noise")
 
 
 def _model(doc: dict[str, Any]) -> Any:
@@ -85,7 +87,7 @@ def read_aiding(path: str | Path) -> tuple[dict[str, float], str]:
                "baro_noise": baro.get("noise_used")}
     else:
         what = ""
-    out = {k: f for k in AIDING_KEYS[:3] if (f := _number(got.get(k))) is not None}
+    out = {k: f for k in _TIMING_KEYS if (f := _number(got.get(k))) is not None}
     out.update(_inclination(doc, live, probe))
     if not out:
         raise InputError(f"--aiding-from {path}: the result learned none of the GNSS delay, "
@@ -110,8 +112,10 @@ def _inclination(doc: dict[str, Any], live: Any, probe: Any) -> dict[str, float]
     elif isinstance(probe, dict):
         inc = (probe.get("mag") or {}).get("inclination")
     origin = doc.get("origin")
+    if not isinstance(origin, dict):
+        return {}
     try:
-        inc, lat, lon = float(inc), float(origin["lat"]), float(origin["lon"])  # type: ignore[index]
+        inc, lat, lon = float(inc), float(origin["lat"]), float(origin["lon"])
     except (TypeError, ValueError, KeyError):
         return {}
     if not (all(map(math.isfinite, (inc, lat, lon))) and abs(inc) < math.pi / 2
