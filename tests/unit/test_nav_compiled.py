@@ -145,3 +145,26 @@ def test_an_ekf_run_through_the_kernels_equals_the_numpy_run(nb, monkeypatch):
     assert np.all(np.isfinite(X1))
     np.testing.assert_allclose(X1, X0, rtol=0, atol=1e-9)
     np.testing.assert_allclose(P1, P0, rtol=0, atol=1e-12)
+
+
+def test_a_zero_quaternion_gives_nan_as_numpy_does_not_an_exception(nb):
+    """A diverged state's zero quaternion: the kernels divide by its norm, and give NaN as
+    the numpy forms do (error_model="numpy"), for the filter guard to count and recover,
+    not a ZeroDivisionError no caller catches (the attitude kernels' retract too)."""
+    from uavest.geometry import rotation
+
+    tr = ImuTransition(NavNoise())
+    x = np.zeros(tr.space.size)
+    u = np.array([0.1, 0.0, 0.0, 0.0, 0.0, -9.8])
+    with np.errstate(all="ignore"):
+        want_f, want_F = tr._np_f(x, 0.0, 0.04, u), tr._np_F(x, 0.0, 0.04, u)
+        want_r = rotation._np_retract_rows(np.zeros(7), np.zeros((1, 6)))
+    got_f, got_F = tr.f(x, 0.0, 0.04, u), tr.F(x, 0.0, 0.04, u)
+    np.testing.assert_array_equal(np.isnan(got_f), np.isnan(want_f))
+    np.testing.assert_array_equal(np.isnan(got_F), np.isnan(want_F))
+    assert np.isnan(got_f[:4]).all()
+    m = OnNav(MagHeading(np.array([0.2, 0.0, 0.4]), np.eye(1)), 0.01, np.ones(3))
+    h, H = m.h_H(x)
+    assert h.shape == (1,) and H.shape == (1, tr.space.dim)
+    got_r = rotation.retract_rows(np.zeros(7), np.zeros((1, 6)))
+    np.testing.assert_array_equal(np.isnan(got_r), np.isnan(want_r))

@@ -10,6 +10,8 @@ both side by side; docs/speed.md). Equal to the numpy kernels to 1e-12
 nothing; each kernel compiles at its first call (cached on disk by numba).
 
 All arrays are float64; ``x`` is always 2-D here, (1, 7) for one state or (M, 7).
+``error_model="numpy"``: a division by zero (a zero quaternion) gives inf / NaN, as the
+numpy kernels do, for the filter guard to see, not a ZeroDivisionError.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ __all__ = ["gyro_propagate", "local_rows", "mean", "retract_rows", "rotate_inv_r
 Array = np.ndarray
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _qexp(vx: float, vy: float, vz: float
           ) -> tuple[float, float, float, float]:  # pragma: no cover - compiled
     th = math.sqrt(vx * vx + vy * vy + vz * vz)
@@ -33,14 +35,14 @@ def _qexp(vx: float, vy: float, vz: float
     return math.cos(h), s * vx, s * vy, s * vz
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _qmul(aw: float, ax: float, ay: float, az: float, bw: float, bx: float, by: float,
           bz: float) -> tuple[float, float, float, float]:  # pragma: no cover - compiled
     return (aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
             aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def retract_rows(x: Array, dx: Array) -> Array:  # pragma: no cover - compiled
     """q_i * Exp(dx_i[:3]) normalised, b_i + dx_i[3:]; ``x`` (1, 7) or (M, 7)."""
     M = dx.shape[0]
@@ -60,7 +62,7 @@ def retract_rows(x: Array, dx: Array) -> Array:  # pragma: no cover - compiled
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def local_rows(x: Array, y: Array) -> Array:  # pragma: no cover - compiled
     """Log(q_x^-1 q_y) the short way, b_y - b_x; ``x`` (1, 7) or (M, 7)."""
     M = y.shape[0]
@@ -83,7 +85,7 @@ def local_rows(x: Array, y: Array) -> Array:  # pragma: no cover - compiled
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def gyro_propagate(X: Array, u: Array, dt: float) -> Array:  # pragma: no cover - compiled
     """q_i <- q_i * Exp((u - b_i) dt) normalised, b_i <- b_i."""
     M = X.shape[0]
@@ -103,7 +105,7 @@ def gyro_propagate(X: Array, u: Array, dt: float) -> Array:  # pragma: no cover 
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def mean(X: Array, w: Array, ref: Array) -> Array:  # pragma: no cover - compiled
     """Sign-aligned chordal mean, then one Gauss-Newton (Karcher) step
     (``AttitudeSpace.mean``)."""
@@ -131,7 +133,7 @@ def mean(X: Array, w: Array, ref: Array) -> Array:  # pragma: no cover - compile
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rotate_inv_rows(Q: Array, v: Array) -> Array:  # pragma: no cover - compiled
     """R(q_i)^T v for every row q_i of ``Q`` (M, 4) (NED -> body FRD), ``v`` (3,): the
     transposed :func:`~uavest.geometry.rotation.quat_to_dcm` applied, summed j = 0..2."""

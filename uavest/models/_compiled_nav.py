@@ -10,7 +10,9 @@ forms to 1e-12 (the registry's self-check and ``tests/unit/test_nav_kernels.py``
 
 State rows: ``[q (4), v NED (3), p NED (3), b_g (3), b_a (3), GNSS bias (extra), magnetic
 reference errors (the rest)]``; ``u`` = (gyro rad/s, specific force m/s^2), body FRD.
-Importing this module imports numba and compiles nothing.
+Importing this module imports numba and compiles nothing. ``error_model="numpy"``: a
+division by zero (a zero quaternion of a diverged state) gives inf / NaN, as numpy does,
+for the filter guard to see, not a ZeroDivisionError.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ __all__ = ["mag_h_H", "mech_F", "mech_rows"]
 Array = np.ndarray
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _qstep(qw: float, qx: float, qy: float, qz: float, wx: float, wy: float, wz: float,
            dt: float) -> tuple[float, float, float, float]:  # pragma: no cover - compiled
     """q * Exp(w dt), normalised (``navigation._qstep``)."""
@@ -39,7 +41,7 @@ def _qstep(qw: float, qx: float, qy: float, qz: float, wx: float, wy: float, wz:
     return w / n, a / n, b / n, c / n
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _dcm(qw: float, qx: float, qy: float, qz: float, R: Array) -> None:  # pragma: no cover
     """R(q) (body FRD -> NED) into ``R`` (3, 3) (``quat_to_dcm``)."""
     R[0, 0] = 1 - 2 * (qy * qy + qz * qz)
@@ -53,7 +55,7 @@ def _dcm(qw: float, qx: float, qy: float, qz: float, R: Array) -> None:  # pragm
     R[2, 2] = 1 - 2 * (qx * qx + qy * qy)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _rates(x: Array, u: Array, w_ie: Array, earth: bool, R: Array, w: Array, fb: Array
            ) -> None:  # pragma: no cover - compiled
     """The bias-corrected gyro rate ``w`` (less the Earth's rate in body axes when
@@ -67,7 +69,7 @@ def _rates(x: Array, u: Array, w_ie: Array, earth: bool, R: Array, w: Array, fb:
             w[j] -= R[0, j] * w_ie[0] + R[1, j] * w_ie[1] + R[2, j] * w_ie[2]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def mech_rows(X: Array, u: Array, dt: float, g: float, w_ie: Array, earth: bool,
               phi: float, extra: int) -> Array:  # pragma: no cover - compiled
     """The mechanisation of every row of ``X`` (M, n) over ``dt`` s: attitude q Exp((w -
@@ -101,7 +103,7 @@ def mech_rows(X: Array, u: Array, dt: float, g: float, w_ie: Array, earth: bool,
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _jr(px: float, py: float, pz: float, J: Array) -> None:  # pragma: no cover - compiled
     """The SO(3) right Jacobian at ``phi`` into ``J`` (3, 3) (``right_jacobian``)."""
     th2 = px * px + py * py + pz * pz
@@ -122,7 +124,7 @@ def _jr(px: float, py: float, pz: float, J: Array) -> None:  # pragma: no cover 
     J[2, 1] = -a * px + c * py * pz
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def mech_F(x: Array, u: Array, dt: float, w_ie: Array, earth: bool, phi: float,
            extra: int, dim: int) -> Array:  # pragma: no cover - compiled
     """The tangent Jacobian (dim, dim) of :func:`mech_rows` at the state ``x`` (n,), for
@@ -182,7 +184,7 @@ def mech_F(x: Array, u: Array, dt: float, w_ie: Array, earth: bool, phi: float,
     return F
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def mag_h_H(x: Array, vec: Array, w: Array, back: float, heading: bool
             ) -> tuple[Array, Array]:  # pragma: no cover - compiled
     """(h, H) of a magnetometer sample on the navigation state ``x`` (n,), the attitude
