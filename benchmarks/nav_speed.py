@@ -1,7 +1,8 @@
 """Speed of the navigation model in replay: us per step of each filter (without the
 warm-up steps) and the real-time factor of a replay with that filter alone (log duration
 / wall time, reading the log included), on a 200 Hz log at the default filter rate, and
-the hybrid's step against the UKF's.
+the hybrid's step against the UKF's, and a speed index of the machine (a Python loop
+and small numpy calls) to compare runs made on different days.
 
 The log: ``logs/sim_200hz.tlog`` (the project's simulator, RAW_IMU at 200 Hz, GPS_RAW_INT
 at 5 Hz; see logs/README.md). Each filter is replayed twice in this process and the
@@ -25,6 +26,36 @@ from uavest.apps.replay import ReplayConfig, replay  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def machine_index() -> str:
+    """The machine's speed at this benchmark's kind of work, to compare runs made on
+    different days (the shared machines' speed moves 2-3x): the best of 5 of a Python loop
+    of 10^6 additions and of 10^4 numpy calls on 3-vectors, ms."""
+    import time
+
+    import numpy as np
+
+    def best(f) -> float:
+        out = []
+        for _ in range(5):
+            t = time.perf_counter()
+            f()
+            out.append(time.perf_counter() - t)
+        return 1e3 * min(out)
+
+    def loop() -> None:
+        s = 0
+        for i in range(10**6):
+            s += i
+
+    def calls() -> None:
+        v = np.ones(3)
+        for _ in range(10**4):
+            np.isfinite(v).all()
+
+    return (f"machine: 10^6 Python additions {best(loop):.0f} ms, 10^4 numpy calls "
+            f"{best(calls):.1f} ms")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--log", default=str(ROOT / "logs" / "sim_200hz.tlog"))
@@ -33,7 +64,7 @@ def main() -> None:
     ap.add_argument("--filters", default="ekf,ukf,hybrid")
     ap.add_argument("--model", default="nav", choices=("nav", "attitude"))
     a = ap.parse_args()
-    print(f"load average before: {os.getloadavg()[0]:.2f}")
+    print(f"load average before: {os.getloadavg()[0]:.2f}; {machine_index()}")
     rows = {}
     for f in a.filters.split(","):
         for _ in range(2):
