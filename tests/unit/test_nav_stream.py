@@ -550,12 +550,13 @@ def test_a_given_inclination_is_taken_only_near_where_it_was_learned(site_km, ta
     start takes it within MAG_SITE_KM of where it was learned; from farther (another
     site's field) it takes its own (the accelerometer-magnetometer angle) and says why."""
     from uavest.engine.nav_align import MAG_SITE_KM
-    from uavest.engine.nav_align import site_km as km_between
+    from uavest.geometry.geodesy import geodetic_to_ned
 
     samples, _, _ = flight(1, T=12.0)
     given = np.deg2rad(61.5)  # the flight's field is at 63 deg
     site = (ORIGIN[0] + site_km / 111.2, ORIGIN[1])
-    assert abs(km_between(site, *np.deg2rad(ORIGIN[:2])) - site_km) < 0.5
+    ne = geodetic_to_ned(np.array([*site, ORIGIN[2]]), np.array(ORIGIN))[:2]
+    assert abs(np.hypot(*ne) / 1e3 - site_km) < 0.5
     opts = NavOptions(integration="hold", mag_inclination=given, mag_site=site,
                       mag_inclination_why="from --aiding-from: x.json")
     stream, runners, coll = run_nav(samples, opts=opts)

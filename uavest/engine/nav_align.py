@@ -6,7 +6,6 @@ the stream keeps the state (the window, the waiting) and records the decisions."
 
 from __future__ import annotations
 
-import math
 from collections import deque
 from collections.abc import Iterable
 from typing import Any
@@ -148,15 +147,6 @@ def fix_prior(fix: _Aid, dt: float, noise: NavNoise) -> tuple[Array, Array, list
 #: km: an inclination learned farther than this from a run's start is not taken at it
 #: (``--aiding-from``; the field's inclination changes by up to about 1 deg per 100 km)
 MAG_SITE_KM = 30.0
-
-
-def site_km(a: tuple[float, float], lat0: float, lon0: float) -> float:
-    """Great-circle distance (km, a sphere of 6371 km) between the place ``a`` (lat, lon
-    deg) and (``lat0``, ``lon0``) rad."""
-    la, lo = math.radians(a[0]), math.radians(a[1])
-    h = (math.sin(0.5 * (la - lat0)) ** 2
-         + math.cos(la) * math.cos(lat0) * math.sin(0.5 * (lo - lon0)) ** 2)
-    return 2.0 * 6371.0 * math.asin(min(1.0, math.sqrt(h)))
 
 
 def start_inclination(recent: Iterable[_Raw], params: dict[str, Any],

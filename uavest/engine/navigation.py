@@ -43,6 +43,7 @@ at the next good fix, keeping the filters' biases.
 from __future__ import annotations
 
 import copy
+import math
 from collections import deque
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, fields, replace
@@ -111,7 +112,6 @@ from .nav_align import (
     heading_noise_scale,
     kept_biases,
     level,
-    site_km,
     start_inclination,
     unaided_start,
     widen_tilt,
@@ -1016,7 +1016,10 @@ class NavStream(LateDeclination, StreamSnapshots):
         inc: float | None = o.mag_inclination
         if inc is None or o.mag_site is None or self.frame is None:
             return inc
-        km = site_km(o.mag_site, float(self.frame.lat0), float(self.frame.lon0))
+        # the place in this run's own frame (tangent plane or ArduPilot's sphere)
+        n, e, _ = self.frame.geodetic_to_ned(np.array(o.mag_site[0]), np.array(o.mag_site[1]),
+                                             np.array(self.frame.h0))
+        km = math.hypot(float(n), float(e)) / 1e3
         if km <= MAG_SITE_KM:
             return inc
         self._decide("inclination given", "not taken", t,
