@@ -69,19 +69,18 @@ def normalize_quat(q) -> np.ndarray:
 _F64 = np.dtype(np.float64)
 
 
-def _vec3(v: object) -> tuple[float, float, float] | None:
-    """The components of a float64 array (3,) as Python floats, else None (other types
+def _floats(v: object, n: int) -> tuple[float, ...] | None:
+    """The components of a float64 array (n,) as Python floats, else None (other types
     take the reference: a float32 norm rounds at the limits as float32)."""
-    if type(v) is np.ndarray and v.shape == (3,) and v.dtype == _F64:
-        x, y, z = v.tolist()
-        return x, y, z
+    if type(v) is np.ndarray and v.shape == (n,) and v.dtype == _F64:
+        return tuple(v.tolist())
     return None
 
 
-def _check_vectors(cat: str, vs: list[tuple[float, float, float]]) -> str | None:
-    """:func:`check` of an IMU or magnetometer item from its vectors' components ``vs``
-    (:func:`_vec3`), on Python floats (numpy's reductions on 3-vectors were a third of the
-    check, the check a quarter of decoding a log). The same kinds in the same order as
+def _check_vectors(cat: str, vs: list[tuple[float, ...]]) -> str | None:
+    """:func:`check` of an IMU or magnetometer item from its 3-vectors' components ``vs``
+    (:func:`_floats`), on Python floats (numpy's reductions on 3-vectors were a third of
+    the check, the check a quarter of decoding a log). The same kinds in the same order as
     :func:`check_any`: ``nan``, ``empty``, ``out_of_range``."""
     if not all(math.isfinite(c) for v in vs for c in v):
         return "nan"
@@ -93,29 +92,27 @@ def _check_vectors(cat: str, vs: list[tuple[float, float, float]]) -> str | None
     return None
 
 
-def _is_quat64(q: object) -> bool:
-    return type(q) is np.ndarray and q.shape == (4,) and q.dtype == _F64
-
-
-def _check_quat(q: np.ndarray) -> str | None:
-    """:func:`check` of an attitude reference's float64 quaternion (4,) on Python floats
-    (the same kinds as :func:`check_any`)."""
-    w, x, y, z = q.tolist()
-    if not (math.isfinite(w) and math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+def _check_quat(q: tuple[float, ...]) -> str | None:
+    """:func:`check` of an attitude reference's quaternion from its components ``q``
+    (:func:`_floats`), on Python floats (the same kinds as :func:`check_any`)."""
+    if not all(math.isfinite(c) for c in q):
         return "nan"
-    if abs(math.sqrt(w * w + x * x + y * y + z * z) - 1.0) > QUAT_NORM_TOL:
+    if abs(math.sqrt(sum(c * c for c in q)) - 1.0) > QUAT_NORM_TOL:
         return "out_of_range"
     return None
 
 
 def check(raw: Raw) -> str | None:
-    """Return the bad-data kind for a converted item, or None if it is plausible."""
+    """Return the bad-data kind for a converted item, or None if it is plausible. Float64
+    vectors take the float checks, everything else the numpy reference, :func:`check_any`."""
     if raw.cat == "imu" or raw.cat == "mag":
-        vs = [_vec3(v) for v in raw.values]
-        if None not in vs:  # (float64 3-vectors only: the rest take the reference)
-            return _check_vectors(raw.cat, vs)  # type: ignore[arg-type]
-    elif raw.cat == "ref" and len(raw.values) == 1 and _is_quat64(raw.values[0]):
-        return _check_quat(raw.values[0])
+        vs = [f for v in raw.values if (f := _floats(v, 3)) is not None]
+        if len(vs) == len(raw.values):
+            return _check_vectors(raw.cat, vs)
+    elif raw.cat == "ref" and len(raw.values) == 1:
+        q = _floats(raw.values[0], 4)
+        if q is not None:
+            return _check_quat(q)
     return check_any(raw)
 
 
