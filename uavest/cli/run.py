@@ -88,8 +88,8 @@ def _common(p: argparse.ArgumentParser) -> None:
                    "vehicle learned (its --json result): the GNSS delay and velocity window, "
                    "the baro noise, and the magnetic field's inclination if this run starts "
                    f"within {MAG_SITE_KM:g} km of where it was learned; the run still learns "
-                   "its own and "
-                   "takes them when it has them, and options given here win (docs/live.md)")
+                   "its own and takes them when it has them, and options given here win "
+                   "(docs/live.md)")
     p.add_argument("--noise", action="append", default=[], metavar="KEY=VALUE",
                    help="override a noise parameter of the model (repeatable), e.g. --noise "
                    "mag_noise=0.01 (names and units: docs/navigation.md, docs/attitude.md); "

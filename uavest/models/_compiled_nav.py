@@ -6,7 +6,7 @@ tangent Jacobian of one state), as loops over rows and 3x3 blocks on floats: num
 per-call floor made the EKF's F and f some 350 us of a 25 Hz step (about 40 numpy calls
 each on 3-vectors and 3x3 blocks), where the arithmetic is a few hundred flops.
 ``benchmarks/nav_speed.py`` measures the replay; docs/navigation.md. Equal to the numpy
-forms to 1e-12 (the registry's self-check and ``tests/unit/test_nav_kernels.py``).
+forms to 1e-12 (the registry's self-check and ``tests/unit/test_nav_compiled.py``).
 
 State rows: ``[q (4), v NED (3), p NED (3), b_g (3), b_a (3), GNSS bias (extra), magnetic
 reference errors (the rest)]``; ``u`` = (gyro rad/s, specific force m/s^2), body FRD.
