@@ -18,7 +18,7 @@ import numpy as np
 
 from ..link.framing import param_name
 from .convert import Raw, check, convert_dataflash, convert_mavlink, stat_key
-from .skip import TLOG_DECODED, DataflashSkipper, Skipped, TlogFramer, _map
+from .skip import TLOG_DECODED, DataflashSkipper, FrameDecoder, Skipped, TlogFramer, _map
 from .timebase import UNIX_US_MIN, RxFilter, StreamGate, VehicleClock, retime_unix
 from .types import (
     AdsbSample,
@@ -424,6 +424,7 @@ class MavlinkSource:
             if mm is None:
                 return
             fr = TlogFramer(mm, mod)
+            decode_frame = FrameDecoder(mod, mav)
             names = {mid: cls.msgname for mid, cls in mod.mavlink_map.items()}
             decode = set(names) if self._decode_all else {
                 mid for mid, nm in names.items() if nm in TLOG_DECODED}
@@ -451,7 +452,7 @@ class MavlinkSource:
                     yield Skipped(names[mid], sysid, rx), rx
                     continue
                 try:
-                    msg = mav.decode(bytearray(mm[frame + 8:end]))
+                    msg = decode_frame(mm, frame + 8, end, mid)
                 except Exception:  # noqa: BLE001 - the framer checked it; never crash
                     st.bad("corrupt")
                     self._count_skipped({"bad_frame": 1})
