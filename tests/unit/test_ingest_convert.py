@@ -280,3 +280,28 @@ def test_milli_imu_on_floats_gives_numpys_products():
     msg = ml.MAVLink_scaled_imu2_message(5, 1, 2, 3, 4, 5, 6, 0, 0, 0)
     msg.ymag = float("nan")
     assert check(_by_cat(convert_mavlink(msg))["mag"]) == "nan"
+
+
+def test_quaternion_references_on_floats_are_normalize_quat_bitwise():
+    """Attitude references from a quaternion (SIMSTATE's SIM_STATE, HIL_STATE_QUATERNION,
+    ATTITUDE_QUATERNION) are normalised on Python floats: bitwise
+    :func:`normalize_quat`'s numbers for unit-ish quaternions of either sign, and left as
+    they came (for the check to count) when not finite or too far from unit norm."""
+    from uavest.ingest.convert import QUAT_NORM_TOL, _ref_from_quat, check_any, normalize_quat
+
+    g = np.random.default_rng(8)
+    for k in range(2000):
+        q = g.normal(size=4)
+        q /= np.linalg.norm(q)
+        q *= 1.0 + g.uniform(-0.5, 0.5) * QUAT_NORM_TOL
+        if k % 2:
+            q[0] = -abs(q[0])
+        got = _ref_from_quat("SIM_STATE", "truth", *q).values[0]
+        assert np.array_equal(got, normalize_quat(q)), q
+        assert got[0] >= 0.0
+    nan = float("nan")
+    for q in ([nan, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0, 0.0], [-2.0, 0.0, 0.0, 0.0],
+              [0.5, 0.5, 0.5, float("-inf")]):
+        r = _ref_from_quat("SIM_STATE", "truth", *q)
+        assert np.array_equal(r.values[0], np.array(q), equal_nan=True)
+        assert check(r) == check_any(r) in ("nan", "out_of_range")
