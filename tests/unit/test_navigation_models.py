@@ -494,3 +494,33 @@ def test_mag_ref_states_learn_a_field_off_the_model(spec):
     # (this turn holds the yaw to about 1.3 deg): within 2 std of its own
     assert abs(est[0] - d_inc) < np.deg2rad(0.25) and sd[0] < np.deg2rad(0.25), res
     assert abs(est[1] - d_dec) < 2 * sd[1], res
+
+
+@pytest.mark.parametrize("extra,mag", [(0, 0), (3, 0), (3, 2)])
+def test_one_state_retract_on_floats_is_the_rows_retract(extra, mag):
+    """The EKF's retract of one state (Python floats) against the rows' (numpy): the same
+    point to rounding on random states and steps of every size, and numpy's NaN (never an
+    exception) for a zero quaternion, an infinite or a NaN rotation."""
+    from uavest.geometry.navigation import nav_retract_one, nav_retract_rows
+
+    sp = NavSpace(extra, mag)
+    g = np.random.default_rng(extra + mag)
+    for _ in range(300):
+        x = g.normal(size=sp.size)
+        x[:4] /= np.linalg.norm(x[:4])
+        dx = g.normal(size=sp.dim) * 10.0 ** g.uniform(-9, 0.5)
+        got = nav_retract_one(x, dx)
+        assert np.array_equal(sp.retract(x, dx), got)  # (the space's path for one state)
+        np.testing.assert_allclose(got, nav_retract_rows(x, dx[None, :])[0], rtol=0,
+                                   atol=4e-16 * (1.0 + np.abs(x) + np.abs(dx[0])).max())
+        assert abs(np.linalg.norm(got[:4]) - 1.0) < 1e-15
+    x = np.r_[0.6, 0.0, 0.8, 0.0, np.arange(sp.size - 4.0)]
+    for bad_x, bad_dx in ((True, None), (False, np.inf), (False, np.nan)):
+        xx, dx = x.copy(), np.full(sp.dim, 0.1)
+        if bad_x:
+            xx[:4] = 0.0
+        else:
+            dx[1] = bad_dx
+        with np.errstate(all="ignore"):
+            got, want = nav_retract_one(xx, dx), nav_retract_rows(xx, dx[None, :])[0]
+        assert np.isnan(got[:4]).all() and np.array_equal(got, want, equal_nan=True)

@@ -30,6 +30,8 @@ size 21 and ``dx`` dim 20. Every appended component is Euclidean.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from uavest.geometry.rotation import (
@@ -40,6 +42,8 @@ from uavest.geometry.rotation import (
     _log_rows_into,
     _normalise_into,
     _qmul_rows,
+    qexp_f,
+    qmul_f,
     quat_conj,
     quat_exp,
     quat_log,
@@ -69,6 +73,26 @@ def nav_retract_rows(x: Array, dx: Array) -> Array:
     out = np.empty((M, dx.shape[1] + 1))
     _normalise_into(qe, out[:, :4])
     np.add(x[..., 4:], dx[:, 3:], out=out[:, 4:])
+    return out
+
+
+def nav_retract_one(x: Array, dx: Array) -> Array:
+    """:meth:`NavSpace.retract` of one state ``x`` (16,) by one tangent ``dx`` (15,) (or
+    the same with extra components): the rotation on Python floats (``qexp_f``,
+    ``qmul_f``), the formula of :func:`nav_retract_rows` without numpy's per-call cost
+    (the EKF retracts once per update). A rotation that is not finite takes the rows
+    (numpy's NaN, where ``math.sin`` would raise); a zero quaternion normalises to NaN as
+    numpy's division does."""
+    th = dx[:3].tolist()
+    if not (math.isfinite(th[0]) and math.isfinite(th[1]) and math.isfinite(th[2])):
+        res: Array = nav_retract_rows(x, dx[None, :])[0]
+        return res
+    q = qmul_f(x[:4].tolist(), qexp_f(th))
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    k = 1.0 / n if n > 0.0 else math.nan
+    out = np.empty(dx.shape[0] + 1)
+    out[:4] = (q[0] * k, q[1] * k, q[2] * k, q[3] * k)
+    np.add(x[4:], dx[3:], out=out[4:])
     return out
 
 
@@ -116,8 +140,7 @@ class NavSpace:
         if dx.ndim == 2 and x.ndim <= 2 and (x.ndim == 1 or x.shape[0] == dx.shape[0]):
             return nav_retract_rows(x, dx)
         if dx.ndim == 1 and x.ndim == 1:
-            res: Array = nav_retract_rows(x, dx[None, :])[0]
-            return res
+            return nav_retract_one(x, dx)
         return self._retract_broadcast(x, dx)
 
     def local(self, x: Array, y: Array) -> Array:
