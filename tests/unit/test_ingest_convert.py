@@ -209,7 +209,8 @@ def test_the_fast_check_of_imu_and_mag_items_is_the_numpy_check():
 
     nan, inf = float("nan"), float("inf")
     vecs = [[0.0, 0.0, 0.0], [0.1, -0.2, 9.8], [nan, 0, 0], [0, inf, 0], [0, 0, -inf],
-            [1e200, 0, 0], [1e-320, 0, 0], [MAX_GYRO, 0, 0], [0, -MAX_GYRO * 1.0001, 0],
+            [1e200, 0, 0], [1e-320, 0, 0], [1.5e308, 1.5e308, 0], [-0.0, 0.0, -0.0],
+            [1e308, nan, 0], [MAX_GYRO, 0, 0], [0, -MAX_GYRO * 1.0001, 0],
             [MAX_ACCEL * 0.6, MAX_ACCEL * 0.8, 0.0], [MAX_ACCEL, 1.0, 0.0],
             [MAX_MAG * 0.6, 0.0, MAX_MAG * 0.8], [0.0, MAX_MAG + 1e-9, 0.0]]
     seen = set()

@@ -81,15 +81,17 @@ def _check_vectors(cat: str, vs: list[tuple[float, ...]]) -> str | None:
     """:func:`check` of an IMU or magnetometer item from its 3-vectors' components ``vs``
     (:func:`_floats`), on Python floats (numpy's reductions on 3-vectors were a third of
     the check, the check a quarter of decoding a log). The same kinds in the same order as
-    :func:`check_any`: ``nan``, ``empty``, ``out_of_range``."""
-    if not all(math.isfinite(c) for v in vs for c in v):
-        return "nan"
-    if not any(c != 0.0 for v in vs for c in v):
-        return "empty"
-    lim = (MAX_GYRO, MAX_ACCEL) if cat == "imu" else (MAX_MAG,)
-    if any(math.hypot(*v) > m for v, m in zip(vs, lim, strict=True)):
-        return "out_of_range"
-    return None
+    :func:`check_any`: ``nan``, ``empty``, ``out_of_range``. (The norms first: all finite
+    means every component is (a NaN or infinite one makes its norm NaN or infinite), and a
+    norm is 0 exactly when every component is; a norm that overflowed is out of range.)"""
+    hs = [math.hypot(*v) for v in vs]
+    if all(math.isfinite(h) for h in hs):
+        if not any(hs):
+            return "empty"
+        lim = (MAX_GYRO, MAX_ACCEL) if cat == "imu" else (MAX_MAG,)
+        return "out_of_range" if any(h > m for h, m in zip(hs, lim, strict=True)) else None
+    # a NaN or infinite component, or finite components whose norm overflowed
+    return "out_of_range" if all(math.isfinite(c) for v in vs for c in v) else "nan"
 
 
 def _check_quat(q: tuple[float, ...]) -> str | None:
