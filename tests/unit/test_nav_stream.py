@@ -569,3 +569,31 @@ def test_a_given_inclination_is_taken_only_near_where_it_was_learned(site_km, ta
         assert said and said[0]["value"] == "not taken", said
         assert f"more than {MAG_SITE_KM:g} km" in said[0]["why"], said
     assert len(coll.arrays(runners[0].label)["t"]) > 100
+
+
+@pytest.mark.parametrize("factor", [1, 3, 8])
+def test_step_specific_force_is_the_time_weighted_trapezoid_mean(factor):
+    """The navigation step builder's specific force (snapshot IMU, ``trapezoid``): the
+    time-weighted mean of the force linear between samples, from the edge's sample on,
+    over irregular sample times (the numpy formula it replaced, to rounding); the plain
+    block mean on an integrated IMU."""
+    g = np.random.default_rng(factor)
+    for integ in ("trapezoid", "hold"):
+        nb = navigation._NavBuilder(integ, factor, close_now=True)
+        t, seen = 0.0, 0
+        for _ in range(40 * factor):
+            t += g.uniform(0.002, 0.008)
+            s = ImuSample(t, g.normal(size=3), g.normal(0.0, 3.0, 3), "RAW_IMU")
+            edge = (nb.t_edge, nb.a_edge)
+            block = list(nb.block) + [s]
+            for r in nb.push_nav(s):
+                if integ == "trapezoid" and edge[1] is not None:
+                    ts = np.array([edge[0]] + [b.t for b in block])
+                    acc = np.array([edge[1]] + [b.accel for b in block])
+                    dt = np.diff(ts)
+                    want = (0.5 * (acc[1:] + acc[:-1]) * dt[:, None]).sum(0) / dt.sum()
+                else:
+                    want = np.mean([b.accel for b in block], axis=0)
+                np.testing.assert_allclose(r.a, want, rtol=1e-13, atol=1e-14)
+                seen += 1
+        assert seen >= 38  # (the first step has no edge sample yet)

@@ -325,6 +325,16 @@ class _StepBuilder:
             w = b[0].gyro
         else:
             w = np.array(_preintegrate(t0, b)) / max(t1 - t0, 1e-12)
+        a = self._accel_mean(b)
+        self.t_edge, self.g_edge = t1, b[-1].gyro
+        self.block = []
+        return _Raw(t1, t0, w, a, len(b))
+
+    def _accel_mean(self, b: list[ImuSample]) -> Array | None:
+        """The specific force (m/s^2, body FRD) of the step closing with the block ``b``
+        (before the edge moves to its end): the block's mean, or None on a
+        prediction-only step."""
+        a: Array | None
         if self.every > 1:  # updates once per reference step: its mean specific force
             self.acc_upd.extend(s.accel for s in b)
             self.since += 1
@@ -337,9 +347,7 @@ class _StepBuilder:
             a = np.sum(list(self.acc_hist), axis=0) / len(self.acc_hist)
         else:
             a = np.sum([s.accel for s in b], axis=0) / len(b)
-        self.t_edge, self.g_edge = t1, b[-1].gyro
-        self.block = []
-        return _Raw(t1, t0, w, a, len(b))
+        return a
 
 
 def _preintegrate(t0: float, block: list[ImuSample], g0: Array | None = None
