@@ -276,10 +276,17 @@ def _bad_data_lines(doc: dict) -> list[str]:
 
 
 def _speed_line(doc: dict) -> str:
-    """The replay speed: log duration over the filter loop's wall time, all filters."""
+    """The replay speed: log duration over the filter loop's wall time, all filters (the
+    compiled kernels' first load in this process said apart: numba's cache load, or its
+    compilation for this machine on the first run)."""
     rt = doc["realtime_factor"]
+    if not rt:
+        return "replay speed: -"
+    load = doc.get("kernel_load_s") or 0.0
+    tail = (f"; the compiled kernels' first load in this process, {load:.1f} s, not "
+            "counted" if load >= 0.05 else "")
     return (f"replay speed: {rt:.1f}x real time ({len(doc['guard_resets'])} filters "
-            f"together, {doc['wall_s']:.2f} s)" if rt else "replay speed: -")
+            f"together, {doc['wall_s']:.2f} s{tail})")
 
 
 def cmd_replay(args: argparse.Namespace) -> int:

@@ -33,6 +33,7 @@ import ctypes
 import importlib
 import logging
 import os
+import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from types import ModuleType
@@ -40,7 +41,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-__all__ = ["REGISTRY", "Kernels", "bitgen_pointers", "read_only", "register", "status"]
+__all__ = ["REGISTRY", "Kernels", "bitgen_pointers", "load_seconds", "read_only", "register",
+           "status"]
 
 #: (label, compiled result, numpy reference result) of one self-check comparison
 Case = tuple[str, Any, Any]
@@ -54,7 +56,9 @@ class Kernels:
     name in log lines; ``cases(module)``: the self-check's comparisons; ``rtol`` /
     ``atol``: their tolerance; ``logger``: where the one warning goes (the algorithm's
     package). ``loaded``: the module once accepted, False when refused (numpy), None
-    before the first :meth:`get`."""
+    before the first :meth:`get`; ``load_s``: how long that first :meth:`get` took (s:
+    numba's import, the cache load or compilation, the self-check; summed over the
+    decisions when a test makes it decide again)."""
 
     name: str
     module: str
@@ -64,13 +68,16 @@ class Kernels:
     atol: float
     logger: str
     loaded: ModuleType | Literal[False] | None = None
+    load_s: float = 0.0
 
     def get(self) -> ModuleType | None:
         """The kernel module if it is used in this process, else None (take the numpy
         reference); decided at the first call."""
         m = self.loaded
         if m is None:
+            t0 = time.perf_counter()
             m = self.loaded = _load(self)
+            self.load_s += time.perf_counter() - t0
         return m or None
 
 
@@ -93,6 +100,13 @@ def status() -> dict[str, bool | None]:
     """{name: True (compiled) / False (numpy) / None (not decided yet)} of every
     registered kernel module."""
     return {n: None if k.loaded is None else bool(k.loaded) for n, k in REGISTRY.items()}
+
+
+def load_seconds() -> float:
+    """The seconds this process has spent in the kernel modules' first :meth:`Kernels.get`
+    so far (once per process: a replay's speed does not count them, as it does not count
+    the imports)."""
+    return sum(k.load_s for k in REGISTRY.values())
 
 
 def _load(k: Kernels) -> ModuleType | Literal[False]:
