@@ -417,3 +417,28 @@ def test_the_baro_noise_taken_is_the_spread_within_the_floor_and_the_default(spr
     given = _baro_doc(ReplayConfig(model="nav", noise={"baro_noise": 0.3}), best, NavNoise(),
                       "the first 240 s")
     assert "noise_used" not in given  # the option wins
+
+
+def test_a_step_s_ned_acceleration_is_the_numpy_formula():
+    """The probe's NED acceleration of a step (Python floats): the mid-step attitude's
+    rotation of the specific force less the accelerometer bias, plus gravity, as the numpy
+    formula it replaced (to rounding), and of the raw force; the DCM bitwise
+    :func:`quat_to_dcm`'s."""
+    from uavest.geometry.rotation import dcm_f, quat_exp, quat_mul, quat_rotate, quat_to_dcm
+
+    g = np.random.default_rng(3)
+    p = DelayProbe()
+    p.start()
+    for k in range(50):
+        x = g.normal(size=16)
+        x[:4] /= np.linalg.norm(x[:4])
+        u = np.r_[g.normal(size=3), g.normal(0.0, 5.0, 3)]
+        dt = g.uniform(0.002, 0.1)
+        p.add_step(Step(k + 1, 0.1 * (k + 1), dt, _Model(), (), u), x)
+        q = quat_mul(x[:4], quat_exp(-0.5 * dt * (u[:3] - x[10:13])))
+        assert np.array_equal(np.array(dcm_f(tuple(q))), quat_to_dcm(q))
+        want, want_raw = quat_rotate(q, np.stack([u[3:6] - x[13:16], u[3:6]]))
+        want[2] += G
+        want_raw[2] += G
+        np.testing.assert_allclose(p._a[-1], want, rtol=0, atol=1e-13)
+        np.testing.assert_allclose(p._a_raw[-1], want_raw, rtol=0, atol=1e-13)

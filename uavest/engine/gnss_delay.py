@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
-from ..geometry.rotation import quat_exp, quat_mul, quat_rotate, quat_slerp_interp
+from ..geometry.rotation import dcm_f, qexp_f, qmul_f, quat_rotate, quat_slerp_interp
 from ..ingest.types import BaroSample, GnssSample, ImuSample, MagSample
 from .nav_aiding import NewReadings, baro_height
 from .navigation import NavOptions, NavRunner, NavStream
@@ -333,10 +333,15 @@ class DelayProbe:
         gravity ``g``) and the filter's state ``x`` after it (q, ..., b_a)."""
         if st.u is None or not np.isfinite(x).all():
             return
-        u = np.asarray(st.u, float)
-        q_mid = quat_mul(x[:4], quat_exp(-0.5 * st.dt * (u[:3] - x[10:13])))
-        a, a_raw = quat_rotate(q_mid, np.stack([u[3:6] - x[13:16], u[3:6]]))
+        # (on Python floats: numpy's per-call cost on 3- and 4-vectors, once per step)
+        u, xs = np.asarray(st.u, float).tolist(), x.tolist()
+        h = -0.5 * float(st.dt)
+        q_mid = qmul_f(xs[:4], qexp_f([h * (u[i] - xs[10 + i]) for i in range(3)]))
+        R = dcm_f(q_mid)
+        f, fc = u[3:6], [u[3 + i] - xs[13 + i] for i in range(3)]
         g = float(getattr(st.transition, "g", 0.0))
+        a = np.array([r[0] * fc[0] + r[1] * fc[1] + r[2] * fc[2] for r in R])
+        a_raw = np.array([r[0] * f[0] + r[1] * f[1] + r[2] * f[2] for r in R])
         a[2] += g
         a_raw[2] += g
         if g > 0 and self._gravity is None:

@@ -267,6 +267,14 @@ def qexp_f(v: Quat) -> tuple[float, float, float, float]:
     return (math.cos(0.5 * th), s * x, s * y, s * z)
 
 
+def dcm_f(q: Quat) -> tuple[tuple[float, float, float], ...]:
+    """:func:`quat_to_dcm` of one quaternion on Python floats: its rows (body FRD -> NED)."""
+    w, x, y, z = q
+    return ((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+            (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+            (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)))
+
+
 def euler_to_quat_f(roll: float, pitch: float, yaw: float
                     ) -> tuple[float, float, float, float]:
     """:func:`euler_to_quat` of one ZYX Euler triple (rad) on Python floats (canonical:
