@@ -12,6 +12,10 @@ In one process, for each log (``vtol.tlog`` and ``test.BIN`` from the shared log
 * ``records``: the reader alone (``MavlinkSource._messages()``: open and read the records,
   bad-data counting, receive-time check), where the decoding is.
 
+Then, for each tlog, the decoding of its used records alone: pymavlink's ``decode``
+against the reader's :class:`~uavest.ingest.skip.FrameDecoder` (the message class's own
+struct for frames the framer has checked), best CPU time of ``--rounds`` alternating rounds.
+
 Printed per log: records in the log, the share of them decoded (``used``), samples,
 best CPU times of the process (s; ``time.process_time``, less disturbed than the wall clock
 by other processes on a shared machine) of decoding every (``all``) and only the used
@@ -118,7 +122,43 @@ def main(argv: list[str] | None = None) -> int:
             cols.append(f"{o[0]:>12.3f} {w[0]:>6.3f} {ratio:>12}")
         print(f"{path.name:<15} {n:>7} {100 * frac:>6.1f}% {ns:>7} | {cols[0]} | {cols[1]} | "
               f"{'yes' if same else 'NO'}")
+    print("\ndecoding the used records of a tlog, best CPU s: pymavlink's decode, the "
+          "reader's FrameDecoder")
+    for path in logs:
+        if path.suffix == ".tlog":
+            n, best = _time_decoders(path, a.rounds)
+            print(f"{path.name:<15} {n:>7} records  decode {best['decode']:.3f}  frame "
+                  f"{best['frame']:.3f}  ratio {best['frame'] / best['decode']:.2f}")
     return 0
+
+
+def _time_decoders(path: Path, rounds: int) -> tuple[int, dict[str, float]]:
+    """(used records, {"decode": best s, "frame": best s}) of decoding every used record
+    of the tlog ``path`` with pymavlink's ``decode`` and with ``FrameDecoder``."""
+    import mmap
+
+    from pymavlink.dialects.v20 import ardupilotmega as mod
+
+    from uavest.ingest.skip import TLOG_DECODED, FrameDecoder, TlogFramer
+
+    mav = mod.MAVLink(None)
+    mav.robust_parsing = True
+    dec = FrameDecoder(mod, mav)
+    best = {"decode": float("inf"), "frame": float("inf")}
+    with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+        recs = [r for r in TlogFramer(mm, mod).records()
+                if mod.mavlink_map[r[2]].msgname in TLOG_DECODED]
+        for r in range(rounds):
+            for which in (("decode", "frame") if r % 2 == 0 else ("frame", "decode")):
+                t = time.process_time()
+                if which == "decode":
+                    for o, end, _ in recs:
+                        mav.decode(bytearray(mm[o:end]))
+                else:
+                    for o, end, mid in recs:
+                        dec(mm, o, end, mid)
+                best[which] = min(best[which], time.process_time() - t)
+    return len(recs), best
 
 
 if __name__ == "__main__":

@@ -23,18 +23,9 @@ def _state(m) -> str:
     return repr((type(m).__name__, sorted(d.items()), sorted(vars(m._header).items())))
 
 
-def _frames(data: bytes):
+def _frames(data):
     """(start of the frame, end, msgid) of every good record of a tlog's bytes."""
-    fr = TlogFramer(data, mod)
-    o, last = 0, None
-    while o < len(data):
-        o, verdict, end, mid, _ = fr.next(o, last)
-        if verdict == "eof":
-            return
-        last = fr.rx(o)
-        if verdict == "ok":
-            yield o + 8, end, mid
-        o = end
+    return TlogFramer(data, mod).records()
 
 
 def _compare(data) -> tuple[int, int]:
