@@ -524,3 +524,31 @@ def test_one_state_retract_on_floats_is_the_rows_retract(extra, mag):
         with np.errstate(all="ignore"):
             got, want = nav_retract_one(xx, dx), nav_retract_rows(xx, dx[None, :])[0]
         assert np.isnan(got[:4]).all() and np.array_equal(got, want, equal_nan=True)
+
+
+@pytest.mark.parametrize("extra,mag", [(0, 0), (3, 0), (3, 2)])
+def test_carried_gnss_h_H_of_one_state_is_the_rows_reference(extra, mag):
+    """The EKF's (h, H) of a GNSS fix carried by the state (Python floats) against
+    :meth:`h` and :meth:`H_rows` (numpy): position (3-D, 2-D; on the receiver's bias
+    states or not) and velocity, carried or plain, on random states."""
+    sp = NavSpace(extra, mag)
+    g = np.random.default_rng(10 + extra + mag)
+    seen = set()
+    for k in range(120):
+        x = g.normal(size=sp.size)
+        x[:4] /= np.linalg.norm(x[:4])
+        f = g.normal(0.0, 5.0, 3) if k % 4 else None
+        rows = (0, 1) if k % 3 == 0 else (0, 1, 2)
+        back = g.uniform(0.0, 0.3)
+        R = np.eye(len(rows))
+        ms = [GnssPosition(R, rows, back=back, k=0.5 * back**2, f=f, g=9.8,
+                           biased=bool(k % 2)),
+              GnssVelocity(R, rows, back=back, f=f, g=9.8)]
+        for m in ms:
+            m.space = sp
+            y, H = m.h_H(x)
+            np.testing.assert_allclose(y, m.h(x[None, :])[0], rtol=1e-14, atol=1e-13)
+            np.testing.assert_allclose(H, m.H_rows(x[None, :])[0], rtol=1e-14, atol=1e-13)
+            assert H.shape == (len(rows), sp.dim)
+            seen.add((type(m).__name__, m._carried, len(rows)))
+    assert len(seen) == 8
