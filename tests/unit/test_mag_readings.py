@@ -54,6 +54,7 @@ def test_the_streams_float_checks_are_numpys():
     for a in vecs:
         for b in vecs:
             assert finite3(a, b) == bool(np.isfinite(a).all() and np.isfinite(b).all())
+            assert finite3(a.tolist(), tuple(b)) == finite3(a, b)  # (lists, numpy scalars)
     for a in vecs:
         for b in vecs:
             r = NewReadings()

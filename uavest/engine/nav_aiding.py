@@ -53,9 +53,10 @@ MAG_HOLD_MAX_S = 0.5
 def finite3(*vs: Any) -> bool:
     """Whether every component of the 3-vectors ``vs`` is finite, on Python floats (the
     streams check every IMU and magnetometer sample: numpy's per-call cost made this a
-    tenth of a navigation replay's stream work)."""
+    tenth of a navigation replay's stream work; an array's components taken by
+    ``tolist``, a third of the time of unpacking it into numpy scalars)."""
     for v in vs:
-        x, y, z = v
+        x, y, z = v.tolist() if type(v) is np.ndarray else v
         if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
             return False
     return True
