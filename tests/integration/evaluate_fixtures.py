@@ -15,8 +15,8 @@ REPO = Path(__file__).resolve().parents[2]
 SIM = REPO / "logs" / "sim_200hz.tlog"
 SHARED = shared_logs_dir()  # tests/conftest.py: $UAVEST_LOGS or repo_root/../shared/logs
 
-TIMING = {"wall_s", "realtime_factor", "us_per_step", "seconds", "elapsed_s", "cpu_s", "pid",
-          "host", "run_id", "finished_at", "backend", "attempts"}
+TIMING = {"wall_s", "kernel_load_s", "realtime_factor", "us_per_step", "seconds", "elapsed_s",
+          "cpu_s", "pid", "host", "run_id", "finished_at", "backend", "attempts"}
 
 
 def numbers(o):
