@@ -306,3 +306,30 @@ def test_quaternion_references_on_floats_are_normalize_quat_bitwise():
         r = _ref_from_quat("SIM_STATE", "truth", *q)
         assert np.array_equal(r.values[0], np.array(q), equal_nan=True)
         assert check(r) == check_any(r) in ("nan", "out_of_range")
+
+
+def test_the_fast_check_of_position_items_is_the_numpy_check():
+    """Position items (a simulator's truth, the autopilot's fused position: NED, velocity,
+    lat/lon/alt, each possibly absent) are checked on Python floats: the numpy reference's
+    kind (``check_any``) on NaN, infinities, the limits, a 0/0 fix, float32 and lists."""
+    from uavest.ingest.convert import MAX_POS, MAX_VEL, check_any
+
+    nan, inf = float("nan"), float("inf")
+    neds = [None, [1.0, -2.0, 3.0], [MAX_POS, 0, 0], [0, MAX_POS * 0.8, MAX_POS * 0.61],
+            [nan, 0, 0], [1.5e308, 1.5e308, 0]]
+    vels = [None, [0.1, 0.2, -0.3], [0, 0, MAX_VEL * 1.0001], [0, -inf, 0], [MAX_VEL, 0, 0]]
+    llas = [None, [47.4, 8.5, 408.0], [0.0, 0.0, 10.0], [-90.5, 8.0, 0.0], [47.0, 180.1, 0],
+            [47.0, 8.0, -1e5 - 1], [47.0, nan, 0.0], [0.0, 1e-9, 0.0]]
+    seen = set()
+    for dtype in (np.float64, np.float32, None):
+        for ned in neds:
+            for vel in vels:
+                for lla in llas:
+                    vals = tuple(None if v is None else (list(v) if dtype is None
+                                                         else np.array(v, dtype=dtype))
+                                 for v in (ned, vel, lla))
+                    r = Raw("pos", "SIMSTATE", 0, vals, primary=False)
+                    want = check_any(r)
+                    assert check(r) == want, (vals, check(r), want)
+                    seen.add(want)
+    assert seen == {None, "nan", "empty", "out_of_range"}

@@ -115,7 +115,31 @@ def check(raw: Raw) -> str | None:
         q = _floats(raw.values[0], 4)
         if q is not None:
             return _check_quat(q)
+    elif raw.cat == "pos" and len(raw.values) == 3:
+        fs = [None if v is None else _floats(v, 3) for v in raw.values]
+        if all(f is not None or v is None for f, v in zip(fs, raw.values, strict=True)):
+            return _check_pos(*fs)
     return check_any(raw)
+
+
+def _check_pos(ned: tuple[float, ...] | None, vel: tuple[float, ...] | None,
+               lla: tuple[float, ...] | None) -> str | None:
+    """:func:`check` of a position item (a simulator's truth at the IMU's rate, the
+    autopilot's fused position) from its vectors' components (:func:`_floats`; None when
+    absent), on Python floats: the same kinds in the same order as :func:`check_any`."""
+    present = [v for v in (ned, vel, lla) if v is not None]
+    if not all(math.isfinite(c) for v in present for c in v):
+        return "nan"
+    if ned is not None and math.hypot(*ned) > MAX_POS:
+        return "out_of_range"
+    if vel is not None and math.hypot(*vel) > MAX_VEL:
+        return "out_of_range"
+    if lla is not None:
+        if abs(lla[0]) > 90 or abs(lla[1]) > 180 or abs(lla[2]) > 1e5:
+            return "out_of_range"
+        if lla[0] == 0 and lla[1] == 0:
+            return "empty"
+    return None
 
 
 def check_any(raw: Raw) -> str | None:
