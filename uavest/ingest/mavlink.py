@@ -310,11 +310,11 @@ class _Pass:
         a time, ADS-B repeats, ADS-B at its position time), then into the reorder
         buffer."""
         gate, st = self.gate, self.stats
+        special = {"det": gate.admit_multi, "adsb": gate.admit_repeat}
         for t, (sysid, raws) in items:
             for raw in raws:
                 key = (sysid, raw.cat, raw.source, raw.instance)
-                admit = {"det": gate.admit_multi, "adsb": gate.admit_repeat}.get(
-                    raw.cat, gate.admit)
+                admit = special.get(raw.cat, gate.admit)
                 tg = gate_time(raw, t)
                 if not admit(key, tg, raw.values, stat_key(raw), count=raw.primary):
                     continue
