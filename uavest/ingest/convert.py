@@ -134,11 +134,16 @@ def _check_pos(ned: tuple[float, ...] | None, vel: tuple[float, ...] | None,
         return "out_of_range"
     if vel is not None and math.hypot(*vel) > MAX_VEL:
         return "out_of_range"
-    if lla is not None:
-        if abs(lla[0]) > 90 or abs(lla[1]) > 180 or abs(lla[2]) > 1e5:
-            return "out_of_range"
-        if lla[0] == 0 and lla[1] == 0:
-            return "empty"
+    return None if lla is None else _lla_kind(lla)
+
+
+def _lla_kind(lla) -> str | None:
+    """The lat/lon/alt part (deg, deg, m) of a position item's check: out of range, or
+    0/0 (no fix: ``empty``)."""
+    if abs(lla[0]) > 90 or abs(lla[1]) > 180 or abs(lla[2]) > 1e5:
+        return "out_of_range"
+    if lla[0] == 0 and lla[1] == 0:
+        return "empty"
     return None
 
 
@@ -185,10 +190,7 @@ def check_any(raw: Raw) -> str | None:
         if vel is not None and np.linalg.norm(vel) > MAX_VEL:
             return "out_of_range"
         if lla is not None:
-            if abs(lla[0]) > 90 or abs(lla[1]) > 180 or abs(lla[2]) > 1e5:
-                return "out_of_range"
-            if lla[0] == 0 and lla[1] == 0:
-                return "empty"
+            return _lla_kind(lla)
     return None
 
 
