@@ -258,7 +258,7 @@ class FrameDecoder:
     ``unpacker`` (the payload zero-padded when MAVLink 2 truncated it, as decode does) and
     reordered with its own ``orders``, and the message object is built by the class with
     the attributes decode sets. Signed frames and every other type go to pymavlink's
-    ``decode``. The same objects as decode's (``tests/unit/test_ingest_skip.py`` compares
+    ``decode``. The same objects as decode's (``tests/unit/test_frame_decoder.py`` compares
     every record of the logs), about half its time (decode was a fifth of reading a tlog).
     """
 
@@ -275,10 +275,11 @@ class FrameDecoder:
     def __call__(self, mm, o: int, end: int, mid: int):
         """The message of the frame ``mm[o:end]`` (its marker at ``o``), id ``mid``."""
         p = self.plan.get(mid)
-        if p is None or (mm[o] == 0xFD and mm[o + 2] & 1):
+        v2 = mm[o] == 0xFD
+        if p is None or (v2 and mm[o + 2] & 1):
             return self.mav.decode(bytearray(mm[o:end]))
         cls, unpacker, size, get = p
-        if mm[o] == 0xFD:
+        if v2:
             hl, inc, cf, seq, src, comp = 10, mm[o + 2], mm[o + 3], mm[o + 4], mm[o + 5], mm[o + 6]
         else:
             hl, inc, cf, seq, src, comp = 6, 0, 0, mm[o + 2], mm[o + 3], mm[o + 4]
