@@ -48,6 +48,23 @@ def test_agreeing_kernels_are_used(numba_on):
     assert isinstance(k.get(), types.ModuleType) and k.loaded is k.get()
 
 
+def test_a_self_check_reference_that_asks_for_the_kernels_gets_numpy(numba_on):
+    """While the kernels are being decided, a nested ``get`` (a self-check's numpy
+    reference reaching a function that dispatches on the same kernels, e.g. the
+    magnetometer's back-dating of rows) takes numpy: the reference stays numpy and the
+    decision does not recurse (before, it did until Python's limit, and the kernels fell
+    back to numpy with a RecursionError warning)."""
+    seen = []
+
+    def cases(nb):
+        seen.append(k.get())
+        return [("a", 1.0, 1.0)]
+
+    k = _kernels(cases)
+    assert isinstance(k.get(), types.ModuleType)
+    assert seen == [None]
+
+
 @pytest.mark.parametrize("cases, reason", [
     (lambda nb: [("ok", 1.0, 1.0), ("x", np.ones(2), np.array([1.0, 1.1]))],
      "x: max difference 0.1"),
