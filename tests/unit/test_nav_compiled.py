@@ -168,3 +168,92 @@ def test_a_zero_quaternion_gives_nan_as_numpy_does_not_an_exception(nb):
     assert h.shape == (1,) and H.shape == (1, tr.space.dim)
     got_r = rotation.retract_rows(np.zeros(7), np.zeros((1, 6)))
     np.testing.assert_array_equal(np.isnan(got_r), np.isnan(want_r))
+
+
+@pytest.mark.parametrize("extra, mag", [(0, 0), (3, 0), (3, 2)])
+def test_the_navigation_space_rows_go_through_the_compiled_kernels(nb, extra, mag):
+    """NavSpace's retract / local / mean on the filters' shapes (one state or rows against
+    rows) take the attitude space's compiled kernels at the navigation width: the same
+    numbers as the kernels called directly, and the numpy rows (``nav_retract_rows``,
+    ``nav_local_rows``, ``nav_mean``) to 1e-12, on strided and contiguous arguments, both
+    quaternion signs, angles from 1e-9 rad to ~3 rad."""
+    from uavest.geometry import rotation
+    from uavest.geometry.navigation import NavSpace, nav_local_rows, nav_mean, nav_retract_rows
+
+    mk = compiled_kernels(rotation.MANIFOLD_KERNELS.get, "attitude kernels")
+    space = NavSpace(extra, mag)
+    g = np.random.default_rng(3 + extra + mag)
+    for M in (1, 37, 629):
+        X = g.normal(0.0, 1.0, (M, space.size))
+        X[:, :4] /= np.linalg.norm(X[:, :4], axis=1)[:, None]
+        X[::3, :4] *= -1.0
+        wide = g.normal(0.0, 1.0, (M, space.dim + 2)) * 10 ** g.uniform(-9, 0.5, (M, 1))
+        dx = wide[:, 1:-1]  # (strided rows)
+        for x in (X[1 % M], X):
+            got = space.retract(x, dx)
+            np.testing.assert_array_equal(got, mk.retract_rows(np.atleast_2d(x), dx))
+            np.testing.assert_allclose(got, nav_retract_rows(x, dx), rtol=0, atol=TOL)
+            d = space.local(x, got)
+            np.testing.assert_array_equal(d, mk.local_rows(np.atleast_2d(x), got))
+            np.testing.assert_allclose(d, nav_local_rows(x, got), rtol=0, atol=TOL)
+        w = g.uniform(0.1, 1.0, M)
+        w /= w.sum()
+        Xs = nav_retract_rows(X[0], g.normal(0.0, 0.05, (M, space.dim)))
+        np.testing.assert_allclose(space.mean(Xs, w, Xs[0]), nav_mean(Xs, w, Xs[0]), rtol=0,
+                                   atol=TOL)
+
+
+def test_the_magnetometer_back_dating_of_rows_equals_numpy(nb):
+    """``OnNav._q`` on rows (sigma points, members): the compiled back-dating (each row's
+    attitude ``back`` s before, by its own gyro bias) equals the numpy one to 1e-12; one
+    state keeps the numpy form."""
+    tr = ImuTransition(_noises()["bias and mag ref"])
+    g = np.random.default_rng(5)
+    X = _states(tr, 300, g)
+    m = OnNav(MagHeading(np.array([0.2, -0.05, 0.4]), np.eye(1)), 0.03,
+              np.array([0.4, -1.2, 2.0]))
+    got = m._q(X)
+    np.testing.assert_array_equal(got, nb.back_q_rows(X, m.w, -m.back))
+    np.testing.assert_allclose(got, m._np_q(X), rtol=0, atol=TOL)
+    np.testing.assert_array_equal(m._q(X[4]), m._np_q(X[4]))
+    assert OnNav(m.inner)._q(X) is not None and np.shares_memory(OnNav(m.inner)._q(X), X)
+
+
+def test_a_hybrid_run_through_the_kernels_equals_the_numpy_run(nb, monkeypatch):
+    """60 predict / magnetometer (back-dated) / GNSS-velocity steps of the navigation
+    preset's hybrid (527 members on the 15-state space), once through the compiled kernels
+    (mechanisation, the space's rows, the back-dating) and once with them switched off,
+    from the same seeded inputs and draws: the same estimates to 1e-8."""
+    from uavest.core.guard import Guarded
+    from uavest.geometry import rotation
+    from uavest.presets import build
+
+    compiled_kernels(rotation.MANIFOLD_KERNELS.get, "attitude kernels")
+    tr = ImuTransition(NavNoise())
+    f = Guarded(build("hybrid", "nav", dim=tr.space.dim))
+
+    def run():
+        g = np.random.default_rng(11)
+        rng = np.random.default_rng(12)
+        x = np.zeros(tr.space.size)
+        x[0] = 1.0
+        s = f.init(Gaussian(x, np.eye(tr.space.dim) * 0.01), tr.space, rng)
+        out = []
+        for _ in range(60):
+            u = np.r_[g.normal(0.0, 0.3, 3), g.normal(0.0, 1.0, 3) + [0, 0, -9.8]]
+            s = f.predict(s, tr, 0.0, 0.04, u, rng)
+            z, mm = MagHeading.from_field(g.normal(0.0, 0.3, 3) + [0.3, 0.0, 0.4],
+                                          AttitudeNoise(), 0.1)
+            s, _ = f.update(s, z, OnNav(mm, 0.01, u[:3]), rng)
+            s, _ = f.update(s, g.normal(0.0, 0.1, 3), nav_mod.GnssVelocity(np.eye(3) * 0.01),
+                            rng)
+            e = f.estimate(s)
+            out.append(np.r_[e.x, np.diag(e.P)])
+        return np.array(out)
+
+    Y1 = run()
+    monkeypatch.setattr(nav_mod.NAV_KERNELS, "loaded", False)
+    monkeypatch.setattr(rotation.MANIFOLD_KERNELS, "loaded", False)
+    Y0 = run()
+    assert np.all(np.isfinite(Y1))
+    np.testing.assert_allclose(Y1, Y0, rtol=0, atol=1e-8)

@@ -2,14 +2,17 @@
 :mod:`uavest.geometry.rotation` (``pip install "uavest[fast]"``).
 
 The same formulas as the fused numpy kernels there (``retract_rows``, ``local_rows``,
-``gyro_propagate``, ``AttitudeSpace.mean``), as loops over rows compiled by numba: the
-filters call these on 13 sigma points or 221 members a few times per step, where numpy's
+``gyro_propagate``, ``AttitudeSpace.mean``) and in :mod:`uavest.geometry.navigation`
+(``nav_retract_rows``, ``nav_local_rows``, ``nav_mean``), as loops over rows compiled by
+numba: the filters call these on 13 sigma points or 221 members a few times per step, where numpy's
 cost is its per-call floor, not arithmetic (``benchmarks/numba_kernels.py`` measures
 both side by side; docs/speed.md). Equal to the numpy kernels to 1e-12
 (``tests/unit/test_speed_kernels.py``). Importing this module imports numba and compiles
 nothing; each kernel compiles at its first call (cached on disk by numba).
 
-All arrays are float64; ``x`` is always 2-D here, (1, 7) for one state or (M, 7).
+All arrays are float64; ``x`` is always 2-D here, (1, n) for one state or (M, n): n = 7
+for the attitude space, 16 or more for the navigation space (:mod:`uavest.geometry.navigation`),
+whose rows are a quaternion and Euclidean components as the attitude's.
 ``error_model="numpy"``: a division by zero (a zero quaternion) gives inf / NaN, as the
 numpy kernels do, for the filter guard to see, not a ZeroDivisionError.
 """
@@ -44,10 +47,12 @@ def _qmul(aw: float, ax: float, ay: float, az: float, bw: float, bx: float, by: 
 
 @njit(cache=True, error_model="numpy")
 def retract_rows(x: Array, dx: Array) -> Array:  # pragma: no cover - compiled
-    """q_i * Exp(dx_i[:3]) normalised, b_i + dx_i[3:]; ``x`` (1, 7) or (M, 7)."""
+    """q_i * Exp(dx_i[:3]) normalised, b_i + dx_i[3:]; ``x`` (1, 7) or (M, 7) (or any
+    width: a quaternion, then Euclidean components; ``dx`` one column fewer)."""
     M = dx.shape[0]
     one = x.shape[0] == 1
-    out = np.empty((M, 7))
+    ne = dx.shape[1] - 3
+    out = np.empty((M, ne + 4))
     for i in range(M):
         r = 0 if one else i
         ew, ex, ey, ez = _qexp(dx[i, 0], dx[i, 1], dx[i, 2])
@@ -57,17 +62,19 @@ def retract_rows(x: Array, dx: Array) -> Array:  # pragma: no cover - compiled
         out[i, 1] = a / n
         out[i, 2] = b / n
         out[i, 3] = c / n
-        for j in range(3):
+        for j in range(ne):
             out[i, 4 + j] = x[r, 4 + j] + dx[i, 3 + j]
     return out
 
 
 @njit(cache=True, error_model="numpy")
 def local_rows(x: Array, y: Array) -> Array:  # pragma: no cover - compiled
-    """Log(q_x^-1 q_y) the short way, b_y - b_x; ``x`` (1, 7) or (M, 7)."""
+    """Log(q_x^-1 q_y) the short way, b_y - b_x; ``x`` (1, 7) or (M, 7) (or any width, as
+    :func:`retract_rows`)."""
     M = y.shape[0]
     one = x.shape[0] == 1
-    out = np.empty((M, 6))
+    ne = y.shape[1] - 4
+    out = np.empty((M, ne + 3))
     for i in range(M):
         r = 0 if one else i
         w, a, b, c = _qmul(x[r, 0], -x[r, 1], -x[r, 2], -x[r, 3],
@@ -80,7 +87,7 @@ def local_rows(x: Array, y: Array) -> Array:  # pragma: no cover - compiled
         out[i, 0] = k * a
         out[i, 1] = k * b
         out[i, 2] = k * c
-        for j in range(3):
+        for j in range(ne):
             out[i, 3 + j] = y[i, 4 + j] - x[r, 4 + j]
     return out
 
@@ -108,26 +115,26 @@ def gyro_propagate(X: Array, u: Array, dt: float) -> Array:  # pragma: no cover 
 @njit(cache=True, error_model="numpy")
 def mean(X: Array, w: Array, ref: Array) -> Array:  # pragma: no cover - compiled
     """Sign-aligned chordal mean, then one Gauss-Newton (Karcher) step
-    (``AttitudeSpace.mean``)."""
-    M = X.shape[0]
-    s = np.zeros(7)
+    (``AttitudeSpace.mean``, ``NavSpace.mean``: any width, as :func:`retract_rows`)."""
+    M, n = X.shape
+    s = np.zeros(n)
     for i in range(M):
         d = X[i, 0] * ref[0] + X[i, 1] * ref[1] + X[i, 2] * ref[2] + X[i, 3] * ref[3]
         ws = -w[i] if d < 0.0 else w[i]
         for j in range(4):
             s[j] += ws * X[i, j]
-        for j in range(4, 7):
+        for j in range(4, n):
             s[j] += w[i] * X[i, j]
     nq = math.sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2] + s[3] * s[3])
-    start = np.empty((1, 7))
+    start = np.empty((1, n))
     for j in range(4):
         start[0, j] = s[j] / nq if nq > 1e-9 else ref[j]
-    for j in range(4, 7):
+    for j in range(4, n):
         start[0, j] = s[j]
     d = local_rows(start, X)
-    step = np.zeros((1, 6))
+    step = np.zeros((1, n - 1))
     for i in range(M):
-        for j in range(6):
+        for j in range(n - 1):
             step[0, j] += w[i] * d[i, j]
     out: Array = retract_rows(start, step)[0]
     return out

@@ -35,19 +35,18 @@ import math
 import numpy as np
 
 from uavest.geometry.rotation import (
-    _CONJ,
-    _LI,
-    _LS,
-    _exp_rows,
-    _log_rows_into,
-    _normalise_into,
-    _qmul_rows,
+    _np_local_rows,
+    _np_mean,
+    _np_retract_rows,
+    local_rows,
+    mean_rows,
     qexp_f,
     qmul_f,
     quat_conj,
     quat_exp,
     quat_log,
     quat_mul,
+    retract_rows,
 )
 
 Array = np.ndarray
@@ -61,19 +60,14 @@ SIZE = 16
 DIM = 15
 
 
-def nav_retract_rows(x: Array, dx: Array) -> Array:
-    """:meth:`NavSpace.retract` for ``x`` (16,) or (M, 16) and ``dx`` (M, 15) (or the
-    same with extra Euclidean components)."""
-    M = dx.shape[0]
-    E = _exp_rows(np.ascontiguousarray(dx[:, :3]))
-    if x.ndim == 1:
-        qe = E @ (x[:4][_LI] * _LS).T
-    else:
-        qe = _qmul_rows(x[:, :4], E)
-    out = np.empty((M, dx.shape[1] + 1))
-    _normalise_into(qe, out[:, :4])
-    np.add(x[..., 4:], dx[:, 3:], out=out[:, 4:])
-    return out
+#: :meth:`NavSpace.retract`'s numpy rows for ``x`` (16,) or (M, 16) and ``dx`` (M, 15)
+#: (or the same with extra Euclidean components), :meth:`NavSpace.local`'s and
+#: :meth:`NavSpace.mean`'s: the attitude space's fused kernels, which take any width of a
+#: quaternion and Euclidean components (the references of the compiled kernels the
+#: space uses when they are in use: :func:`~uavest.geometry.rotation.retract_rows`)
+nav_retract_rows = _np_retract_rows
+nav_local_rows = _np_local_rows
+nav_mean = _np_mean
 
 
 def nav_retract_one(x: Array, dx: Array) -> Array:
@@ -93,19 +87,6 @@ def nav_retract_one(x: Array, dx: Array) -> Array:
     out = np.empty(dx.shape[0] + 1)
     out[:4] = (q[0] * k, q[1] * k, q[2] * k, q[3] * k)
     np.add(x[4:], dx[3:], out=out[4:])
-    return out
-
-
-def nav_local_rows(x: Array, y: Array) -> Array:
-    """:meth:`NavSpace.local` for ``x`` (16,) or (M, 16) and ``y`` (M, 16) (or the same
-    with extra Euclidean components)."""
-    if x.ndim == 1:
-        qq = y[:, :4] @ ((x[:4] * _CONJ)[_LI] * _LS).T
-    else:
-        qq = _qmul_rows(x[:, :4] * _CONJ, y[:, :4])
-    out = np.empty((y.shape[0], y.shape[1] - 1))
-    _log_rows_into(qq, out[:, :3])
-    np.subtract(y[:, 4:], x[..., 4:], out=out[:, 3:])
     return out
 
 
@@ -136,16 +117,19 @@ class NavSpace:
     def __hash__(self) -> int:
         return hash(("NavSpace", self.extra, self.mag))
 
+    # The filters' shapes, (16,) or (M, 16) against (M, 15), go to the attitude space's
+    # row kernels (compiled when in use; any width: a quaternion, then Euclidean
+    # components), one state's retraction to the float path.
     def retract(self, x: Array, dx: Array) -> Array:
         if dx.ndim == 2 and x.ndim <= 2 and (x.ndim == 1 or x.shape[0] == dx.shape[0]):
-            return nav_retract_rows(x, dx)
+            return retract_rows(x, dx)
         if dx.ndim == 1 and x.ndim == 1:
             return nav_retract_one(x, dx)
         return self._retract_broadcast(x, dx)
 
     def local(self, x: Array, y: Array) -> Array:
         if y.ndim == 2 and x.ndim <= 2 and (x.ndim == 1 or x.shape[0] == y.shape[0]):
-            return nav_local_rows(x, y)
+            return local_rows(x, y)
         if y.ndim == 1 and x.ndim == 1:
             res: Array = nav_local_rows(x, y[None, :])[0]
             return res
@@ -168,17 +152,7 @@ class NavSpace:
         return np.concatenate([d, r], axis=-1)
 
     def mean(self, X: Array, w: Array, x0: Array | None = None) -> Array:
-        ref = X[0] if x0 is None else x0
-        q = X[:, :4]
-        sgn = np.where(q @ ref[:4] < 0.0, -1.0, 1.0)
-        qm = (w * sgn) @ q
-        nq = float(np.sqrt(qm @ qm))
-        start = np.empty(X.shape[1])
-        start[:4] = qm / nq if nq > 1e-9 else ref[:4]
-        start[4:] = w @ X[:, 4:]
-        # one Gauss-Newton (Karcher) step after the chordal start, as AttitudeSpace.mean
-        res: Array = nav_retract_rows(start, (w @ nav_local_rows(start, X))[None, :])[0]
-        return res
+        return mean_rows(X, w, X[0] if x0 is None else x0)
 
     def __repr__(self) -> str:
         extra = f", +{self.extra}" if self.extra else ""

@@ -353,6 +353,14 @@ def _kernel_cases(nb: ModuleType) -> Iterator[tuple[str, Array, Array]]:
     yield "rotate_inv_rows", nb.rotate_inv_rows(X[:, :4], d[0, :3]), want
     yield ("rotate_inv_rows C", nb.rotate_inv_rows(np.ascontiguousarray(X[:, :4]), d[0, :3]),
            want)
+    # the navigation space's width (NavSpace(extra=3, mag=2): a quaternion and 17
+    # Euclidean components), through the same kernels
+    xn = np.concatenate([x[:4], np.linspace(-2.0, 3.0, 17)])
+    dn = np.concatenate([d, np.linspace(0.5, -0.5, 28).reshape(2, 14)], axis=1)
+    Xn = _np_retract_rows(xn, dn)
+    yield "retract_rows nav", nb.retract_rows(xn[None, :], dn), Xn
+    yield "local_rows nav", nb.local_rows(Xn[:1], Xn), _np_local_rows(Xn[0], Xn)
+    yield "mean nav", nb.mean(Xn, read_only(w), xn), _np_mean(Xn, w, xn)
 
 
 #: The compiled attitude-manifold kernels (:mod:`uavest.geometry._compiled`)
@@ -413,10 +421,12 @@ def _qmul_rows(p: Array, q: Array) -> Array:
 
 
 def retract_rows(x: Array, dx: Array) -> Array:
-    """:meth:`AttitudeSpace.retract` for ``x`` (7,) or (M, 7) and ``dx`` (M, 6)."""
+    """:meth:`AttitudeSpace.retract` for ``x`` (7,) or (M, 7) and ``dx`` (M, 6); any
+    width of a quaternion and Euclidean components (``x`` (n,) or (M, n), ``dx`` (M,
+    n - 1)): :class:`~uavest.geometry.navigation.NavSpace`'s too."""
     nb = MANIFOLD_KERNELS.get()
     if nb:
-        res: Array = nb.retract_rows(x.reshape(1, 7) if x.ndim == 1 else x, dx)
+        res: Array = nb.retract_rows(x.reshape(1, -1) if x.ndim == 1 else x, dx)
         return res
     return _np_retract_rows(x, dx)
 
@@ -428,17 +438,18 @@ def _np_retract_rows(x: Array, dx: Array) -> Array:
         qe = E @ (x[:4][_LI] * _LS).T
     else:
         qe = _qmul_rows(x[:, :4], E)
-    out = np.empty((M, 7))
+    out = np.empty((M, dx.shape[1] + 1))
     _normalise_into(qe, out[:, :4])
     np.add(x[..., 4:], dx[:, 3:], out=out[:, 4:])
     return out
 
 
 def local_rows(x: Array, y: Array) -> Array:
-    """:meth:`AttitudeSpace.local` for ``x`` (7,) or (M, 7) and ``y`` (M, 7)."""
+    """:meth:`AttitudeSpace.local` for ``x`` (7,) or (M, 7) and ``y`` (M, 7); any width
+    as :func:`retract_rows`."""
     nb = MANIFOLD_KERNELS.get()
     if nb:
-        res: Array = nb.local_rows(x.reshape(1, 7) if x.ndim == 1 else x, y)
+        res: Array = nb.local_rows(x.reshape(1, -1) if x.ndim == 1 else x, y)
         return res
     return _np_local_rows(x, y)
 
@@ -448,7 +459,7 @@ def _np_local_rows(x: Array, y: Array) -> Array:
         qq = y[:, :4] @ ((x[:4] * _CONJ)[_LI] * _LS).T
     else:
         qq = _qmul_rows(x[:, :4] * _CONJ, y[:, :4])
-    out = np.empty((y.shape[0], 6))
+    out = np.empty((y.shape[0], y.shape[1] - 1))
     _log_rows_into(qq, out[:, :3])
     np.subtract(y[:, 4:], x[..., 4:], out=out[:, 3:])
     return out
@@ -520,15 +531,20 @@ class AttitudeSpace:
         return np.concatenate([d, db], axis=-1)
 
     def mean(self, X: Array, w: Array, x0: Array | None = None) -> Array:
-        ref = X[0] if x0 is None else x0
-        nb = MANIFOLD_KERNELS.get()
-        if nb:
-            res: Array = nb.mean(X, read_only(w), ref)  # (w: the self-check's type)
-            return res
-        return _np_mean(X, w, ref)
+        return mean_rows(X, w, X[0] if x0 is None else x0)
 
     def __repr__(self) -> str:
         return "AttitudeSpace(q*Exp(dtheta), b+db)"
+
+
+def mean_rows(X: Array, w: Array, ref: Array) -> Array:
+    """:meth:`AttitudeSpace.mean` of the rows ``X`` (M, n) under the weights ``w`` (M,),
+    started from ``ref`` (n,); any width as :func:`retract_rows`."""
+    nb = MANIFOLD_KERNELS.get()
+    if nb:
+        res: Array = nb.mean(X, read_only(w), ref)  # (w: the self-check's type)
+        return res
+    return _np_mean(X, w, ref)
 
 
 def _np_mean(X: Array, w: Array, ref: Array) -> Array:
@@ -536,7 +552,7 @@ def _np_mean(X: Array, w: Array, ref: Array) -> Array:
     sgn = np.where(q @ ref[:4] < 0.0, -1.0, 1.0)
     qm = (w * sgn) @ q
     nq = float(np.sqrt(qm @ qm))  # = np.linalg.norm(qm)
-    start = np.empty(7)
+    start = np.empty(X.shape[1])
     start[:4] = qm / nq if nq > 1e-9 else ref[:4]
     start[4:] = w @ X[:, 4:]
     # one Gauss-Newton (Karcher) step after the chordal start: its error is third

@@ -26,7 +26,7 @@ from numba import njit
 # edit there: remove this module's __pycache__/*.nb[ic] after changing them)
 from uavest.geometry._compiled import _qexp, _qmul
 
-__all__ = ["mag_h_H", "mech_F", "mech_rows"]
+__all__ = ["back_q_rows", "mag_h_H", "mech_F", "mech_rows"]
 
 Array = np.ndarray
 
@@ -244,3 +244,16 @@ def mag_h_H(x: Array, vec: Array, w: Array, back: float, heading: bool
             H[r, 9 + c] = (Hq[r, 0] * J[0, c] + Hq[r, 1] * J[1, c]
                            + Hq[r, 2] * J[2, c]) * back
     return h, H
+
+
+@njit(cache=True, error_model="numpy")
+def back_q_rows(X: Array, w: Array, dt: float) -> Array:  # pragma: no cover - compiled
+    """q_i * Exp((w - b_g,i) dt) normalised for every row of ``X`` (M, n): the attitude
+    of each member ``-dt`` s before (``OnNav._q``; ``w`` the step's gyro rate, rad/s)."""
+    M = X.shape[0]
+    out = np.empty((M, 4))
+    for i in range(M):
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = _qstep(
+            X[i, 0], X[i, 1], X[i, 2], X[i, 3], w[0] - X[i, 10], w[1] - X[i, 11],
+            w[2] - X[i, 12], dt)
+    return out

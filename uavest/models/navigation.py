@@ -424,6 +424,8 @@ def _kernel_cases(nb: Any) -> Iterator[tuple[str, Array, Array]]:
                 name = f"mag_h_H {type(inner).__name__} back={back} {label}"
                 yield f"{name} h", got[0], want[0]
                 yield f"{name} H", got[1], want[1]
+        m = OnNav(MagHeading(np.array([0.2, -0.05, 0.4]), np.eye(1)), 0.02, uu[:3])
+        yield f"back_q_rows {label}", nb.back_q_rows(X, m.w, -m.back), m._np_q(X)
 
 
 #: The compiled IMU mechanisation (:mod:`uavest.models._compiled_nav`)
@@ -696,6 +698,17 @@ class OnNav(Measurement):
         if not self.back:
             return q
         assert self.w is not None
+        if X.ndim == 2:  # members or sigma points: the compiled rows when in use
+            nb = NAV_KERNELS.get()
+            if nb:
+                res: Array = nb.back_q_rows(X, self.w, -self.back)
+                return res
+        return self._np_q(X)
+
+    def _np_q(self, X: Array) -> Array:
+        """:meth:`_q` on numpy (the compiled rows' reference)."""
+        assert self.w is not None
+        q = X[..., :4]
         one = q.ndim == 1
         Q2 = np.atleast_2d(q)
         wb = self.w - np.atleast_2d(X[..., 10:13])
