@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from uavest.apps.live import LiveConfig, run_samples
+from uavest.engine.gnss_delay import BARO_NOISE_MIN
 from uavest.ingest import open_source
 from uavest.sinks.base import Sink
 
@@ -149,7 +150,8 @@ def test_a_live_run_started_with_a_previous_runs_aiding_has_the_takeoffs_tilt(tm
     assert aiding["gnss_delay"] == pytest.approx(learned["delay"])
     assert aiding["gnss_vel_window"] == pytest.approx(learned["window"])
     # the SITL's baro is a few mm from its noiseless GNSS height: the floor
-    assert learned["baro_spread"] < 0.01 and aiding["baro_noise"] == pytest.approx(0.02)
+    assert learned["baro_spread"] < BARO_NOISE_MIN
+    assert aiding["baro_noise"] == pytest.approx(BARO_NOISE_MIN)
     second = _run(aiding=aiding, aiding_why=why)
     a, b = (d["attitude"]["ekf"]["airborne"] for d in (first, second))
     assert b["pitch_rmse_deg"] < 0.7 * a["pitch_rmse_deg"], (a, b)
@@ -200,10 +202,12 @@ def test_a_live_run_takes_the_baro_noise_and_offset_it_learns():
 
     doc, sink = _default_run()
     learned = doc["gnss_delay_live"]
-    assert learned["baro_noise"] == pytest.approx(0.02) and learned["baro_offset"] is not None
+    assert learned["baro_noise"] == pytest.approx(BARO_NOISE_MIN)
+    assert learned["baro_offset"] is not None
     t_fit = learned["tries"][0]["t"]
     noise = [d for d in doc["decisions"] if d["what"] == "baro noise"]
-    assert [d["value"] for d in noise] == ["0.020 m"] and "estimated live" in noise[0]["why"]
+    assert [d["value"] for d in noise] == [f"{BARO_NOISE_MIN:.3f} m"]
+    assert "estimated live" in noise[0]["why"]
     assert noise[0]["t"] == pytest.approx(t_fit)
     off = [d for d in doc["decisions"] if d["what"] == "baro offset"]
     assert len(off) == 2 and "refit at the baro's delay" in off[1]["why"], off
