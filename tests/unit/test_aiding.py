@@ -12,11 +12,11 @@ from uavest.errors import InputError
 
 LIVE = {"model": "nav", "gnss_delay_live": {
     "delay": 0.083, "window": 0.347, "baro_delay": 0.044, "baro_spread": 0.004,
-    "baro_noise": 0.02, "given": None}}
+    "baro_noise": 0.02, "mag_scatter": 0.034, "mag_noise": 0.05, "given": None}}
 REPLAY = {"model": {"what": "model", "value": "nav"}, "gnss_delay_estimate": {
     "delay_used": 0.084, "window_used": 0.345,
     "baro": {"delay_used": 0.043, "noise_used": 0.02},
-    "mag": {"delay_used": 0.06, "noise_used": 0.05}}}
+    "mag": {"delay_used": 0.06, "noise_used": 0.06}}}
 
 
 def _file(tmp_path, doc, name="r.json"):
@@ -26,12 +26,15 @@ def _file(tmp_path, doc, name="r.json"):
 
 
 @pytest.mark.parametrize("doc, what", [(LIVE, "a live run's"), (REPLAY, "a replay's")])
-def test_the_gnss_timing_and_the_baro_noise_are_read_and_the_baro_delay_is_not(
+def test_the_gnss_timing_and_the_noises_are_read_and_the_sensors_delays_are_not(
         tmp_path, doc, what):
+    """The GNSS delay and window, the baro's and the magnetometer's noise (a live run's
+    learner, a replay's probe); not the baro's and the magnetometer's ages."""
     got, why = read_aiding(_file(tmp_path, doc))
-    want = ({"gnss_delay": 0.083, "gnss_vel_window": 0.347, "baro_noise": 0.02}
+    want = ({"gnss_delay": 0.083, "gnss_vel_window": 0.347, "baro_noise": 0.02,
+             "mag_noise": 0.05}
             if doc is LIVE else {"gnss_delay": 0.084, "gnss_vel_window": 0.345,
-                                 "baro_noise": 0.02})
+                                 "baro_noise": 0.02, "mag_noise": 0.06})
     assert got == pytest.approx(want)
     assert why == f"{what} estimates in r.json"
 
@@ -109,7 +112,8 @@ def test_a_run_that_learned_its_timing_says_how_to_start_the_next_with_it(tmp_pa
     line = aiding_hint(str(p), "run")
     assert line == ("a live run against this vehicle can start with what this run "
                     "learned (GNSS delay 0.083 s, velocity window 0.347 s, baro noise "
-                    f"0.020 m): uavest run --model nav --aiding-from {p}")
+                    "0.020 m, magnetometer noise 0.050 rad): uavest run --model nav "
+                    f"--aiding-from {p}")
     nothing = _file(tmp_path, {"model": "nav", "gnss_delay_live": {"delay": None}}, "n.json")
     assert aiding_hint(str(nothing), "run") is None
     assert aiding_hint(str(_file(tmp_path, {"model": "attitude"}, "a.json")), "replay") is None
@@ -152,4 +156,4 @@ def test_the_hint_says_the_inclination_in_degrees(tmp_path):
     doc = dict(LIVE, origin={"lat": 47.39, "lon": 8.54})
     doc["gnss_delay_live"] = dict(LIVE["gnss_delay_live"], inclination={"value": 1.12})
     line = aiding_hint(str(_file(tmp_path, doc)), "run")
-    assert "baro noise 0.020 m, field inclination 64.17 deg)" in line, line
+    assert "magnetometer noise 0.050 rad, field inclination 64.17 deg)" in line, line

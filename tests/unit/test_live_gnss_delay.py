@@ -140,8 +140,8 @@ def test_a_live_run_started_with_a_previous_runs_aiding_has_the_takeoffs_tilt(tm
     first = _default_run()[0]
     path = write_json(tmp_path / "first.json", first)
     aiding, why = read_aiding(path)
-    assert set(aiding) == {"gnss_delay", "gnss_vel_window", "baro_noise", "mag_inclination",
-                           "mag_site_lat", "mag_site_lon"}, aiding
+    assert set(aiding) == {"gnss_delay", "gnss_vel_window", "baro_noise", "mag_noise",
+                           "mag_inclination", "mag_site_lat", "mag_site_lon"}, aiding
     # the field the first run's EKF learnt (its magnetic reference states), where it flew
     assert aiding["mag_inclination"] == pytest.approx(
         math.radians(first["attitude"]["ekf"]["mag_ref"]["inclination_deg"]))
@@ -152,6 +152,7 @@ def test_a_live_run_started_with_a_previous_runs_aiding_has_the_takeoffs_tilt(tm
     # the SITL's baro is a few mm from its noiseless GNSS height: the floor
     assert learned["baro_spread"] < BARO_NOISE_MIN
     assert aiding["baro_noise"] == pytest.approx(BARO_NOISE_MIN)
+    assert aiding["mag_noise"] == pytest.approx(learned["mag_noise"])
     second = _run(aiding=aiding, aiding_why=why)
     a, b = (d["attitude"]["ekf"]["airborne"] for d in (first, second))
     assert b["pitch_rmse_deg"] < 0.7 * a["pitch_rmse_deg"], (a, b)
@@ -161,6 +162,8 @@ def test_a_live_run_started_with_a_previous_runs_aiding_has_the_takeoffs_tilt(tm
     assert "estimated live" in said[-1]["why"], said
     noise = [d for d in second["decisions"] if d["what"] == "baro noise"]
     assert noise and "first.json" in noise[0]["why"], noise
+    mag = [d for d in second["decisions"] if d["what"] == "magnetometer noise"]
+    assert mag and "first.json" in mag[0]["why"], mag
     inc = [d for d in second["decisions"] if d["what"] == "inclination"]
     assert inc and "from --aiding-from" in inc[0]["why"], inc
 
@@ -192,7 +195,7 @@ class _Heights(Sink):
 @pytest.mark.slow  # one navigation run over 130 s of a log
 def test_a_live_run_takes_the_baro_noise_and_offset_it_learns():
     """With the baro's delay the run learns its noise (the SITL's baro is a few mm from
-    its GNSS height: the floor, 0.02 m, against the 0.2 m of the source's profile) and
+    its GNSS height: the floor, 0.01 m, against the 0.2 m of the source's profile) and
     refits its offset to the GNSS height at that delay: the running offset, averaged
     while the baro's timing was not known (the takeoff), is centimetres off, more than the
     noise. After it the height is within a centimetre of SIM_STATE's (RMSE 3.8 mm from
@@ -220,3 +223,28 @@ def test_a_live_run_takes_the_baro_noise_and_offset_it_learns():
     e = h[late] - (np.interp(t[late], tt, ht) - sink.alt0)
     assert np.sqrt(np.mean(e * e)) < 0.01, np.sqrt(np.mean(e * e))
 
+
+
+@pytest.mark.slow  # one navigation run over 70 s of a log (and the default run's)
+def test_a_live_run_learns_the_magnetometer_noise_unless_it_is_given():
+    """With the GNSS delay the run learns the magnetometer's noise as the replay's probe
+    does: the spread of its readings' direction turned to NED with the filter's attitude,
+    at the age the run takes them (0 here), within [MAG_NOISE_MIN, the source's profile]
+    (the SITL's magnetometer spreads by about 2 deg per axis: the floor, 0.05 rad, against
+    the profile's 0.08); it is used from then on and recorded for a next run. Not when an
+    option (or the vehicle's spec) gives the noise."""
+    from uavest.engine.gnss_delay import MAG_NOISE_MIN
+
+    doc = _default_run()[0]
+    learned = doc["gnss_delay_live"]
+    assert 0.0 < learned["mag_scatter"] < MAG_NOISE_MIN, learned["mag_scatter"]
+    assert learned["mag_noise"] == pytest.approx(MAG_NOISE_MIN)
+    said = [d for d in doc["decisions"] if d["what"] == "magnetometer noise"]
+    assert [d["value"] for d in said] == ["0.080 rad", f"{MAG_NOISE_MIN:.3f} rad"], said
+    assert "estimated live" in said[1]["why"]
+    assert said[1]["t"] == pytest.approx(learned["tries"][0]["t"])  # (the first decision)
+    given = _run(noise={"mag_noise": 0.07}, end=FIRST_S)
+    assert given["gnss_delay_live"]["delay"] is not None  # (the rest was learnt)
+    assert given["gnss_delay_live"]["mag_noise"] is None
+    said = [d for d in given["decisions"] if d["what"] == "magnetometer noise"]
+    assert [d["value"] for d in said] == ["0.070 rad"], said

@@ -8,9 +8,14 @@ it does not know, and its tilt pays for it in the takeoff (docs/live.md). These 
 receiver's and the baro's properties, the same from one flight of a vehicle to the next,
 so a run can start with what a previous one learned: a ``uavest run --json`` result (its
 ``gnss_delay_live``) or a ``uavest replay --json`` result of a log of the same vehicle
-(its probe's ``gnss_delay_estimate``). Taken: the GNSS delay, the GNSS velocity's window
-and the baro's noise (its spread against the GNSS height, at least
-:data:`~uavest.engine.gnss_delay.BARO_NOISE_MIN`), and the magnetic field's inclination
+(its probe's ``gnss_delay_estimate``). Taken: the GNSS delay, the GNSS velocity's window,
+the baro's noise (its spread against the GNSS height, at least
+:data:`~uavest.engine.gnss_delay.BARO_NOISE_MIN`) and the magnetometer's (the spread of
+its readings' direction, at least :data:`~uavest.engine.gnss_delay.MAG_NOISE_MIN`: a live
+run learns it with the GNSS delay, 60 s in, when the attitude NEES of a live ArduCopter
+SITL session had already been set by the profile's larger noise; started with it the
+session's attitude NEES was in band on 0.86 of the airborne steps, against 0.78-0.79,
+docs/live.md), and the magnetic field's inclination
 where the result learned one (a replay's probe, a live run's learner or its filters'
 magnetic reference states) with the place it was learned at (the result's ``origin``):
 the field is the site's, not the vehicle's, and a run starting more than
@@ -36,13 +41,15 @@ from ..errors import InputError
 __all__ = ["AIDING", "AIDING_KEYS", "MAG_SITE_KM", "aiding_hint", "aiding_words", "read_aiding"]
 
 #: What a result may give, with the words and unit it is said in: the GNSS delay (s), the
-#: GNSS velocity's window (s), the baro's noise (m), the field's inclination (rad; read
-#: with where it was learned, ``mag_site_lat`` / ``mag_site_lon`` deg).
+#: GNSS velocity's window (s), the baro's noise (m), the magnetometer's noise (rad, the
+#: std of the field's direction per axis), the field's inclination (rad, said in degrees;
+#: read with where it was learned, ``mag_site_lat`` / ``mag_site_lon`` deg).
 AIDING = {"gnss_delay": ("GNSS delay", "s"), "gnss_vel_window": ("velocity window", "s"),
-          "baro_noise": ("baro noise", "m"), "mag_inclination": ("field inclination", "rad")}
+          "baro_noise": ("baro noise", "m"), "mag_noise": ("magnetometer noise", "rad"),
+          "mag_inclination": ("field inclination", "rad")}
 AIDING_KEYS = tuple(AIDING)
-#: the timings and noise: non-negative numbers, read alike from either kind of result
-_TIMING_KEYS = ("gnss_delay", "gnss_vel_window", "baro_noise")
+#: the timings and noises: non-negative numbers, read alike from either kind of result
+_TIMING_KEYS = ("gnss_delay", "gnss_vel_window", "baro_noise", "mag_noise")
 
 
 def _model(doc: dict[str, Any]) -> Any:
@@ -78,21 +85,22 @@ def read_aiding(path: str | Path) -> tuple[dict[str, float], str]:
     if isinstance(live, dict):
         what = "a live run's estimates"
         got = {"gnss_delay": live.get("delay"), "gnss_vel_window": live.get("window"),
-               "baro_noise": live.get("baro_noise")}
+               "baro_noise": live.get("baro_noise"), "mag_noise": live.get("mag_noise")}
     elif isinstance(probe, dict):
         what = "a replay's estimates"
         baro = probe.get("baro") or {}
         got = {"gnss_delay": probe.get("delay_used"),
                "gnss_vel_window": probe.get("window_used"),
-               "baro_noise": baro.get("noise_used")}
+               "baro_noise": baro.get("noise_used"),
+               "mag_noise": (probe.get("mag") or {}).get("noise_used")}
     else:
         what = ""
     out = {k: f for k in _TIMING_KEYS if (f := _number(got.get(k))) is not None}
     out.update(_inclination(doc, live, probe))
     if not out:
         raise InputError(f"--aiding-from {path}: the result learned none of the GNSS delay, "
-                         "the GNSS velocity window, the baro noise and the field's "
-                         "inclination")
+                         "the GNSS velocity window, the baro and magnetometer noise and the "
+                         "field's inclination")
     return out, f"{what} in {Path(path).name}"
 
 
@@ -127,7 +135,7 @@ def _inclination(doc: dict[str, Any], live: Any, probe: Any) -> dict[str, float]
 def aiding_words(key: str, value: float) -> str:
     """One aiding value in words: "GNSS delay 0.120 s", "field inclination 64.21 deg"."""
     name, unit = AIDING[key]
-    if unit == "rad":
+    if key == "mag_inclination":
         return f"{name} {math.degrees(value):.2f} deg"
     return f"{name} {value:.3f} {unit}"
 

@@ -805,7 +805,8 @@ def nav_options(cfg: LiveConfig, declination: float | None) -> NavOptions:
     gnss_delay, gnss_why = cfg.gnss_delay, cfg.gnss_delay_why
     if gnss_delay is None and "gnss_delay" in a:
         gnss_delay, gnss_why = a["gnss_delay"], why
-    from_file = {k: a[k] for k in ("gnss_vel_window", "baro_noise") if k in a and k not in noise}
+    from_file = {k: a[k] for k in ("gnss_vel_window", "baro_noise", "mag_noise")
+                 if k in a and k not in noise}
     noise.update(from_file)
     mag_ref = live_mag_ref(cfg)
     noise.update(mag_ref)
@@ -818,7 +819,8 @@ def nav_options(cfg: LiveConfig, declination: float | None) -> NavOptions:
                       gnss_delay_why=gnss_why, on_arrival=cfg.on_arrival,
                       geodesy=cfg.geodesy, noise=noise,
                       mag_noise_why=spec.why_of("mag_noise") or (
-                          cfg.noise_why if "mag_noise" in cfg.noise else None),
+                          cfg.noise_why if "mag_noise" in cfg.noise else
+                          why if "mag_noise" in from_file else None),
                       baro_noise_why=kept if "baro_noise" in from_file else None,
                       gnss_vel_window_why=why if "gnss_vel_window" in from_file else None,
                       gnss_bias_why=spec.why_of(*GNSS_BIAS_KEYS) or (
@@ -846,8 +848,11 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
     runner_cls = NavRunner if nav else FilterRunner
     runners = [runner_cls(sp.label, f, rng(cfg.seed, 0, filter_stream(sp.label)))
                for sp, f in specs]
-    # with --gnss-delay it learns the velocity window and the baro delay at that delay
-    learner = LiveDelayLearner(given=cfg.gnss_delay) if nav and runners else None
+    # with --gnss-delay it learns the velocity window and the baro delay at that delay; the
+    # magnetometer's noise unless an option or the vehicle's spec gave it
+    learner = (LiveDelayLearner(given=cfg.gnss_delay,
+                                learn_mag_noise="mag_noise" not in cfg.noise)
+               if nav and runners else None)
     att = _GapAware(_stream_factory(cfg, params, declination), cfg.bridge_s, learner)
     nav_scorer = NavScorer()
     lane = TrackLane(cfg, cfg.seed)

@@ -25,7 +25,7 @@ from ..compiled import load_seconds
 from ..core.spec import FilterSpec
 from ..engine.attitude import AttitudeOptions, AttitudeStream
 from ..engine.build import build_filters
-from ..engine.gnss_delay import baro_noise_from_spread
+from ..engine.gnss_delay import baro_noise_from_spread, mag_noise_from_scatter
 from ..engine.loop import Lane, run_lanes
 from ..engine.navigation import NavNotStarted, NavOptions, NavRunner, NavStream
 from ..engine.records import RunInfo, StepRecord, package_versions
@@ -120,15 +120,6 @@ PROBE_FLOORS = {"gnss_vel_floor": 1.0, "gnss_pos_floor": 2.0}
 #: A first estimate further than this (s) from the probe's assumed delay is refined by a
 #: second probe run assuming it (over the samples the first one held).
 PROBE_REFINE_S = 0.03
-#: The magnetometer noise taken from the probe's scatter is at least this (rad, 2.9 deg)
-#: and at most the model's default. The scatter sees the sensor, not the error of the
-#: reference field it is compared with: the inclination taken from the flight was 0.3
-#: deg off on sim_200hz (63.82 against the simulator's 63.5 deg, before the probe corrected
-#: it for its tilt error), and with 0.01-0.02 rad
-#: the magnetometer pulled the tilt after it (airborne 0.35-0.44 deg roll against 0.20 at
-#: 0.05; 0.066 with the true inclination at 0.01), while the SITL flight's (0.06 deg off)
-#: gained (yaw 0.22 deg at 0.02, 0.40 at 0.05).
-MAG_NOISE_MIN = 0.05
 
 
 def probe_gnss_delay(samples: Iterable, cfg: ReplayConfig, params: dict | None
@@ -328,7 +319,8 @@ def _mag_doc(cfg: ReplayConfig, mest: MagEstimate, noise: NavNoise, span: str, r
              ) -> dict:
     """The magnetometer part of the probe's document: the estimate, and what the run
     takes from it where ``cfg`` leaves it open (the delay, the inclination, the noise
-    clipped to [:data:`MAG_NOISE_MIN`, the IMU source's default]) with why."""
+    clipped to [:data:`~uavest.engine.gnss_delay.MAG_NOISE_MIN`, the IMU source's
+    default]) with why."""
     m: dict = {"delay": mest.delay, "sd": mest.sd, "readings": mest.readings,
                "why": mest.why, "scatter": mest.scatter}
     if cfg.mag_delay is None and mest.readings:
@@ -351,12 +343,9 @@ def _mag_doc(cfg: ReplayConfig, mest: MagEstimate, noise: NavNoise, span: str, r
                                 f"NED with the {PROBE_FILTER}'s attitude ({mest.readings} new "
                                 f"readings in {span}{tilt})")
     if "mag_noise" not in cfg.noise and mest.scatter is not None and mest.delay is not None:
-        top = float(mest.noise_default or noise.mag_noise)
-        m["noise_used"] = float(np.clip(mest.scatter, MAG_NOISE_MIN, top))
-        m["noise_why"] = (f"estimated: the spread of the field direction at that age, "
-                          f"{np.degrees(mest.scatter):.2f} deg per axis, within "
-                          f"[{np.degrees(MAG_NOISE_MIN):.2f}, {np.degrees(top):.2f}] deg "
-                          "(--noise mag_noise=RAD to set it)")
+        used, why = mag_noise_from_scatter(mest.scatter,
+                                           float(mest.noise_default or noise.mag_noise))
+        m["noise_used"], m["noise_why"] = used, f"estimated: {why}"
     return m
 
 

@@ -86,7 +86,8 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--aiding-from", metavar="FILE",
                    help="with --model nav: start with what a previous run or replay of this "
                    "vehicle learned (its --json result): the GNSS delay and velocity window, "
-                   "the baro noise, and the magnetic field's inclination if this run starts "
+                   "the baro and magnetometer noise, and the magnetic field's inclination if "
+                   "this run starts "
                    f"within {MAG_SITE_KM:g} km of where it was learned; the run still learns "
                    "its own and takes them when it has them, and options given here win "
                    "(docs/live.md)")

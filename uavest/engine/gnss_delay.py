@@ -49,11 +49,12 @@ from .records import Start, Step
 
 Array = np.ndarray
 
-__all__ = ["BARO_NOISE_MIN", "GRID_S", "LIVE_CHECK_S", "LIVE_FIRST_S", "MAX_BARO_DELAY_S",
-           "MAX_DELAY_S", "MAX_MAG_DELAY_S", "MAX_SD_S", "MIN_DELAY_S", "MIN_EXCITATION",
-           "PAIR_S", "PROBE_MIN_IMU_HZ", "PROBE_S", "BaroEstimate", "DelayEstimate",
-           "DelayProbe", "LiveDelayLearner", "MagEstimate", "baro_noise_from_spread",
-           "delay_used", "estimate_gnss_delay"]
+__all__ = ["BARO_NOISE_MIN", "GRID_S", "LIVE_CHECK_S", "LIVE_FIRST_S", "MAG_NOISE_MIN",
+           "MAX_BARO_DELAY_S", "MAX_DELAY_S", "MAX_MAG_DELAY_S", "MAX_SD_S", "MIN_DELAY_S",
+           "MIN_EXCITATION", "PAIR_S", "PROBE_MIN_IMU_HZ", "PROBE_S", "BaroEstimate",
+           "DelayEstimate", "DelayProbe", "LiveDelayLearner", "MagEstimate",
+           "baro_noise_from_spread", "delay_used", "estimate_gnss_delay",
+           "mag_noise_from_scatter"]
 
 #: The delays tried (s): MIN_DELAY_S to MAX_DELAY_S every GRID_S (a negative delay, the
 #: GNSS stamped before the IMU, is reported as found and used as 0).
@@ -100,6 +101,16 @@ MAX_BARO_DELAY_S = 0.5
 #: the vertical velocity's std 3.6 times its error), with 0.01 on 0.820-0.841 replayed
 #: (docs/navigation.md, "The baro noise floor").
 BARO_NOISE_MIN = 0.01
+#: The magnetometer noise taken from the spread of its readings (a replay's probe, a
+#: live run's learner: :func:`mag_noise_from_scatter`) is at least this (rad, 2.9 deg)
+#: and at most the IMU source's default. The scatter sees the sensor, not the error of the
+#: reference field it is compared with: the inclination taken from the flight was 0.3
+#: deg off on sim_200hz (63.82 against the simulator's 63.5 deg, before the probe corrected
+#: it for its tilt error), and with 0.01-0.02 rad
+#: the magnetometer pulled the tilt after it (airborne 0.35-0.44 deg roll against 0.20 at
+#: 0.05; 0.066 with the true inclination at 0.01), while the SITL flight's (0.06 deg off)
+#: gained (yaw 0.22 deg at 0.02, 0.40 at 0.05).
+MAG_NOISE_MIN = 0.05
 #: The magnetometer ages tried (s): 0 to this.
 MAX_MAG_DELAY_S = 0.3
 #: The replay's pre-pass looks at the first this many seconds of IMU data (s).
@@ -121,6 +132,18 @@ def baro_noise_from_spread(spread: float, top: float) -> tuple[float, str]:
             f"the spread of the baro height against the GNSS height at that delay, "
             f"{spread:.3f} m, within [{BARO_NOISE_MIN:g}, {hi:g}] m "
             "(--noise baro_noise=M to set it)")
+
+
+def mag_noise_from_scatter(scatter: float, top: float) -> tuple[float, str]:
+    """The magnetometer noise (rad) a run takes from the ``scatter`` (rad, per axis) of its
+    readings' direction turned to NED with the filter's attitude: clipped to
+    [:data:`MAG_NOISE_MIN`, ``top``] (``top`` rad, the IMU source's default), with the
+    words saying so."""
+    hi = max(float(top), MAG_NOISE_MIN)
+    return (float(np.clip(scatter, MAG_NOISE_MIN, hi)),
+            f"the spread of the field direction at that age, {np.degrees(scatter):.2f} deg "
+            f"per axis, within [{np.degrees(MAG_NOISE_MIN):.2f}, {np.degrees(hi):.2f}] deg "
+            "(--noise mag_noise=RAD to set it)")
 
 
 def delay_used(delay: float) -> tuple[float, str]:
@@ -285,6 +308,16 @@ class MagEstimate:
     imu_rate_hz: float = 0.0  # the probe run's IMU rate (Hz)
     grid: Array = field(default_factory=lambda: np.zeros(0))
     cost: Array = field(default_factory=lambda: np.zeros(0))
+    #: the readings inside the steps, which the spread curve sums over
+    inside: int = 0
+
+    def scatter_at(self, age: float) -> float | None:
+        """The scatter (rad, per axis) at the grid's age nearest ``age`` (s): what a run
+        that takes its readings at that age sees (None: no spread curve)."""
+        if not self.cost.size or self.inside <= 0:
+            return None
+        k = int(np.argmin(np.abs(self.grid - age)))
+        return float(np.sqrt(self.cost[k] / (2 * self.inside)))
 
 
 class DelayProbe:
@@ -528,7 +561,7 @@ class DelayProbe:
             qi, _ = quat_slerp_interp(t, q, mt - lag)
             u = quat_rotate(qi, mf)
             cost[k] = float(np.sum((u - u.mean(axis=0)) ** 2))
-        est.grid, est.cost = grid, cost
+        est.grid, est.cost, est.inside = grid, cost, n
         k = int(np.argmin(cost))
         est.scatter = float(np.sqrt(cost[k] / (2 * n)))
         qi, _ = quat_slerp_interp(t, q, mt - grid[k])
@@ -887,9 +920,22 @@ class LiveDelayLearner:
     the window is; no refinement, the run already uses the delay)."""
 
     def __init__(self, first_s: float = LIVE_FIRST_S, check_s: float = LIVE_CHECK_S,
-                 span_s: float = PROBE_S, given: float | None = None) -> None:
+                 span_s: float = PROBE_S, given: float | None = None,
+                 learn_mag_noise: bool = True) -> None:
         self.first_s, self.check_s, self.span_s = first_s, check_s, span_s
         self.given = None if given is None else float(given)
+        #: the magnetometer's noise learnt with the delay (rad; None: not estimated), the
+        #: scatter it came from and why: the spread of the readings' direction turned to
+        #: NED with the filter's attitude, at the age the run takes them, within
+        #: [:data:`MAG_NOISE_MIN`, the IMU source's profile], as the replay's probe takes
+        #: it (not with ``learn_mag_noise`` False: an option or the vehicle's spec gave it)
+        self.learn_mag_noise = bool(learn_mag_noise)
+        self.mag_scatter: float | None = None
+        self.mag_noise: float | None = None
+        self.mag_noise_why = ""
+        self._mag_est: MagEstimate | None = None
+        self._mag_what = ""
+        self._mag_age = 0.0  # s, the stream's magnetometer age (apply)
         self.delay: float | None = None
         self.why = ""
         self.t_decided: float | None = None
@@ -957,12 +1003,16 @@ class LiveDelayLearner:
         """A magnetometer sample as it arrives, when it is from the stream's magnetometer
         ``source``: each new reading once (a reading repeated in every IMU message, as a
         RAW_IMU's, is one), until the inclination is judged."""
-        if self._incl_done or source is None or s.source != source:
+        probe = self.learn_mag_noise and not self.done
+        if not (probe or not self._incl_done) or source is None or s.source != source:
             return
         f = np.asarray(s.field, float)
         if self._last_mag is None or not np.array_equal(f, self._last_mag):
             self._last_mag = f
-            self._iprobe.add_mag(s.t, f)
+            if not self._incl_done:
+                self._iprobe.add_mag(s.t, f)
+            if probe:
+                self._probe.add_mag(s.t, f)
 
     def add_baro(self, s: BaroSample, source: str | None) -> None:
         """A baro sample as it arrives, when it is from the stream's barometer ``source``."""
@@ -1090,6 +1140,11 @@ class LiveDelayLearner:
             if bias is not None:
                 self.bias = bias
                 self.bias_why = f"estimated live: {why} ({what})"
+        if self.learn_mag_noise:
+            # (the scatter at the run's own magnetometer age is taken in apply)
+            self._mag_est, self.mag_scatter, self.mag_noise = (
+                self._probe.estimate_mag(gnss_delay=est.lag(d)), None, None)
+            self._mag_what = what
         best = self._probe.estimate_baro(est.lag(d))
         self.estimates[-1]["baro_delay"] = best.delay
         if best.delay is not None:
@@ -1141,6 +1196,21 @@ class LiveDelayLearner:
                                 f"estimated live: {self.baro_noise_why}")
         if self.bias is not None and not stream.noise.gnss_bias:
             stream.set_gnss_bias(self.bias, self.t_decided, self.bias_why)
+        self._mag_age = float(getattr(stream, "mag_delay", 0.0) or 0.0)
+        if self._mag_est is not None and self.mag_noise is None:
+            sc = self._mag_est.scatter_at(self._mag_age)
+            self._mag_est = None
+            if sc is not None:
+                self.mag_scatter = sc
+                used, why = mag_noise_from_scatter(sc, stream.source_noise.mag_noise)
+                self.mag_noise = used
+                self.mag_noise_why = (f"estimated live: {why}; {self._mag_est_words()}")
+        if self.mag_noise is not None and stream.noise.mag_noise != self.mag_noise:
+            stream.set_mag_noise(self.mag_noise, float(self.t_decided), self.mag_noise_why)
+
+    def _mag_est_words(self) -> str:
+        return (f"{self._mag_what}, the readings at the run's magnetometer age, "
+                f"{self._mag_age * 1e3:.0f} ms")
 
     def as_dict(self) -> dict[str, Any]:
         """For the result document: the delay used (None: not estimated) and every try."""
@@ -1149,6 +1219,7 @@ class LiveDelayLearner:
                 "window": self.window, "baro_delay": self.baro_delay,
                 "baro_spread": self.baro_spread, "baro_noise": self.baro_noise,
                 "baro_offset": self.baro_offset,
+                "mag_scatter": self.mag_scatter, "mag_noise": self.mag_noise,
                 "gnss_drift": self.drift, "gnss_bias": self.bias,
                 "filter": self.label or None, "tries": self.estimates,
                 "inclination": {

@@ -567,6 +567,17 @@ class NavStream(LateDeclination, StreamSnapshots):
         self.summary["baro_delay_s"] = self.baro_delay
         self._decide("baro delay", f"{self.baro_delay * 1e3:.0f} ms", t, why)
 
+    def set_mag_noise(self, noise: float, t: float, why: str) -> None:
+        """From now on the magnetometer's noise is ``noise`` (rad, the std of the field's
+        direction per axis, as ``NavNoise.mag_noise``): a live run's estimate (``why``;
+        :class:`~uavest.engine.gnss_delay.LiveDelayLearner`, which is not asked to learn it
+        when an option or the vehicle's spec gave it)."""
+        if self._builder is None:
+            return
+        self.noise = self.noise.with_(mag_noise=float(noise))
+        self._aid_noise = None
+        self._decide("magnetometer noise", f"{noise:.3f} rad", t, why)
+
     def set_baro_fit(self, noise: float, offset: float | None, t: float, why: str) -> None:
         """From now on the baro's noise is ``noise`` (m; not when ``--noise baro_noise``
         gave one) and its offset to the GNSS height ``offset`` (m, baro height minus GNSS
