@@ -1002,16 +1002,18 @@ class LiveDelayLearner:
     def add_mag(self, s: MagSample, source: str | None) -> None:
         """A magnetometer sample as it arrives, when it is from the stream's magnetometer
         ``source``: each new reading once (a reading repeated in every IMU message, as a
-        RAW_IMU's, is one), until the inclination is judged."""
-        probe = self.learn_mag_noise and not self.done
-        if not (probe or not self._incl_done) or source is None or s.source != source:
+        RAW_IMU's, is one), to the inclination's probe until the inclination is judged and
+        to the delay's probe while it learns (the magnetometer's noise)."""
+        to_incl = not self._incl_done
+        to_delay = self.learn_mag_noise and not self.done
+        if not (to_incl or to_delay) or source is None or s.source != source:
             return
         f = np.asarray(s.field, float)
         if self._last_mag is None or not np.array_equal(f, self._last_mag):
             self._last_mag = f
-            if not self._incl_done:
+            if to_incl:
                 self._iprobe.add_mag(s.t, f)
-            if probe:
+            if to_delay:
                 self._probe.add_mag(s.t, f)
 
     def add_baro(self, s: BaroSample, source: str | None) -> None:
@@ -1204,13 +1206,11 @@ class LiveDelayLearner:
                 self.mag_scatter = sc
                 used, why = mag_noise_from_scatter(sc, stream.source_noise.mag_noise)
                 self.mag_noise = used
-                self.mag_noise_why = (f"estimated live: {why}; {self._mag_est_words()}")
+                self.mag_noise_why = (f"estimated live: {why}; {self._mag_what}, the readings "
+                                      f"at the run's magnetometer age, "
+                                      f"{self._mag_age * 1e3:.0f} ms")
         if self.mag_noise is not None and stream.noise.mag_noise != self.mag_noise:
             stream.set_mag_noise(self.mag_noise, float(self.t_decided), self.mag_noise_why)
-
-    def _mag_est_words(self) -> str:
-        return (f"{self._mag_what}, the readings at the run's magnetometer age, "
-                f"{self._mag_age * 1e3:.0f} ms")
 
     def as_dict(self) -> dict[str, Any]:
         """For the result document: the delay used (None: not estimated) and every try."""
