@@ -469,6 +469,42 @@ class StreamSnapshots:
             self.summary["decisions"] = self.decisions
 
 
+class HeldAlignment:
+    """The first samples of a step builder (:class:`AttitudeStream`,
+    :class:`~uavest.engine.navigation.NavStream`), held until its IMU has run for two
+    alignment windows; then its ``_setup`` (the sources chosen from what was held, the
+    held samples fed through)."""
+
+    opts: Any
+    _held: list[Any] | None  # samples of the alignment window (None once set up)
+    _imu_t0: float | None
+
+    def _setup(self) -> list[Start | Step]:
+        raise NotImplementedError
+
+    def _held_push(self, s: Sample) -> list[Start | Step] | None:
+        """``s`` held: the items the set-up completed (none while it waits); None once
+        the stream is set up (``s`` is for the steps)."""
+        if self._held is None:
+            return None
+        self._held.append(s)
+        if isinstance(s, ImuSample):
+            if self._imu_t0 is None:
+                self._imu_t0 = s.t
+            elif s.t > self._imu_t0 + 2.0 * self.opts.align_s:
+                return self._setup()
+        return []
+
+    def _held_flush(self) -> list[Start | Step]:
+        """At the end of the stream: the set-up if it is still waiting (nothing held at
+        all: :class:`NoSamplesError`), else nothing."""
+        if self._held is None:
+            return []
+        if not self._held:
+            raise NoSamplesError("no samples in the stream (or in the chosen window)")
+        return self._setup()
+
+
 def choose_imu(held: Sequence[Sample], imu: str | None, use_mag: bool
                ) -> tuple[str, dict[str, int], str | None, dict[str, int]]:
     """``(imu, imu_counts, mag, mag_counts)`` of the alignment window ``held``: the IMU
@@ -496,7 +532,7 @@ def choose_imu(held: Sequence[Sample], imu: str | None, use_mag: bool
     return imu, imu_counts, mag, mag_counts
 
 
-class AttitudeStream(LateDeclination, StreamSnapshots):
+class AttitudeStream(LateDeclination, StreamSnapshots, HeldAlignment):
     """One :class:`Start` then :class:`Step` s from a sample stream (see the module
     docstring). Push samples one at a time (:meth:`push`, :meth:`flush`: each returns the
     items it completed), or iterate it over ``samples``. :attr:`summary` describes what
@@ -579,26 +615,14 @@ class AttitudeStream(LateDeclination, StreamSnapshots):
     # ------------------------------------------------------------------ pushing
     def push(self, s: Sample) -> list[Start | Step]:
         """Feed one sample; returns the items (start, steps) it completed."""
-        o = self.opts
-        if not o.in_window(s.t):
+        if not self.opts.in_window(s.t):
             return []
-        if self._held is not None:
-            self._held.append(s)
-            if isinstance(s, ImuSample):
-                if self._imu_t0 is None:
-                    self._imu_t0 = s.t
-                elif s.t > self._imu_t0 + 2.0 * o.align_s:
-                    return self._setup()
-            return []
-        return self._feed(s)
+        held = self._held_push(s)
+        return self._feed(s) if held is None else held
 
     def flush(self) -> list[Start | Step]:
         """End of the stream: close the last step; returns the remaining items."""
-        out: list[Start | Step] = []
-        if self._held is not None:
-            if not self._held:
-                raise NoSamplesError("no samples in the stream (or in the chosen window)")
-            out += self._setup()
+        out = self._held_flush()
         assert self._builder is not None  # made by _setup
         out += self._emit(list(self._builder.flush()))
         if self._align is not None:  # the stream ended during the alignment

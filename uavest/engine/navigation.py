@@ -83,6 +83,7 @@ from ..models.navigation import (
 from .attitude import (
     GAP_MEDIANS,
     GAP_MIN_S,
+    HeldAlignment,
     LateDeclination,
     StreamSnapshots,
     _Gap,
@@ -397,7 +398,7 @@ def split_step(r: _Raw, max_step: float) -> list[_Raw]:
     return out
 
 
-class NavStream(LateDeclination, StreamSnapshots):
+class NavStream(LateDeclination, StreamSnapshots, HeldAlignment):
     """One :class:`Start` then navigation :class:`Step` s from a sample stream (module
     docstring). :meth:`push` / :meth:`flush` return the items they completed; iterating
     runs over ``samples``. :attr:`summary` has the keys of the attitude stream's summary
@@ -688,23 +689,12 @@ class NavStream(LateDeclination, StreamSnapshots):
         if not o.in_window(s.t):
             return []
         self._aids.seen(s)
-        if self._held is not None:
-            self._held.append(s)
-            if isinstance(s, ImuSample):
-                if self._imu_t0 is None:
-                    self._imu_t0 = s.t
-                elif s.t > self._imu_t0 + 2.0 * o.align_s:
-                    return self._setup()
-            return []
-        return self._feed(s)
+        held = self._held_push(s)
+        return self._feed(s) if held is None else held
 
     def flush(self) -> list[Start | Step]:
         """End of the stream: close and release the last steps."""
-        out: list[Start | Step] = []
-        if self._held is not None:
-            if not self._held:
-                raise NoSamplesError("no samples in the stream (or in the chosen window)")
-            out += self._setup()
+        out = self._held_flush()
         assert self._builder is not None
         for r in self._builder.flush():
             self._queue.append(r)
