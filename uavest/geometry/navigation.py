@@ -35,18 +35,12 @@ import math
 import numpy as np
 
 from uavest.geometry.rotation import (
+    QuatRowsSpace,
     _np_local_rows,
     _np_mean,
     _np_retract_rows,
-    local_rows,
-    mean_rows,
     qexp_f,
     qmul_f,
-    quat_conj,
-    quat_exp,
-    quat_log,
-    quat_mul,
-    retract_rows,
 )
 
 Array = np.ndarray
@@ -90,7 +84,7 @@ def nav_retract_one(x: Array, dx: Array) -> Array:
     return out
 
 
-class NavSpace:
+class NavSpace(QuatRowsSpace):
     """SO(3) x R^3 (v NED) x R^3 (p NED) x R^3 (gyro bias) x R^3 (accel bias).
 
     ``size`` 16, tangent ``dim`` 15 (``extra`` more of each: Euclidean components after
@@ -117,42 +111,15 @@ class NavSpace:
     def __hash__(self) -> int:
         return hash(("NavSpace", self.extra, self.mag))
 
-    # The filters' shapes, (16,) or (M, 16) against (M, 15), go to the attitude space's
-    # row kernels (compiled when in use; any width: a quaternion, then Euclidean
-    # components), one state's retraction to the float path.
-    def retract(self, x: Array, dx: Array) -> Array:
-        if dx.ndim == 2 and x.ndim <= 2 and (x.ndim == 1 or x.shape[0] == dx.shape[0]):
-            return retract_rows(x, dx)
-        if dx.ndim == 1 and x.ndim == 1:
-            return nav_retract_one(x, dx)
-        return self._retract_broadcast(x, dx)
+    # the filters' shapes go to the attitude space's row kernels (QuatRowsSpace); one
+    # state's retraction to the float path (the EKF's update), one state's local to the
+    # numpy rows
+    def _retract_one(self, x: Array, dx: Array) -> Array:
+        return nav_retract_one(x, dx)
 
-    def local(self, x: Array, y: Array) -> Array:
-        if y.ndim == 2 and x.ndim <= 2 and (x.ndim == 1 or x.shape[0] == y.shape[0]):
-            return local_rows(x, y)
-        if y.ndim == 1 and x.ndim == 1:
-            res: Array = nav_local_rows(x, y[None, :])[0]
-            return res
-        return self._local_broadcast(x, y)
-
-    def _retract_broadcast(self, x: Array, dx: Array) -> Array:
-        q = quat_mul(x[..., :4], quat_exp(dx[..., :3]))
-        q /= np.sqrt(np.einsum("...i,...i->...", q, q))[..., None]
-        r = x[..., 4:] + dx[..., 3:]
-        lead = np.broadcast_shapes(q.shape[:-1], r.shape[:-1])
-        return np.concatenate(
-            [np.broadcast_to(q, lead + (4,)), np.broadcast_to(r, lead + (self.size - 4,))],
-            axis=-1
-        )
-
-    def _local_broadcast(self, x: Array, y: Array) -> Array:
-        d = quat_log(quat_mul(quat_conj(x[..., :4]), y[..., :4]))
-        r = y[..., 4:] - x[..., 4:]
-        d, r = np.broadcast_arrays(d, r)
-        return np.concatenate([d, r], axis=-1)
-
-    def mean(self, X: Array, w: Array, x0: Array | None = None) -> Array:
-        return mean_rows(X, w, X[0] if x0 is None else x0)
+    def _local_one(self, x: Array, y: Array) -> Array:
+        res: Array = nav_local_rows(x, y[None, :])[0]
+        return res
 
     def __repr__(self) -> str:
         extra = f", +{self.extra}" if self.extra else ""

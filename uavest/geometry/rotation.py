@@ -36,6 +36,7 @@ G0 = 9.80665
 __all__ = [
     "G0",
     "AttitudeSpace",
+    "QuatRowsSpace",
     "dcm_to_quat",
     "euler_to_quat",
     "quat_canonical",
@@ -483,7 +484,63 @@ def _np_gyro_propagate(X: Array, w: Array, dt: float) -> Array:
     return out
 
 
-class AttitudeSpace:
+class QuatRowsSpace:
+    """retract / local / mean of a state that is a quaternion (body FRD -> NED,
+    scalar-first) followed by Euclidean components, ``size`` of them in all
+    (:class:`AttitudeSpace`, :class:`~uavest.geometry.navigation.NavSpace`): the right
+    (body-frame) error ``q <- q * Exp(dtheta)`` and addition on the rest; ``local`` its
+    inverse the short way. The filters' shapes, one state or (M, size) against (M, size -
+    1), go to the row kernels (compiled when in use); one state against one tangent to
+    :meth:`_retract_one` / :meth:`_local_one`, which a space may do its own way; any other
+    broadcast to the general forms."""
+
+    size: int
+
+    def _retract_one(self, x: Array, dx: Array) -> Array:
+        res: Array = retract_rows(x, dx[None, :])[0]
+        return res
+
+    def _local_one(self, x: Array, y: Array) -> Array:
+        res: Array = local_rows(x, y[None, :])[0]
+        return res
+
+    def retract(self, x: Array, dx: Array) -> Array:
+        if dx.ndim == 2 and x.ndim <= 2 and (x.ndim == 1 or x.shape[0] == dx.shape[0]):
+            return retract_rows(x, dx)
+        if dx.ndim == 1 and x.ndim == 1:
+            return self._retract_one(x, dx)
+        return self._retract_broadcast(x, dx)
+
+    def local(self, x: Array, y: Array) -> Array:
+        if y.ndim == 2 and x.ndim <= 2 and (x.ndim == 1 or x.shape[0] == y.shape[0]):
+            return local_rows(x, y)
+        if y.ndim == 1 and x.ndim == 1:
+            return self._local_one(x, y)
+        return self._local_broadcast(x, y)
+
+    # general broadcasting forms (any leading axes); the fused kernels above cover the
+    # filters' shapes
+    def _retract_broadcast(self, x: Array, dx: Array) -> Array:
+        q = quat_mul(x[..., :4], quat_exp(dx[..., :3]))
+        q /= np.sqrt(np.einsum("...i,...i->...", q, q))[..., None]
+        b = x[..., 4:] + dx[..., 3:]
+        lead = np.broadcast_shapes(q.shape[:-1], b.shape[:-1])
+        return np.concatenate(
+            [np.broadcast_to(q, lead + (4,)), np.broadcast_to(b, lead + (self.size - 4,))],
+            axis=-1
+        )
+
+    def _local_broadcast(self, x: Array, y: Array) -> Array:
+        d = quat_log(quat_mul(quat_conj(x[..., :4]), y[..., :4]))
+        db = y[..., 4:] - x[..., 4:]
+        d, db = np.broadcast_arrays(d, db)
+        return np.concatenate([d, db], axis=-1)
+
+    def mean(self, X: Array, w: Array, x0: Array | None = None) -> Array:
+        return mean_rows(X, w, X[0] if x0 is None else x0)
+
+
+class AttitudeSpace(QuatRowsSpace):
     """State ``x = [q (4), b (3)]``: attitude quaternion (body FRD -> NED, scalar-first)
     and gyro bias ``b`` (rad/s, body FRD). ``size`` 7, tangent ``dim`` 6.
 
@@ -496,42 +553,6 @@ class AttitudeSpace:
 
     dim = 6
     size = 7
-
-    def retract(self, x: Array, dx: Array) -> Array:
-        if dx.ndim == 2 and x.ndim <= 2 and (x.ndim == 1 or x.shape[0] == dx.shape[0]):
-            return retract_rows(x, dx)
-        if dx.ndim == 1 and x.ndim == 1:
-            res: Array = retract_rows(x, dx[None, :])[0]
-            return res
-        return self._retract_broadcast(x, dx)
-
-    def local(self, x: Array, y: Array) -> Array:
-        if y.ndim == 2 and x.ndim <= 2 and (x.ndim == 1 or x.shape[0] == y.shape[0]):
-            return local_rows(x, y)
-        if y.ndim == 1 and x.ndim == 1:
-            res: Array = local_rows(x, y[None, :])[0]
-            return res
-        return self._local_broadcast(x, y)
-
-    # general broadcasting forms (any leading axes); the fused kernels above cover the
-    # filters' shapes, (7,) or (M, 7) against (M, .)
-    def _retract_broadcast(self, x: Array, dx: Array) -> Array:
-        q = quat_mul(x[..., :4], quat_exp(dx[..., :3]))
-        q /= np.sqrt(np.einsum("...i,...i->...", q, q))[..., None]
-        b = x[..., 4:] + dx[..., 3:]
-        lead = np.broadcast_shapes(q.shape[:-1], b.shape[:-1])
-        return np.concatenate(
-            [np.broadcast_to(q, lead + (4,)), np.broadcast_to(b, lead + (3,))], axis=-1
-        )
-
-    def _local_broadcast(self, x: Array, y: Array) -> Array:
-        d = quat_log(quat_mul(quat_conj(x[..., :4]), y[..., :4]))
-        db = y[..., 4:] - x[..., 4:]
-        d, db = np.broadcast_arrays(d, db)
-        return np.concatenate([d, db], axis=-1)
-
-    def mean(self, X: Array, w: Array, x0: Array | None = None) -> Array:
-        return mean_rows(X, w, X[0] if x0 is None else x0)
 
     def __repr__(self) -> str:
         return "AttitudeSpace(q*Exp(dtheta), b+db)"
