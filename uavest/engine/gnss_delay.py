@@ -935,7 +935,6 @@ class LiveDelayLearner:
         self.mag_noise_why = ""
         self._mag_est: MagEstimate | None = None
         self._mag_what = ""
-        self._mag_age = 0.0  # s, the stream's magnetometer age (apply)
         self.delay: float | None = None
         self.why = ""
         self.t_decided: float | None = None
@@ -1198,17 +1197,16 @@ class LiveDelayLearner:
                                 f"estimated live: {self.baro_noise_why}")
         if self.bias is not None and not stream.noise.gnss_bias:
             stream.set_gnss_bias(self.bias, self.t_decided, self.bias_why)
-        self._mag_age = float(getattr(stream, "mag_delay", 0.0) or 0.0)
         if self._mag_est is not None and self.mag_noise is None:
-            sc = self._mag_est.scatter_at(self._mag_age)
+            age = float(getattr(stream, "mag_delay", 0.0) or 0.0)  # s, the run's own
+            sc = self._mag_est.scatter_at(age)
             self._mag_est = None
             if sc is not None:
                 self.mag_scatter = sc
                 used, why = mag_noise_from_scatter(sc, stream.source_noise.mag_noise)
                 self.mag_noise = used
                 self.mag_noise_why = (f"estimated live: {why}; {self._mag_what}, the readings "
-                                      f"at the run's magnetometer age, "
-                                      f"{self._mag_age * 1e3:.0f} ms")
+                                      f"at the run's magnetometer age, {age * 1e3:.0f} ms")
         if self.mag_noise is not None and stream.noise.mag_noise != self.mag_noise:
             stream.set_mag_noise(self.mag_noise, float(self.t_decided), self.mag_noise_why)
 
