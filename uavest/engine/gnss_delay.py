@@ -563,7 +563,7 @@ class DelayProbe:
             cost[k] = float(np.sum((u - u.mean(axis=0)) ** 2))
         est.grid, est.cost, est.inside = grid, cost, n
         k = int(np.argmin(cost))
-        est.scatter = float(np.sqrt(cost[k] / (2 * n)))
+        est.scatter = est.scatter_at(grid[k])
         qi, _ = quat_slerp_interp(t, q, mt - grid[k])
         u = quat_rotate(qi, mf)
         um = u.mean(axis=0)
