@@ -220,10 +220,12 @@ def test_the_magnetometer_back_dating_of_rows_equals_numpy(nb):
 
 
 def test_a_hybrid_run_through_the_kernels_equals_the_numpy_run(nb, monkeypatch):
-    """60 predict / magnetometer (back-dated) / GNSS-velocity steps of the navigation
-    preset's hybrid (527 members on the 15-state space), once through the compiled kernels
-    (mechanisation, the space's rows, the back-dating) and once with them switched off,
+    """60 predict / magnetometer heading and field (back-dated) / GNSS-velocity steps of
+    the navigation preset's hybrid (527 members on the 15-state space), once through the
+    compiled kernels (mechanisation, the space's rows, the back-dating, the update's
+    ``shift_tangent``) and once with them switched off,
     from the same seeded inputs and draws: the same estimates to 1e-8."""
+    from uavest.core import hybrid
     from uavest.core.guard import Guarded
     from uavest.geometry import rotation
     from uavest.presets import build
@@ -245,6 +247,10 @@ def test_a_hybrid_run_through_the_kernels_equals_the_numpy_run(nb, monkeypatch):
             z, mm = MagHeading.from_field(g.normal(0.0, 0.3, 3) + [0.3, 0.0, 0.4],
                                           AttitudeNoise(), 0.1)
             s, _ = f.update(s, z, OnNav(mm, 0.01, u[:3]), rng)
+            ref = np.array([0.6, 0.05, 0.8])
+            zf = ref + g.normal(0.0, 0.05, 3)
+            s, _ = f.update(s, zf / np.linalg.norm(zf),
+                            OnNav(MagField(ref, np.eye(3) * 0.01), 0.01, u[:3]), rng)
             s, _ = f.update(s, g.normal(0.0, 0.1, 3), nav_mod.GnssVelocity(np.eye(3) * 0.01),
                             rng)
             e = f.estimate(s)
@@ -254,6 +260,59 @@ def test_a_hybrid_run_through_the_kernels_equals_the_numpy_run(nb, monkeypatch):
     Y1 = run()
     monkeypatch.setattr(nav_mod.NAV_KERNELS, "loaded", False)
     monkeypatch.setattr(rotation.MANIFOLD_KERNELS, "loaded", False)
+    monkeypatch.setattr(hybrid.SHIFT_KERNELS, "loaded", False)
     Y0 = run()
     assert np.all(np.isfinite(Y1))
     np.testing.assert_allclose(Y1, Y0, rtol=0, atol=1e-8)
+
+
+def test_the_hybrid_update_on_the_navigation_state_goes_through_its_kernel(nb):
+    """The navigation preset's hybrid (``reinflate``) updates a prior with its memoised
+    moments through ``shift_tangent`` for every measurement whose residual and mean are
+    plain (GNSS position and velocity, baro, the magnetometer's field, the field against
+    reference states), equal to the numpy path to 1e-12 from the same draws; the
+    magnetometer's heading (a wrapped residual) and a prior without its moments take the
+    numpy path (None)."""
+    from uavest.core import hybrid
+    from uavest.core.states import Ensemble, ensemble_moments
+    from uavest.geometry.navigation import NavSpace
+    from uavest.presets import build
+
+    sk = compiled_kernels(hybrid.SHIFT_KERNELS.get, "shift kernels")
+    g = np.random.default_rng(3)
+    space = NavSpace(extra=3, mag=2)  # the GNSS bias and magnetic reference states too
+    f = build("hybrid", "nav", dim=space.dim)
+    assert f.reinflate
+    x = np.zeros(space.size)
+    x[0] = 1.0
+    x[4:7] = [3.0, -1.0, 0.5]
+    E = f.init(Gaussian(x, np.diag(np.r_[0.01 * np.ones(3), np.ones(6), 1e-4 * np.ones(6),
+                                         0.04 * np.ones(3), 1e-3 * np.ones(2)])), space, g)
+    E = Ensemble(E.X, space, g.uniform(0.5, 1.5, E.M) / E.M)
+    E = Ensemble(E.X, space, E.w / E.w.sum())
+    ensemble_moments(E)
+    u = np.array([0.1, -0.2, 0.05])
+    field = np.array([0.6, 0.05, 0.8])
+    plain = [
+        (np.array([2.9, -1.1, 0.6]), nav_mod.GnssVelocity(np.eye(3) * 0.01)),
+        (np.array([0.5, 0.3, -0.2]), nav_mod.GnssPosition(np.eye(3) * 0.25)),
+        (np.array([0.1]), nav_mod.BaroHeight(np.eye(1) * 0.04)),
+        (field / np.linalg.norm(field), OnNav(MagField(field, np.eye(3) * 0.01), 0.02, u)),
+        (field / np.linalg.norm(field), MagFieldRef(field, np.eye(3) * 0.01, space, 0.02, u)),
+    ]
+    for z, model in plain:
+        assert model.plain_arithmetic()
+        a, ia = f._update_numpy(E, z, model, np.random.default_rng(7))
+        got = f._update_tangent(sk, E, z, model, np.random.default_rng(7))
+        assert got is not None, type(model).__name__
+        b, ib = got
+        for p, q in ((a.X, b.X), (a.w, b.w), (ia.nu, ib.nu), (ia.S, ib.S)):
+            np.testing.assert_allclose(q, p, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(ib.nis, ia.nis, rtol=1e-10)
+        assert not np.array_equal(b.X, E.X)  # it did move the members
+    z, mm = MagHeading.from_field(field, AttitudeNoise(), 0.1)
+    heading = OnNav(mm, 0.02, u)
+    assert not heading.plain_arithmetic()
+    assert f._update_tangent(sk, E, z, heading, np.random.default_rng(7)) is None
+    bare = Ensemble(E.X, space, E.w)
+    assert f._update_tangent(sk, bare, *plain[0], np.random.default_rng(7)) is None

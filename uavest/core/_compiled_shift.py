@@ -1,6 +1,7 @@
 """Compiled (numba) kernels of the default hybrid (:class:`uavest.core.hybrid.HybridShift`,
-shift update) on a vector state space: the optional fast path (``pip install
-"uavest[fast]"``), dispatched through :data:`uavest.core.hybrid.SHIFT_KERNELS`.
+shift update) on a vector state space, and its reinflated update on a manifold: the
+optional fast path (``pip install "uavest[fast]"``), dispatched through
+:data:`uavest.core.hybrid.SHIFT_KERNELS`.
 
 On the UNGM (99 members) the hybrid's step was numpy's per-call floor (~60 calls of ~1 us,
 docs/speed.md), not arithmetic. These kernels do the work between the model's ``f`` /
@@ -11,7 +12,10 @@ path in :mod:`uavest.core.hybrid` (which stays the reference and the fallback):
   the shrink kernel with the normals ``Z`` (``_HybridBase._regenerate``);
 * :func:`shift_update`: the innovation record, the tempered confidence weights, the EnKF
   shift with the normals ``V`` and the moments of the result (``HybridShift.update`` with one
-  stage and one shift, and ``ensemble_estimate`` of its result).
+  stage and one shift, and ``ensemble_estimate`` of its result);
+* :func:`shift_tangent`: the same update on a manifold with ``reinflate`` (the navigation
+  preset's hybrid, 527 members of 16 components), up to the new members' tangent vectors
+  at the prior's mean (the caller retracts them through the space's row kernels).
 
 The random numbers are drawn by the caller in numpy, in the order and shapes the numpy path
 draws them, so the random path is the numpy path's. Sums run in index order (numpy's
@@ -35,7 +39,7 @@ from numba import njit
 
 from ..compiled.helpers import chol_into, factor, solve_lower
 
-__all__ = ["add_noise", "chol_jitter", "regenerate", "shift_update"]
+__all__ = ["add_noise", "chol_jitter", "regenerate", "shift_tangent", "shift_update"]
 
 _OK, _NONFINITE, _NOT_PD = 0, 1, 2
 
@@ -311,28 +315,11 @@ def _tempered_direct(logw0: Array, ll: Array, phi_max: float, floor: float, W: A
 
 
 @njit(cache=True)
-def shift_update(X: Array, Y: Array, z: Array, w: Array, R: Array, V: Array, tau: float,
-                 min_ess: float, confidence: bool, Xn: Array, W: Array, nu: Array, S: Array,
-                 x: Array, P: Array) -> tuple[int, float]:  # pragma: no cover - compiled
-    """(status, nis): one ``HybridShift.update`` with ``stages`` = 1 and ``shifts`` = 1 on a
-    vector space with a plain measurement model, into the caller's arrays.
-
-    ``X`` (M, n) members, ``Y`` = h(X) (M, m), ``z`` (m,), ``w`` (M,) their weights, ``R``
-    (m, m), ``V`` (M, m) standard normals of the perturbed observations, ``tau`` the
-    shift's share, ``min_ess`` the ESS floor / M, ``confidence`` False for equal weights
-    (no tempering, the whole measurement shifted). Writes the shifted members ``Xn``
-    (M, n), their weights ``W`` (M,), the innovation ``nu`` (m,) and ``S`` (m, m) of the
-    predicted ensemble (its NIS returned) and the weighted mean ``x`` (n,) and covariance
-    ``P`` (n, n) of the result (its estimate). (An array made here and returned costs
-    numba ~1 us of boxing, one passed in ~0.1 us.) Status 1: a non-finite innovation
-    variance, weight or result; 2: S, R or the shift's S not positive definite; the
-    caller then runs the numpy path."""
-    M, n = X.shape
-    m = Y.shape[1]
-    if n == 1 and m == 1:
-        return _shift_1d(X, Y, z[0], w, R[0, 0], V, tau, min_ess, confidence, Xn, W, nu,
-                         S, x, P)
-    # the innovation of the predicted ensemble under its own weights
+def _innovation(Y: Array, z: Array, w: Array, R: Array, nu: Array, S: Array
+                ) -> tuple[int, float]:  # pragma: no cover - compiled
+    """(status, nis): the innovation ``nu`` (m,) and its covariance ``S`` (m, m) of the
+    members' images ``Y`` (M, m) under their weights ``w``, and its NIS."""
+    M, m = Y.shape
     ybar = np.zeros(m)
     for j in range(M):
         for a in range(m):
@@ -360,34 +347,101 @@ def shift_update(X: Array, Y: Array, z: Array, w: Array, R: Array, V: Array, tau
             nis += v[a] * v[a]
     if not math.isfinite(nis):
         return _NONFINITE, nis
-    # residuals and their log-likelihood under R
+    return _OK, nis
+
+
+@njit(cache=True)
+def _weights(r: Array, w: Array, R: Array, tau: float, min_ess: float, confidence: bool,
+             W: Array) -> tuple[int, float]:  # pragma: no cover - compiled
+    """(status, share): ``W`` <- the tempered confidence weights of the residuals ``r``
+    (M, m) under ``R`` (or ``w`` itself without confidence weights), and the share of the
+    measurement left to the EnKF shift."""
+    M, m = r.shape
+    ok, LR = factor(R)
+    if not ok:
+        return _NOT_PD, 1.0
+    if not confidence:
+        W[:] = w
+        return _OK, 1.0
+    ll = np.empty(M)
+    for j in range(M):
+        if m == 1:
+            t = r[j, 0] * (1.0 / LR[0, 0])
+            ll[j] = -0.5 * (t * t)
+        else:
+            u = solve_lower(LR, r[j])
+            q = 0.0
+            for a in range(m):
+                q += u[a] * u[a]
+            ll[j] = -0.5 * q
+    phi_max = 1.0 - tau
+    phi = _tempered(w, ll, phi_max, min_ess, W)
+    if not math.isfinite(W.sum()):
+        return _NONFINITE, 1.0
+    return _OK, tau + (phi_max - phi)
+
+
+@njit(cache=True)
+def _solve(cS: Array, b: Array, out: Array) -> None:  # pragma: no cover - compiled
+    """``out`` <- S^-1 b through the lower factor ``cS`` of S (m, m): forward, then back
+    substitution with cS^T (1 x 1: b times i i, i = 1 / cS_00, as gain() does)."""
+    m = b.shape[0]
+    if m == 1:
+        i1 = 1.0 / cS[0, 0]
+        out[0] = b[0] * i1 * i1
+        return
+    y1 = solve_lower(cS, b)
+    for a in range(m - 1, -1, -1):
+        t = y1[a]
+        for k in range(a + 1, m):
+            t -= cS[k, a] * out[k]
+        out[a] = t / cS[a, a]
+
+
+@njit(cache=True)
+def _gain(cS: Array, Pyx: Array) -> Array:  # pragma: no cover - compiled
+    """K (n, m) = Pxy S^-1 (gain()) from Pyx = Pxy^T (m, n) and the lower factor of S."""
+    m, n = Pyx.shape
+    K = np.empty((n, m))
+    for i in range(n):
+        _solve(cS, Pyx[:, i].copy(), K[i])
+    return K
+
+
+@njit(cache=True)
+def shift_update(X: Array, Y: Array, z: Array, w: Array, R: Array, V: Array, tau: float,
+                 min_ess: float, confidence: bool, Xn: Array, W: Array, nu: Array, S: Array,
+                 x: Array, P: Array) -> tuple[int, float]:  # pragma: no cover - compiled
+    """(status, nis): one ``HybridShift.update`` with ``stages`` = 1 and ``shifts`` = 1 on a
+    vector space with a plain measurement model, into the caller's arrays.
+
+    ``X`` (M, n) members, ``Y`` = h(X) (M, m), ``z`` (m,), ``w`` (M,) their weights, ``R``
+    (m, m), ``V`` (M, m) standard normals of the perturbed observations, ``tau`` the
+    shift's share, ``min_ess`` the ESS floor / M, ``confidence`` False for equal weights
+    (no tempering, the whole measurement shifted). Writes the shifted members ``Xn``
+    (M, n), their weights ``W`` (M,), the innovation ``nu`` (m,) and ``S`` (m, m) of the
+    predicted ensemble (its NIS returned) and the weighted mean ``x`` (n,) and covariance
+    ``P`` (n, n) of the result (its estimate). (An array made here and returned costs
+    numba ~1 us of boxing, one passed in ~0.1 us.) Status 1: a non-finite innovation
+    variance, weight or result; 2: S, R or the shift's S not positive definite; the
+    caller then runs the numpy path."""
+    M, n = X.shape
+    m = Y.shape[1]
+    if n == 1 and m == 1:
+        return _shift_1d(X, Y, z[0], w, R[0, 0], V, tau, min_ess, confidence, Xn, W, nu,
+                         S, x, P)
+    # the innovation of the predicted ensemble under its own weights
+    st, nis = _innovation(Y, z, w, R, nu, S)
+    if st:
+        return st, nis
+    # residuals, their log-likelihood under R and the tempered weights
     r = np.empty((M, m))
     for j in range(M):
         for a in range(m):
             r[j, a] = z[a] - Y[j, a]
-    ok, LR = factor(R)
-    if not ok:
-        return _NOT_PD, nis
-    share = 1.0
-    if confidence:
-        ll = np.empty(M)
-        for j in range(M):
-            if m == 1:
-                t = r[j, 0] * (1.0 / LR[0, 0])
-                ll[j] = -0.5 * (t * t)
-            else:
-                u = solve_lower(LR, r[j])
-                q = 0.0
-                for a in range(m):
-                    q += u[a] * u[a]
-                ll[j] = -0.5 * q
-        phi_max = 1.0 - tau
-        phi = _tempered(w, ll, phi_max, min_ess, W)
-        if not math.isfinite(W.sum()):
-            return _NONFINITE, nis
-        share = tau + (phi_max - phi)
-    else:
-        W[:] = w
+    st, share = _weights(r, w, R, tau, min_ess, confidence, W)
+    if st:
+        return st, nis
     # the EnKF shift with R / share: K = Pxy S'^-1, Pxy = c sum w_j X_j dY_j^T (the
     # weighted dY sum to zero, so the mean of X is not needed)
     ww = 0.0
@@ -417,19 +471,7 @@ def shift_update(X: Array, Y: Array, z: Array, w: Array, R: Array, V: Array, tau
     ok, cSt = factor(St)
     if not ok:
         return _NOT_PD, nis
-    K = np.empty((n, m))  # gain(): Pxy S'^-1 through the factor (1 x 1: times i i)
-    if m == 1:
-        i1 = 1.0 / cSt[0, 0]
-        for i in range(n):
-            K[i, 0] = Pyx[0, i] * i1 * i1
-    else:
-        for i in range(n):
-            y1 = solve_lower(cSt, Pyx[:, i].copy())
-            for a in range(m - 1, -1, -1):  # back substitution with cSt^T
-                t = y1[a]
-                for b in range(a + 1, m):
-                    t -= cSt[b, a] * K[i, b]
-                K[i, a] = t / cSt[a, a]
+    K = _gain(cSt, Pyx)
     d = np.empty(m)
     for j in range(M):
         for a in range(m):
@@ -449,6 +491,103 @@ def shift_update(X: Array, Y: Array, z: Array, w: Array, R: Array, V: Array, tau
             P[i, k] = Pm[i, k]
         if not (math.isfinite(x[i]) and math.isfinite(P[i, i])):
             return _NONFINITE, nis
+    return _OK, nis
+
+
+@njit(cache=True)
+def shift_tangent(L0: Array, Y: Array, z: Array, w: Array, R: Array, V: Array, tau: float,
+                  min_ess: float, confidence: bool, T: Array, W: Array, nu: Array,
+                  S: Array) -> tuple[int, float]:  # pragma: no cover - compiled
+    """(status, nis): one ``HybridShift.update`` with ``reinflate``, ``stages`` = 1 and
+    ``shifts`` = 1 on a manifold with a plain measurement model, up to the retraction:
+    the members' new tangent vectors ``T`` (M, n) at the prior's mean x (the new members
+    are retract(x, T_j)).
+
+    ``L0`` (M, n): the prior members' deviations local(x, X_j) centred under ``w`` (the
+    prior's memoised moments); the rest as :func:`shift_update`. With the weights ``W``
+    after tempering, c = 1 / (1 - sum W^2), dY the images' deviations centred under W and
+    dX = L0 - sum W L0: K = Pxy (Pyy + R')^-1, D_j = K (r_j + chol(R') V_j) + L0_j,
+    d = sum W D, T_j = d + a (D_j - d) with a = sqrt(1 + tr((Pyy + R')^-1 Pyy) sum W^2)
+    (``hybrid.sampling_shrink``). Status 1: a non-finite innovation, weight or tangent;
+    2: a factor failed; the caller then runs the numpy path."""
+    M, n = L0.shape
+    m = Y.shape[1]
+    st, nis = _innovation(Y, z, w, R, nu, S)
+    if st:
+        return st, nis
+    r = np.empty((M, m))
+    for j in range(M):
+        for a in range(m):
+            r[j, a] = z[a] - Y[j, a]
+    st, share = _weights(r, w, R, tau, min_ess, confidence, W)
+    if st:
+        return st, nis
+    ww = 0.0
+    for j in range(M):
+        ww += W[j] * W[j]
+    c = 1.0 / max(1.0 - ww, 1e-12)
+    Rt = R * (1.0 / share)
+    ok, Lr = factor(Rt)
+    if not ok:
+        return _NOT_PD, nis
+    # the images' deviations under W, centred exactly (as the numpy path on a manifold)
+    yb = np.zeros(m)
+    for j in range(M):
+        for a in range(m):
+            yb[a] += W[j] * Y[j, a]
+    dY = np.empty((M, m))
+    e = np.zeros(m)
+    for j in range(M):
+        for a in range(m):
+            dY[j, a] = Y[j, a] - yb[a]
+            e[a] += W[j] * dY[j, a]
+    l0 = np.zeros(n)
+    for j in range(M):
+        for i in range(n):
+            l0[i] += W[j] * L0[j, i]
+    Pyx = np.zeros((m, n))
+    Pyy = np.zeros((m, m))
+    for j in range(M):
+        cw = c * W[j]
+        for a in range(m):
+            dY[j, a] -= e[a]
+        for a in range(m):
+            A = dY[j, a] * cw
+            for i in range(n):
+                Pyx[a, i] += A * (L0[j, i] - l0[i])
+            for b in range(m):
+                Pyy[a, b] += A * dY[j, b]
+    St = Pyy + Rt
+    ok, cSt = factor(St)
+    if not ok:
+        return _NOT_PD, nis
+    K = _gain(cSt, Pyx)
+    tr = 0.0  # tr(St^-1 Pyy)
+    col = np.empty(m)
+    for b in range(m):
+        _solve(cSt, Pyy[:, b].copy(), col)
+        tr += col[b]
+    amp = math.sqrt(1.0 + tr * ww)
+    dv = np.empty(m)
+    dm = np.zeros(n)
+    for j in range(M):
+        for a in range(m):
+            pv = 0.0
+            for b in range(a + 1):
+                pv += V[j, b] * Lr[a, b]
+            dv[a] = r[j, a] + pv
+        for i in range(n):
+            s = 0.0
+            for a in range(m):
+                s += dv[a] * K[i, a]
+            T[j, i] = s + L0[j, i]
+            dm[i] += W[j] * T[j, i]
+    for j in range(M):
+        for i in range(n):
+            t = dm[i] + amp * (T[j, i] - dm[i])
+            if not math.isfinite(t):
+                return _NONFINITE, nis
+            T[j, i] = t
     return _OK, nis
 
 

@@ -402,6 +402,44 @@ def _shift_cases(nb: ModuleType) -> Iterator[tuple[str, Any, Any]]:
                             ("P", ga.P, gb.P), ("nu", ia.nu, ib.nu), ("S", ia.S, ib.S),
                             ("nis", ia.nis, ib.nis), ("regenerated X", ra.X, rb)):
             yield f"n={n} {label}", q, p
+    yield from _tangent_cases(nb)
+
+
+def _tangent_cases(nb: ModuleType) -> Iterator[tuple[str, Any, Any]]:
+    """The reinflated update on a manifold (:func:`~uavest.core._compiled_shift.shift_tangent`
+    through :meth:`HybridShift._update_tangent`) against the numpy path: 26 weighted
+    members of the attitude space, a 3-D direction measurement."""
+    from ..geometry.rotation import AttitudeSpace, quat_rotate_inv
+
+    space = AttitudeSpace()
+
+    class _Dir(Measurement):
+        R = np.diag([0.02, 0.03, 0.025])
+
+        def __init__(self) -> None:
+            self.space = space
+
+        def h(self, X: Array) -> Array:
+            return quat_rotate_inv(X[:, :4], np.array([0.6, 0.0, 0.8]))
+
+    rng = np.random.default_rng(5)
+    f = HybridShift(n_cloud=1, reinflate=True)
+    x0 = np.array([0.9, 0.1, -0.2, 0.3, 0.01, 0.0, -0.02])
+    x0[:4] /= np.linalg.norm(x0[:4])
+    X = space.retract(x0, 0.2 * rng.standard_normal((26, 6)))
+    w = rng.uniform(0.5, 1.5, 26)
+    E = Ensemble(X, space, w / w.sum())
+    ensemble_moments(E)  # the prior's memo, which the kernel reads
+    z = np.array([0.5, 0.1, 0.85])
+    a, ia = f._update_numpy(E, z, _Dir(), np.random.default_rng(6))
+    got = f._update_tangent(nb, E, z, _Dir(), np.random.default_rng(6))
+    if got is None:
+        yield "tangent update", None, a.X
+        return
+    b, ib = got
+    for label, p, q in (("X", a.X, b.X), ("w", a.w, b.w), ("nu", ia.nu, ib.nu),
+                        ("S", ia.S, ib.S), ("nis", ia.nis, ib.nis)):
+        yield f"tangent {label}", q, p
 
 
 #: The compiled kernels of :class:`HybridShift` on vector spaces
@@ -647,7 +685,9 @@ class HybridShift(_HybridBase):
         the kernel does not apply (more than one stage or shift, a measurement model that
         is not plain on a vector space, a ``z`` that is not the model's float64 vector).
         A failure hands the drawn normals to :meth:`_update_numpy`."""
-        if not (self.stages == self.shifts == 1 and not self.reinflate and _plain_vector(model)
+        if self.reinflate:
+            return self._update_tangent(nb, E, z, model, rng)
+        if not (self.stages == self.shifts == 1 and _plain_vector(model)
                 and _float_vector(z, model.dim)):
             return None
         M = E.M
@@ -664,6 +704,35 @@ class HybridShift(_HybridBase):
         if st:
             return self._update_numpy(E, z, model, rng, V)
         return (Ensemble(X, E.space, wn if confidence else None, gaussian=Gaussian(x, P)),
+                Innovation(nu, S, nis))
+
+    def _update_tangent(self, nb: ModuleType, E: Ensemble, z: Array, model: Measurement,
+                        rng: Any) -> tuple[Ensemble, Innovation] | None:
+        """The update with ``reinflate`` on a manifold (the navigation preset's hybrid)
+        through :func:`uavest.core._compiled_shift.shift_tangent`, then the space's
+        retraction of the new tangent vectors at the prior's mean. None, before any draw,
+        where the kernel does not apply: more than one stage or shift, a vector space, a
+        prior without its memoised moments (the numpy path's ``L0`` is then not centred),
+        a measurement whose residual or mean is not plain, a ``z`` that is not the model's
+        float64 vector. A failure hands the drawn normals to :meth:`_update_numpy`."""
+        space = model.space
+        if not (self.stages == self.shifts == 1 and E.moments is not None
+                and type(space) is not VectorSpace and model.plain_arithmetic()
+                and _float_vector(z, model.dim)):
+            return None
+        x, L0 = E.moments[0], E.moments[1]
+        M = E.M
+        w = _equal_writable(M) if E.w is None else E.w
+        Y = np.ascontiguousarray(model.h(E.X))  # (some h give a transposed view)
+        V = rng.standard_normal((M, model.dim))  # the shift's perturbations
+        confidence = self.weights == "confidence"
+        n, m = L0.shape[1], V.shape[1]
+        T, wn, nu, S = _empty((M, n)), _empty(M), _empty(m), _empty((m, m))
+        st, nis = nb.shift_tangent(L0, Y, z, w, model.R, V, self.tau, self.min_ess,
+                                   confidence, T, wn, nu, S)
+        if st:
+            return self._update_numpy(E, z, model, rng, V)
+        return (Ensemble(space.retract(x, T), E.space, wn if confidence else None),
                 Innovation(nu, S, nis))
 
     def _update_numpy(self, E: Ensemble, z: Array, model: Measurement, rng: Any = None,

@@ -97,6 +97,13 @@ class Measurement:
         res: Array = np.dot(w, Y)  # = w @ Y, with less per-call overhead
         return res
 
+    def plain_arithmetic(self) -> bool:
+        """True if :meth:`residual` and :meth:`mean` are the plain ``a - b`` and ``w @ Y``
+        (a compiled update may then do them in its own loops): neither is overridden, or
+        the model overrides this to say that what it delegates to is plain."""
+        t = type(self)
+        return t.residual is Measurement.residual and t.mean is Measurement.mean
+
     @property
     def dim(self) -> int:
         res: int = self.R.shape[0]

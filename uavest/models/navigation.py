@@ -755,6 +755,9 @@ class OnNav(Measurement):
     def mean(self, Y: Array, w: Array) -> Array:
         return self.inner.mean(Y, w)
 
+    def plain_arithmetic(self) -> bool:
+        return self.inner.plain_arithmetic()
+
 
 def innovation_gate(nu: Array, S: Array, chi2: float) -> bool:
     """True when the innovation ``nu`` with covariance ``S`` passes the chi-square gate
