@@ -364,14 +364,18 @@ def _weights(r: Array, w: Array, R: Array, tau: float, min_ess: float, confidenc
         W[:] = w
         return _OK, 1.0
     ll = np.empty(M)
+    u = np.empty(m)
     for j in range(M):
         if m == 1:
             t = r[j, 0] * (1.0 / LR[0, 0])
             ll[j] = -0.5 * (t * t)
-        else:
-            u = solve_lower(LR, r[j])
+        else:  # solve_lower(LR, r[j]) into one scratch row (not an array per member)
             q = 0.0
             for a in range(m):
+                t = r[j, a]
+                for k in range(a):
+                    t -= LR[a, k] * u[k]
+                u[a] = t / LR[a, a]
                 q += u[a] * u[a]
             ll[j] = -0.5 * q
     phi_max = 1.0 - tau
@@ -547,14 +551,17 @@ def shift_tangent(L0: Array, Y: Array, z: Array, w: Array, R: Array, V: Array, t
             l0[i] += W[j] * L0[j, i]
     Pyx = np.zeros((m, n))
     Pyy = np.zeros((m, m))
+    dx = np.empty(n)
     for j in range(M):
         cw = c * W[j]
         for a in range(m):
             dY[j, a] -= e[a]
+        for i in range(n):
+            dx[i] = L0[j, i] - l0[i]
         for a in range(m):
             A = dY[j, a] * cw
             for i in range(n):
-                Pyx[a, i] += A * (L0[j, i] - l0[i])
+                Pyx[a, i] += A * dx[i]
             for b in range(m):
                 Pyy[a, b] += A * dY[j, b]
     St = Pyy + Rt
@@ -568,20 +575,26 @@ def shift_tangent(L0: Array, Y: Array, z: Array, w: Array, R: Array, V: Array, t
         _solve(cSt, Pyy[:, b].copy(), col)
         tr += col[b]
     amp = math.sqrt(1.0 + tr * ww)
+    Kt = np.ascontiguousarray(K.T)  # (m, n): the loop over the state runs along a row
     dv = np.empty(m)
     dm = np.zeros(n)
+    sv = np.empty(n)
     for j in range(M):
         for a in range(m):
             pv = 0.0
             for b in range(a + 1):
                 pv += V[j, b] * Lr[a, b]
             dv[a] = r[j, a] + pv
+        sv[:] = 0.0
+        for a in range(m):
+            da = dv[a]
+            for i in range(n):
+                sv[i] += da * Kt[a, i]
+        wj = W[j]
         for i in range(n):
-            s = 0.0
-            for a in range(m):
-                s += dv[a] * K[i, a]
-            T[j, i] = s + L0[j, i]
-            dm[i] += W[j] * T[j, i]
+            t = sv[i] + L0[j, i]
+            T[j, i] = t
+            dm[i] += wj * t
     for j in range(M):
         for i in range(n):
             t = dm[i] + amp * (T[j, i] - dm[i])
