@@ -203,6 +203,39 @@ def test_the_navigation_space_rows_go_through_the_compiled_kernels(nb, extra, ma
                                    atol=TOL)
 
 
+@pytest.mark.parametrize("extra, mag", [(0, 0), (3, 2), (None, None)])
+def test_the_members_moments_take_one_compiled_call(nb, extra, mag, monkeypatch):
+    """``ensemble_moments`` on the quaternion-row spaces (NavSpace; ``None``: the attitude
+    space) takes the fused kernel (``QuatRowsSpace.weighted_moments``): the mean from the
+    heaviest member, the centred deviations and the covariance equal the composition of
+    ``mean`` / ``local`` and numpy's weighted sums (the path without the kernels) to 1e-12,
+    weighted and equal-weight, with both quaternion signs among the members."""
+    from uavest.core.states import Ensemble, ensemble_moments, equal_weights
+    from uavest.geometry import rotation
+    from uavest.geometry.navigation import NavSpace
+
+    compiled_kernels(rotation.MANIFOLD_KERNELS.get, "attitude kernels")
+    space = rotation.AttitudeSpace() if extra is None else NavSpace(extra, mag)
+    g = np.random.default_rng(9)
+    x = np.r_[0.6, -0.3, 0.7, 0.2, g.normal(0.0, 1.0, space.size - 4)]
+    x[:4] /= np.linalg.norm(x[:4])
+    for M, weighted in ((629, True), (221, False), (2, True)):
+        X = space.retract(x, g.normal(0.0, 0.2, (M, space.dim)))
+        X[::4, :4] *= -1.0
+        w = g.uniform(0.2, 1.0, M) if weighted else None
+        E = Ensemble(X, space, None if w is None else w / w.sum())
+        got = ensemble_moments(E)
+        assert space.weighted_moments(X, got[2]) is not None
+        with monkeypatch.context() as m:
+            m.setattr(rotation.MANIFOLD_KERNELS, "loaded", False)
+            assert space.weighted_moments(X, got[2]) is None
+            want = ensemble_moments(Ensemble(X, space, E.w))
+        assert (got[2] is equal_weights(M)) == (not weighted)
+        for p, q in zip(got, want, strict=True):
+            np.testing.assert_allclose(p, q, rtol=0, atol=TOL)
+        assert got[1].shape == (M, space.dim) and np.abs(got[2] @ got[1]).max() < 1e-15
+
+
 def test_the_magnetometer_back_dating_of_rows_equals_numpy(nb):
     """``OnNav._q`` on rows (sigma points, members): the compiled back-dating (each row's
     attitude ``back`` s before, by its own gyro bias) equals the numpy one to 1e-12; one

@@ -71,6 +71,14 @@ def ensemble_moments(E: Ensemble) -> tuple[Array, Array, Array, Array]:
         x = np.dot(w, E.X)
         dX = E.X - x
     else:
+        # a space may compute all three in one (compiled) call: the quaternion rows
+        fused = getattr(E.space, "weighted_moments", None)
+        got = fused(E.X, w) if fused is not None else None
+        if got is not None:
+            x, dX, P = got
+            out = (x, dX, w, P)
+            object.__setattr__(E, "moments", out)
+            return out
         x = E.space.mean(E.X, w, mean_start(E.space, E.X, w))
         dX = E.space.local(x, E.X)
         dX = dX - np.dot(w, dX)  # centre exactly (tangent linearisation on manifolds)

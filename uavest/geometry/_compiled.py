@@ -24,7 +24,8 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["gyro_propagate", "local_rows", "mean", "retract_rows", "rotate_inv_rows"]
+__all__ = ["gyro_propagate", "local_rows", "mean", "moments", "retract_rows",
+           "rotate_inv_rows"]
 
 Array = np.ndarray
 
@@ -138,6 +139,37 @@ def mean(X: Array, w: Array, ref: Array) -> Array:  # pragma: no cover - compile
             step[0, j] += w[i] * d[i, j]
     out: Array = retract_rows(start, step)[0]
     return out
+
+
+@njit(cache=True, error_model="numpy")
+def moments(X: Array, w: Array) -> tuple[Array, Array, Array]:  # pragma: no cover - compiled
+    """(x, dX, P) of the members ``X`` (M, n) under the weights ``w`` (M,): :func:`mean`
+    started from the heaviest member (the first of equals), the deviations
+    local(x, X_j) centred exactly under ``w``, and the reliability-weighted covariance
+    sum_j w_j dX_j dX_j^T / max(1 - sum w^2, 1e-12) (what
+    ``uavest.core.states.ensemble_moments`` computes on these spaces, in one call)."""
+    M, k = X.shape
+    top = 0
+    for i in range(1, M):
+        if w[i] > w[top]:
+            top = i
+    x = mean(X, w, X[top])
+    dX = local_rows(x.reshape(1, k), X)
+    n = k - 1
+    c = np.zeros(n)
+    ww = 0.0
+    for i in range(M):
+        ww += w[i] * w[i]
+        for j in range(n):
+            c[j] += w[i] * dX[i, j]
+    Wd = np.empty((M, n))
+    for i in range(M):
+        for j in range(n):
+            dX[i, j] -= c[j]
+            Wd[i, j] = w[i] * dX[i, j]
+    # BLAS, as numpy's np.dot(dX.T * w, dX) (the same operands: twice the speed of loops)
+    P = np.dot(Wd.T, dX) / max(1.0 - ww, 1e-12)
+    return x, dX, P
 
 
 @njit(cache=True, error_model="numpy")

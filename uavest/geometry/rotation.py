@@ -362,6 +362,17 @@ def _kernel_cases(nb: ModuleType) -> Iterator[tuple[str, Array, Array]]:
     yield "retract_rows nav", nb.retract_rows(xn[None, :], dn), Xn
     yield "local_rows nav", nb.local_rows(Xn[:1], Xn), _np_local_rows(Xn[0], Xn)
     yield "mean nav", nb.mean(Xn, read_only(w), xn), _np_mean(Xn, w, xn)
+    # the members' moments (uavest.core.states.ensemble_moments composes them so)
+    for tag, Y in (("", X), (" nav", Xn)):
+        Y3 = np.concatenate([Y, Y[:1]])
+        w3 = np.array([0.2, 0.5, 0.3])
+        x3, d3, P3 = nb.moments(Y3, read_only(w3))
+        m3 = _np_mean(Y3, w3, Y3[1])
+        dm = _np_local_rows(m3, Y3)
+        dm = dm - w3 @ dm
+        yield "moments x" + tag, x3, m3
+        yield "moments dX" + tag, d3, dm
+        yield "moments P" + tag, P3, (dm.T * w3) @ dm / (1.0 - w3 @ w3)
 
 
 #: The compiled attitude-manifold kernels (:mod:`uavest.geometry._compiled`)
@@ -538,6 +549,18 @@ class QuatRowsSpace:
 
     def mean(self, X: Array, w: Array, x0: Array | None = None) -> Array:
         return mean_rows(X, w, X[0] if x0 is None else x0)
+
+    def weighted_moments(self, X: Array, w: Array) -> tuple[Array, Array, Array] | None:
+        """(x, dX, P) of the members ``X`` (M, size) under the weights ``w`` in one compiled
+        call (:func:`uavest.geometry._compiled.moments`): the mean started from the
+        heaviest member, the centred deviations (M, dim) and the reliability-weighted
+        covariance (dim, dim); None without the kernels (the caller then composes them
+        from :meth:`mean` and :meth:`local`, the reference)."""
+        nb = MANIFOLD_KERNELS.get()
+        if not nb or X.ndim != 2:
+            return None
+        res: tuple[Array, Array, Array] = nb.moments(X, read_only(w))
+        return res
 
 
 class AttitudeSpace(QuatRowsSpace):
