@@ -236,6 +236,31 @@ def test_the_members_moments_take_one_compiled_call(nb, extra, mag, monkeypatch)
         assert got[1].shape == (M, space.dim) and np.abs(got[2] @ got[1]).max() < 1e-15
 
 
+def test_rotating_rows_by_rows_takes_the_kernel(monkeypatch):
+    """``quat_rotate`` of rows by rows (the carried GNSS velocity's specific force on the
+    members) takes the compiled ``rotate_rows``, equal to numpy's product with the
+    rotation matrices to 1e-15, strided and contiguous; other shapes stay numpy's."""
+    from uavest.geometry import rotation
+
+    mk = compiled_kernels(rotation.MANIFOLD_KERNELS.get, "attitude kernels")
+    g = np.random.default_rng(4)
+    X = g.normal(0.0, 1.0, (300, 16))
+    X[:, :4] /= np.linalg.norm(X[:, :4], axis=1)[:, None]
+    V = g.normal(0.0, 5.0, (300, 3))
+    want = np.einsum("...ij,...j->...i", rotation.quat_to_dcm(X[:, :4]), V)
+    got = rotation.quat_rotate(X[:, :4], V)
+    np.testing.assert_array_equal(got, mk.rotate_rows(X[:, :4], V))
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(rotation.quat_rotate(X[:, :4], X[:, 13:16]),
+                               np.einsum("...ij,...j->...i", rotation.quat_to_dcm(X[:, :4]),
+                                         X[:, 13:16]), rtol=0, atol=1e-14)
+    with monkeypatch.context() as m:
+        m.setattr(rotation.MANIFOLD_KERNELS, "loaded", False)
+        np.testing.assert_allclose(rotation.quat_rotate(X[:, :4], V), got, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(rotation.quat_rotate(X[0, :4], V[0]), want[0], rtol=0,
+                               atol=1e-14)
+
+
 def test_the_magnetometer_back_dating_of_rows_equals_numpy(nb):
     """``OnNav._q`` on rows (sigma points, members): the compiled back-dating (each row's
     attitude ``back`` s before, by its own gyro bias) equals the numpy one to 1e-12; one

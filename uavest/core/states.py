@@ -74,10 +74,12 @@ def ensemble_moments(E: Ensemble) -> tuple[Array, Array, Array, Array]:
         # a space may compute all three in one (compiled) call: the quaternion rows
         fused = getattr(E.space, "weighted_moments", None)
         got = fused(E.X, w) if fused is not None else None
-        if got is not None:
+        if got is not None:  # (P symmetrised: it is the estimate's covariance too)
             x, dX, P = got
             out = (x, dX, w, P)
             object.__setattr__(E, "moments", out)
+            if E.gaussian is None:
+                object.__setattr__(E, "gaussian", Gaussian(x, P))
             return out
         x = E.space.mean(E.X, w, mean_start(E.space, E.X, w))
         dX = E.space.local(x, E.X)

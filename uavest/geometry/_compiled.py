@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["gyro_propagate", "local_rows", "mean", "moments", "retract_rows",
-           "rotate_inv_rows"]
+           "rotate_inv_rows", "rotate_rows"]
 
 Array = np.ndarray
 
@@ -146,8 +146,10 @@ def moments(X: Array, w: Array) -> tuple[Array, Array, Array]:  # pragma: no cov
     """(x, dX, P) of the members ``X`` (M, n) under the weights ``w`` (M,): :func:`mean`
     started from the heaviest member (the first of equals), the deviations
     local(x, X_j) centred exactly under ``w``, and the reliability-weighted covariance
-    sum_j w_j dX_j dX_j^T / max(1 - sum w^2, 1e-12) (what
-    ``uavest.core.states.ensemble_moments`` computes on these spaces, in one call)."""
+    sum_j w_j dX_j dX_j^T / max(1 - sum w^2, 1e-12), symmetrised as
+    ``uavest.core.states.ensemble_estimate`` does it, (P + P^T) / 2 (what
+    ``uavest.core.states.ensemble_moments`` and ``ensemble_estimate`` compute on these
+    spaces, in one call)."""
     M, k = X.shape
     top = 0
     for i in range(1, M):
@@ -169,7 +171,30 @@ def moments(X: Array, w: Array) -> tuple[Array, Array, Array]:  # pragma: no cov
             Wd[i, j] = w[i] * dX[i, j]
     # BLAS, as numpy's np.dot(dX.T * w, dX) (the same operands: twice the speed of loops)
     P = np.dot(Wd.T, dX) / max(1.0 - ww, 1e-12)
+    for a in range(n):  # (P + P^T) / 2, ensemble_estimate's symmetrising
+        for b in range(a):
+            s = 0.5 * (P[a, b] + P[b, a])
+            P[a, b] = s
+            P[b, a] = s
     return x, dX, P
+
+
+@njit(cache=True, error_model="numpy")
+def rotate_rows(Q: Array, V: Array) -> Array:  # pragma: no cover - compiled
+    """R(q_i) v_i for every row q_i of ``Q`` (M, 4) and v_i of ``V`` (M, 3) (body FRD ->
+    NED): :func:`~uavest.geometry.rotation.quat_to_dcm` applied, summed j = 0..2."""
+    M = Q.shape[0]
+    out = np.empty((M, 3))
+    for i in range(M):
+        w, x, y, z = Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3]
+        v0, v1, v2 = V[i, 0], V[i, 1], V[i, 2]
+        out[i, 0] = ((1 - 2 * (y * y + z * z)) * v0 + 2 * (x * y - w * z) * v1
+                     + 2 * (x * z + w * y) * v2)
+        out[i, 1] = (2 * (x * y + w * z) * v0 + (1 - 2 * (x * x + z * z)) * v1
+                     + 2 * (y * z - w * x) * v2)
+        out[i, 2] = (2 * (x * z - w * y) * v0 + 2 * (y * z + w * x) * v1
+                     + (1 - 2 * (x * x + y * y)) * v2)
+    return out
 
 
 @njit(cache=True, error_model="numpy")

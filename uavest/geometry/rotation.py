@@ -174,6 +174,11 @@ def dcm_to_quat(R: Array) -> Array:
 
 def quat_rotate(q: Array, v: Array) -> Array:
     """``R(q) v``: body vector(s) ``v`` expressed in NED."""
+    if q.ndim == 2 and np.ndim(v) == 2 and q.shape[0] == v.shape[0]:  # rows against rows
+        nb = MANIFOLD_KERNELS.get()
+        if nb:
+            out: Array = nb.rotate_rows(q, np.asarray(v, float))
+            return out
     res: Array = np.einsum("...ij,...j->...i", quat_to_dcm(q), v)
     return res
 
@@ -354,6 +359,12 @@ def _kernel_cases(nb: ModuleType) -> Iterator[tuple[str, Array, Array]]:
     yield "rotate_inv_rows", nb.rotate_inv_rows(X[:, :4], d[0, :3]), want
     yield ("rotate_inv_rows C", nb.rotate_inv_rows(np.ascontiguousarray(X[:, :4]), d[0, :3]),
            want)
+    # rows against rows (the carried GNSS velocity's specific force): strided and contiguous
+    want = np.einsum("...ij,...j->...i", quat_to_dcm(X[:, :4]), d[:, 3:])
+    yield "rotate_rows", nb.rotate_rows(X[:, :4], d[:, 3:]), want
+    yield "rotate_rows A C", nb.rotate_rows(X[:, :4], np.ascontiguousarray(d[:, 3:])), want
+    yield ("rotate_rows C", nb.rotate_rows(np.ascontiguousarray(X[:, :4]),
+                                           np.ascontiguousarray(d[:, 3:])), want)
     # the navigation space's width (NavSpace(extra=3, mag=2): a quaternion and 17
     # Euclidean components), through the same kernels
     xn = np.concatenate([x[:4], np.linspace(-2.0, 3.0, 17)])
@@ -372,7 +383,8 @@ def _kernel_cases(nb: ModuleType) -> Iterator[tuple[str, Array, Array]]:
         dm = dm - w3 @ dm
         yield "moments x" + tag, x3, m3
         yield "moments dX" + tag, d3, dm
-        yield "moments P" + tag, P3, (dm.T * w3) @ dm / (1.0 - w3 @ w3)
+        P = (dm.T * w3) @ dm / (1.0 - w3 @ w3)
+        yield "moments P" + tag, P3, 0.5 * (P + P.T)
 
 
 #: The compiled attitude-manifold kernels (:mod:`uavest.geometry._compiled`)
@@ -554,8 +566,8 @@ class QuatRowsSpace:
         """(x, dX, P) of the members ``X`` (M, size) under the weights ``w`` in one compiled
         call (:func:`uavest.geometry._compiled.moments`): the mean started from the
         heaviest member, the centred deviations (M, dim) and the reliability-weighted
-        covariance (dim, dim); None without the kernels (the caller then composes them
-        from :meth:`mean` and :meth:`local`, the reference)."""
+        covariance (dim, dim), symmetrised; None without the kernels (the caller then
+        composes them from :meth:`mean` and :meth:`local`, the reference)."""
         nb = MANIFOLD_KERNELS.get()
         if not nb or X.ndim != 2:
             return None
