@@ -210,7 +210,7 @@ def test_the_members_moments_take_one_compiled_call(nb, extra, mag, monkeypatch)
     heaviest member, the centred deviations and the covariance equal the composition of
     ``mean`` / ``local`` and numpy's weighted sums (the path without the kernels) to 1e-12,
     weighted and equal-weight, with both quaternion signs among the members."""
-    from uavest.core.states import Ensemble, ensemble_moments, equal_weights
+    from uavest.core.states import Ensemble, ensemble_estimate, ensemble_moments, equal_weights
     from uavest.geometry import rotation
     from uavest.geometry.navigation import NavSpace
 
@@ -225,6 +225,8 @@ def test_the_members_moments_take_one_compiled_call(nb, extra, mag, monkeypatch)
         w = g.uniform(0.2, 1.0, M) if weighted else None
         E = Ensemble(X, space, None if w is None else w / w.sum())
         got = ensemble_moments(E)
+        assert ensemble_estimate(E).P is got[3]  # the fused moments give the estimate
+        np.testing.assert_array_equal(got[3], got[3].T)
         assert space.weighted_moments(X, got[2]) is not None
         with monkeypatch.context() as m:
             m.setattr(rotation.MANIFOLD_KERNELS, "loaded", False)

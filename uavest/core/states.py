@@ -104,6 +104,8 @@ def ensemble_estimate(E: Ensemble) -> Gaussian:
     if E.gaussian is not None:
         return E.gaussian
     x, _, _, P = ensemble_moments(E)
+    if E.gaussian is not None:  # (a space's fused moments give the estimate too)
+        return E.gaussian
     # (P + P^T) / 2 is P itself for a 1 x 1 covariance (p + p = 2p exactly)
     g = Gaussian(x, P if P.shape[0] == 1 else 0.5 * (P + P.T))
     object.__setattr__(E, "gaussian", g)
