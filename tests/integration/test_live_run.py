@@ -266,7 +266,7 @@ def test_sigint_leaves_complete_output_files(tmp_path):
     assert n > 100 and src.stats.truncated == 0 and src.stats.corrupt == 0
 
 
-@pytest.mark.slow  # six subprocesses
+@pytest.mark.slow  # ten subprocesses
 @pytest.mark.parametrize("argv,says", [
     (["run", "--connect", "udpin:127.0.0.1:9", "--heartbeat-timeout", "1",
       "--no-status"], "heartbeat"),
@@ -275,6 +275,9 @@ def test_sigint_leaves_complete_output_files(tmp_path):
     (["demo", "--speed", "0"], "--speed"),
     (["run", "--connect", "udpin:127.0.0.1:9", "--model", "nav", "--gnss-delay", "-1"],
      "--gnss-delay"),
+    (["run", "--connect", "udpin:127.0.0.1:9", "--model", "nav", "--mag-delay", "nan"],
+     "--mag-delay"),
+    (["run", "--connect", "udpin:127.0.0.1:9", "--mag-delay", "0.05"], "--mag-delay"),
     (["run", "--connect", "udpin:127.0.0.1:9", "--model", "auto"], "--model"),
     (["run", "--connect", "udpin:127.0.0.1:9", "--noise", "bogus=1"], "--noise"),
     (["run", "--connect", "udpin:127.0.0.1:9", "--noise", "gnss_bias_h=1"], "--noise"),

@@ -157,3 +157,20 @@ def test_the_hint_says_the_inclination_in_degrees(tmp_path):
     doc["gnss_delay_live"] = dict(LIVE["gnss_delay_live"], inclination={"value": 1.12})
     line = aiding_hint(str(_file(tmp_path, doc)), "run")
     assert "magnetometer noise 0.050 rad, field inclination 64.17 deg)" in line, line
+
+
+def test_a_live_runs_magnetometer_age_is_the_option_or_0():
+    """``uavest run --model nav --mag-delay S`` gives the navigation stream the
+    magnetometer's age (said "option --mag-delay"); without it 0, whatever an
+    ``--aiding-from`` result learned (the age a replay finds costs yaw RMSE live,
+    docs/live.md)."""
+    from uavest.apps.live import LiveConfig, nav_options
+    from uavest.engine.navigation import NavStream
+
+    given = nav_options(LiveConfig(model="nav", mag_delay=0.052), None)
+    assert given.mag_delay == 0.052
+    aided = nav_options(LiveConfig(model="nav", aiding={"gnss_delay": 0.08},
+                                   aiding_why="x"), None)
+    assert aided.mag_delay is None and aided.gnss_delay == 0.08
+    assert NavStream(opts=given).opts.mag_delay == 0.052
+

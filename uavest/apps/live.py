@@ -166,6 +166,9 @@ class LiveConfig:
     #: where ``gnss_delay`` came from (None: the option --gnss-delay; ``uavest demo``: its
     #: simulator's receiver)
     gnss_delay_why: str | None = None
+    #: s, the magnetometer sample's age (``--mag-delay``; None: 0, not learnt live: the
+    #: age a replay's probe finds costs the yaw RMSE, docs/live.md)
+    mag_delay: float | None = None
     geodesy: str = "auto"  # navigation: the local frame's (NavOptions.geodesy)
     #: overrides of the model's noise parameters (``--noise``; the navigation model's
     #: :class:`~uavest.models.navigation.NavNoise` or the attitude model's
@@ -816,7 +819,8 @@ def nav_options(cfg: LiveConfig, declination: float | None) -> NavOptions:
         inc_why = f"{kept}, learned at {site[0]:.5f}, {site[1]:.5f}"
     return NavOptions(rate_hz=cfg.rate_hz, declination=declination, gnss_delay=gnss_delay,
                       mag_inclination=inc, mag_inclination_why=inc_why, mag_site=site,
-                      gnss_delay_why=gnss_why, on_arrival=cfg.on_arrival,
+                      gnss_delay_why=gnss_why, mag_delay=cfg.mag_delay,
+                      on_arrival=cfg.on_arrival,
                       geodesy=cfg.geodesy, noise=noise,
                       mag_noise_why=spec.why_of("mag_noise") or (
                           cfg.noise_why if "mag_noise" in cfg.noise else

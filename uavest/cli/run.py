@@ -83,6 +83,10 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="with --model nav: the GNSS measurement delay, s (default: the "
                    "vehicle's sensor spec, SPEC_GPS_DLY, if it states one; else estimated "
                    "during the run from 60 s after its first step, the model's 0 until then)")
+    p.add_argument("--mag-delay", type=float, default=None, metavar="S",
+                   help="with --model nav: the magnetometer sample's age, s, compensated "
+                   "with the gyro (default 0: not learnt live, for the age a replay "
+                   "estimates costs yaw RMSE on the ArduCopter SITL; docs/live.md)")
     p.add_argument("--aiding-from", metavar="FILE",
                    help="with --model nav: start with what a previous run or replay of this "
                    "vehicle learned (its --json result): the GNSS delay and velocity window, "
@@ -137,6 +141,12 @@ def _cfg(args, connect: str) -> LiveConfig:
                                              and args.gnss_delay >= 0):
         raise InputError(f"--gnss-delay must be a finite number of seconds >= 0, got "
                          f"{args.gnss_delay}")
+    md = getattr(args, "mag_delay", None)
+    if md is not None and not (math.isfinite(md) and 0 <= md <= 10.0):
+        raise InputError(f"--mag-delay must be a finite number of seconds in [0, 10], got {md}")
+    if md is not None and args.model != "nav":
+        raise InputError("--mag-delay needs --model nav (the attitude model's live "
+                         "magnetometer is taken at age 0)")
     aiding, aiding_why = {}, None
     if getattr(args, "aiding_from", None):
         if args.model != "nav":
@@ -158,7 +168,8 @@ def _cfg(args, connect: str) -> LiveConfig:
         duration=args.duration, rate_hz=args.rate,
         update_hz=getattr(args, "update_rate", None),
         radar_source=args.radar_source, radar=_radar(args), model=args.model,
-        gnss_delay=args.gnss_delay, geodesy=args.geodesy, noise=parse_noise(args.noise),
+        gnss_delay=args.gnss_delay, mag_delay=md, geodesy=args.geodesy,
+        noise=parse_noise(args.noise),
         aiding=aiding, aiding_why=aiding_why)
 
 
