@@ -330,11 +330,13 @@ def test_the_hybrid_update_on_the_navigation_state_goes_through_its_kernel(nb):
     """The navigation preset's hybrid (``reinflate``) updates a prior with its memoised
     moments through ``shift_tangent`` for every measurement whose residual and mean are
     plain (GNSS position and velocity, baro, the magnetometer's field, the field against
-    reference states), equal to the numpy path to 1e-12 from the same draws; the
-    magnetometer's heading (a wrapped residual) and a prior without its moments take the
-    numpy path (None)."""
+    reference states) or an angle's (the magnetometer's heading, here with the members'
+    headings on both sides of +-pi), equal to the numpy path to 1e-12 from the same draws;
+    a prior without its moments and a model with a residual of its own take the numpy
+    path (None)."""
     from uavest.core import hybrid
     from uavest.core.states import Ensemble, ensemble_moments
+    from uavest.geometry import rotation
     from uavest.geometry.navigation import NavSpace
     from uavest.presets import build
 
@@ -360,19 +362,35 @@ def test_the_hybrid_update_on_the_navigation_state_goes_through_its_kernel(nb):
         (field / np.linalg.norm(field), OnNav(MagField(field, np.eye(3) * 0.01), 0.02, u)),
         (field / np.linalg.norm(field), MagFieldRef(field, np.eye(3) * 0.01, space, 0.02, u)),
     ]
-    for z, model in plain:
-        assert model.plain_arithmetic()
-        a, ia = f._update_numpy(E, z, model, np.random.default_rng(7))
-        got = f._update_tangent(sk, E, z, model, np.random.default_rng(7))
+    # the heading where the members' headings straddle +-pi (the prior's yaw about 180
+    # deg less the field's 0.08 rad): the wrapped residuals and mean
+    psi = np.pi - np.arctan2(field[1], field[0])
+    Xh = E.X.copy()
+    Xh[:, :4] = rotation.quat_mul(np.array([np.cos(psi / 2), 0.0, 0.0, np.sin(psi / 2)]),
+                                  E.X[:, :4])
+    Eh = Ensemble(Xh, space, E.w)
+    ensemble_moments(Eh)
+    zh, mm = MagHeading.from_field(field, AttitudeNoise(), -3.1)
+    heading = OnNav(mm, 0.02, u)
+    hy = heading.h(Xh)[:, 0]
+    assert (hy > 3.0).any() and (hy < -3.0).any()  # (both sides of the cut)
+    for E1, z, model, how in [(E, *zm, "plain") for zm in plain] + [(Eh, zh, heading, "angle")]:
+        assert model.arithmetic() == how
+        a, ia = f._update_numpy(E1, z, model, np.random.default_rng(7))
+        got = f._update_tangent(sk, E1, z, model, np.random.default_rng(7))
         assert got is not None, type(model).__name__
         b, ib = got
         for p, q in ((a.X, b.X), (a.w, b.w), (ia.nu, ib.nu), (ia.S, ib.S)):
             np.testing.assert_allclose(q, p, rtol=0, atol=1e-12)
         np.testing.assert_allclose(ib.nis, ia.nis, rtol=1e-10)
-        assert not np.array_equal(b.X, E.X)  # it did move the members
-    z, mm = MagHeading.from_field(field, AttitudeNoise(), 0.1)
-    heading = OnNav(mm, 0.02, u)
-    assert not heading.plain_arithmetic()
-    assert f._update_tangent(sk, E, z, heading, np.random.default_rng(7)) is None
+        assert not np.array_equal(b.X, E1.X)  # it did move the members
     bare = Ensemble(E.X, space, E.w)
     assert f._update_tangent(sk, bare, *plain[0], np.random.default_rng(7)) is None
+
+    class _Odd(nav_mod.GnssVelocity):  # a residual of its own: the numpy path's
+        def residual(self, a, b):
+            return 2.0 * (a - b)
+
+    odd = _Odd(np.eye(3) * 0.01)
+    assert odd.arithmetic() is None
+    assert f._update_tangent(sk, E, plain[0][0], odd, np.random.default_rng(7)) is None

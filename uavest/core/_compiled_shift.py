@@ -314,24 +314,55 @@ def _tempered_direct(logw0: Array, ll: Array, phi_max: float, floor: float, W: A
     return 0.0
 
 
+_TWO_PI = 2.0 * math.pi
+
+
 @njit(cache=True)
-def _innovation(Y: Array, z: Array, w: Array, R: Array, nu: Array, S: Array
-                ) -> tuple[int, float]:  # pragma: no cover - compiled
-    """(status, nis): the innovation ``nu`` (m,) and its covariance ``S`` (m, m) of the
-    members' images ``Y`` (M, m) under their weights ``w``, and its NIS."""
+def _wrap(a: float) -> float:  # pragma: no cover - compiled
+    """``geometry.rotation.wrap_pi``: (a + pi) mod 2 pi - pi, the floored modulo of
+    Python and numpy."""
+    res: float = (a + math.pi) % _TWO_PI - math.pi
+    return res
+
+
+@njit(cache=True)
+def _diff(a: float, b: float, angle: bool) -> float:  # pragma: no cover - compiled
+    """A measurement's residual a - b, wrapped to [-pi, pi) for an angle."""
+    return _wrap(a - b) if angle else a - b
+
+
+@njit(cache=True)
+def _mean_into(Y: Array, w: Array, angle: bool, out: Array
+               ) -> None:  # pragma: no cover - compiled
+    """``out`` <- the weighted mean of the rows of ``Y`` (M, m): sum w Y, or for angles
+    ``MagHeading.mean``'s wrap(Y_0 + sum w wrap(Y - Y_0))."""
     M, m = Y.shape
-    ybar = np.zeros(m)
+    out[:] = 0.0
     for j in range(M):
         for a in range(m):
-            ybar[a] += w[j] * Y[j, a]
+            out[a] += w[j] * (_wrap(Y[j, a] - Y[0, a]) if angle else Y[j, a])
+    if angle:
+        for a in range(m):
+            out[a] = _wrap(Y[0, a] + out[a])
+
+
+@njit(cache=True)
+def _innovation(Y: Array, z: Array, w: Array, R: Array, nu: Array, S: Array,
+                angle: bool) -> tuple[int, float]:  # pragma: no cover - compiled
+    """(status, nis): the innovation ``nu`` (m,) and its covariance ``S`` (m, m) of the
+    members' images ``Y`` (M, m) under their weights ``w``, and its NIS (``angle``: each
+    component an angle, residuals wrapped)."""
+    M, m = Y.shape
+    ybar = np.zeros(m)
+    _mean_into(Y, w, angle, ybar)
     S[:, :] = 0.0
     for j in range(M):
         for a in range(m):
-            d = (Y[j, a] - ybar[a]) * w[j]
+            d = _diff(Y[j, a], ybar[a], angle) * w[j]
             for b in range(m):
-                S[a, b] += d * (Y[j, b] - ybar[b])
+                S[a, b] += d * _diff(Y[j, b], ybar[b], angle)
     for a in range(m):
-        nu[a] = z[a] - ybar[a]
+        nu[a] = _diff(z[a], ybar[a], angle)
         for b in range(m):
             S[a, b] += R[a, b]
     ok, cS = factor(S)
@@ -435,7 +466,7 @@ def shift_update(X: Array, Y: Array, z: Array, w: Array, R: Array, V: Array, tau
         return _shift_1d(X, Y, z[0], w, R[0, 0], V, tau, min_ess, confidence, Xn, W, nu,
                          S, x, P)
     # the innovation of the predicted ensemble under its own weights
-    st, nis = _innovation(Y, z, w, R, nu, S)
+    st, nis = _innovation(Y, z, w, R, nu, S, False)
     if st:
         return st, nis
     # residuals, their log-likelihood under R and the tempered weights
@@ -501,7 +532,7 @@ def shift_update(X: Array, Y: Array, z: Array, w: Array, R: Array, V: Array, tau
 @njit(cache=True)
 def shift_tangent(L0: Array, Y: Array, z: Array, w: Array, R: Array, V: Array, tau: float,
                   min_ess: float, confidence: bool, T: Array, W: Array, nu: Array,
-                  S: Array) -> tuple[int, float]:  # pragma: no cover - compiled
+                  S: Array, angle: bool) -> tuple[int, float]:  # pragma: no cover - compiled
     """(status, nis): one ``HybridShift.update`` with ``reinflate``, ``stages`` = 1 and
     ``shifts`` = 1 on a manifold with a plain measurement model, up to the retraction:
     the members' new tangent vectors ``T`` (M, n) at the prior's mean x (the new members
@@ -512,17 +543,19 @@ def shift_tangent(L0: Array, Y: Array, z: Array, w: Array, R: Array, V: Array, t
     after tempering, c = 1 / (1 - sum W^2), dY the images' deviations centred under W and
     dX = L0 - sum W L0: K = Pxy (Pyy + R')^-1, D_j = K (r_j + chol(R') V_j) + L0_j,
     d = sum W D, T_j = d + a (D_j - d) with a = sqrt(1 + tr((Pyy + R')^-1 Pyy) sum W^2)
-    (``hybrid.sampling_shrink``). Status 1: a non-finite innovation, weight or tangent;
-    2: a factor failed; the caller then runs the numpy path."""
+    (``hybrid.sampling_shrink``). ``angle``: every component of the measurement is an
+    angle (``Measurement.arithmetic`` "angle": residuals wrapped to [-pi, pi), the mean
+    about the first row). Status 1: a non-finite innovation, weight or tangent; 2: a
+    factor failed; the caller then runs the numpy path."""
     M, n = L0.shape
     m = Y.shape[1]
-    st, nis = _innovation(Y, z, w, R, nu, S)
+    st, nis = _innovation(Y, z, w, R, nu, S, angle)
     if st:
         return st, nis
     r = np.empty((M, m))
     for j in range(M):
         for a in range(m):
-            r[j, a] = z[a] - Y[j, a]
+            r[j, a] = _diff(z[a], Y[j, a], angle)
     st, share = _weights(r, w, R, tau, min_ess, confidence, W)
     if st:
         return st, nis
@@ -536,14 +569,12 @@ def shift_tangent(L0: Array, Y: Array, z: Array, w: Array, R: Array, V: Array, t
         return _NOT_PD, nis
     # the images' deviations under W, centred exactly (as the numpy path on a manifold)
     yb = np.zeros(m)
-    for j in range(M):
-        for a in range(m):
-            yb[a] += W[j] * Y[j, a]
+    _mean_into(Y, W, angle, yb)
     dY = np.empty((M, m))
     e = np.zeros(m)
     for j in range(M):
         for a in range(m):
-            dY[j, a] = Y[j, a] - yb[a]
+            dY[j, a] = _diff(Y[j, a], yb[a], angle)
             e[a] += W[j] * dY[j, a]
     l0 = np.zeros(n)
     for j in range(M):

@@ -408,8 +408,9 @@ def _shift_cases(nb: ModuleType) -> Iterator[tuple[str, Any, Any]]:
 def _tangent_cases(nb: ModuleType) -> Iterator[tuple[str, Any, Any]]:
     """The reinflated update on a manifold (:func:`~uavest.core._compiled_shift.shift_tangent`
     through :meth:`HybridShift._update_tangent`) against the numpy path: 26 weighted
-    members of the attitude space, a 3-D direction measurement."""
-    from ..geometry.rotation import AttitudeSpace, quat_rotate_inv
+    members of the attitude space, a 3-D direction measurement and an angle (its heading,
+    the members on both sides of +-pi)."""
+    from ..geometry.rotation import AttitudeSpace, quat_rotate_inv, wrap_pi
 
     space = AttitudeSpace()
 
@@ -422,24 +423,42 @@ def _tangent_cases(nb: ModuleType) -> Iterator[tuple[str, Any, Any]]:
         def h(self, X: Array) -> Array:
             return quat_rotate_inv(X[:, :4], np.array([0.6, 0.0, 0.8]))
 
+    class _Yaw(_Dir):  # an angle: the heading of that direction, wrapped
+        R = np.array([[0.01]])
+
+        def h(self, X: Array) -> Array:
+            d = super().h(X)
+            res: Array = np.arctan2(d[:, 1], d[:, 0])[:, None]
+            return res
+
+        def residual(self, a: Array, b: Array) -> Array:
+            return wrap_pi(a - b)
+
+        def mean(self, Y: Array, w: Array) -> Array:
+            return wrap_pi(Y[0] + w @ wrap_pi(Y - Y[0]))
+
+        def arithmetic(self) -> str | None:
+            return "angle"
+
     rng = np.random.default_rng(5)
     f = HybridShift(n_cloud=1, reinflate=True)
-    x0 = np.array([0.9, 0.1, -0.2, 0.3, 0.01, 0.0, -0.02])
+    x0 = np.array([0.0, 0.1, -0.2, 0.9, 0.01, 0.0, -0.02])  # (the heading near +-pi)
     x0[:4] /= np.linalg.norm(x0[:4])
     X = space.retract(x0, 0.2 * rng.standard_normal((26, 6)))
     w = rng.uniform(0.5, 1.5, 26)
     E = Ensemble(X, space, w / w.sum())
     ensemble_moments(E)  # the prior's memo, which the kernel reads
-    z = np.array([0.5, 0.1, 0.85])
-    a, ia = f._update_numpy(E, z, _Dir(), np.random.default_rng(6))
-    got = f._update_tangent(nb, E, z, _Dir(), np.random.default_rng(6))
-    if got is None:
-        yield "tangent update", None, a.X
-        return
-    b, ib = got
-    for label, p, q in (("X", a.X, b.X), ("w", a.w, b.w), ("nu", ia.nu, ib.nu),
-                        ("S", ia.S, ib.S), ("nis", ia.nis, ib.nis)):
-        yield f"tangent {label}", q, p
+    for tag, me, z in (("", _Dir(), np.array([0.5, 0.1, 0.85])),
+                       (" angle", _Yaw(), np.array([3.1]))):
+        a, ia = f._update_numpy(E, z, me, np.random.default_rng(6))
+        got = f._update_tangent(nb, E, z, me, np.random.default_rng(6))
+        if got is None:
+            yield "tangent update" + tag, None, a.X
+            return
+        b, ib = got
+        for label, p, q in (("X", a.X, b.X), ("w", a.w, b.w), ("nu", ia.nu, ib.nu),
+                            ("S", ia.S, ib.S), ("nis", ia.nis, ib.nis)):
+            yield f"tangent{tag} {label}", q, p
 
 
 #: The compiled kernels of :class:`HybridShift` on vector spaces
@@ -713,11 +732,13 @@ class HybridShift(_HybridBase):
         retraction of the new tangent vectors at the prior's mean. None, before any draw,
         where the kernel does not apply: more than one stage or shift, a vector space, a
         prior without its memoised moments (the numpy path's ``L0`` is then not centred),
-        a measurement whose residual or mean is not plain, a ``z`` that is not the model's
-        float64 vector. A failure hands the drawn normals to :meth:`_update_numpy`."""
+        a measurement whose residual and mean are neither plain nor an angle's
+        (``Measurement.arithmetic``), a ``z`` that is not the model's float64 vector. A
+        failure hands the drawn normals to :meth:`_update_numpy`."""
         space = model.space
+        how = model.arithmetic()
         if not (self.stages == self.shifts == 1 and E.moments is not None
-                and type(space) is not VectorSpace and model.plain_arithmetic()
+                and type(space) is not VectorSpace and how in ("plain", "angle")
                 and _float_vector(z, model.dim)):
             return None
         x, L0 = E.moments[0], E.moments[1]
@@ -729,7 +750,7 @@ class HybridShift(_HybridBase):
         n, m = L0.shape[1], V.shape[1]
         T, wn, nu, S = _empty((M, n)), _empty(M), _empty(m), _empty((m, m))
         st, nis = nb.shift_tangent(L0, Y, z, w, model.R, V, self.tau, self.min_ess,
-                                   confidence, T, wn, nu, S)
+                                   confidence, T, wn, nu, S, how == "angle")
         if st:
             return self._update_numpy(E, z, model, rng, V)
         return (Ensemble(space.retract(x, T), E.space, wn if confidence else None),

@@ -97,12 +97,15 @@ class Measurement:
         res: Array = np.dot(w, Y)  # = w @ Y, with less per-call overhead
         return res
 
-    def plain_arithmetic(self) -> bool:
-        """True if :meth:`residual` and :meth:`mean` are the plain ``a - b`` and ``w @ Y``
-        (a compiled update may then do them in its own loops): neither is overridden, or
-        the model overrides this to say that what it delegates to is plain."""
+    def arithmetic(self) -> str | None:
+        """How :meth:`residual` and :meth:`mean` compute, for a compiled update to do them
+        in its own loops: "plain" (``a - b`` and ``w @ Y``: neither is overridden),
+        "angle" (every component an angle: ``wrap_pi(a - b)`` and the weighted mean of the
+        rows wrapped about the first, as :class:`~uavest.models.attitude.MagHeading`
+        says), None (anything else). A model that overrides either says which it is."""
         t = type(self)
-        return t.residual is Measurement.residual and t.mean is Measurement.mean
+        plain = t.residual is Measurement.residual and t.mean is Measurement.mean
+        return "plain" if plain else None
 
     @property
     def dim(self) -> int:

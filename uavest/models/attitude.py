@@ -517,6 +517,9 @@ class MagHeading(Measurement):
         ref = Y[0]
         return wrap_pi(ref + w @ wrap_pi(Y - ref))
 
+    def arithmetic(self) -> str | None:
+        return "angle"
+
 
 class MagField(Measurement):
     """Magnetometer as a 3-D field direction: z = field/|field| (unit, body FRD),

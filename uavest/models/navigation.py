@@ -755,8 +755,8 @@ class OnNav(Measurement):
     def mean(self, Y: Array, w: Array) -> Array:
         return self.inner.mean(Y, w)
 
-    def plain_arithmetic(self) -> bool:
-        return self.inner.plain_arithmetic()
+    def arithmetic(self) -> str | None:
+        return self.inner.arithmetic()
 
 
 def innovation_gate(nu: Array, S: Array, chi2: float) -> bool:
