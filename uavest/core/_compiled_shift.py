@@ -444,6 +444,46 @@ def _gain(cS: Array, Pyx: Array) -> Array:  # pragma: no cover - compiled
 
 
 @njit(cache=True)
+def _perturbed(r: Array, V: Array, Lr: Array, j: int, out: Array
+               ) -> None:  # pragma: no cover - compiled
+    """``out`` <- member j's perturbed residual r_j + chol(R') V_j (the shift's input)."""
+    for a in range(out.shape[0]):
+        pv = 0.0
+        for b in range(a + 1):
+            pv += V[j, b] * Lr[a, b]
+        out[a] = r[j, a] + pv
+
+
+@njit(cache=True)
+def _prelude(Y: Array, z: Array, w: Array, R: Array, tau: float, min_ess: float,
+             confidence: bool, W: Array, nu: Array, S: Array, angle: bool
+             ) -> tuple[int, float, Array, float, float, Array, Array]:  # pragma: no cover
+    """(status, nis, r, ww, c, R', chol(R')): what both updates do before the shift: the
+    innovation of the predicted ensemble under its own weights (``nu``, ``S``, its NIS),
+    the residuals r_j = z - Y_j (wrapped for an ``angle``), the tempered weights ``W``,
+    ww = sum W^2, c = 1 / max(1 - ww, 1e-12), R' = R / share and its factor."""
+    M, m = Y.shape
+    r = np.empty((M, m))
+    Lr = np.zeros((m, m))
+    st, nis = _innovation(Y, z, w, R, nu, S, angle)
+    if st:
+        return st, nis, r, 0.0, 1.0, R * 1.0, Lr
+    for j in range(M):
+        for a in range(m):
+            r[j, a] = _diff(z[a], Y[j, a], angle)
+    st, share = _weights(r, w, R, tau, min_ess, confidence, W)
+    if st:
+        return st, nis, r, 0.0, 1.0, R * 1.0, Lr
+    ww = 0.0
+    for j in range(M):
+        ww += W[j] * W[j]
+    c = 1.0 / max(1.0 - ww, 1e-12)
+    Rt = R * (1.0 / share)
+    ok, Lr = factor(Rt)
+    return (_OK if ok else _NOT_PD), nis, r, ww, c, Rt, Lr
+
+
+@njit(cache=True)
 def shift_update(X: Array, Y: Array, z: Array, w: Array, R: Array, V: Array, tau: float,
                  min_ess: float, confidence: bool, Xn: Array, W: Array, nu: Array, S: Array,
                  x: Array, P: Array) -> tuple[int, float]:  # pragma: no cover - compiled
@@ -465,28 +505,12 @@ def shift_update(X: Array, Y: Array, z: Array, w: Array, R: Array, V: Array, tau
     if n == 1 and m == 1:
         return _shift_1d(X, Y, z[0], w, R[0, 0], V, tau, min_ess, confidence, Xn, W, nu,
                          S, x, P)
-    # the innovation of the predicted ensemble under its own weights
-    st, nis = _innovation(Y, z, w, R, nu, S, False)
-    if st:
-        return st, nis
-    # residuals, their log-likelihood under R and the tempered weights
-    r = np.empty((M, m))
-    for j in range(M):
-        for a in range(m):
-            r[j, a] = z[a] - Y[j, a]
-    st, share = _weights(r, w, R, tau, min_ess, confidence, W)
+    st, nis, r, _, c, Rt, Lr = _prelude(Y, z, w, R, tau, min_ess, confidence, W, nu, S,
+                                        False)
     if st:
         return st, nis
     # the EnKF shift with R / share: K = Pxy S'^-1, Pxy = c sum w_j X_j dY_j^T (the
     # weighted dY sum to zero, so the mean of X is not needed)
-    ww = 0.0
-    for j in range(M):
-        ww += W[j] * W[j]
-    c = 1.0 / max(1.0 - ww, 1e-12)
-    Rt = R * (1.0 / share)
-    ok, Lr = factor(Rt)
-    if not ok:
-        return _NOT_PD, nis
     yb = np.zeros(m)
     for j in range(M):
         for a in range(m):
@@ -509,11 +533,7 @@ def shift_update(X: Array, Y: Array, z: Array, w: Array, R: Array, V: Array, tau
     K = _gain(cSt, Pyx)
     d = np.empty(m)
     for j in range(M):
-        for a in range(m):
-            pv = 0.0
-            for b in range(a + 1):
-                pv += V[j, b] * Lr[a, b]
-            d[a] = r[j, a] + pv
+        _perturbed(r, V, Lr, j, d)
         for i in range(n):
             s = 0.0
             for a in range(m):
@@ -549,24 +569,10 @@ def shift_tangent(L0: Array, Y: Array, z: Array, w: Array, R: Array, V: Array, t
     factor failed; the caller then runs the numpy path."""
     M, n = L0.shape
     m = Y.shape[1]
-    st, nis = _innovation(Y, z, w, R, nu, S, angle)
+    st, nis, r, ww, c, Rt, Lr = _prelude(Y, z, w, R, tau, min_ess, confidence, W, nu, S,
+                                         angle)
     if st:
         return st, nis
-    r = np.empty((M, m))
-    for j in range(M):
-        for a in range(m):
-            r[j, a] = _diff(z[a], Y[j, a], angle)
-    st, share = _weights(r, w, R, tau, min_ess, confidence, W)
-    if st:
-        return st, nis
-    ww = 0.0
-    for j in range(M):
-        ww += W[j] * W[j]
-    c = 1.0 / max(1.0 - ww, 1e-12)
-    Rt = R * (1.0 / share)
-    ok, Lr = factor(Rt)
-    if not ok:
-        return _NOT_PD, nis
     # the images' deviations under W, centred exactly (as the numpy path on a manifold)
     yb = np.zeros(m)
     _mean_into(Y, W, angle, yb)
@@ -611,11 +617,7 @@ def shift_tangent(L0: Array, Y: Array, z: Array, w: Array, R: Array, V: Array, t
     dm = np.zeros(n)
     sv = np.empty(n)
     for j in range(M):
-        for a in range(m):
-            pv = 0.0
-            for b in range(a + 1):
-                pv += V[j, b] * Lr[a, b]
-            dv[a] = r[j, a] + pv
+        _perturbed(r, V, Lr, j, dv)
         sv[:] = 0.0
         for a in range(m):
             da = dv[a]
