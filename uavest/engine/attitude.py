@@ -401,7 +401,7 @@ class LateDeclination:
     _mref: Array | None
     _mag: str | None
     _decl_pending: bool
-    _decl_seen: tuple[int, bool] | None
+    _decl_seen: tuple[Any, ...] | None
     #: the yaw turn (rad) a declination learnt since the last step asks of the filters
     _yaw_turn: float
 
@@ -412,16 +412,32 @@ class LateDeclination:
         """(the filters' yaw so far is the magnetometer's alone, the words saying why)."""
         return self._mag is not None, "the magnetometer's"
 
+    def _declination_pending(self, src: str) -> tuple[bool, str]:
+        """(watch the source's parameters for a declination, the words saying so) after a
+        declination from ``src`` (:func:`declination_and_source`'s words, or "option"):
+        none yet, or the magnetic model's, which the vehicle's own parameter replaces when
+        it comes (an autopilot with automatic declination sets it after its GPS lock: a
+        replay of its log takes that one, so a live run does too)."""
+        if self.opts.declination is not None or src.startswith("log parameter"):
+            return False, ""
+        if src.startswith("none"):
+            return True, " (taken later if the log gives one)"
+        return True, " (the vehicle's own parameter taken if it comes)"
+
     def _check_declination(self, t: float) -> None:
-        """Take the source's declination once its parameters give one (at ``t`` s)."""
-        key = (len(self.params), bool(getattr(self.params, "geo", None)))
+        """Take the source's declination once its parameters give one (at ``t`` s): the
+        magnetic model's at a first fix, the vehicle's own parameter when it comes."""
+        p = self.params
+        key = (len(p), bool(getattr(p, "geo", None)),
+               *(p.get(k) for k in ("COMPASS_DEC", "EKF2_MAG_DECL", "ATT_MAG_DECL")))
         if key == self._decl_seen:
             return
         self._decl_seen = key
-        decl, src = declination_and_source(self.params)
-        if decl is None:
+        decl, src = declination_and_source(p)
+        if decl is None or (float(decl) == self.declination
+                            and src == self.summary.get("declination_source")):
             return
-        self._decl_pending = False
+        self._decl_pending, note = self._declination_pending(src)
         turn = float(decl) - self.declination
         self.declination = float(decl)
         if self._mref is not None:
@@ -432,7 +448,7 @@ class LateDeclination:
         if alone and turn:  # the yaw so far is the magnetometer's at the old declination
             self._yaw_turn += turn
             src += f"; the yaw turned by {np.degrees(turn):+.2f} deg with it ({what})"
-        self._decide("declination", f"{np.degrees(self.declination):.2f} deg", t, src)
+        self._decide("declination", f"{np.degrees(self.declination):.2f} deg", t, src + note)
 
     def _turn_start(self, t: float, t0: float, prior: Callable[[], Gaussian]) -> list[Start]:
         """Before the step ending at ``t`` (s), from ``t0`` (s): the declination's check
@@ -572,7 +588,8 @@ class AttitudeStream(LateDeclination, StreamSnapshots, HeldAlignment):
         self.decisions: list[dict[str, Any]] = []
         self._decl_pending = False  # declination unknown so far: take it when it arrives
         self._gap: _Gap | None = None  # an IMU gap waiting for its first step after it
-        self._decl_seen: tuple[int, bool] | None = None  # (params size, geo) last looked at
+        #: (params size, geo, the declination parameters) last looked at
+        self._decl_seen: tuple[Any, ...] | None = None
         self._yaw_turn = 0.0  # LateDeclination
         #: other IMU sources seen after the set-up: name -> [samples since the chosen IMU's
         #: last sample, first time, last time, samples in all] (the failover's evidence)
@@ -902,9 +919,8 @@ class AttitudeStream(LateDeclination, StreamSnapshots, HeldAlignment):
             decl = decl or 0.0
         self.declination = decl
         self.summary.update(declination_rad=decl, declination_source=src)
-        self._decl_pending = o.declination is None and src.startswith("none")
-        self._decide("declination", f"{np.degrees(decl):.2f} deg", first.t,
-                     src + (" (taken later if the log gives one)" if self._decl_pending else ""))
+        self._decl_pending, note = self._declination_pending(src)
+        self._decide("declination", f"{np.degrees(decl):.2f} deg", first.t, src + note)
         self._mref = None
         if self._mag is not None and o.mag_mode == "field":
             win = [r for r in align if r.t <= first.t + o.align_s and r.mag is not None]

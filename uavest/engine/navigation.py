@@ -488,7 +488,7 @@ class NavStream(LateDeclination, StreamSnapshots, HeldAlignment):
         #: (:func:`~uavest.engine.nav_align.heading_noise_scale`, set at the first start)
         self._heading_scale = 1.0
         self._decl_pending = False
-        self._decl_seen: tuple[int, bool] | None = None
+        self._decl_seen: tuple[Any, ...] | None = None
         self._yaw_turn = 0.0  # LateDeclination
         #: a fix has shown a ground speed of ``yaw_speed`` or more: the GNSS has had a say
         #: in the yaw, which a declination learnt now does not turn
@@ -1048,11 +1048,10 @@ class NavStream(LateDeclination, StreamSnapshots, HeldAlignment):
             d, src = declination_and_source(self.params)
             decl = d or 0.0
         self.declination = float(decl)
-        self._decl_pending = o.declination is None and src.startswith("none")
+        self._decl_pending, note = self._declination_pending(src)
         self.summary.update(declination_rad=self.declination, declination_source=src)
         self._decide("declination", f"{np.degrees(self.declination):.2f} deg", r.t,
-                     src + (" (taken later if the log gives one)" if self._decl_pending
-                            else ""))
+                     src + note)
         if self._mag is None:
             return
         inc, why, alt = start_inclination(self._align.recent, self.params,
