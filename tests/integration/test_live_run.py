@@ -266,7 +266,7 @@ def test_sigint_leaves_complete_output_files(tmp_path):
     assert n > 100 and src.stats.truncated == 0 and src.stats.corrupt == 0
 
 
-@pytest.mark.slow  # ten subprocesses
+@pytest.mark.slow  # eleven subprocesses
 @pytest.mark.parametrize("argv,says", [
     (["run", "--connect", "udpin:127.0.0.1:9", "--heartbeat-timeout", "1",
       "--no-status"], "heartbeat"),
@@ -278,6 +278,7 @@ def test_sigint_leaves_complete_output_files(tmp_path):
     (["run", "--connect", "udpin:127.0.0.1:9", "--model", "nav", "--mag-delay", "nan"],
      "--mag-delay"),
     (["run", "--connect", "udpin:127.0.0.1:9", "--mag-delay", "0.05"], "--mag-delay"),
+    (["run", "--connect", "udpin:127.0.0.1:9", "--declination", "200"], "--declination"),
     (["run", "--connect", "udpin:127.0.0.1:9", "--model", "auto"], "--model"),
     (["run", "--connect", "udpin:127.0.0.1:9", "--noise", "bogus=1"], "--noise"),
     (["run", "--connect", "udpin:127.0.0.1:9", "--noise", "gnss_bias_h=1"], "--noise"),

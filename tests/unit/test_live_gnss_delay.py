@@ -248,3 +248,18 @@ def test_a_live_run_learns_the_magnetometer_noise_unless_it_is_given():
     assert given["gnss_delay_live"]["mag_noise"] is None
     said = [d for d in given["decisions"] if d["what"] == "magnetometer noise"]
     assert [d["value"] for d in said] == ["0.070 rad"], said
+
+
+def test_a_declination_given_to_a_live_run_is_kept():
+    """``uavest run --declination DEG`` (LiveConfig.declination, rad): the stream takes it
+    at its start (said "option") and keeps it when the vehicle's COMPASS_DEC comes (44 s
+    into the log: 3.19 deg), where a run without it takes the vehicle's."""
+    import numpy as np
+
+    given = _run(declination=np.radians(2.5), end=47.0)
+    said = [d for d in given["decisions"] if d["what"] == "declination"]
+    assert [(d["value"], d["why"]) for d in said] == [("2.50 deg", "option")], said
+    own = _run(end=47.0)
+    said = [d for d in own["decisions"] if d["what"] == "declination"]
+    assert said[-1]["value"] == "3.19 deg" and "COMPASS_DEC" in said[-1]["why"], said
+

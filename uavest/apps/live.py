@@ -169,6 +169,9 @@ class LiveConfig:
     #: s, the magnetometer sample's age (``--mag-delay``; None: 0, not learnt live: the
     #: age a replay's probe finds costs the yaw RMSE, docs/live.md)
     mag_delay: float | None = None
+    #: rad, east positive (``--declination``, given in degrees): the stream's declination
+    #: whatever the vehicle's parameters or the magnetic model say (None: theirs)
+    declination: float | None = None
     geodesy: str = "auto"  # navigation: the local frame's (NavOptions.geodesy)
     #: overrides of the model's noise parameters (``--noise``; the navigation model's
     #: :class:`~uavest.models.navigation.NavNoise` or the attitude model's
@@ -844,6 +847,9 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
     sample late beyond it is counted ``late`` (per source) in ``stats`` (default the
     source's or the link's :class:`~uavest.ingest.types.IngestStats`)."""
     check_live_config(cfg)
+    if cfg.declination is not None:  # the option wins over the link's and the model's
+        given = float(cfg.declination)
+        declination = lambda: given  # noqa: E731
     nav = cfg.model == "nav"
     specs = model_filters(cfg.filters, nav, {**cfg.noise, **live_mag_ref(cfg)}
                           ) if cfg.filters else []
