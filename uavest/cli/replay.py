@@ -50,6 +50,22 @@ def add_geodesy_option(p: argparse.ArgumentParser) -> None:
                    "wgs84)")
 
 
+def add_declination_option(p: argparse.ArgumentParser, default: str) -> None:
+    """``--declination DEG`` (east positive), its default said by ``default``."""
+    p.add_argument("--declination", type=float, default=None, metavar="DEG",
+                   help=f"magnetic declination in degrees, east positive (default: {default})")
+
+
+def declination_rad(args: argparse.Namespace) -> float | None:
+    """``--declination`` in radians (None: not given); one line for a bad value."""
+    d = getattr(args, "declination", None)
+    if d is None:
+        return None
+    if not (math.isfinite(d) and -180.0 <= d <= 180.0):
+        raise InputError(f"--declination must be a number of degrees from -180 to 180, got {d}")
+    return math.radians(d)
+
+
 def parse_noise(items: list[str]) -> dict:
     """``--noise KEY=VALUE`` items as {name: value}; a clear error for an unknown name,
     a non-number or a negative value."""
@@ -296,10 +312,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if not os.path.lexists(args.log):
         raise InputError(f"no such log file: {args.log}")
     detect_format(Path(args.log))  # one-line IngestError for missing/special/unknown files
-    if args.declination is not None and not (
-            math.isfinite(args.declination) and -180.0 <= args.declination <= 180.0):
-        raise InputError(
-            f"--declination must be a number of degrees from -180 to 180, got {args.declination}")
+    declination = declination_rad(args)
     for name in ("start", "end"):
         v = getattr(args, name)
         if v is not None and not math.isfinite(v):
@@ -329,7 +342,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         filters=tuple(args.filter_specs), start=args.start, end=args.end, smooth=args.smooth,
         seed=args.seed, rate_hz=args.rate, update_hz=args.update_rate,
         integration=args.integration,
-        declination=None if args.declination is None else math.radians(args.declination),
+        declination=declination,
         noise=parse_noise(args.noise), imu=args.imu, use_mag=not args.no_mag,
         accel_comp=args.accel_comp, mag_mode=args.mag_mode, mag_delay=args.mag_delay,
         model=model, gnss_delay=args.gnss_delay, model_why=model_why,
@@ -388,9 +401,8 @@ def add_replay_parser(subparsers) -> argparse.ArgumentParser:
                    help="gyro sample interpretation (default auto: by what the IMU message "
                    "is, docs/ingest.md 'IMU message semantics'; an unknown one: trapezoid "
                    "below 20 Hz)")
-    p.add_argument("--declination", type=float, default=None,
-                   help="magnetic declination in degrees, east positive (default: from the "
-                   "log's COMPASS_DEC / ATT_MAG_DECL, else 0)")
+    add_declination_option(p, "the log's COMPASS_DEC / EKF2_MAG_DECL / ATT_MAG_DECL, else "
+                              "the World Magnetic Model at its first fix, else 0")
     p.add_argument("--noise", action="append", default=[], metavar="KEY=VALUE",
                    help="override a noise parameter (repeatable), e.g. --noise mag_noise=0.1; "
                    "the navigation model's win over the sensor spec a log may carry (its "

@@ -18,7 +18,15 @@ from ..ingest.adsb_radar import RadarConfig
 from ..sinks.jsonout import write_json
 from ..sinks.table import table
 from .record import add_recording_options, finish_recording, recording_sinks
-from .replay import NAV_COLS, add_geodesy_option, decision_lines, flat_row, parse_noise
+from .replay import (
+    NAV_COLS,
+    add_declination_option,
+    add_geodesy_option,
+    decision_lines,
+    declination_rad,
+    flat_row,
+    parse_noise,
+)
 
 __all__ = ["add_demo_parser", "add_run_parser", "format_live"]
 
@@ -83,11 +91,9 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="with --model nav: the GNSS measurement delay, s (default: the "
                    "vehicle's sensor spec, SPEC_GPS_DLY, if it states one; else estimated "
                    "during the run from 60 s after its first step, the model's 0 until then)")
-    p.add_argument("--declination", type=float, default=None, metavar="DEG",
-                   help="magnetic declination in degrees, east positive (default: the "
-                   "vehicle's COMPASS_DEC / EKF2_MAG_DECL / ATT_MAG_DECL, else the World "
-                   "Magnetic Model at the first fix, replaced by the vehicle's own when "
-                   "it comes)")
+    add_declination_option(p, "the vehicle's COMPASS_DEC / EKF2_MAG_DECL / ATT_MAG_DECL, "
+                              "else the World Magnetic Model at the first fix, replaced by "
+                              "the vehicle's own when it comes")
     p.add_argument("--mag-delay", type=float, default=None, metavar="S",
                    help="with --model nav: the magnetometer sample's age, s, compensated "
                    "with the gyro (default 0: not learnt live, for the age a replay "
@@ -146,10 +152,7 @@ def _cfg(args, connect: str) -> LiveConfig:
                                              and args.gnss_delay >= 0):
         raise InputError(f"--gnss-delay must be a finite number of seconds >= 0, got "
                          f"{args.gnss_delay}")
-    dec = getattr(args, "declination", None)
-    if dec is not None and not (math.isfinite(dec) and -180.0 <= dec <= 180.0):
-        raise InputError(f"--declination must be a number of degrees from -180 to 180, got "
-                         f"{dec}")
+    dec = declination_rad(args)
     md = getattr(args, "mag_delay", None)
     if md is not None and not (math.isfinite(md) and 0 <= md <= 10.0):
         raise InputError(f"--mag-delay must be a finite number of seconds in [0, 10], got {md}")
@@ -178,7 +181,7 @@ def _cfg(args, connect: str) -> LiveConfig:
         update_hz=getattr(args, "update_rate", None),
         radar_source=args.radar_source, radar=_radar(args), model=args.model,
         gnss_delay=args.gnss_delay, mag_delay=md,
-        declination=None if dec is None else math.radians(dec), geodesy=args.geodesy,
+        declination=dec, geodesy=args.geodesy,
         noise=parse_noise(args.noise),
         aiding=aiding, aiding_why=aiding_why)
 
