@@ -50,7 +50,7 @@ from ..geometry.spaces import Space, VectorSpace
 from .contract import EnsembleFilter, FilterBase
 from .ensemble import propagate_members
 from .gaussian import Gaussian
-from .interfaces import Measurement, Transition
+from .interfaces import Measurement, Transition, plain_measurement
 from .linalg import NotPositiveDefinite, NumericalError, chol, gain, is_pd, symmetrize
 from .particle import ess, log_likelihood
 from .resample import systematic_resample
@@ -64,7 +64,6 @@ from .states import (
     innovation,
     mean_start,
 )
-from .unscented import plain_measurement  # mean / residual plain: residuals centred
 
 Array = np.ndarray
 Rng = np.random.Generator

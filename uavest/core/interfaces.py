@@ -103,9 +103,7 @@ class Measurement:
         "angle" (every component an angle: ``wrap_pi(a - b)`` and the weighted mean of the
         rows wrapped about the first, as :class:`~uavest.models.attitude.MagHeading`
         says), None (anything else). A model that overrides either says which it is."""
-        t = type(self)
-        plain = t.residual is Measurement.residual and t.mean is Measurement.mean
-        return "plain" if plain else None
+        return "plain" if plain_measurement(self) else None
 
     @property
     def dim(self) -> int:
@@ -197,3 +195,13 @@ class LinearMeasurement(Measurement):
 
     def H_rows(self, X: Array) -> Array:
         return np.broadcast_to(self._H, (X.shape[0], *self._H.shape))
+
+
+def plain_measurement(model: Measurement) -> bool:
+    """True if the model's ``mean`` and ``residual`` are the plain weighted sum and
+    difference of :class:`Measurement` (a wrapper that delegates its attributes, e.g. the
+    adaptive filters' noise override, gives False: the safe answer)."""
+    t = type(model)
+    return (getattr(t, "mean", None) is Measurement.mean
+            and getattr(t, "residual", None) is Measurement.residual)
+

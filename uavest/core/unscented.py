@@ -30,7 +30,7 @@ from ..compiled import register
 from ..geometry.spaces import Space, VectorSpace
 from .contract import FilterBase
 from .gaussian import Gaussian
-from .interfaces import Measurement, Transition
+from .interfaces import Measurement, Transition, plain_measurement
 from .linalg import chol, gain_factor, nis_from_factor
 from .sigma import sigma_weights, unscented_predict
 from .spec import param
@@ -49,15 +49,6 @@ def _scalar_weights(alpha: float, beta: float, kappa: float) -> tuple[float, ...
     :func:`sigma_weights`; Wm_2 = Wm_1, Wc_2 = Wc_1)."""
     c, Wm, Wc, _ = sigma_weights(1, alpha, beta, kappa, "merwe")
     return c, float(Wm[0]), float(Wm[1]), float(Wc[0]), float(Wc[1])
-
-
-def plain_measurement(model: Measurement) -> bool:
-    """True if the model's ``mean`` and ``residual`` are the plain weighted sum and
-    difference of :class:`Measurement` (a wrapper that delegates its attributes, e.g. the
-    adaptive filters' noise override, gives False: the safe answer)."""
-    t = type(model)
-    return (getattr(t, "mean", None) is Measurement.mean
-            and getattr(t, "residual", None) is Measurement.residual)
 
 
 def _ut_cases(nb: ModuleType) -> Iterator[tuple[str, Any, Any]]:
