@@ -1,6 +1,7 @@
 """Compiled (numba) helpers shared by the kernel modules (``uavest/*/_compiled_*.py``):
 one Cholesky factor, the plain factor with its 1 x 1 shortcut, the lower-triangular
-solve, and numba's bit-generator struct from :func:`uavest.compiled.bitgen_pointers`.
+solve, an angle wrapped to [-pi, pi), and numba's bit-generator struct from
+:func:`uavest.compiled.bitgen_pointers`.
 
 Importing this module imports numba and compiles nothing (each helper compiles into the
 kernels that call it). numba's on-disk cache of a kernel does not notice an edit here:
@@ -20,7 +21,7 @@ from numba import njit, types
 from numba.core import cgutils
 from numba.core.extending import intrinsic
 
-__all__ = ["bitgen", "chol_into", "chol_n", "factor", "solve_lower"]
+__all__ = ["bitgen", "chol_into", "chol_n", "factor", "solve_lower", "wrap_pi"]
 
 Array = np.ndarray
 
@@ -95,6 +96,17 @@ def solve_lower(L: Array, b: Array) -> Array:  # pragma: no cover - compiled
             t -= L[i, k] * y[k]
         y[i] = t * (1.0 / L[i, i]) if m == 1 else t / L[i, i]
     return y
+
+
+_TWO_PI = 2.0 * math.pi
+
+
+@njit(cache=True, error_model="numpy")
+def wrap_pi(a: float) -> float:  # pragma: no cover - compiled
+    """``uavest.geometry.rotation.wrap_pi`` of one angle (rad): (a + pi) mod 2 pi - pi,
+    with the floored float modulo of Python and numpy (the sign of the divisor)."""
+    res: float = (a + math.pi) % _TWO_PI - math.pi
+    return res
 
 
 _BITGEN = types.NumPyRandomBitGeneratorType("bit_generator")

@@ -37,7 +37,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..compiled.helpers import chol_into, factor, solve_lower
+from ..compiled.helpers import chol_into, factor, solve_lower, wrap_pi
 
 __all__ = ["add_noise", "chol_jitter", "regenerate", "shift_tangent", "shift_update"]
 
@@ -314,21 +314,10 @@ def _tempered_direct(logw0: Array, ll: Array, phi_max: float, floor: float, W: A
     return 0.0
 
 
-_TWO_PI = 2.0 * math.pi
-
-
-@njit(cache=True)
-def _wrap(a: float) -> float:  # pragma: no cover - compiled
-    """``geometry.rotation.wrap_pi``: (a + pi) mod 2 pi - pi, the floored modulo of
-    Python and numpy."""
-    res: float = (a + math.pi) % _TWO_PI - math.pi
-    return res
-
-
 @njit(cache=True)
 def _diff(a: float, b: float, angle: bool) -> float:  # pragma: no cover - compiled
     """A measurement's residual a - b, wrapped to [-pi, pi) for an angle."""
-    return _wrap(a - b) if angle else a - b
+    return wrap_pi(a - b) if angle else a - b
 
 
 @njit(cache=True)
@@ -340,10 +329,10 @@ def _mean_into(Y: Array, w: Array, angle: bool, out: Array
     out[:] = 0.0
     for j in range(M):
         for a in range(m):
-            out[a] += w[j] * (_wrap(Y[j, a] - Y[0, a]) if angle else Y[j, a])
+            out[a] += w[j] * (wrap_pi(Y[j, a] - Y[0, a]) if angle else Y[j, a])
     if angle:
         for a in range(m):
-            out[a] = _wrap(Y[0, a] + out[a])
+            out[a] = wrap_pi(Y[0, a] + out[a])
 
 
 @njit(cache=True)

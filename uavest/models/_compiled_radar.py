@@ -39,6 +39,8 @@ import math
 import numpy as np
 from numba import njit
 
+from ..compiled.helpers import wrap_pi
+
 __all__ = ["atan2", "linearise2", "linearise3"]
 
 #: LLVM may fuse a * b + c into one rounding (FMA): the results stay equal to the numpy
@@ -98,17 +100,12 @@ def atan2(y, x):  # pragma: no cover - compiled
     return math.copysign(k * _PIO4_A + (k * _PIO4_B + v), y)
 
 
-@njit(cache=True, fastmath=_FM, error_model="numpy")
-def _wrap(d):  # pragma: no cover - compiled
-    """(d + pi) mod 2 pi - pi with Python's float modulo (the sign of the divisor)."""
-    return (d + _PI) % _TWO_PI - _PI
-
-
 @njit(cache=True, fastmath=_FM, error_model="numpy", inline="always")
 def _wrap_fast(d):  # pragma: no cover - compiled
-    """:func:`_wrap` for d + pi in [-2 pi, 4 pi) (the modulo is then t, t - 2 pi exactly
-    or t + 2 pi rounded once, as fmod and the sign fix-up give it), without branches;
-    and whether d was outside that range or NaN (the value is then not used)."""
+    """:func:`~uavest.compiled.helpers.wrap_pi` for d + pi in [-2 pi, 4 pi) (the modulo
+    is then t, t - 2 pi exactly or t + 2 pi rounded once, as fmod and the sign fix-up give
+    it), without branches; and whether d was outside that range or NaN (the value is then
+    not used)."""
     t = d + _PI
     m = t - _TWO_PI if t >= _TWO_PI else (t + _TWO_PI if t < 0.0 else t)
     return m - _PI, (t < -_TWO_PI) | (t >= _FOUR_PI) | (t != t)
@@ -148,8 +145,8 @@ def _range_azimuth(rg, az, sn, cs, w, z0, z1, nuF, dYF, m):  # pragma: no cover 
         odd += out1 | out2
     if odd:  # an azimuth residual outside [-3 pi, 3 pi): the modulo
         for j in range(M):
-            nuF[m * j + 1] = _wrap(z1 - az[j])
-            dYF[m * j + 1] = _wrap(az[j] - m1)
+            nuF[m * j + 1] = wrap_pi(z1 - az[j])
+            dYF[m * j + 1] = wrap_pi(az[j] - m1)
     return s0, m1
 
 
@@ -238,7 +235,7 @@ def linearise2(X, pose, z, w, Hs, nu, dY, nubar, tag):  # pragma: no cover - com
         for k in range(n + 2, 2 * n):
             H2[b + k] = 0.0
     nubar[0] = z0 - s0
-    nubar[1] = _wrap(z1 - m1)
+    nubar[1] = wrap_pi(z1 - m1)
 
 
 @njit(cache=True, fastmath=_FM, error_model="numpy")
@@ -364,5 +361,5 @@ def linearise3(X, pose, z, w, Hs, nu, dY, nubar, tag):  # pragma: no cover - com
             for k in range(3, n):
                 H3[b + k] = 0.0
     nubar[0] = z0 - s0
-    nubar[1] = _wrap(z1 - m1)
+    nubar[1] = wrap_pi(z1 - m1)
     nubar[2] = z2 - s2
