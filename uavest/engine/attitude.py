@@ -412,6 +412,19 @@ class LateDeclination:
         """(the filters' yaw so far is the magnetometer's alone, the words saying why)."""
         return self._mag is not None, "the magnetometer's"
 
+    def _first_declination(self, t: float) -> None:
+        """The declination at the stream's first start (at ``t`` s): the option's, else
+        the source's (:func:`declination_and_source`), else 0; said, and watched for a
+        later one where it may come (:meth:`_declination_pending`)."""
+        decl, src = self.opts.declination, "option"
+        if decl is None:
+            d, src = declination_and_source(self.params)
+            decl = d or 0.0
+        self.declination = float(decl)
+        self.summary.update(declination_rad=self.declination, declination_source=src)
+        self._decl_pending, note = self._declination_pending(src)
+        self._decide("declination", f"{np.degrees(self.declination):.2f} deg", t, src + note)
+
     def _declination_pending(self, src: str) -> tuple[bool, str]:
         """(watch the source's parameters for a declination, the words saying so) after a
         declination from ``src`` (:func:`declination_and_source`'s words, or "option"):
@@ -913,14 +926,8 @@ class AttitudeStream(LateDeclination, StreamSnapshots, HeldAlignment):
         o, first, mag0, noise = self.opts, self._first, self._mag0, self.noise
         align, self._align = self._align, None
         assert align is not None and noise is not None  # set by _setup
-        decl, src = o.declination, "option"
-        if decl is None:
-            decl, src = declination_and_source(self.params)
-            decl = decl or 0.0
-        self.declination = decl
-        self.summary.update(declination_rad=decl, declination_source=src)
-        self._decl_pending, note = self._declination_pending(src)
-        self._decide("declination", f"{np.degrees(decl):.2f} deg", first.t, src + note)
+        self._first_declination(first.t)
+        decl = self.declination
         self._mref = None
         if self._mag is not None and o.mag_mode == "field":
             win = [r for r in align if r.t <= first.t + o.align_s and r.mag is not None]

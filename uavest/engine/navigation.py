@@ -67,7 +67,6 @@ from ..ingest.types import (
     arrival_order,
 )
 from ..models.attitude import (
-    declination_and_source,
     mag_reference,
     reference_declination,
     reference_inclination,
@@ -1043,15 +1042,7 @@ class NavStream(LateDeclination, StreamSnapshots, HeldAlignment):
     def _first_start(self, r: _Raw) -> None:
         """Declination and the magnetic reference, at the first start."""
         o = self.opts
-        decl, src = o.declination, "option"
-        if decl is None:
-            d, src = declination_and_source(self.params)
-            decl = d or 0.0
-        self.declination = float(decl)
-        self._decl_pending, note = self._declination_pending(src)
-        self.summary.update(declination_rad=self.declination, declination_source=src)
-        self._decide("declination", f"{np.degrees(self.declination):.2f} deg", r.t,
-                     src + note)
+        self._first_declination(r.t)
         if self._mag is None:
             return
         inc, why, alt = start_inclination(self._align.recent, self.params,
