@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import functools
 import json
+import re
 import subprocess
 import sys
 import tempfile
@@ -144,8 +145,11 @@ def test_the_magnetic_reference_states_replay_and_smooth():
         stdout, text = _sim_run(extra)
         assert ("decision: magnetic reference states: inclination +- 1.00 deg" in stdout) \
             == (name == "ref"), stdout
-        assert ("magnetic field learnt (the reference: inclination 63.52 deg" in stdout) \
-            == (name == "ref"), stdout
+        learnt = re.search(r"magnetic field learnt \(the reference: inclination "
+                           r"([0-9.]+) deg", stdout)
+        assert (learnt is not None) == (name == "ref"), stdout
+        if learnt:  # the probe's estimate of the simulator's 63.5 deg
+            assert abs(float(learnt.group(1)) - 63.5) < 0.1, learnt.group(0)
         rows[name] = json.loads(text)["filters"]["ekf"]
     ref, plain = rows["ref"], rows["plain"]
     # the simulator's field: 63.5 deg (the magnetic model's 63.52), 3.0 deg (COMPASS_DEC)

@@ -29,14 +29,43 @@ def _by_cat(raws):
     ],
 )
 def test_milli_units_to_si(msg):
+    """Milli-units to SI, each count the middle of its unit (truncated towards zero)."""
     r = _by_cat(convert_mavlink(msg))
     gyro, accel = r["imu"].values
-    np.testing.assert_allclose(accel, [9.80665, -2 * 9.80665, 0.5 * 9.80665], rtol=1e-12)
-    np.testing.assert_allclose(gyro, [1.0, -0.5, 0.25], rtol=1e-12)
-    np.testing.assert_allclose(r["mag"].values[0], [1.0, 0.2, -0.3], rtol=1e-12)
+    np.testing.assert_allclose(accel, np.array([1000.5, -2000.5, 500.5]) * 9.80665e-3,
+                               rtol=1e-12)
+    np.testing.assert_allclose(gyro, [1.0005, -0.5005, 0.2505], rtol=1e-12)
+    np.testing.assert_allclose(r["mag"].values[0], [1.0005, 0.2005, -0.3005], rtol=1e-12)
     assert r["imu"].source == msg.get_type()
     expected_instance = {"SCALED_IMU2": 1, "SCALED_IMU3": 2}.get(msg.get_type(), 0)
     assert r["imu"].instance == expected_instance
+
+
+def test_a_truncated_count_is_read_as_the_middle_of_its_unit():
+    """ArduPilot passes float milli-units to RAW_IMU's int16 fields (a C conversion:
+    truncated towards zero), and uavest's simulator encodes them as it does. Values
+    spread over (-5, 5) counts, so encoded, read back within half a count of the value
+    and without bias; read as plain counts they were half a count short, towards zero,
+    in each half."""
+    from uavest.ingest.convert import MRAD_TO_RAD, count_middle
+    from uavest.sim.protocol import _c_i16
+
+    g = np.random.default_rng(7)
+    x = g.uniform(-5.0, 5.0, 20000)
+    x = x[np.abs(x) >= 1.0]  # (0 stands for (-1, 1): its middle is exact only on average)
+    n = np.array([_c_i16(float(v)) for v in x], dtype=float)
+    assert np.array_equal(n, np.trunc(x))
+    assert _c_i16(4e4) == 32767 and _c_i16(-4e4) == -32768
+    back = np.array([count_middle(float(k)) for k in n])
+    assert np.all(np.abs(back - x) <= 0.5)
+    for half in (x > 0, x < 0):
+        assert abs(np.mean(back[half] - x[half])) < 0.01
+        assert abs(np.mean(n[half] - x[half]) + 0.5 * np.sign(x[half][0])) < 0.01
+    assert count_middle(0.0) == 0.0 and math.isnan(count_middle(float("nan")))
+    msg = ml.MAVLink_raw_imu_message(5000, 0, 0, -999, 0, 0, -231, 0, 0, 0)
+    gyro, accel = _by_cat(convert_mavlink(msg))["imu"].values
+    # vtol.tlog's first sample: zgyro -231 where SIMSTATE has -0.2311 rad/s
+    assert gyro[2] == -231.5 * MRAD_TO_RAD and gyro[0] == 0.0 and accel[2] < -999 * 9.80665e-3
 
 
 def test_all_zero_imu_is_empty_not_a_measurement():
@@ -272,12 +301,12 @@ def test_milli_imu_on_floats_gives_numpys_products():
         msg = ml.MAVLink_scaled_imu2_message(5, *(int(a) for a in v))
         r = _by_cat(convert_mavlink(msg))
         gyro, accel = r["imu"].values
-        assert np.array_equal(gyro, np.array(v[3:6], dtype=float) * MRAD_TO_RAD)
-        assert np.array_equal(accel, np.array(v[:3], dtype=float) * MG_TO_MS2)
+        mid = v + 0.5 * np.sign(v)  # each count the middle of its unit
+        assert np.array_equal(gyro, mid[3:6] * MRAD_TO_RAD)
+        assert np.array_equal(accel, mid[:3] * MG_TO_MS2)
         assert ("mag" in r) == bool(np.any(v[6:]))
         if "mag" in r:
-            assert np.array_equal(r["mag"].values[0], np.array(v[6:], dtype=float)
-                                  * MGAUSS_TO_GAUSS)
+            assert np.array_equal(r["mag"].values[0], mid[6:] * MGAUSS_TO_GAUSS)
     msg = ml.MAVLink_scaled_imu2_message(5, 1, 2, 3, 4, 5, 6, 0, 0, 0)
     msg.ymag = float("nan")
     assert check(_by_cat(convert_mavlink(msg))["mag"]) == "nan"

@@ -315,22 +315,36 @@ def _instance_field(m) -> int:
 _MILLI_IMU = {"RAW_IMU": 0, "SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}
 
 
+def count_middle(n: float) -> float:
+    """The middle of the interval an integer count ``n`` of a truncated field stands for:
+    ``n + 0.5`` above zero, ``n - 0.5`` below, 0 for 0 (which stands for (-1, 1)).
+
+    ArduPilot's ``GCS_MAVLINK::send_raw_imu`` / ``send_scaled_imu`` and PX4's SCALED_IMU
+    stream pass float milli-units to the int16 fields, a C conversion that truncates
+    towards zero: a reading of n (n > 0) is a value in [n, n + 1). Read as n, every
+    non-zero reading is half a unit short of its value on average, towards zero: on an
+    ArduCopter SITL's RAW_IMU (mrad/s) a rate error of 0.5 mrad/s whose sign follows the
+    rate's, which a gyro bias state cannot absorb (docs/ingest.md). A NaN stays NaN."""
+    return n + 0.5 if n > 0.0 else n - 0.5 if n < 0.0 else n
+
+
 def _milli_imu(m, name: str) -> list[Raw]:
     # ArduPilot fills RAW_IMU with the same calibrated, scaled units as SCALED_IMU
-    # (milli-g, milli-rad/s, milli-gauss); see docs/ingest.md.
+    # (milli-g, milli-rad/s, milli-gauss), truncated towards zero (each count read as the
+    # middle of its unit, :func:`count_middle`); see docs/ingest.md.
     # (on Python floats, the same products as numpy's: a third of decoding a tlog was
     # numpy's per-call cost on these 3-vectors)
     inst = _MILLI_IMU[name]
     if name == "RAW_IMU":
         inst = _instance_field(m)
-    g, a = MRAD_TO_RAD, MG_TO_MS2
-    gyro = np.array([float(m.xgyro) * g, float(m.ygyro) * g, float(m.zgyro) * g])
-    accel = np.array([float(m.xacc) * a, float(m.yacc) * a, float(m.zacc) * a])
+    g, a, c = MRAD_TO_RAD, MG_TO_MS2, count_middle
+    gyro = np.array([c(float(m.xgyro)) * g, c(float(m.ygyro)) * g, c(float(m.zgyro)) * g])
+    accel = np.array([c(float(m.xacc)) * a, c(float(m.yacc)) * a, c(float(m.zacc)) * a])
     out = [Raw("imu", name, inst, (gyro, accel))]
     mx, my, mz = float(m.xmag), float(m.ymag), float(m.zmag)
     if mx or my or mz:  # (a NaN is true: counted as bad by check)
         k = MGAUSS_TO_GAUSS
-        out.append(Raw("mag", name, inst, (np.array([mx * k, my * k, mz * k]),),
+        out.append(Raw("mag", name, inst, (np.array([c(mx) * k, c(my) * k, c(mz) * k]),),
                        primary=False))
     return out
 
@@ -457,7 +471,7 @@ def _gnss_raw_int(m, name: str) -> list[Raw]:
         # uint16): a speed of n cm/s is one in [n, n + 1), n + 0.5 on average (an
         # ArduCopter SITL: 0.005 m/s under its true speed, which a navigation filter
         # trusting the velocity integrates into an along-track position error)
-        spd = (m.vel + 0.5) * 1e-2 if m.vel > 0 else 0.0
+        spd = count_middle(float(m.vel)) * 1e-2
         crs = m.cog * 1e-2 * DEG
         vel[:2] = spd * math.cos(crs), spd * math.sin(crs)
     sats = int(m.satellites_visible)

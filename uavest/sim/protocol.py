@@ -72,6 +72,14 @@ def _i16(x: float) -> int:
     return int(max(-32768, min(32767, round(x))))
 
 
+def _c_i16(x: float) -> int:
+    """``x`` passed to an int16 field as ArduPilot's C code passes a float: truncated
+    towards zero (and saturated here), as its RAW_IMU / SCALED_IMU milli-units are; a
+    reader takes each count as the middle of its unit
+    (:func:`uavest.ingest.convert.count_middle`)."""
+    return int(max(-32768.0, min(32767.0, x)))
+
+
 def _deg_e7(x: float) -> int:
     return int(round(x * 1e7))
 
@@ -288,9 +296,9 @@ class Protocol:
             a = imu.accel[i] / G0 * 1000.0
             g = imu.gyro[i] * 1000.0
             m = imu.mag[i] * 1000.0
-            return e.raw_imu_encode(t_us, _i16(a[0]), _i16(a[1]), _i16(a[2]), _i16(g[0]),
-                                    _i16(g[1]), _i16(g[2]), _i16(m[0]), _i16(m[1]), _i16(m[2]),
-                                    0, 3500)
+            return e.raw_imu_encode(t_us, _c_i16(a[0]), _c_i16(a[1]), _c_i16(a[2]),
+                                    _c_i16(g[0]), _c_i16(g[1]), _c_i16(g[2]), _c_i16(m[0]),
+                                    _c_i16(m[1]), _c_i16(m[2]), 0, 3500)
         if name == "HIGHRES_IMU":
             a, g, m = imu.accel[i], imu.gyro[i], imu.mag[i]
             upd = 0x3F | 0x200 | 0x800 | 0x1000
@@ -311,11 +319,12 @@ class Protocol:
             cog = int(round(math.degrees(math.atan2(ve, vn)) * 100)) % 36000
             # the receiver's accuracies, mm and mm/s (at least 1: 0 is "not reported")
             h_acc, v_acc, vel_acc = (max(1, int(round(a * 1e3))) for a in f["acc"])
-            # time_usec: the fix's UNIX (GNSS) time, as ArduPilot sends it, not boot time
+            # time_usec: the fix's UNIX (GNSS) time, as ArduPilot sends it, not boot time;
+            # the ground speed truncated to whole cm/s, as ArduPilot's float -> uint16
             return e.gps_raw_int_encode(
                 int(self.epoch * 1e6) + f["t_us"], 3, _deg_e7(f["lat"]), _deg_e7(f["lon"]),
                 int(round(f["alt"] * 1e3)),
-                70, 110, int(round(math.hypot(vn, ve) * 100)), cog, 14,
+                70, 110, min(int(math.hypot(vn, ve) * 100), 65534), cog, 14,
                 int(round(f["alt"] * 1e3)), h_acc, v_acc, vel_acc, 0, 0)
         if name in ("GLOBAL_POSITION_INT", "LOCAL_POSITION_NED"):
             p = tr.pos[i] + ch.nav_err[i]
