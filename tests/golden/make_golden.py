@@ -6,6 +6,9 @@ The golden files are the attitude replay of the batch engine at commit ``05bb455
 and, per filter label, the state rows ``x`` (``(len(t), 7)``: quaternion w,x,y,z body FRD
 -> NED, then gyro bias in rad/s), float64, every step. Each filter's random draws come from
 ``default_rng([0, crc32(label)])``, the old engine's seeding, which the test reproduces.
+The reference's input is the old reader's with one named bug of it mended as today's reader
+mends it: MAVLink's integer IMU counts (RAW_IMU, SCALED_IMU*) read as the middle of their
+unit, not as the truncated value (cbff37f; docs/ingest.md).
 
 Run from the repository root, with the shared logs present and git history containing the
 reference commit (it is extracted with ``git archive`` into a temporary folder and run in a
@@ -47,6 +50,16 @@ from uavest.models.attitude import declination_from_params, noise_for_source
 from uavest.pipeline.replay import build_steps, run_filters, velocity_acceleration
 log, out, filters = sys.argv[1], sys.argv[2], tuple(sys.argv[3].split(","))
 data = read_log(log)
+from uavest.ingest.convert import MG_TO_MS2, MGAUSS_TO_GAUSS, MRAD_TO_RAD
+_MILLI = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
+def _middle(v, k):  # the count n = v / k read as n +- 0.5 (0 as 0), as today's reader
+    n = np.round(v / k)
+    return np.where(n > 0, n + 0.5, np.where(n < 0, n - 0.5, n)) * k
+if data.imu.source in _MILLI:
+    data.imu.gyro[:] = _middle(data.imu.gyro, MRAD_TO_RAD)
+    data.imu.accel[:] = _middle(data.imu.accel, MG_TO_MS2)
+if data.mag.source in _MILLI:
+    data.mag.field[:] = _middle(data.mag.field, MGAUSS_TO_GAUSS)
 noise = noise_for_source(data.imu.source)
 decl = declination_from_params(data.params) or 0.0
 mag = data.mag

@@ -32,6 +32,12 @@ class TlogWriter:
         self.f.close()
 
 
+#: the gyro x of :func:`scaled`'s default count, 100 mrad/s, as read: the middle of its
+#: unit (the senders truncate towards zero; docs/ingest.md)
+GX = 0.1005
+AZ = -1000.5 * 9.80665e-3  # -1000 milli-g: (-1001, -1000], its middle
+
+
 def scaled(t_ms: int, gx: float = 100):
     return ml.MAVLink_scaled_imu_message(t_ms, 0, 0, -1000, int(gx), 0, 0, 200, 0, 400)
 
@@ -58,9 +64,10 @@ def test_steady_synthetic_log(tmp_path):
     assert log.format == "tlog" and log.imu.source == "SCALED_IMU"
     assert len(log.imu) == 50
     np.testing.assert_allclose(log.imu.t, 10.0 + 0.02 * np.arange(50))
-    np.testing.assert_allclose(log.imu.gyro[0], [0.1, 0, 0])
-    np.testing.assert_allclose(log.imu.accel[0], [0, 0, -9.80665])
-    np.testing.assert_allclose(log.mag.field[0], [0.2, 0, 0.4])
+    # 100 mrad/s in SCALED_IMU's int16: [100, 101) mrad/s, read as its middle
+    np.testing.assert_allclose(log.imu.gyro[0], [GX, 0, 0])
+    np.testing.assert_allclose(log.imu.accel[0], [0, 0, AZ])
+    np.testing.assert_allclose(log.mag.field[0], [0.2005, 0, 0.4005])
     assert log.imu_rate_hz == pytest.approx(50.0)
     sim = log.references["SIMSTATE"]
     assert sim.kind == "truth" and len(sim) == 50
@@ -99,8 +106,8 @@ def test_duplicates_backwards_nan_out_of_range_are_counted_and_skipped(tmp_path)
     # the bad ones (gx 7 and 5 mrad/s, the 32 g sample) did not get in: every kept sample
     # is a good one, at its own time
     np.testing.assert_allclose(log.imu.t, 10.0 + 0.02 * np.arange(40))
-    np.testing.assert_allclose(log.imu.gyro, np.tile([0.1, 0.0, 0.0], (40, 1)))
-    np.testing.assert_allclose(log.imu.accel, np.tile([0.0, 0.0, -9.80665], (40, 1)))
+    np.testing.assert_allclose(log.imu.gyro, np.tile([GX, 0.0, 0.0], (40, 1)))
+    np.testing.assert_allclose(log.imu.accel, np.tile([0.0, 0.0, AZ], (40, 1)))
     assert len(log.references["ATTITUDE"]) == 38
 
 
@@ -205,7 +212,7 @@ def test_two_messages_back_in_time_are_not_a_reboot(tmp_path):
     assert log.stats.time_reset == 0
     assert log.stats.rejected["time_backwards:SCALED_IMU"] == 2
     assert len(log.imu) == 60 and len(log.mag) == 60
-    np.testing.assert_allclose(log.imu.gyro[:, 0], 0.1)
+    np.testing.assert_allclose(log.imu.gyro[:, 0], GX)
 
 
 @pytest.mark.parametrize("byte,value", [(4, 0xFD), (4, 0xFE), (3, 0xFD), (2, 0xFE)])
