@@ -204,4 +204,3 @@ def plain_measurement(model: Measurement) -> bool:
     t = type(model)
     return (getattr(t, "mean", None) is Measurement.mean
             and getattr(t, "residual", None) is Measurement.residual)
-
