@@ -83,3 +83,13 @@ def test_ulog_stream_yields_the_gnss_and_baro_of_the_arrays():
         n["g"] += isinstance(m, GnssSample)
         n["b"] += isinstance(m, BaroSample)
     assert n == {"g": 437 + 23, "b": 62}
+
+
+def test_a_px4_sitl_ulog_is_not_taken_for_an_ardupilot_sitl():
+    from uavest.engine.navigation import sitl_evidence
+
+    # both PX4 SITL logs carry SIM_BAT_DRAIN: PX4's battery simulator, not ArduPilot's
+    for name in ("sample_logging_tagged_and_default_params.ulg", "sample_px4_events.ulg"):
+        params = read_log(shared_log(name)).params
+        assert "SIM_BAT_DRAIN" in params, name
+        assert sitl_evidence(params) is None, name

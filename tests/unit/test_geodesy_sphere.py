@@ -49,6 +49,17 @@ def test_sitl_evidence_ignores_the_parameter_uavest_sim_also_sends():
     assert sitl_evidence({}) is None
 
 
+def test_a_px4_sitls_own_sim_parameters_are_not_an_ardupilot_sitl():
+    # sample_px4_events.ulg (PX4_SITL): SIM_BAT_DRAIN with PX4's own parameters
+    px4 = {"SIM_BAT_DRAIN": 60.0, "SIM_BAT_ENABLE": 1, "SYS_AUTOSTART": 10015}
+    assert sitl_evidence(px4) is None
+    assert sitl_evidence({"SIM_BAT_DRAIN": 60.0, "EKF2_MAG_DECL": 3.3}) is None
+    assert sitl_evidence({"SIM_BAT_DRAIN": 60.0, "MAV_SYS_ID": 1}) is None
+    # ArduPilot's own, with the same SIM_ name, still is
+    assert "SIM_BAT_DRAIN" in sitl_evidence({"SIM_BAT_DRAIN": 60.0, "EK3_ENABLE": 1,
+                                              "SYSID_THISMAV": 1})
+
+
 def _geo(stream):
     d = [d for d in stream.summary["decisions"] if d["what"] == "geodesy"]
     assert len(d) == 1

@@ -311,9 +311,18 @@ class NavOptions:
 UAVEST_SIM_PARAMS = frozenset({"SIM_SPEEDUP"})
 
 
+#: Parameters only PX4 has (ArduPilot's are ``SYSID_THISMAV`` / ``MAV_SYSID``, ``EK2_`` /
+#: ``EK3_``): PX4's SITL has ``SIM_*`` parameters of its own (``SIM_BAT_DRAIN``...), and
+#: its GNSS positions are not made on ArduPilot's sphere.
+PX4_PARAMS = frozenset({"SYS_AUTOSTART", "MAV_SYS_ID"})
+
+
 def sitl_evidence(params: dict[str, Any]) -> str | None:
     """Why the log's parameters are an ArduPilot SITL's (a ``SIM_*`` parameter, which only
-    its simulator has, but :data:`UAVEST_SIM_PARAMS`), or None."""
+    its simulator has, but :data:`UAVEST_SIM_PARAMS`), or None; None for a PX4 log (any
+    of :data:`PX4_PARAMS` or an ``EKF2_*`` parameter), whose SITL has ``SIM_*`` ones too."""
+    if any(isinstance(k, str) and (k in PX4_PARAMS or k.startswith("EKF2_")) for k in params):
+        return None
     for k in params:
         if isinstance(k, str) and k.startswith("SIM_") and k not in UAVEST_SIM_PARAMS:
             return f"its parameter {k}"
