@@ -121,13 +121,19 @@ def _sim_run(extra: tuple[str, ...]) -> tuple[str, str]:
 @pytest.mark.slow
 def test_the_navigation_model_smooths():
     """--smooth runs the RTS smoother on the navigation state (15 error dimensions) and
-    the smoothed attitude beats the filtered one against the simulator's truth."""
-    out = json.loads(_sim_run(("--smooth",))[1])
+    the smoothed attitude beats the filtered one against the simulator's truth, over the
+    whole log and airborne (a row of the airborne table too)."""
+    text, doc = _sim_run(("--smooth",))
+    out = json.loads(doc)
     assert out["model"]["value"] == "nav"
     row = out["filters"]["ekf"]
     sm = row["smoothed"]
     for axis in ("roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg", "vel_rmse_ms"):
         assert sm[axis] < row[axis], (axis, sm[axis], row[axis])
+        assert sm["airborne"][axis] < row["airborne"][axis], axis
+    assert sm["airborne"]["t"] == row["airborne"]["t"]
+    air = text.split("airborne (t=", 1)[1]
+    assert re.search(r"^  ekf smoothed +\d", air, re.M), air
     assert set(sm["nees"]) == {"attitude", "velocity", "position"}
     assert sm["hpos_rmse_m"] is not None
 

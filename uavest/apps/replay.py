@@ -629,16 +629,17 @@ def _score_smoothed(coll: Collector, refs: _Refs, label: str, ref: str, truth: b
 
 def _score_smoothed_nav(coll: Collector, nsc: NavScorer, label: str, att_ref: str | None,
                         frame, space) -> dict:
-    """Velocity/position RMSE and the NEES blocks (as the filtered row's ``nees``) of the
-    smoothed navigation run of ``label``, scored by the run's own :class:`NavScorer`
-    (its references) under the label ``"<label> smoothed"``."""
+    """Velocity/position RMSE, the NEES blocks (as the filtered row's ``nees``) and the
+    airborne scores (as the filtered row's ``airborne``) of the smoothed navigation run
+    of ``label``, scored by the run's own :class:`NavScorer` (its references) under the
+    label ``"<label> smoothed"``."""
     t, xs, Ps = smooth_records(coll, label, space)
     lab = f"{label} smoothed"
     for k in range(len(t)):
         nsc.add_estimate(lab, float(t[k]), xs[k], Ps[k])
     got = nsc.scores(lab, att_ref, frame)
-    return {k: got[k] for k in ("vel_rmse_ms", "hpos_rmse_m", "vpos_rmse_m", "nees")
-            if got.get(k)}
+    return {k: got[k] for k in ("vel_rmse_ms", "hpos_rmse_m", "vpos_rmse_m", "nees",
+                                "airborne") if got.get(k)}
 
 
 @dataclass

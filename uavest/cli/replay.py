@@ -229,7 +229,8 @@ def _imu_interval_lines(doc: dict) -> list[str]:
 
 def _table_lines(doc: dict) -> list[str]:
     """The filters' table (smoothed rows indented; navigation columns for the nav model)
-    and, when the log says when the vehicle was airborne, the airborne table."""
+    and, when the log says when the vehicle was airborne, the airborne table (smoothed
+    rows too)."""
     rows = {}
     for name, row in doc["filters"].items():
         rows[name] = row
@@ -242,7 +243,12 @@ def _table_lines(doc: dict) -> list[str]:
         rows = {k: flat_row(r) for k, r in rows.items()}
         cols = cols[:4] + NAV_COLS + ["rejected"] + cols[4:]
     lines = [table(rows, cols)]
-    air = {k: flat_row(r["airborne"]) for k, r in doc["filters"].items() if r.get("airborne")}
+    air = {}
+    for k, r in doc["filters"].items():
+        if r.get("airborne"):
+            air[k] = flat_row(r["airborne"])
+        if (r.get("smoothed") or {}).get("airborne"):
+            air[f"  {k} smoothed"] = flat_row(r["smoothed"]["airborne"])
     if air:
         a0 = next(iter(doc["filters"].values())).get("airborne") or {}
         t = a0.get("t") or [math.nan, math.nan]
