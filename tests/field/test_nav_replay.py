@@ -139,6 +139,25 @@ def test_the_navigation_model_smooths():
 
 
 @pytest.mark.slow
+def test_an_attitude_runs_smoothed_track_has_its_airborne_row(tmp_path):
+    """--model attitude --smooth on vtol.tlog (a position reference, so an airborne
+    window): the smoothed row carries the airborne scores, over the same window as the
+    filter's, and the airborne table prints it."""
+    out = tmp_path / "att.json"
+    r = _replay(str(shared_log("vtol.tlog")), "--filters", "ekf", "--model", "attitude",
+                "--smooth", "--json", str(out))
+    assert r.returncode == 0, r.stderr
+    row = json.loads(out.read_text())["filters"]["ekf"]
+    air, sair = row["airborne"], row["smoothed"]["airborne"]
+    assert sair["t"] == air["t"] and sair["n"] == air["n"]
+    for axis in ("roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg"):
+        assert np.isfinite(sair[axis]) and sair[axis] != air[axis], axis
+    assert "vel_rmse_ms" not in row["smoothed"]  # an attitude state has no velocity
+    table = r.stdout.split("airborne (t=", 1)[1]
+    assert re.search(r"^  ekf smoothed +\d", table, re.M), table
+
+
+@pytest.mark.slow
 def test_the_magnetic_reference_states_replay_and_smooth():
     """``--noise mag_ref_inc=... mag_ref_dec=...`` gives the navigation state the
     magnetic reference's errors (20 dimensions with the log's GNSS bias states): the run

@@ -839,9 +839,12 @@ def _filter_row(r: FilterRunner, cfg: ReplayConfig, out: dict, stream, scorer: A
     if cfg.smooth and coll is not None:
         srow = (_score_smoothed(coll, out["refs"], r.label, ref_name, truth, stream.space)
                 if ref_name else {})
+        got = _score_smoothed_nav(coll, nsc, r.label, ref_name if truth else None, frame,
+                                  stream.space)
         if nav:
-            srow.update(_score_smoothed_nav(coll, nsc, r.label, ref_name if truth
-                                            else None, frame, stream.space))
+            srow.update(got)
+        elif got.get("airborne"):  # an attitude run: the airborne window's scores only
+            srow["airborne"] = got["airborne"]
         steps = max(int(stream.summary.get("steps") or 0), 1)
         srow["us_per_step"] = 1e6 * r.smooth_seconds / steps
         row["smoothed"] = srow
