@@ -155,7 +155,8 @@ def skip_kf_nonlinear(spec: str, prob: Problem) -> None:
 
 SPACES = {"vector3": VectorSpace(3), "attitude": AttitudeSpace(), "nav": NavSpace(),
           "nav_gnss_bias": NavSpace(extra=3), "nav_mag_ref": NavSpace(mag=2),
-          "nav_gnss_bias_mag_ref": NavSpace(extra=3, mag=2)}
+          "nav_gnss_bias_mag_ref": NavSpace(extra=3, mag=2),
+          "nav_gnss_bias_drift_mag_ref": NavSpace(extra=3, mag=2, drift=3)}
 
 
 def random_point(space, rng):
@@ -167,7 +168,7 @@ def random_point(space, rng):
         return np.concatenate([q / np.linalg.norm(q), rng.normal(size=3) * 5.0,
                                rng.normal(size=3) * 100.0, rng.normal(size=3) * 0.01,
                                rng.normal(size=3) * 0.1,
-                               rng.normal(size=space.extra + space.mag)])
+                               rng.normal(size=space.size - 16)])
     return rng.normal(size=space.size)
 
 

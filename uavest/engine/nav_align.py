@@ -206,7 +206,7 @@ def fix_start(q: Array, tilt: float, syaw: float, v: Array, p: Array, pv: list[f
     x = np.concatenate([q, v, p, np.zeros(6)])
     P = np.diag([tilt**2] * 2 + [syaw**2] + pv
                 + [n.init_gyro_bias**2] * 3 + [n.init_accel_bias**2] * 3)
-    return with_mag_ref(*with_gnss_bias(x, P, n, from_fix=True), n)
+    return with_mag_ref(*with_gyro_drift(*with_gnss_bias(x, P, n, from_fix=True), n), n)
 
 
 def widen_tilt(g: Any, var: float, gravity: float = G0) -> Any:
@@ -227,14 +227,14 @@ def widen_tilt(g: Any, var: float, gravity: float = G0) -> Any:
 
 
 def add_gnss_bias(g: Any, noise: NavNoise) -> Any:
-    """A running navigation estimate ``g`` (a Gaussian, 16 components, then the magnetic
-    reference's errors when ``noise`` has them) with the GNSS bias states of ``noise``
-    inserted after the 16: its position has been fitted to fixes that carry the bias, so
-    it is taken as a fix's (:func:`with_gnss_bias`, ``from_fix``); the magnetic
-    reference's errors keep their estimate and covariances."""
+    """A running navigation estimate ``g`` (a Gaussian, 16 components, then the gyro
+    drift states and the magnetic reference's errors when ``noise`` has them) with the
+    GNSS bias states of ``noise`` inserted after the 16: its position has been fitted to
+    fixes that carry the bias, so it is taken as a fix's (:func:`with_gnss_bias`,
+    ``from_fix``); the states after the 16 keep their estimate and covariances."""
     gx, gP = np.asarray(g.x, float), np.asarray(g.P, float)
     x, P = with_gnss_bias(gx[:16], gP[:15, :15], noise, from_fix=True)
-    k = len(gx) - 16  # the magnetic reference's errors after the 16
+    k = len(gx) - 16  # the gyro drift's and the magnetic reference's after the 16
     if k:
         d = len(P)
         P2 = np.zeros((d + k, d + k))
@@ -263,6 +263,16 @@ def with_gnss_bias(x: Array, P: Array, noise: NavNoise, from_fix: bool) -> tuple
     return np.concatenate([x, np.zeros(3)]), P2
 
 
+def with_gyro_drift(x: Array, P: Array, noise: NavNoise) -> tuple[Array, Array]:
+    """``(x, P)`` of a start (with its GNSS bias states, if any) with the gyro drift
+    states appended when ``noise`` has them (:attr:`NavNoise.gyro_drift`): zero, at their
+    prior std ``init_gyro_drift``."""
+    if not noise.gyro_drift:
+        return x, P
+    return (np.concatenate([x, np.zeros(3)]),
+            block_diag(P, np.eye(3) * noise.init_gyro_drift**2))
+
+
 def with_mag_ref(x: Array, P: Array, noise: NavNoise) -> tuple[Array, Array]:
     """``(x, P)`` of a start (with its GNSS bias states, if any) with the magnetic
     reference's error states appended when ``noise`` has them (:attr:`NavNoise.mag_ref`):
@@ -273,10 +283,12 @@ def with_mag_ref(x: Array, P: Array, noise: NavNoise) -> tuple[Array, Array]:
 
 
 def kept_biases(space: Any) -> tuple[tuple[int, ...], tuple[int, ...]]:
-    """``(x indices, tangent indices)`` of the IMU biases and the magnetic reference's
-    errors of a navigation ``space``: what a re-alignment keeps of the running estimate
-    (``Start.keep_x`` / ``keep_P``; the GNSS bias states are the new fix's)."""
-    mx = tuple(range(space.size - space.mag, space.size))
+    """``(x indices, tangent indices)`` of the IMU biases, the gyro drift states and the
+    magnetic reference's errors of a navigation ``space``: what a re-alignment keeps of
+    the running estimate (``Start.keep_x`` / ``keep_P``; the GNSS bias states are the
+    new fix's)."""
+    ds = getattr(space, "drift_slice", slice(0, 0))
+    mx = (*range(ds.start, ds.stop), *range(space.size - space.mag, space.size))
     return (*range(10, 16), *mx), (*range(9, 15), *(i - 1 for i in mx))
 
 
@@ -289,7 +301,7 @@ def unaided_start(q: Array, syaw: float, noise: NavNoise) -> tuple[Array, Array]
     P = np.diag([n.init_tilt**2] * 2 + [syaw**2] + [n.init_vel**2] * 3
                 + [n.nofix_pos_noise**2] * 3
                 + [n.init_gyro_bias**2] * 3 + [n.init_accel_bias**2] * 3)
-    return with_mag_ref(*with_gnss_bias(x, P, n, from_fix=False), n)
+    return with_mag_ref(*with_gyro_drift(*with_gnss_bias(x, P, n, from_fix=False), n), n)
 
 
 def anchor_start(v: Array, p: Array, pv: list[float], noise: NavNoise
@@ -301,4 +313,4 @@ def anchor_start(v: Array, p: Array, pv: list[float], noise: NavNoise
     x = np.concatenate([[1.0, 0.0, 0.0, 0.0], v, p, np.zeros(6)])
     P = np.diag([n.init_tilt**2] * 3 + pv + [n.init_gyro_bias**2] * 3
                 + [n.init_accel_bias**2] * 3)
-    return with_mag_ref(*with_gnss_bias(x, P, n, from_fix=True), n)
+    return with_mag_ref(*with_gyro_drift(*with_gnss_bias(x, P, n, from_fix=True), n), n)

@@ -56,7 +56,7 @@ from ..core.gaussian import Gaussian
 from ..core.guard import nis_gate
 from ..errors import InputError
 from ..geometry.geodesy import GEODESIES, LocalFrame, SphereFrame, make_frame
-from ..geometry.navigation import DP, DV, NavSpace
+from ..geometry.navigation import DIM, DP, DV, NavSpace
 from ..ingest.types import (
     AttitudeRef,
     BaroSample,
@@ -1175,7 +1175,7 @@ class NavStream(LateDeclination, StreamSnapshots, HeldAlignment):
             ups.append((np.zeros(3), GnssPosition(np.eye(3) * n.nofix_pos_noise**2,
                                                   biased=False)))
             sensors.append("hold")
-        if self.space.extra or self.space.mag:  # the models read the state's extra states
+        if self.space.dim != DIM:  # the models read (or pass over) the appended states
             for _, m in ups:
                 m.space = self.space
         self._k += 1
@@ -1291,6 +1291,11 @@ class NavStream(LateDeclination, StreamSnapshots, HeldAlignment):
                              f"declination {prior(n.mag_ref_dec)}",
                              t_first, f"{o.mag_ref_why or 'option --noise'} (random walk "
                              f"{n.mag_ref_walk:g} rad/sqrt(s))")
+        if self.noise.gyro_drift:
+            self._decide("gyro drift states",
+                         f"the gyro bias's rate, +- {self.noise.init_gyro_drift:g} rad/s^2",
+                         t_first, f"option --noise (random walk {self.noise.gyro_drift_walk:g} "
+                         "rad/s^2/sqrt(s); the bias moves at this rate)")
         self._builder = _NavBuilder(integ, factor, o.on_arrival)
         self._builder.gap_s = max(GAP_MIN_S, GAP_MEDIANS * med)
         self.summary["imu_gap_threshold_s"] = self._builder.gap_s

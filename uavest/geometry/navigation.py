@@ -25,7 +25,9 @@ dim 18): the navigation model's GNSS receiver bias ``bp`` (m, NED) when it has o
 (:class:`uavest.models.navigation.NavNoise`, ``gnss_bias_tau``). ``mag=2`` appends two
 more after those: the errors (rad) of the magnetic reference's inclination and declination
 (``NavNoise.mag_ref_inc`` / ``mag_ref_dec``), so ``NavSpace(extra=3, mag=2)`` has ``x``
-size 21 and ``dx`` dim 20. Every appended component is Euclidean.
+size 21 and ``dx`` dim 20. ``drift=3`` puts three between the ``extra`` and the ``mag``
+ones: the gyro bias's rate of change ``dbg/dt`` (rad/s^2, body FRD;
+``NavNoise.gyro_drift_walk``). Every appended component is Euclidean.
 """
 
 from __future__ import annotations
@@ -92,11 +94,12 @@ class NavSpace(QuatRowsSpace):
     module docstring for the layout and units.
     """
 
-    def __init__(self, extra: int = 0, mag: int = 0) -> None:
+    def __init__(self, extra: int = 0, mag: int = 0, drift: int = 0) -> None:
         self.extra = int(extra)
         self.mag = int(mag)
-        self.dim = DIM + self.extra + self.mag
-        self.size = SIZE + self.extra + self.mag
+        self.drift = int(drift)
+        self.dim = DIM + self.extra + self.drift + self.mag
+        self.size = SIZE + self.extra + self.drift + self.mag
 
     @property
     def mag_slice(self) -> slice:
@@ -104,12 +107,19 @@ class NavSpace(QuatRowsSpace):
         tangent they are one index lower."""
         return slice(self.size - self.mag, self.size)
 
+    @property
+    def drift_slice(self) -> slice:
+        """The gyro bias's rate components in ``x`` (after the ``extra`` ones; empty
+        without them); in the tangent they are one index lower."""
+        a = SIZE + self.extra
+        return slice(a, a + self.drift)
+
     def __eq__(self, other: object) -> bool:
         return (isinstance(other, NavSpace) and other.extra == self.extra
-                and other.mag == self.mag)
+                and other.mag == self.mag and other.drift == self.drift)
 
     def __hash__(self) -> int:
-        return hash(("NavSpace", self.extra, self.mag))
+        return hash(("NavSpace", self.extra, self.mag, self.drift))
 
     # the filters' shapes go to the attitude space's row kernels (QuatRowsSpace); one
     # state's retraction to the float path (the EKF's update), one state's local to the
@@ -123,5 +133,6 @@ class NavSpace(QuatRowsSpace):
 
     def __repr__(self) -> str:
         extra = f", +{self.extra}" if self.extra else ""
+        extra += f", +{self.drift} drift" if self.drift else ""
         extra += f", +{self.mag} mag" if self.mag else ""
         return f"NavSpace(q*Exp(dtheta), v+dv, p+dp, bg+dbg, ba+dba{extra})"

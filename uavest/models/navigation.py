@@ -78,10 +78,12 @@ def nav_dim(overrides: dict[str, float]) -> int:
 
 def nav_space(noise: NavNoise) -> NavSpace:
     """The state space for ``noise``: :data:`SPACE_GNSS_BIAS` when it has GNSS bias
-    states, else :data:`SPACE`; with the magnetic reference states
-    (:attr:`NavNoise.mag_ref`) two more components after those."""
-    if noise.mag_ref:
-        return NavSpace(extra=3 if noise.gnss_bias else 0, mag=2)
+    states, else :data:`SPACE`; with the gyro drift states (:attr:`NavNoise.gyro_drift`)
+    three more components after those, and with the magnetic reference states
+    (:attr:`NavNoise.mag_ref`) two more after all of them."""
+    if noise.mag_ref or noise.gyro_drift:
+        return NavSpace(extra=3 if noise.gnss_bias else 0, mag=2 if noise.mag_ref else 0,
+                        drift=3 if noise.gyro_drift else 0)
     return SPACE_GNSS_BIAS if noise.gnss_bias else SPACE
 
 
@@ -135,6 +137,14 @@ class NavNoise:
         local anomaly changes as the vehicle moves). A site's field is often a degree or
         more off the model, and a magnetometer trusted to its white noise otherwise puts
         that error into the tilt (docs/navigation.md, "The magnetic reference states").
+    gyro_drift_walk, init_gyro_drift: the gyro bias's rate of change as three states
+        ``dbg/dt`` (rad/s^2, body FRD; after the GNSS bias states, before the magnetic
+        reference's): the bias then moves as ``bg += dbg/dt * dt``, and its rate as a
+        random walk of ``gyro_drift_walk`` rad/s^2/sqrt(s), from 0 +- ``init_gyro_drift``
+        rad/s^2. For a bias that ramps (a warming MEMS gyro; an ArduPilot SITL's
+        ``SIM_DRIFT_SPEED``, 0.05 deg/s per minute = 1.45e-5 rad/s^2), which a random walk
+        follows with a lag. ``gyro_drift_walk`` 0 (default): no such states
+        (docs/navigation.md, "The gyro drift states").
     """
 
     gyro_noise: float = 0.003
@@ -164,6 +174,13 @@ class NavNoise:
     mag_ref_inc: float = 0.0
     mag_ref_dec: float = 0.0
     mag_ref_walk: float = 1e-5
+    gyro_drift_walk: float = 0.0
+    init_gyro_drift: float = 5e-5
+
+    @property
+    def gyro_drift(self) -> bool:
+        """True when the model carries the gyro drift states (``gyro_drift_walk`` > 0)."""
+        return self.gyro_drift_walk > 0
 
     @property
     def mag_ref(self) -> bool:
@@ -292,7 +309,9 @@ class ImuTransition(Transition):
         return w, u[3:6] - X[..., 13:16]
 
     def f(self, X: Array, t: float, dt: float, u: Array | None = None) -> Array:
-        nb = NAV_KERNELS.get()
+        # (the compiled kernels know the GNSS bias and magnetic reference states, not the
+        # gyro drift's: with those, numpy)
+        nb = None if self.space.drift else NAV_KERNELS.get()
         return self._nb_f(nb, X, dt, u) if nb else self._np_f(X, t, dt, u)
 
     def _nb_f(self, nb: Any, X: Array, dt: float, u: Array | None) -> Array:
@@ -324,6 +343,8 @@ class ImuTransition(Transition):
         out[:, 7:10] = X[:, 7:10] + X[:, 4:7] * dt + 0.5 * dt * dt * a
         if self.space.extra:  # the GNSS bias decays towards 0
             out[:, 16:19] = X[:, 16:19] * self._phi(dt)
+        if self.space.drift:  # the gyro bias moves at its rate (which is constant)
+            out[:, 10:13] = X[:, 10:13] + X[:, self.space.drift_slice] * dt
         return out[0] if one else out  # the magnetic reference's errors: constant
 
     def _phi(self, dt: float) -> float:
@@ -348,10 +369,17 @@ class ImuTransition(Transition):
             d[15:18] = n.gnss_bias_sd**2 * (1.0 - self._phi(dt) ** 2) + 1e-14
         if self.space.mag:  # the magnetic reference's random walk (the last two)
             d[-2:] = n.mag_ref_walk**2 * dt + 1e-16
+        if self.space.drift:  # the bias's rate a random walk, the bias its integral
+            sl = self.space.drift_slice
+            i = np.arange(sl.start - 1, sl.stop - 1)  # (the tangent's indices)
+            qd = n.gyro_drift_walk**2
+            d[i] = qd * dt + 1e-18
+            d[9:12] += qd * dt**3 / 3.0
+            Q[9 + np.arange(3), i] = Q[i, 9 + np.arange(3)] = qd * dt**2 / 2.0
         return Q
 
     def F(self, x: Array, t: float, dt: float, u: Array | None = None) -> Array:
-        nb = NAV_KERNELS.get()
+        nb = None if self.space.drift else NAV_KERNELS.get()
         return self._nb_F(nb, x, dt, u) if nb else self._np_F(x, t, dt, u)
 
     def _nb_F(self, nb: Any, x: Array, dt: float, u: Array | None) -> Array:
@@ -383,6 +411,9 @@ class ImuTransition(Transition):
         F[6:9, 0:3] = 0.5 * dt * dt * da_dth
         F[6:9, 9:12] = 0.5 * dt * dt * da_dbg
         F[6:9, 12:15] = -0.5 * dt * dt * Rh
+        if self.space.drift:
+            sl = self.space.drift_slice
+            F[9:12, sl.start - 1:sl.stop - 1] = np.eye(3) * dt
         return F
 
 
