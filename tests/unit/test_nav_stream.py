@@ -413,6 +413,40 @@ def test_a_re_alignment_keeps_the_imu_biases_and_the_magnetic_reference_states()
     np.testing.assert_allclose(x[after, 19:21], x[before, 19:21], atol=1e-3)
 
 
+def test_a_re_alignment_keeps_the_gyro_drift_states_and_reports_them():
+    """With the gyro drift states between the GNSS bias and magnetic reference states (24
+    components), a re-alignment after an IMU gap keeps the drift's estimate as it keeps
+    the biases', the magnetic reference's errors stay at their places, and the stream
+    reports the rate each filter learnt (JSON ``gyro_drift``, the printed line)."""
+    from uavest.apps.replay import gyro_drift_line
+
+    samples, ts, xs = flight(4, T=40.0)
+    samples = [s for s in samples if not (isinstance(s, ImuSample) and 120.0 < s.t < 122.0)]
+    noise = {"gnss_bias_h": 0.5, "gnss_bias_v": 1.0, "gnss_bias_tau": 30.0,
+             "mag_ref_inc": 0.02, "mag_ref_dec": 0.02, "gyro_drift_walk": 1e-5,
+             "init_gyro_drift": 1e-4}
+    stream, runners, coll = run_nav(samples, opts=NavOptions(integration="hold", noise=noise))
+    assert stream.space == NavSpace(extra=3, mag=2, drift=3)
+    assert any(d["what"] == "gyro drift states" for d in stream.summary["decisions"])
+    a = coll.arrays(runners[0].label)
+    t, x = a["t"], a["x"]
+    before, after = np.flatnonzero(t < 120.0)[-1], np.flatnonzero(t > 122.0)[0]
+    assert x.shape[1] == 24 and np.all(np.isfinite(x))
+    # the drift learnt (1e-5 rad/s^2 or more on an axis; none in this flight's truth)
+    # is kept: one step after the new start it has moved by less than a tenth of that
+    assert np.abs(x[before, 19:22]).max() > 1e-5
+    np.testing.assert_allclose(x[after, 19:22], x[before, 19:22], atol=2e-6)
+    np.testing.assert_allclose(x[after, 22:24], x[before, 22:24], atol=1e-3)
+    np.testing.assert_allclose(x[after, 10:13], x[before, 10:13], atol=2e-3)
+    got = stream.gyro_drift_learnt(runners[0])
+    k = np.degrees(60.0)
+    np.testing.assert_allclose(got["deg_s_per_min"], x[-1, 19:22] * k)
+    assert len(got["sd_deg_s_per_min"]) == 3 and all(v > 0 for v in got["sd_deg_s_per_min"])
+    line = gyro_drift_line({"ekf": {"gyro_drift": got}, "ukf": {}})
+    assert line.startswith("gyro drift learnt") and "ekf" in line and "ukf" not in line
+    assert gyro_drift_line({"ekf": {}}) is None
+
+
 def test_a_held_magnetometer_reading_is_used_once():
     """The same field repeated in every IMU message (a MAVLink RAW_IMU's compass value,
     held between readings) is one measurement: each distinct reading updates once and

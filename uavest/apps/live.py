@@ -954,11 +954,15 @@ def _track_runners(cfg: LiveConfig, lane: TrackLane, tspecs: list) -> list[Track
 
 def _mag_ref_row(stream: Any, runner: Any) -> dict:
     """``{"mag_ref": the field learnt}`` of a navigation filter with the magnetic
-    reference states (:meth:`~uavest.engine.navigation.NavStream.mag_ref_learnt`), else
-    empty."""
+    reference states (:meth:`~uavest.engine.navigation.NavStream.mag_ref_learnt`) and
+    ``{"gyro_drift": the rate learnt}`` with the gyro drift states
+    (:meth:`~uavest.engine.navigation.NavStream.gyro_drift_learnt`); empty without
+    them."""
     learnt = getattr(stream, "mag_ref_learnt", None)
     got = learnt(runner) if learnt is not None else None
-    return {"mag_ref": got} if got else {}
+    drift = getattr(stream, "gyro_drift_learnt", None)
+    dgot = drift(runner) if drift is not None else None
+    return {**({"mag_ref": got} if got else {}), **({"gyro_drift": dgot} if dgot else {})}
 
 
 def _attitude_result(cfg: LiveConfig, att: _GapAware, runners: list,

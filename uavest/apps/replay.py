@@ -834,6 +834,9 @@ def _filter_row(r: FilterRunner, cfg: ReplayConfig, out: dict, stream, scorer: A
         learnt = stream.mag_ref_learnt(r)
         if learnt is not None:
             row["mag_ref"] = learnt
+        drift = stream.gyro_drift_learnt(r)
+        if drift is not None:
+            row["gyro_drift"] = drift
     row["us_per_step"] = r.us_per_step  # without the one-time warm-up
     row["resets"] = r.resets
     if cfg.smooth and coll is not None:
@@ -956,6 +959,18 @@ def mag_ref_line(rows: dict[str, dict]) -> str | None:
                 f"{k} inclination {m['inclination_deg']:.2f} +- "
                 f"{m['inclination_sd_deg']:.2f} deg, declination {m['declination_deg']:.2f}"
                 f" +- {m['declination_sd_deg']:.2f} deg" for k, m in got))
+
+
+def gyro_drift_line(rows: dict[str, dict]) -> str | None:
+    """"gyro drift learnt (deg/s per minute, body x / y / z): ekf 0.047 / 0.046 / 0.041
+    +- 0.004; ..." from the filters' result ``rows`` with a ``gyro_drift`` (the gyro drift
+    states); None without one."""
+    got = [(k, r["gyro_drift"]) for k, r in rows.items() if r.get("gyro_drift")]
+    if not got:
+        return None
+    return "gyro drift learnt (deg/s per minute, body x / y / z): " + "; ".join(
+        f"{k} " + " / ".join(f"{v:.3f}" for v in d["deg_s_per_min"])
+        + f" +- {max(d['sd_deg_s_per_min']):.3f}" for k, d in got)
 
 
 def reliability(doc: dict, summary: dict) -> list[str]:

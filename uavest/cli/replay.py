@@ -10,7 +10,13 @@ import sys
 from pathlib import Path
 
 from ..apps.aiding import aiding_hint
-from ..apps.replay import DEFAULT_FILTERS, ReplayConfig, mag_ref_line, replay
+from ..apps.replay import (
+    DEFAULT_FILTERS,
+    ReplayConfig,
+    gyro_drift_line,
+    mag_ref_line,
+    replay,
+)
 from ..core.spec import FilterSpec
 from ..engine.attitude import DEFAULT_MAX_RATE_HZ
 from ..errors import InputError
@@ -260,6 +266,9 @@ def _table_lines(doc: dict) -> list[str]:
     learnt = mag_ref_line(doc["filters"])
     if learnt:
         lines.append(learnt)
+    drift = gyro_drift_line(doc["filters"])
+    if drift:
+        lines.append(drift)
     return lines
 
 

@@ -1099,6 +1099,21 @@ class NavStream(LateDeclination, StreamSnapshots, HeldAlignment):
                 "reference_inclination_deg": float(np.degrees(inc0)),
                 "reference_declination_deg": float(np.degrees(dec0))}
 
+    def gyro_drift_learnt(self, runner: FilterRunner) -> dict[str, list[float]] | None:
+        """The gyro bias's rate a filter has learnt with the gyro drift states
+        (:attr:`NavNoise.gyro_drift`): its last estimate and std per body axis, deg/s per
+        minute (JSON ``gyro_drift``); None without the states or an estimate."""
+        if not self.space.drift or runner.state is None:
+            return None
+        g = runner.filter.estimate(runner.state)
+        if len(g.x) != self.space.size:
+            return None
+        sl = self.space.drift_slice
+        sd = np.sqrt(np.diag(g.P)[sl.start - 1:sl.stop - 1])
+        k = float(np.degrees(60.0))  # rad/s^2 -> deg/s per minute
+        return {"deg_s_per_min": [float(v) * k for v in g.x[sl]],
+                "sd_deg_s_per_min": [float(v) * k for v in sd]}
+
     def set_mag_inclination(self, inc: float, t: float, why: str) -> None:
         """From now on the magnetometer's reference field has the inclination ``inc``
         (rad, down positive; a live run's judgement of :attr:`inclination_choice`),
