@@ -96,30 +96,37 @@ def test_fix_type_gating_and_100m_jump_rejected():
     assert not innovation_gate(np.array([100.0, 0.0, 0.0]), S, 16.27)
 
 
-def _flight(seed, steps=1500, dt=0.02):
-    """Truth and noisy IMU/GNSS for 10 s straight then a 20 s coordinated-ish turn."""
+def _flight(seed, steps=1500, dt=0.02, rate=0.0, mag=False):
+    """Truth and noisy IMU/GNSS for 10 s straight then a 20 s coordinated-ish turn:
+    (truth, IMU, fix position, fix velocity) per step. ``rate`` (rad/s^2): the gyro bias
+    ramps at it on every axis (as an ArduPilot SITL's ``SIM_DRIFT_SPEED``); ``mag``: a
+    10-Hz magnetometer's reading (or None) appended to each step's tuple."""
     rng = np.random.default_rng(seed)
     tr = ImuTransition(NavNoise())
     bg, ba = np.array([0.01, -0.005, 0.003]), np.array([0.1, -0.05, 0.08])
     x = np.concatenate([euler_to_quat(0.0, 0.0, 0.3), [5.0, 1.5, 0.0], np.zeros(3), bg, ba])
     out = []
     for k in range(steps):
+        x[10:13] = bg + rate * k * dt
         wz = 0.0 if k * dt < 10 else 0.15
         w = np.array([0.02 * np.sin(0.5 * k * dt), 0.01, wz])
         # specific force so the velocity turns with the body (centripetal) and no climb
         v_b = quat_rotate_inv(x[:4], x[4:7])
         a_b = np.cross(w, v_b)
         f = a_b - quat_rotate_inv(x[:4], np.array([0, 0, tr.g]))
-        u_true = np.concatenate([w + bg, f + ba])
+        u_true = np.concatenate([w + x[10:13], f + ba])
         xn = tr.f(x[None], 0.0, dt, u_true)[0]
         u = u_true + np.concatenate([rng.normal(size=3) * 0.003 / np.sqrt(dt),
                                      rng.normal(size=3) * 0.05 / np.sqrt(dt)])
         x = xn
-        zp = zv = None
+        zp = zv = zm = None
         if k % 10 == 9:  # 5 Hz GNSS
             zp = x[7:10] + rng.normal(size=3) * [0.5, 0.5, 1.0]
             zv = x[4:7] + rng.normal(size=3) * 0.1
-        out.append((x.copy(), u, zp, zv))
+        if mag and k % 5 == 4:  # 10 Hz magnetometer, 0.01 rad per axis
+            zb = quat_rotate_inv(x[:4], M_REF) + rng.normal(size=3) * 0.01
+            zm = zb / np.linalg.norm(zb)
+        out.append((x.copy(), u, zp, zv) + ((zm,) if mag else ()))
     return out
 
 
@@ -564,37 +571,6 @@ def test_gyro_drift_transition_F_and_Q_are_the_integrated_random_walk(sp):
     np.testing.assert_allclose(Q[np.ix_(keep, keep)], Qp)
 
 
-def _ramp_flight(seed, rate, steps=1500, dt=0.02):
-    """:func:`_flight` with a gyro bias that ramps at ``rate`` rad/s^2 on every axis (as
-    an ArduPilot SITL's ``SIM_DRIFT_SPEED``) and a 10-Hz magnetometer: (truth, IMU,
-    fix position, fix velocity, field reading or None) per step."""
-    rng = np.random.default_rng(seed)
-    tr = ImuTransition(NavNoise())
-    bg0, ba = np.array([0.01, -0.005, 0.003]), np.array([0.1, -0.05, 0.08])
-    x = np.concatenate([euler_to_quat(0.0, 0.0, 0.3), [5.0, 1.5, 0.0], np.zeros(3), bg0, ba])
-    out = []
-    for k in range(steps):
-        t = k * dt
-        x[10:13] = bg0 + rate * t
-        wz = 0.0 if t < 10 else 0.15
-        w = np.array([0.02 * np.sin(0.5 * t), 0.01, wz])
-        v_b = quat_rotate_inv(x[:4], x[4:7])
-        f = np.cross(w, v_b) - quat_rotate_inv(x[:4], np.array([0, 0, tr.g]))
-        u_true = np.concatenate([w + x[10:13], f + ba])
-        x = tr.f(x[None], 0.0, dt, u_true)[0]
-        u = u_true + np.concatenate([rng.normal(size=3) * 0.003 / np.sqrt(dt),
-                                     rng.normal(size=3) * 0.05 / np.sqrt(dt)])
-        zp = zv = zm = None
-        if k % 10 == 9:
-            zp = x[7:10] + rng.normal(size=3) * [0.5, 0.5, 1.0]
-            zv = x[4:7] + rng.normal(size=3) * 0.1
-        if k % 5 == 4:
-            zb = quat_rotate_inv(x[:4], M_REF) + rng.normal(size=3) * 0.01
-            zm = zb / np.linalg.norm(zb)
-        out.append((x.copy(), u, zp, zv, zm))
-    return out
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("spec", ["ekf", "ukf", "hybrid"])
 def test_gyro_drift_states_follow_a_ramping_bias(spec, rate=None):
@@ -606,7 +582,7 @@ def test_gyro_drift_states_follow_a_ramping_bias(spec, rate=None):
     from uavest.eval.navigation import nees_band
 
     rate = rate or RAMP
-    data = _ramp_flight(6, rate)
+    data = _flight(6, rate=rate, mag=True)
     lo, hi = nees_band(3)
     res = {}
     for noise in (NavNoise(), DRIFT):
