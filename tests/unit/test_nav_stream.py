@@ -447,6 +447,38 @@ def test_a_re_alignment_keeps_the_gyro_drift_states_and_reports_them():
     assert gyro_drift_line({"ekf": {}}) is None
 
 
+def test_gnss_bias_states_inserted_mid_run_keep_the_later_states_in_place():
+    """A live run sizes the GNSS bias states mid-run (``add_gnss_bias``): they go after
+    the 16 components, and the gyro drift and magnetic reference states that follow keep
+    their estimates and covariances (cross terms with the 15 too), at their slices of
+    the larger space."""
+    from uavest.core import Gaussian
+    from uavest.engine.nav_align import add_gnss_bias
+    from uavest.models.navigation import NavNoise, nav_space
+
+    rng = np.random.default_rng(3)
+    small = NavSpace(mag=2, drift=3)
+    x = np.concatenate([[1.0, 0.0, 0.0, 0.0], rng.normal(size=small.size - 4)])
+    A = rng.normal(size=(small.dim, small.dim))
+    P = A @ A.T + np.eye(small.dim)
+    noise = NavNoise(gnss_bias_h=0.8, gnss_bias_v=1.5, gnss_bias_tau=60.0,
+                     gyro_drift_walk=1e-6, mag_ref_inc=0.01)
+    big = nav_space(noise)
+    assert big == NavSpace(extra=3, mag=2, drift=3)
+    g = add_gnss_bias(Gaussian(x, P), noise)
+    assert g.x.shape == (big.size,) and g.P.shape == (big.dim, big.dim)
+    np.testing.assert_array_equal(g.x[:16], x[:16])
+    np.testing.assert_array_equal(g.x[16:19], 0.0)
+    np.testing.assert_array_equal(g.x[big.drift_slice], x[small.drift_slice])
+    np.testing.assert_array_equal(g.x[big.mag_slice], x[small.mag_slice])
+    t_small = np.r_[np.arange(15, small.dim)]  # the drift's and the field's, tangent
+    t_big = np.r_[np.arange(18, big.dim)]
+    np.testing.assert_array_equal(g.P[np.ix_(t_big, t_big)], P[np.ix_(t_small, t_small)])
+    np.testing.assert_array_equal(g.P[np.ix_(t_big, np.arange(15))],
+                                  P[np.ix_(t_small, np.arange(15))])
+    assert np.all(np.linalg.eigvalsh(g.P) > 0)
+
+
 def test_a_held_magnetometer_reading_is_used_once():
     """The same field repeated in every IMU message (a MAVLink RAW_IMU's compass value,
     held between readings) is one measurement: each distinct reading updates once and
