@@ -337,6 +337,23 @@ def test_sitl_copter_gnss_delay_is_estimated_and_pays():
         assert a[k] < z[k], k
 
 
+@pytest.mark.slow
+def test_a_ramping_gyro_bias_is_said_and_a_wandering_one_is_not():
+    """The ArduCopter SITL's gyro bias ramps (its SIM_DRIFT_SPEED, 0.05 deg/s per minute on
+    every axis): the replay finds the ramp in its EKF's bias estimate, airborne, and says
+    which option models it; uavest's simulator's bias is a random walk: nothing said."""
+    outs, docs = _sitl_copter_runs({"est": ()})
+    tr = docs["est"]["gyro_bias_trend"]
+    assert tr["ramps"] and tr["filter"] == "ekf" and tr["window"] == "airborne", tr
+    assert all(0.03 < v < 0.08 for v in tr["deg_s_per_min"]), tr
+    hint = next(ln for ln in outs["est"].splitlines() if ln.startswith("gyro bias: ramps"))
+    assert "--noise gyro_drift_walk=" in hint
+    text, doc = _sim_run(("--smooth",))
+    sim = json.loads(doc)["gyro_bias_trend"]
+    assert not sim["ramps"] and max(sim["r2"]) < 0.9, sim
+    assert "gyro bias: ramps" not in text
+
+
 def test_sitl_copter_lat_lon_are_on_ardupilots_sphere():
     """The evidence for ``--geodesy sphere`` on an ArduPilot SITL: the simulator's own
     velocity (SIM_STATE, metric), integrated over logs/sitl_copter.tlog's 290 m of flight,

@@ -479,6 +479,27 @@ def test_gnss_bias_states_inserted_mid_run_keep_the_later_states_in_place():
     assert np.all(np.linalg.eigvalsh(g.P) > 0)
 
 
+def test_gyro_bias_trend_tells_a_ramp_from_a_random_walk():
+    """:func:`gyro_bias_trend` on seeded series: a ramp of 0.05 deg/s per minute under the
+    estimate's noise is found on every axis with its slope; a random walk (the same
+    size of change) is not a ramp; a ramp on two axes only is not; too short: None."""
+    from uavest.eval.navigation import gyro_bias_trend
+
+    rng = np.random.default_rng(5)
+    t = np.arange(0.0, 150.0, 0.04)
+    rate = np.radians(0.05) / 60.0  # rad/s^2
+    sd = np.full((len(t), 3), 1e-4)
+    ramp = np.outer(t, [rate] * 3) + rng.normal(size=(len(t), 3)) * 1e-4
+    got = gyro_bias_trend(t, ramp, sd)
+    assert got["ramps"] and np.allclose(got["deg_s_per_min"], 0.05, rtol=0.05), got
+    walk = np.cumsum(rng.normal(size=(len(t), 3)), axis=0) * 1.2e-5
+    assert not gyro_bias_trend(t, walk, sd)["ramps"]
+    two = ramp.copy()
+    two[:, 2] = rng.normal(size=len(t)) * 1e-4
+    assert not gyro_bias_trend(t, two, sd)["ramps"]
+    assert gyro_bias_trend(t[:100], ramp[:100], sd[:100]) is None  # 4 s
+
+
 def test_a_held_magnetometer_reading_is_used_once():
     """The same field repeated in every IMU message (a MAVLink RAW_IMU's compass value,
     held between readings) is one measurement: each distinct reading updates once and

@@ -33,7 +33,7 @@ from ..engine.runner import FilterRunner
 from ..engine.smooth import smooth_records
 from ..errors import InputError
 from ..eval.attitude import AttitudeScorer, choose_reference, nees_attitude, rmse_deg
-from ..eval.navigation import NavScorer
+from ..eval.navigation import NavScorer, gyro_bias_trend
 from ..geometry.rotation import quat_slerp_interp
 from ..ingest.types import (
     AttitudeRef,
@@ -437,6 +437,40 @@ class _NavScore(Sink):
             self.scorer.add_estimate(rec.estimator, rec.t, rec.x, rec.P)
 
 
+class _GyroBias(Sink):
+    """The first navigation filter's gyro bias estimate (rad/s) and std at each step, for
+    :func:`~uavest.eval.navigation.gyro_bias_trend`."""
+
+    def __init__(self) -> None:
+        self.label: str | None = None
+        self.t: list[float] = []
+        self.b: list[Array] = []
+        self.sd: list[Array] = []
+
+    def record(self, rec: StepRecord) -> None:
+        if not isinstance(rec, StepRecord):
+            return
+        if self.label is None:
+            self.label = rec.estimator
+        if rec.estimator != self.label or len(rec.x) < 16:
+            return
+        self.t.append(float(rec.t))
+        self.b.append(np.array(rec.x[10:13], float))
+        self.sd.append(np.sqrt(np.abs(np.diag(rec.P)[9:12])))
+
+    def trend(self, window: list | None) -> dict | None:
+        """The trend over ``window`` ([t0, t1] s, the airborne span) or, without one,
+        over the run after its first fifth (the alignment's transient)."""
+        if not self.t:
+            return None
+        t = np.array(self.t)
+        m = ((t >= window[0]) & (t <= window[1]) if window
+             else t >= t[0] + 0.2 * (t[-1] - t[0]))
+        got = gyro_bias_trend(t[m], np.array(self.b)[m], np.array(self.sd)[m])
+        return None if got is None else {"filter": self.label,
+                                         "window": "airborne" if window else "run", **got}
+
+
 class _Refs(Sink):
     """Keeps the reference series (smoothing scores the whole smoothed run at the end)."""
 
@@ -581,6 +615,7 @@ def replay_samples(
     gaps = _ImuGaps()
     coll = Collector() if cfg.smooth else None
     refs = _Refs() if cfg.smooth else None
+    bias = _GyroBias() if nav else None
     probe, probe_mag = delay_doc or {}, (delay_doc or {}).get("mag", {})
     probe_baro = (delay_doc or {}).get("baro", {})
     stream: AttitudeStream | NavStream = (
@@ -605,7 +640,7 @@ def replay_samples(
     info = info or RunInfo("", "", cfg.seed)
     info.filters = {sp.label: sp.as_dict() for sp, _ in specs}
     all_sinks = ([score, _NavScore(nav_scorer), gaps] + ([refs] if refs else [])
-                 + ([coll] if coll else []) + list(sinks))
+                 + ([coll] if coll else []) + ([bias] if bias else []) + list(sinks))
     run_lanes(windowed, [Lane(stream, runners)], all_sinks, info)
     # (the compiled kernels' first load in this process is not the replay's speed)
     loads = load_seconds() - load0
@@ -613,7 +648,8 @@ def replay_samples(
     scorer.finish()
     stream.summary["imu_gap_fraction"] = gaps.fraction(stream.summary.get("imu_source"))
     return ({"wall_s": wall, "kernel_load_s": loads, "refs": refs, "model": decision,
-             "nav": nav_scorer, **({"sensor_spec": d} if (d := spec.as_dict()) else {})},
+             "nav": nav_scorer, "gyro_bias": bias,
+             **({"sensor_spec": d} if (d := spec.as_dict()) else {})},
             stream, runners, scorer, coll)
 
 
@@ -724,6 +760,12 @@ def replay(
     if ref_name is not None:
         _add_autopilot_rows(doc["filters"], scorer, ref_name, ap_name)
         _airborne_autopilot(doc["filters"], nsc, ref_name)
+    gb: _GyroBias | None = out["gyro_bias"]
+    if gb is not None and gb.label is not None:
+        air = (doc["filters"].get(gb.label) or {}).get("airborne") or {}
+        trend = gb.trend(air.get("t"))
+        if trend is not None:
+            doc["gyro_bias_trend"] = trend
     _add_run_health(doc, src, runners, sm, out["wall_s"])
     doc["kernel_load_s"] = out["kernel_load_s"]
     return doc
@@ -959,6 +1001,21 @@ def mag_ref_line(rows: dict[str, dict]) -> str | None:
                 f"{k} inclination {m['inclination_deg']:.2f} +- "
                 f"{m['inclination_sd_deg']:.2f} deg, declination {m['declination_deg']:.2f}"
                 f" +- {m['declination_sd_deg']:.2f} deg" for k, m in got))
+
+
+def gyro_ramp_line(doc: dict) -> str | None:
+    """A hint when the first navigation filter's gyro bias ramped (``gyro_bias_trend``,
+    :func:`~uavest.eval.navigation.gyro_bias_trend`) and no filter had the gyro drift
+    states; None otherwise."""
+    tr = doc.get("gyro_bias_trend") or {}
+    if not tr.get("ramps") or any(r.get("gyro_drift") for r in doc["filters"].values()):
+        return None
+    rate = " / ".join(f"{v:.3f}" for v in tr["deg_s_per_min"])
+    return (f"gyro bias: ramps at {rate} deg/s per minute (body x / y / z; {tr['filter']}'s "
+            f"estimate, {tr['window']}: a line explains {min(tr['r2']):.2f} or more of it, "
+            f"{min(tr['sigmas']):.0f} std or more): a random-walk bias follows it with a lag; "
+            "--noise gyro_drift_walk=1e-6 models it (docs/navigation.md, \"The gyro drift "
+            "states\")")
 
 
 def gyro_drift_line(rows: dict[str, dict]) -> str | None:

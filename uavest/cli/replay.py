@@ -14,6 +14,7 @@ from ..apps.replay import (
     DEFAULT_FILTERS,
     ReplayConfig,
     gyro_drift_line,
+    gyro_ramp_line,
     mag_ref_line,
     replay,
 )
@@ -269,6 +270,9 @@ def _table_lines(doc: dict) -> list[str]:
     drift = gyro_drift_line(doc["filters"])
     if drift:
         lines.append(drift)
+    ramp = gyro_ramp_line(doc)
+    if ramp:
+        lines.append(ramp)
     return lines
 
 

@@ -37,7 +37,7 @@ from .attitude import TRUTH_SOURCES, euler_errors_deg
 Array = np.ndarray
 
 __all__ = ["AIRBORNE_M", "MAX_REF_GAP_S", "NavScorer", "POSITION_REFS", "choose_position_ref",
-           "interp_reference", "nees_band"]
+           "gyro_bias_trend", "interp_reference", "nees_band"]
 
 #: Height above the run's lowest reference height (m) from which a step is airborne.
 AIRBORNE_M = 2.0
@@ -47,6 +47,38 @@ MAX_REF_GAP_S = 1.0
 #: fused outputs, which are references and never measurements.
 POSITION_REFS = ("GLOBAL_POSITION_INT", "vehicle_global_position", "POS",
                  "LOCAL_POSITION_NED", "vehicle_local_position")
+
+
+#: :func:`gyro_bias_trend` calls a bias ramping when, on every axis, a line explains this
+#: share of its estimate's variance or more, and the line's change over the span is this
+#: many times the estimate's own std (its median) or more.
+RAMP_R2 = 0.9
+RAMP_SIGMAS = 3.0
+
+
+def gyro_bias_trend(t: Array, bg: Array, sd: Array) -> dict[str, Any] | None:
+    """A filter's gyro bias estimate over a run: ``t`` (K,) s, ``bg`` (K, 3) rad/s
+    (body FRD), ``sd`` (K, 3) its std. A least-squares line per axis: its slope (deg/s
+    per minute), its change over the span (deg/s), the share of the variance it explains
+    and the change in units of the estimate's median std; ``ramps`` when every axis is
+    such a line (:data:`RAMP_R2`, :data:`RAMP_SIGMAS`): a bias that a random walk follows
+    with a lag (docs/navigation.md, "The gyro drift states"). None for fewer than 20
+    steps or a span under 10 s."""
+    t, bg, sd = np.asarray(t, float), np.asarray(bg, float), np.asarray(sd, float)
+    if len(t) < 20 or t[-1] - t[0] < 10.0:
+        return None
+    tc = t - t.mean()
+    slope = (tc @ (bg - bg.mean(axis=0))) / float(tc @ tc)  # rad/s^2 per axis
+    resid = bg - bg.mean(axis=0) - np.outer(tc, slope)
+    var = bg.var(axis=0)
+    r2 = np.where(var > 0, 1.0 - resid.var(axis=0) / np.where(var > 0, var, 1.0), 0.0)
+    change = slope * (t[-1] - t[0])
+    sigmas = np.abs(change) / np.maximum(np.median(sd, axis=0), 1e-12)
+    return {"deg_s_per_min": [float(v) for v in np.degrees(slope) * 60.0],
+            "change_deg_s": [float(v) for v in np.degrees(change)],
+            "r2": [float(v) for v in r2], "sigmas": [float(v) for v in sigmas],
+            "span_s": float(t[-1] - t[0]),
+            "ramps": bool(np.all(r2 >= RAMP_R2) and np.all(sigmas >= RAMP_SIGMAS))}
 
 
 def nees_band(d: int) -> tuple[float, float]:
