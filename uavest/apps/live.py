@@ -952,17 +952,12 @@ def _track_runners(cfg: LiveConfig, lane: TrackLane, tspecs: list) -> list[Track
     ]
 
 
-def _mag_ref_row(stream: Any, runner: Any) -> dict:
-    """``{"mag_ref": the field learnt}`` of a navigation filter with the magnetic
-    reference states (:meth:`~uavest.engine.navigation.NavStream.mag_ref_learnt`) and
-    ``{"gyro_drift": the rate learnt}`` with the gyro drift states
-    (:meth:`~uavest.engine.navigation.NavStream.gyro_drift_learnt`); empty without
-    them."""
-    learnt = getattr(stream, "mag_ref_learnt", None)
-    got = learnt(runner) if learnt is not None else None
-    drift = getattr(stream, "gyro_drift_learnt", None)
-    dgot = drift(runner) if drift is not None else None
-    return {**({"mag_ref": got} if got else {}), **({"gyro_drift": dgot} if dgot else {})}
+def _learnt_row(stream: Any, runner: Any) -> dict:
+    """What a navigation filter's extra states learnt
+    (:meth:`~uavest.engine.navigation.NavStream.learnt`: ``mag_ref``, ``gyro_drift``);
+    empty for an attitude stream or without them."""
+    learnt = getattr(stream, "learnt", None)
+    return learnt(runner) if learnt is not None else {}
 
 
 def _attitude_result(cfg: LiveConfig, att: _GapAware, runners: list,
@@ -987,7 +982,7 @@ def _attitude_result(cfg: LiveConfig, att: _GapAware, runners: list,
                                   if nav_scorer is not None else {}),
                                **({"gates": {k: dict(v) for k, v in r.gates.items()}}
                                   if getattr(r, "gates", None) else {}),
-                               **_mag_ref_row(att.stream, r),
+                               **_learnt_row(att.stream, r),
                                "resets": r.resets,
                                # when and why (the guard's, a GNSS lock-out's)
                                **({"resets_why": [[t, w] for t, w in r.reset_log]}

@@ -653,9 +653,11 @@ def replay_samples(
             stream, runners, scorer, coll)
 
 
-def _score_smoothed(coll: Collector, refs: _Refs, label: str, ref: str, truth: bool,
-                    space) -> dict:
-    t, xs, Ps = smooth_records(coll, label, space)
+def _score_smoothed(smoothed: tuple[Array, Array, Array], refs: _Refs, ref: str,
+                    truth: bool) -> dict:
+    """Attitude RMSE (and NEES against truth) of the ``smoothed`` run (step times, means,
+    covariances: :func:`smooth_records`) against the reference ``ref``."""
+    t, xs, Ps = smoothed
     q_ref, mask = quat_slerp_interp(np.array(refs.t[ref]), np.array(refs.q[ref]), t)
     row = rmse_deg(xs[:, :4], q_ref, mask)
     if truth and mask.any():
@@ -663,13 +665,13 @@ def _score_smoothed(coll: Collector, refs: _Refs, label: str, ref: str, truth: b
     return row
 
 
-def _score_smoothed_nav(coll: Collector, nsc: NavScorer, label: str, att_ref: str | None,
-                        frame, space) -> dict:
+def _score_smoothed_nav(smoothed: tuple[Array, Array, Array], nsc: NavScorer, label: str,
+                        att_ref: str | None, frame) -> dict:
     """Velocity/position RMSE, the NEES blocks (as the filtered row's ``nees``) and the
     airborne scores (as the filtered row's ``airborne``) of the smoothed navigation run
     of ``label``, scored by the run's own :class:`NavScorer` (its references) under the
-    label ``"<label> smoothed"``."""
-    t, xs, Ps = smooth_records(coll, label, space)
+    label ``"<label> smoothed"``; ``smoothed`` as for :func:`_score_smoothed`."""
+    t, xs, Ps = smoothed
     lab = f"{label} smoothed"
     for k in range(len(t)):
         nsc.add_estimate(lab, float(t[k]), xs[k], Ps[k])
@@ -873,19 +875,13 @@ def _filter_row(r: FilterRunner, cfg: ReplayConfig, out: dict, stream, scorer: A
     row.update({k: v for k, v in extra.items() if v or k == "airborne"})
     if nav:
         row["gates"] = dict(getattr(r, "gates", {}))
-        learnt = stream.mag_ref_learnt(r)
-        if learnt is not None:
-            row["mag_ref"] = learnt
-        drift = stream.gyro_drift_learnt(r)
-        if drift is not None:
-            row["gyro_drift"] = drift
+        row.update(stream.learnt(r))
     row["us_per_step"] = r.us_per_step  # without the one-time warm-up
     row["resets"] = r.resets
     if cfg.smooth and coll is not None:
-        srow = (_score_smoothed(coll, out["refs"], r.label, ref_name, truth, stream.space)
-                if ref_name else {})
-        got = _score_smoothed_nav(coll, nsc, r.label, ref_name if truth else None, frame,
-                                  stream.space)
+        smoothed = smooth_records(coll, r.label, stream.space)  # (one backward pass)
+        srow = _score_smoothed(smoothed, out["refs"], ref_name, truth) if ref_name else {}
+        got = _score_smoothed_nav(smoothed, nsc, r.label, ref_name if truth else None, frame)
         if nav:
             srow.update(got)
         elif got.get("airborne"):  # an attitude run: the airborne window's scores only

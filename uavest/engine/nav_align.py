@@ -287,7 +287,7 @@ def kept_biases(space: Any) -> tuple[tuple[int, ...], tuple[int, ...]]:
     magnetic reference's errors of a navigation ``space``: what a re-alignment keeps of
     the running estimate (``Start.keep_x`` / ``keep_P``; the GNSS bias states are the
     new fix's)."""
-    ds = getattr(space, "drift_slice", slice(0, 0))
+    ds = space.drift_slice
     mx = (*range(ds.start, ds.stop), *range(space.size - space.mag, space.size))
     return (*range(10, 16), *mx), (*range(9, 15), *(i - 1 for i in mx))
 

@@ -1109,10 +1109,18 @@ class NavStream(LateDeclination, StreamSnapshots, HeldAlignment):
         if len(g.x) != self.space.size:
             return None
         sl = self.space.drift_slice
-        sd = np.sqrt(np.diag(g.P)[sl.start - 1:sl.stop - 1])
+        sd = np.sqrt(np.diag(g.P)[self.space.drift_tangent])
         k = float(np.degrees(60.0))  # rad/s^2 -> deg/s per minute
         return {"deg_s_per_min": [float(v) * k for v in g.x[sl]],
                 "sd_deg_s_per_min": [float(v) * k for v in sd]}
+
+    def learnt(self, runner: FilterRunner) -> dict[str, Any]:
+        """A filter's JSON row entries for what its extra states learnt: ``mag_ref``
+        (:meth:`mag_ref_learnt`) and ``gyro_drift`` (:meth:`gyro_drift_learnt`), each
+        only when there is one."""
+        got = {"mag_ref": self.mag_ref_learnt(runner),
+               "gyro_drift": self.gyro_drift_learnt(runner)}
+        return {k: v for k, v in got.items() if v is not None}
 
     def set_mag_inclination(self, inc: float, t: float, why: str) -> None:
         """From now on the magnetometer's reference field has the inclination ``inc``

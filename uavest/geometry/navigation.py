@@ -114,6 +114,12 @@ class NavSpace(QuatRowsSpace):
         a = SIZE + self.extra
         return slice(a, a + self.drift)
 
+    @property
+    def drift_tangent(self) -> slice:
+        """:attr:`drift_slice` in the tangent (one index lower)."""
+        a = DIM + self.extra
+        return slice(a, a + self.drift)
+
     def __eq__(self, other: object) -> bool:
         return (isinstance(other, NavSpace) and other.extra == self.extra
                 and other.mag == self.mag and other.drift == self.drift)

@@ -370,8 +370,8 @@ class ImuTransition(Transition):
         if self.space.mag:  # the magnetic reference's random walk (the last two)
             d[-2:] = n.mag_ref_walk**2 * dt + 1e-16
         if self.space.drift:  # the bias's rate a random walk, the bias its integral
-            sl = self.space.drift_slice
-            i = np.arange(sl.start - 1, sl.stop - 1)  # (the tangent's indices)
+            tg = self.space.drift_tangent
+            i = np.arange(tg.start, tg.stop)
             qd = n.gyro_drift_walk**2
             d[i] = qd * dt + 1e-18
             d[9:12] += qd * dt**3 / 3.0
@@ -412,8 +412,7 @@ class ImuTransition(Transition):
         F[6:9, 9:12] = 0.5 * dt * dt * da_dbg
         F[6:9, 12:15] = -0.5 * dt * dt * Rh
         if self.space.drift:
-            sl = self.space.drift_slice
-            F[9:12, sl.start - 1:sl.stop - 1] = np.eye(3) * dt
+            F[9:12, self.space.drift_tangent] = np.eye(3) * dt
         return F
 
 
