@@ -82,6 +82,27 @@ def test_imu_noise_scales_with_density():
     assert imu.mag_new.sum() == pytest.approx(20000 / 8, abs=1)
 
 
+def test_a_drifting_gyros_bias_ramps_across_chunks():
+    """``imu.gyro_drift`` (rad/s^2, as an ArduPilot SITL's SIM_DRIFT_SPEED): the true bias
+    moves by the drift times the time on every axis, over the chunk boundaries, beside
+    its random walk; the readings carry it; at 0 the readings are those of a scenario
+    without the key, bit for bit (the recorded logs are reproducible)."""
+    t = np.arange(8000) / 400.0
+    tr = [_vehicle([]).chunk(part) for part in np.split(t, 4)]
+
+    def run(**kw):
+        imu = ImuModel(Imu(gyro_bias=(0.01, -0.02, 0.003), **kw), Mag(), 400.0, seed=3)
+        return [imu.chunk(c) for c in tr]
+
+    plain, zero, drift = run(), run(gyro_drift=0.0), run(gyro_drift=1e-4)
+    for a, b in zip(plain, zero, strict=True):
+        assert np.array_equal(a.gyro, b.gyro) and np.array_equal(a.gyro_bias, b.gyro_bias)
+    ramp = np.concatenate([d.gyro_bias - p.gyro_bias for d, p in zip(drift, plain,
+                                                                      strict=True)])
+    np.testing.assert_allclose(ramp, np.outer(t + 1 / 400.0, [1e-4] * 3), atol=1e-15)
+    np.testing.assert_allclose(drift[-1].gyro - plain[-1].gyro, ramp[-2000:], atol=1e-15)
+
+
 def test_targets_turns_are_continuous():
     tg = Targets([SimTarget(position_ned=(0, 0, -100), velocity_ned=(30, 0, -1),
                             turns=((5, 15, 9.0), (20, float("inf"), -3.0)))])

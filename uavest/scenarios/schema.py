@@ -320,6 +320,9 @@ class Imu:
                               **NONNEG)
     accel_bias_walk: float = F(1.0e-4, "float", "accelerometer bias random walk",
                                "m/s^2/sqrt(s)", **NONNEG)
+    gyro_drift: float = F(0.0, "float", "gyro bias steady rate of change, every body axis "
+                          "(a warming MEMS gyro; an ArduPilot SITL's SIM_DRIFT_SPEED, 0.05 "
+                          "deg/s per minute = 1.45e-5)", "rad/s^2")
     vibration_hz: float = F(137.0, "float", "motor vibration fundamental", "Hz", **NONNEG)
     vibration_accel: tuple | None = F(None, "floats", "vibration amplitude per body axis",
                                       "m/s^2", **NONNEG)

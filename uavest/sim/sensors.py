@@ -4,7 +4,9 @@ errors and the ADS-B reports of the targets.
 Frames and units as :mod:`.vehicle`: NED (m, m/s), body FRD, radians, seconds since boot.
 
 Sensors (:class:`ImuModel`): gyro = body rate + bias + white noise + vibration; accel =
-specific force + bias + white noise + vibration; biases do a random walk. Noise is given
+specific force + bias + white noise + vibration; biases do a random walk (the gyro's
+plus a steady ramp, ``gyro_drift``: an ArduPilot SITL's ``SIM_DRIFT_SPEED`` without its
+turn back after ``SIM_DRIFT_TIME``). Noise is given
 as continuous densities and discretised at the IMU rate the usual way
 (``sigma_d = N sqrt(rate)`` for white noise, ``sigma_d = K / sqrt(rate)`` per step for
 the bias random walk); see O. J. Woodman, "An introduction to inertial navigation"
@@ -82,6 +84,7 @@ class ImuModel:
         self.accel_nd = float(cfg.accel_noise_density)
         self.gyro_rw = float(cfg.gyro_bias_walk)
         self.accel_rw = float(cfg.accel_bias_walk)
+        self.gyro_drift = float(cfg.gyro_drift)  # rad/s^2, every axis
         bg, ba = cfg.gyro_bias, cfg.accel_bias
         self.bg = (_vec3(bg, 0.0) if bg is not None else
                    r_bias.normal(0, float(cfg.gyro_bias_std), 3))
@@ -108,7 +111,8 @@ class ImuModel:
         wg = self.rg.standard_normal((n, 3)) * (self.gyro_nd / sq)
         wa = self.ra.standard_normal((n, 3)) * (self.accel_nd / sq)
         walk = self.rbw.standard_normal((n, 6)) * sq
-        bg = self.bg + np.cumsum(walk[:, :3] * self.gyro_rw, axis=0)
+        bg = self.bg + np.cumsum(walk[:, :3] * self.gyro_rw + self.gyro_drift * self.dt,
+                                 axis=0)
         ba = self.ba + np.cumsum(walk[:, 3:] * self.accel_rw, axis=0)
         self.bg, self.ba = bg[-1].copy(), ba[-1].copy()
         ph = 2 * np.pi * self.vib_f * tr.t[:, None]
