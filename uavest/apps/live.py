@@ -80,7 +80,7 @@ from ..presets import resolve_list, spec_labels
 from ..seeding import filter_stream, rng
 from ..sinks.base import Sink
 from ..tracking.tracker import Tracker, TrackerConfig
-from .replay import _NavScore, _Score, check_attitude_noise, model_filters
+from .replay import _GyroBias, _NavScore, _Score, check_attitude_noise, model_filters
 from .sensor_spec import GNSS_BIAS_KEYS, SpecStart, read_log_spec, with_sensor_spec
 
 Array = np.ndarray
@@ -888,13 +888,18 @@ def run_samples(samples, cfg: LiveConfig, *, params: dict | None = None,
     wall0 = time.perf_counter()
     late = None if stats is None else (lambda s: stats.bad("late", sample_key(s)))
     learn = [] if learner is None else [_LearnGnss(learner, att)]
+    bias = _GyroBias() if nav else None
     steps = run_lanes(samples, lanes, [_Score(scorer), *([_NavScore(nav_scorer)] if nav else []),
+                                       *([bias] if bias is not None else []),
                                        *learn, tscore, st, *sinks], info, late)
     wall = time.perf_counter() - wall0
     scorer.finish()
     nav_scorer.pos_from = getattr(att.stream, "fix_from", None)
-    doc = {"run": info.as_dict(), "steps": steps, "wall_s": wall,
-           **_attitude_result(cfg, att, runners, scorer, nav_scorer if nav else None),
+    result = _attitude_result(cfg, att, runners, scorer, nav_scorer if nav else None)
+    # the first filter's gyro bias: a ramp, as a replay finds it (and its hint)
+    trend = None if bias is None else bias.trend_of(result["attitude"])
+    doc = {"run": info.as_dict(), "steps": steps, "wall_s": wall, **result,
+           **({"gyro_bias_trend": trend} if trend is not None else {}),
            "tracks": tscore.result(cfg.gospa_c),
            "scans": len(lane.truth),
            "attitude_steps": steps - len(lane.truth),

@@ -458,6 +458,14 @@ class _GyroBias(Sink):
         self.b.append(np.array(rec.x[10:13], float))
         self.sd.append(np.sqrt(np.abs(np.diag(rec.P)[9:12])))
 
+    def trend_of(self, rows: dict[str, dict]) -> dict | None:
+        """The trend over the airborne span of the filter's result row in ``rows`` (the
+        replay's ``filters``, a live run's ``attitude``), or over the run after its first
+        fifth without one (the alignment's transient); None before any step."""
+        if self.label is None:
+            return None
+        return self.trend(((rows.get(self.label) or {}).get("airborne") or {}).get("t"))
+
     def trend(self, window: list | None) -> dict | None:
         """The trend over ``window`` ([t0, t1] s, the airborne span) or, without one,
         over the run after its first fifth (the alignment's transient)."""
@@ -763,11 +771,9 @@ def replay(
         _add_autopilot_rows(doc["filters"], scorer, ref_name, ap_name)
         _airborne_autopilot(doc["filters"], nsc, ref_name)
     gb: _GyroBias | None = out["gyro_bias"]
-    if gb is not None and gb.label is not None:
-        air = (doc["filters"].get(gb.label) or {}).get("airborne") or {}
-        trend = gb.trend(air.get("t"))
-        if trend is not None:
-            doc["gyro_bias_trend"] = trend
+    trend = None if gb is None else gb.trend_of(doc["filters"])
+    if trend is not None:
+        doc["gyro_bias_trend"] = trend
     _add_run_health(doc, src, runners, sm, out["wall_s"])
     doc["kernel_load_s"] = out["kernel_load_s"]
     return doc
@@ -999,12 +1005,13 @@ def mag_ref_line(rows: dict[str, dict]) -> str | None:
                 f" +- {m['declination_sd_deg']:.2f} deg" for k, m in got))
 
 
-def gyro_ramp_line(doc: dict) -> str | None:
-    """A hint when the first navigation filter's gyro bias ramped (``gyro_bias_trend``,
-    :func:`~uavest.eval.navigation.gyro_bias_trend`) and no filter had the gyro drift
-    states; None otherwise."""
-    tr = doc.get("gyro_bias_trend") or {}
-    if not tr.get("ramps") or any(r.get("gyro_drift") for r in doc["filters"].values()):
+def gyro_ramp_line(trend: dict | None, rows: dict[str, dict]) -> str | None:
+    """A hint when the first navigation filter's gyro bias ramped (``trend``, a result's
+    ``gyro_bias_trend``: :func:`~uavest.eval.navigation.gyro_bias_trend`) and none of the
+    filters' result ``rows`` had the gyro drift states; None otherwise (a replay's and a
+    live run's alike)."""
+    tr = trend or {}
+    if not tr.get("ramps") or any(r.get("gyro_drift") for r in rows.values()):
         return None
     rate = " / ".join(f"{v:.3f}" for v in tr["deg_s_per_min"])
     return (f"gyro bias: ramps at {rate} deg/s per minute (body x / y / z; {tr['filter']}'s "

@@ -270,7 +270,7 @@ def _table_lines(doc: dict) -> list[str]:
     drift = gyro_drift_line(doc["filters"])
     if drift:
         lines.append(drift)
-    ramp = gyro_ramp_line(doc)
+    ramp = gyro_ramp_line(doc.get("gyro_bias_trend"), doc["filters"])
     if ramp:
         lines.append(ramp)
     return lines
