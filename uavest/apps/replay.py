@@ -1017,8 +1017,9 @@ def gyro_ramp_line(trend: dict | None, rows: dict[str, dict]) -> str | None:
     return (f"gyro bias: ramps at {rate} deg/s per minute (body x / y / z; {tr['filter']}'s "
             f"estimate, {tr['window']}: a line explains {min(tr['r2']):.2f} or more of it, "
             f"{min(tr['sigmas']):.0f} std or more): a random-walk bias follows it with a lag; "
-            "--noise gyro_drift_walk=1e-6 models it (docs/navigation.md, \"The gyro drift "
-            "states\")")
+            "--noise gyro_drift_walk=1e-6 models it: compare the two runs, a slow ramp the "
+            "random walk keeps up with does not pay for the states (docs/navigation.md, "
+            "\"The gyro drift states\")")
 
 
 def gyro_drift_line(rows: dict[str, dict]) -> str | None:
