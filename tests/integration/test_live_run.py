@@ -254,7 +254,13 @@ def test_sigint_leaves_complete_output_files(tmp_path):
              "--trackers", "none", "--filters", "ekf", "--tlog", str(tlog), "--json",
              str(out), "--no-status"],
             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        time.sleep(8.0)
+        # the signal once the run is in its loop (its tlog growing), not after a fixed
+        # time: on a loaded machine the imports and the kernels' load took 8 s
+        deadline = time.monotonic() + 60.0
+        while (not tlog.exists() or tlog.stat().st_size == 0) and p.poll() is None \
+                and time.monotonic() < deadline:
+            time.sleep(0.2)
+        time.sleep(4.0)
         p.send_signal(signal.SIGINT)
         stdout, stderr = p.communicate(timeout=30)
     assert p.returncode == 0, stderr
