@@ -272,13 +272,14 @@ def test_sigint_leaves_complete_output_files(tmp_path):
     assert n > 100 and src.stats.truncated == 0 and src.stats.corrupt == 0
 
 
-@pytest.mark.slow  # eleven subprocesses
+@pytest.mark.slow  # twelve subprocesses
 @pytest.mark.parametrize("argv,says", [
     (["run", "--connect", "udpin:127.0.0.1:9", "--heartbeat-timeout", "1",
       "--no-status"], "heartbeat"),
     (["run", "--connect", "udpin:127.0.0.1:9", "--filters", "ukf(alpha=0)"], "alpha"),
     (["run", "--connect", "udpin:127.0.0.1:9", "--pd", "7"], "--pd"),
     (["demo", "--speed", "0"], "--speed"),
+    (["demo", "--set", "imu.gyro_drift=nan"], "imu.gyro_drift"),
     (["run", "--connect", "udpin:127.0.0.1:9", "--model", "nav", "--gnss-delay", "-1"],
      "--gnss-delay"),
     (["run", "--connect", "udpin:127.0.0.1:9", "--model", "nav", "--mag-delay", "nan"],

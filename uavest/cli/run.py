@@ -340,6 +340,9 @@ def add_demo_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--speed", type=float, default=1.0,
                    help="simulated seconds per wall second (default 1: real time)")
     p.add_argument("--imu-rate", type=float, default=200.0, help="simulated IMU rate, Hz")
+    p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scenario value, as uavest sim --set (repeatable), e.g. "
+                   "--set imu.gyro_drift=1e-4 for a gyro bias that ramps")
     _common(p)
     add_recording_options(p, mcap_default="uavest-demo.mcap")
     p.add_argument("--no-record", action="store_true", help="do not write the recording")
@@ -361,7 +364,7 @@ def demo(args) -> dict:
     if not args.speed > 0:
         raise InputError(f"--speed must be > 0 for a live demo, got {args.speed}")
     port = _free_udp_port()
-    sc = load_typed(args.scenario, [])
+    sc = load_typed(args.scenario, list(args.sets))
     sim = Simulator(sc, seed=args.seed, imu_rate=args.imu_rate)
     stop = threading.Event()
     errors: list = []
@@ -399,7 +402,8 @@ def demo(args) -> dict:
             raise InputError(f"simulator failed: {errors[0]}") from errors[0]
         raise errors[0]
     doc["simulator"] = {"scenario": args.scenario, "speed": args.speed, "port": port,
-                        "seed": args.seed, "imu_rate_hz": args.imu_rate}
+                        "seed": args.seed, "imu_rate_hz": args.imu_rate,
+                        "sets": list(args.sets)}
     return doc
 
 
