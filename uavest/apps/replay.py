@@ -1022,6 +1022,15 @@ def gyro_ramp_line(trend: dict | None, rows: dict[str, dict]) -> str | None:
             "\"The gyro drift states\")")
 
 
+def learnt_lines(rows: dict[str, dict], trend: dict | None) -> list[str]:
+    """What the filters' extra states learnt and what their biases did, from the filters'
+    result ``rows`` (a replay's ``filters``, a live run's ``attitude``) and the result's
+    ``gyro_bias_trend``: :func:`mag_ref_line`, :func:`gyro_drift_line` and
+    :func:`gyro_ramp_line`, those that have something to say, in that order."""
+    got = (mag_ref_line(rows), gyro_drift_line(rows), gyro_ramp_line(trend, rows))
+    return [ln for ln in got if ln]
+
+
 def gyro_drift_line(rows: dict[str, dict]) -> str | None:
     """"gyro drift learnt (deg/s per minute, body x / y / z): ekf 0.047 / 0.046 / 0.041
     +- 0.004; ..." from the filters' result ``rows`` with a ``gyro_drift`` (the gyro drift

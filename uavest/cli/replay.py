@@ -13,9 +13,7 @@ from ..apps.aiding import aiding_hint
 from ..apps.replay import (
     DEFAULT_FILTERS,
     ReplayConfig,
-    gyro_drift_line,
-    gyro_ramp_line,
-    mag_ref_line,
+    learnt_lines,
     replay,
 )
 from ..core.spec import FilterSpec
@@ -264,15 +262,7 @@ def _table_lines(doc: dict) -> list[str]:
                      "lowest):")
         acols = ["roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg"]
         lines.append(table(air, acols + (NAV_COLS if nav else ["nees_att_in95"])))
-    learnt = mag_ref_line(doc["filters"])
-    if learnt:
-        lines.append(learnt)
-    drift = gyro_drift_line(doc["filters"])
-    if drift:
-        lines.append(drift)
-    ramp = gyro_ramp_line(doc.get("gyro_bias_trend"), doc["filters"])
-    if ramp:
-        lines.append(ramp)
+    lines += learnt_lines(doc["filters"], doc.get("gyro_bias_trend"))
     return lines
 
 

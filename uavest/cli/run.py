@@ -12,7 +12,7 @@ import threading
 
 from ..apps.aiding import MAG_SITE_KM, aiding_hint, read_aiding
 from ..apps.live import TRACKER_DIM, LiveConfig, run_live
-from ..apps.replay import gyro_drift_line, gyro_ramp_line, mag_ref_line, resets_line
+from ..apps.replay import learnt_lines, resets_line
 from ..errors import InputError
 from ..ingest.adsb_radar import RadarConfig
 from ..sinks.jsonout import write_json
@@ -215,15 +215,7 @@ def format_live(doc: dict) -> str:
                          if r.get("resets_why")})
     if reset:
         lines.append(reset)
-    learnt = mag_ref_line(doc["attitude"])
-    if learnt:
-        lines.append(learnt)
-    drift = gyro_drift_line(doc["attitude"])
-    if drift:
-        lines.append(drift)
-    ramp = gyro_ramp_line(doc.get("gyro_bias_trend"), doc["attitude"])
-    if ramp:
-        lines.append(ramp)
+    lines += learnt_lines(doc["attitude"], doc.get("gyro_bias_trend"))
     live = doc.get("gnss_delay_live")
     tries = (live or {}).get("tries") or []
     if live and live.get("given") is None and live["delay"] is None:
