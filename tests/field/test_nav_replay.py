@@ -354,6 +354,25 @@ def test_a_ramping_gyro_bias_is_said_and_a_wandering_one_is_not():
     assert "gyro bias: ramps" not in text
 
 
+@pytest.mark.slow
+def test_the_accelerometer_density_follows_the_windy_flights_roughness():
+    """logs/sitl_copter.tlog is a windy flight: the density its 200 Hz RAW_IMU stream's
+    profile gives each step rises from its calm base (0.0019 m/s^2/sqrt(Hz)) with the
+    specific force's roughness, well above it on average; the result has it and the
+    replay says it in one line (uavest.engine.nav_rough; the same run as above)."""
+    from uavest.models.navigation import FAST_MAVLINK_PROFILE
+    outs, docs = _sitl_copter_runs({"est": ()})
+    d = docs["est"]["accel_density"]
+    base, k = FAST_MAVLINK_PROFILE.accel_noise, FAST_MAVLINK_PROFILE.accel_rough
+    assert 0.95 * base <= d["min"] < d["mean"] < d["max"], d
+    assert d["mean"] > 2.0 * base and d["roughness_ms2"] > 0.15, d
+    # the mean density is about what the mean roughness gives (5 % steps, time-weighted)
+    assert d["mean"] == pytest.approx(np.hypot(base, k * d["roughness_ms2"]), rel=0.25)
+    line = next(ln for ln in outs["est"].splitlines()
+                if ln.startswith("accelerometer density: followed the flight"))
+    assert "--noise accel_noise=" in line
+
+
 def test_sitl_copter_lat_lon_are_on_ardupilots_sphere():
     """The evidence for ``--geodesy sphere`` on an ArduPilot SITL: the simulator's own
     velocity (SIM_STATE, metric), integrated over logs/sitl_copter.tlog's 290 m of flight,

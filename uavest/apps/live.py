@@ -980,6 +980,7 @@ def _attitude_result(cfg: LiveConfig, att: _GapAware, runners: list,
         "noise": {"overrides": dict(cfg.noise), "why": cfg.noise_why or (
             "option --noise" if cfg.noise else None)},
         **({"sensor_spec": cfg.sensor_spec} if cfg.sensor_spec is not None else {}),
+        **({"accel_density": d} if (d := getattr(att.stream, "accel_density", None)) else {}),
         "attitude": {r.label: {**(scorer.scores(r.label, ref, truth) if ref else {}),
                                **(nav_scorer.scores(r.label, ref if truth else None,
                                                     getattr(att.stream, "frame", None),

@@ -864,6 +864,8 @@ def _position_fields(nsc: NavScorer, params: dict, summary: dict, nav: bool) -> 
                                                 "gnss_delay_s", "gnss_delay_estimate",
                                                 "baro_delay_s", "baro_offset_m", "origin",
                                                 "geodesy", "aiding", "fix_from_t")})
+        if summary.get("accel_density"):
+            got["accel_density"] = summary["accel_density"]
     return got
 
 
@@ -1022,13 +1024,28 @@ def gyro_ramp_line(trend: dict | None, rows: dict[str, dict]) -> str | None:
             "\"The gyro drift states\")")
 
 
-def learnt_lines(rows: dict[str, dict], trend: dict | None) -> list[str]:
+def learnt_lines(rows: dict[str, dict], doc: dict) -> list[str]:
     """What the filters' extra states learnt and what their biases did, from the filters'
-    result ``rows`` (a replay's ``filters``, a live run's ``attitude``) and the result's
-    ``gyro_bias_trend``: :func:`mag_ref_line`, :func:`gyro_drift_line` and
-    :func:`gyro_ramp_line`, those that have something to say, in that order."""
-    got = (mag_ref_line(rows), gyro_drift_line(rows), gyro_ramp_line(trend, rows))
+    result ``rows`` (a replay's ``filters``, a live run's ``attitude``) and the result
+    document ``doc`` (its ``gyro_bias_trend`` and ``accel_density``): :func:`mag_ref_line`,
+    :func:`gyro_drift_line`, :func:`gyro_ramp_line` and :func:`accel_density_line`, those
+    that have something to say, in that order."""
+    got = (mag_ref_line(rows), gyro_drift_line(rows),
+           gyro_ramp_line(doc.get("gyro_bias_trend"), rows),
+           accel_density_line(doc.get("accel_density")))
     return [ln for ln in got if ln]
+
+
+def accel_density_line(d: dict | None) -> str | None:
+    """"accelerometer density: followed the flight, 0.0021-0.0062 m/s^2/sqrt(Hz) ..." from
+    a result's ``accel_density`` (:meth:`~uavest.engine.navigation.NavStream.accel_density`);
+    None without one."""
+    if not d:
+        return None
+    return (f"accelerometer density: followed the flight's roughness, {d['min']:.4f}-"
+            f"{d['max']:.4f} m/s^2/sqrt(Hz), mean {d['mean']:.4f} (the specific force's "
+            f"change between 40-ms means {d['roughness_ms2']:.3f} m/s^2 RMS on average; "
+            "--noise accel_noise=Q fixes it)")
 
 
 def gyro_drift_line(rows: dict[str, dict]) -> str | None:

@@ -262,7 +262,7 @@ def _table_lines(doc: dict) -> list[str]:
                      "lowest):")
         acols = ["roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg"]
         lines.append(table(air, acols + (NAV_COLS if nav else ["nees_att_in95"])))
-    lines += learnt_lines(doc["filters"], doc.get("gyro_bias_trend"))
+    lines += learnt_lines(doc["filters"], doc)
     return lines
 
 

@@ -215,7 +215,7 @@ def format_live(doc: dict) -> str:
                          if r.get("resets_why")})
     if reset:
         lines.append(reset)
-    lines += learnt_lines(doc["attitude"], doc.get("gyro_bias_trend"))
+    lines += learnt_lines(doc["attitude"], doc)
     live = doc.get("gnss_delay_live")
     tries = (live or {}).get("tries") or []
     if live and live.get("given") is None and live["delay"] is None:

@@ -118,6 +118,7 @@ from .nav_align import (
     with_gnss_bias,
     with_mag_ref,
 )
+from .nav_rough import RoughDensity
 from .records import NavAnchor, Start, Step, StepRecord
 from .runner import FilterRunner
 
@@ -463,6 +464,8 @@ class NavStream(LateDeclination, StreamSnapshots, HeldAlignment):
         self._imu: str | None = None
         self._mag: str | None = None
         self._model: ImuTransition | None = None
+        #: the accelerometer density that follows the flight's roughness (nav_rough)
+        self._rough = RoughDensity()
         self._queue: deque[_Raw] = deque()
         #: the aiding samples waiting for their steps, the GNSS and baro choice, the
         #: per-sensor counts and the baro offset
@@ -792,8 +795,7 @@ class NavStream(LateDeclination, StreamSnapshots, HeldAlignment):
         self._imu, self._align.switched = s.source, True
         if self._mag == old:  # that sensor's magnetometer went with it
             self._mag = s.source if self._mag is not None else None
-        self.source_noise = nav_noise_for_source(s.source, rate)
-        self.noise = self.source_noise.with_(**o.noise)
+        self._set_noise(s.source, rate)
         if self.frame is not None:
             self._model = ImuTransition(self.noise, lat=self.frame.lat0, h=self.frame.h0)
         self._other_imu.pop(s.source)
@@ -1207,7 +1209,8 @@ class NavStream(LateDeclination, StreamSnapshots, HeldAlignment):
         if self._anchor_sample is not None:
             info = {**(info or {}), "samples": (self._anchor_sample,)}
             self._anchor_sample = None
-        return Step(self._k, stamp, r.t - r.t0, self._model, tuple(ups), u, info)
+        model = self._rough.model(self._model, r.a, r.t - r.t0)
+        return Step(self._k, stamp, r.t - r.t0, model, tuple(ups), u, info)
 
     def _timing_sd(self, fix: _Aid) -> Array | None:
         """The std (m/s per NED axis) a fix's velocity gains while the GNSS delay is not
@@ -1235,6 +1238,16 @@ class NavStream(LateDeclination, StreamSnapshots, HeldAlignment):
         self.summary["baro_offset_m"] = self._aids.baro_offset
 
     # ------------------------------------------------------------------ setup
+    def _set_noise(self, imu: str, rate: float) -> None:
+        """The noise of the IMU ``imu`` at ``rate`` Hz: its source's profile with the
+        options' values; an accelerometer density given is used as it is (no share that
+        follows the flight's roughness unless ``accel_rough`` is given too)."""
+        o = self.opts
+        self.source_noise = nav_noise_for_source(imu, rate)
+        self.noise = self.source_noise.with_(**o.noise)
+        if "accel_noise" in o.noise and "accel_rough" not in o.noise:
+            self.noise = self.noise.with_(accel_rough=0.0)
+
     def _setup(self) -> list[Start | Step]:
         """Choose the sources, rate and integration from the held window; replay it."""
         o, held = self.opts, self._held
@@ -1246,8 +1259,7 @@ class NavStream(LateDeclination, StreamSnapshots, HeldAlignment):
         ti = [s.t for s in held if isinstance(s, ImuSample) and s.source == imu]
         rate = (len(ti) - 1) / max(ti[-1] - ti[0], 1e-9) if len(ti) > 1 else 0.0
         integ, why, factor = step_plan(imu, rate, o.integration, o.rate_hz)
-        self.source_noise = nav_noise_for_source(imu, rate)
-        self.noise = self.source_noise.with_(**o.noise)
+        self._set_noise(imu, rate)
         self.space = nav_space(self.noise)
         self.delay = float(self.noise.gnss_delay if o.gnss_delay is None else o.gnss_delay)
         self.vel_window = float(self.noise.gnss_vel_window)
@@ -1348,6 +1360,15 @@ class NavStream(LateDeclination, StreamSnapshots, HeldAlignment):
             baro_source=self._aids.baro if self.opts.use_baro else None,
             aiding={k: dict(v) for k, v in self.aiding.items()},
         )
+        if self.accel_density is not None:
+            self.summary["accel_density"] = self.accel_density
+
+    @property
+    def accel_density(self) -> dict[str, Any] | None:
+        """The accelerometer densities the steps used when they follow the flight's
+        roughness (:meth:`~uavest.engine.nav_rough.RoughDensity.summary`; None with a
+        fixed density)."""
+        return self._rough.summary()
 
 
 class NavRunner(FilterRunner):
