@@ -365,7 +365,8 @@ def test_the_accelerometer_density_follows_the_windy_flights_roughness():
     d = docs["est"]["accel_density"]
     base, k = FAST_MAVLINK_PROFILE.accel_noise, FAST_MAVLINK_PROFILE.accel_rough
     assert 0.95 * base <= d["min"] < d["mean"] < d["max"], d
-    assert d["mean"] > 2.0 * base and d["roughness_ms2"] > 0.15, d
+    # (the calm SITL flights: 0.04 m/s^2 over the run, their density 0.0023 on average)
+    assert d["mean"] > 1.8 * base and d["roughness_ms2"] > 0.1, d
     # the mean density is about what the mean roughness gives (5 % steps, time-weighted)
     assert d["mean"] == pytest.approx(np.hypot(base, k * d["roughness_ms2"]), rel=0.25)
     line = next(ln for ln in outs["est"].splitlines()
