@@ -6,8 +6,9 @@ windy ArduCopter SITL flight it leaves calm flights' velocity under-confident, a
 to the calm ones it makes the windy flight over-confident (docs/navigation.md, "An
 accelerometer density that follows the flight"). What separates them is the specific
 force's change between consecutive :data:`ROUGH_BLOCK_S` means, RMS over the three body
-axes: 0.27 m/s^2 on the windy flight and 0.08-0.09 on the calm ones. The blocks' length
-sets the scale, not the IMU's rate, so the figure is the same at 50 Hz and 200 Hz.
+axes: in the middle of each flight, 0.27 m/s^2 on the windy flight and 0.08-0.09 on the
+calm ones (over whole runs, ground included, 0.21 and 0.04). The blocks' length sets the
+scale, not the IMU's rate, so the figure is the same at 50 Hz and 200 Hz.
 """
 
 from __future__ import annotations
