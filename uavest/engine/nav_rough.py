@@ -40,14 +40,14 @@ Array = np.ndarray
 @dataclass
 class RoughDensity:
     """The running roughness and the step models it gives (mutable: a stream's snapshots
-    copy it). Fields: the open block's force integral (m/s, FRD) and length (s); the
-    last block's mean (m/s^2); the exponentially weighted sum of squared changes and its
+    copy it). Fields: the open block's force integral (m/s, FRD, x / y / z) and length
+    (s); the last block's mean (m/s^2); the exponentially weighted sum of squared changes and its
     weight; the last model made (base model, level, model); the densities used and the
     roughness, weighted by time (their sums, the time, the least and most density)."""
 
-    acc: Array | None = None
+    acc: tuple[float, float, float] | None = None
     span: float = 0.0
-    last: Array | None = None
+    last: tuple[float, float, float] | None = None
     s: float = 0.0
     w: float = 0.0
     made: tuple[ImuTransition, int, ImuTransition] | None = None
@@ -64,18 +64,26 @@ class RoughDensity:
         return math.sqrt(self.s / self.w) if self.w > 0 else 0.0
 
     def add(self, a: Array, dt: float) -> None:
-        """One step's mean specific force ``a`` (m/s^2, FRD) over ``dt`` s."""
-        if not (dt > 0 and np.isfinite(a).all()):
+        """One step's mean specific force ``a`` (m/s^2, FRD) over ``dt`` s (in floats: a
+        step's worth of numpy calls on 3-vectors cost more than the arithmetic)."""
+        x, y, z = a.tolist()
+        if not (dt > 0 and math.isfinite(x + y + z)):
             return
-        self.acc = a * dt if self.acc is None else self.acc + a * dt
+        c = self.acc
+        self.acc = (x * dt, y * dt, z * dt) if c is None else (
+            c[0] + x * dt, c[1] + y * dt, c[2] + z * dt)
         self.span += dt
         if self.span + 0.5 * dt < ROUGH_BLOCK_S:
             return
-        mean = self.acc / self.span
+        k = 1.0 / self.span
+        mean = (self.acc[0] * k, self.acc[1] * k, self.acc[2] * k)
         whole = self.span < _MAX_BLOCK * ROUGH_BLOCK_S
-        if self.last is not None and whole:
+        last = self.last
+        if last is not None and whole:
             decay = math.exp(-self.span / ROUGH_TAU_S)
-            self.s = self.s * decay + float(np.mean((mean - self.last) ** 2))
+            d2 = ((mean[0] - last[0]) ** 2 + (mean[1] - last[1]) ** 2
+                  + (mean[2] - last[2]) ** 2) / 3.0
+            self.s = self.s * decay + d2
             self.w = self.w * decay + 1.0
         self.last = mean if whole else None
         self.acc, self.span = None, 0.0
