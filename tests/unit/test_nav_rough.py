@@ -96,6 +96,14 @@ def test_the_step_density_follows_the_roughness_from_the_base_density():
     assert 0.0 < s["roughness_ms2"] <= 1.1 * rough.rms
 
 
+def test_a_zero_base_density_before_any_roughness_is_not_an_error():
+    base = ImuTransition(NavNoise(accel_noise=0.0, accel_rough=0.02))
+    rd = RoughDensity()
+    m = rd.model(base, np.array([0.0, 0.0, -9.81]), 0.04)
+    assert 0.0 < m.noise.accel_noise < 1e-8
+    assert np.isfinite(m.Q(0.0, 0.04)).all()
+
+
 def test_a_fixed_density_is_left_alone():
     base = ImuTransition(NavNoise(accel_noise=0.005))
     rd = RoughDensity()

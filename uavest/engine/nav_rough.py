@@ -28,7 +28,9 @@ __all__ = ["ROUGH_BLOCK_S", "ROUGH_TAU_S", "RoughDensity"]
 ROUGH_BLOCK_S = 0.04
 #: ... its square averaged over an exponential window of this long (s).
 ROUGH_TAU_S = 5.0
-#: a block this many times :data:`ROUGH_BLOCK_S` or longer (an IMU gap) is not compared
+#: a block this many times :data:`ROUGH_BLOCK_S` or longer (an IMU gap) is not compared,
+#: so a stream whose steps are that long (an IMU slower than about 8 Hz) has no roughness
+#: and keeps its base density
 _MAX_BLOCK = 3.0
 #: the density is rounded to steps of this ratio, so the step's model changes only when
 #: the density has moved by that much
@@ -97,7 +99,9 @@ class RoughDensity:
         if n.accel_rough <= 0:
             return base
         self.add(a, dt)
-        level = round(math.log(math.hypot(n.accel_noise, n.accel_rough * self.rms)) / _LEVEL)
+        # (at least 1e-9: a base of 0 on a still start has no density to take a log of)
+        q = max(math.hypot(n.accel_noise, n.accel_rough * self.rms), 1e-9)
+        level = round(math.log(q) / _LEVEL)
         if self.made is None or self.made[0] is not base or self.made[1] != level:
             q = math.exp(level * _LEVEL)
             self.made = (base, level, base.with_noise(n.with_(accel_noise=q)))
