@@ -853,7 +853,8 @@ def _doc_header(path: str | Path, cfg: ReplayConfig, src, stream, info: RunInfo,
 
 def _position_fields(nsc: NavScorer, params: dict, summary: dict, nav: bool) -> dict:
     """The position reference (name and kind) if the log has one, and for a navigation
-    run the stream's GNSS/baro choices, its origin and its aiding."""
+    run the stream's GNSS/baro choices, its origin and its aiding, and the accelerometer
+    densities its steps took when they followed the flight (``accel_density``)."""
     got: dict = {}
     pref = nsc.position_ref()
     if pref is not None:

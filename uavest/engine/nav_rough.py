@@ -43,9 +43,9 @@ Array = np.ndarray
 class RoughDensity:
     """The running roughness and the step models it gives (mutable: a stream's snapshots
     copy it). Fields: the open block's force integral (m/s, FRD, x / y / z) and length
-    (s); the last block's mean (m/s^2); the exponentially weighted sum of squared changes and its
-    weight; the last model made (base model, level, model); the densities used and the
-    roughness, weighted by time (their sums, the time, the least and most density)."""
+    (s); the last block's mean (m/s^2); the exponentially weighted sum of squared changes
+    and its weight; the last model made (base model, level, model); the densities used and
+    the roughness, weighted by time (their sums, the time, the least and most density)."""
 
     acc: tuple[float, float, float] | None = None
     span: float = 0.0
@@ -103,9 +103,9 @@ class RoughDensity:
         q = max(math.hypot(n.accel_noise, n.accel_rough * self.rms), 1e-9)
         level = round(math.log(q) / _LEVEL)
         if self.made is None or self.made[0] is not base or self.made[1] != level:
-            q = math.exp(level * _LEVEL)
-            self.made = (base, level, base.with_noise(n.with_(accel_noise=q)))
-        q = self.made[2].noise.accel_noise
+            made = base.with_noise(n.with_(accel_noise=math.exp(level * _LEVEL)))
+            self.made = (base, level, made)
+        q = self.made[2].noise.accel_noise  # the density the step takes (rounded)
         self.q_sum += q * dt
         self.r_sum += self.rms * dt
         self.q_time += dt

@@ -1360,8 +1360,8 @@ class NavStream(LateDeclination, StreamSnapshots, HeldAlignment):
             baro_source=self._aids.baro if self.opts.use_baro else None,
             aiding={k: dict(v) for k, v in self.aiding.items()},
         )
-        if self.accel_density is not None:
-            self.summary["accel_density"] = self.accel_density
+        if (density := self.accel_density) is not None:
+            self.summary["accel_density"] = density
 
     @property
     def accel_density(self) -> dict[str, Any] | None:
