@@ -6,7 +6,7 @@ published tracks against the tlog's ADSB_VEHICLE), MCAP read back, ``--publish``
 sysid 250, and the session tlog replayed: by the live job (``uavest run --connect
 TLOG``) equal to the live run, by ``uavest replay`` equal in roll and pitch.
 
-One SITL session is shared by the module (~70 s of wall time): the SITL is started in
+One SITL session is shared by the module (~55 s of wall time): the SITL is started in
 its own process group (setsid) and the whole group is killed with SIGKILL at teardown.
 """
 
@@ -27,7 +27,7 @@ from conftest import REPO_ROOT, shared_sitl_dir
 
 pytestmark = pytest.mark.live
 
-DURATION_S = 70.0
+DURATION_S = 50.0
 INSTANCE = 3  # -I offsets every port by 10*I: SERIAL0 5790, SERIAL2 5793
 
 
