@@ -3,7 +3,8 @@ rate, the simulator's own tlog (made as fast as it can, sending what the live jo
 for and its SPEC parameters, as it does live) and then the live job over it (`uavest run
 --connect TLOG`: the estimates of a live run, docs/live.md), then per filter the mean and
 worst over the seeds of the whole-run and settled RMSE and NEES in-band shares, and how
-many seeds meet issue 19's targets (all of them, and those of the attitude and velocity).
+many seeds meet issue 19's targets (all of them, and those of the attitude and velocity),
+and each NEES block's mean over the flights (3, its dimension, for a consistent filter).
 One live session is one realisation of the flight's noise and start; this shows the
 spread (docs/live.md, "Over many flights"). Beside each flight's horizontal position
 error, the receiver's own: its fixes against the simulator's truth over the same part
@@ -69,6 +70,7 @@ def scores(r: dict) -> dict:
         return {"rpy": [d[k] for k in ("roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg")],
                 "vel": d["vel_rmse_ms"], "hpos": d["hpos_rmse_m"],
                 "in95": [d["nees"][b]["in_band95"] for b in BLOCKS],
+                "nees": [d["nees"][b]["mean"] for b in BLOCKS],
                 "pos_out": [pos["below_band95"], pos["above_band95"]]}
     return {"whole": part(r), "settled": part(r["settled"])}
 
@@ -167,6 +169,7 @@ def summary(runs: dict[int, dict[str, dict]], label: str) -> dict:
                      "hpos_mean": float(np.mean([p[part]["hpos"] for p in per])),
                      "hpos_max": float(np.max([p[part]["hpos"] for p in per])),
                      "in95_mean": in95.mean(0), "in95_min": in95.min(0),
+                     "nees_mean": np.mean([p[part]["nees"] for p in per], axis=0),
                      "meets": sum(meets(p[part]) for p in per),
                      "meets_att_vel": sum(meets_attitude_velocity(p[part]) for p in per)}
     return out
@@ -267,7 +270,8 @@ def main() -> None:
                 print(f"  {part:7s} RMSE mean {_f(p['rpy_mean'])} max {_f(p['rpy_max'])} | "
                       f"vel {p['vel_mean']:.3f} | hpos mean {p['hpos_mean']:.3f} max "
                       f"{p['hpos_max']:.3f} | in95 mean {_f(p['in95_mean'])} min "
-                      f"{_f(p['in95_min'])} | every target: {p['meets']} of {sm['n']}, "
+                      f"{_f(p['in95_min'])} | NEES mean {_f(p['nees_mean'])} | "
+                      f"every target: {p['meets']} of {sm['n']}, "
                       f"attitude and velocity: {p['meets_att_vel']}")
             if a.rows:
                 for s in seeds:
