@@ -64,7 +64,8 @@ def session_tlog(path: str | Path, seed: int, rate: float, duration: float,
 def scores(r: dict) -> dict:
     """One filter's figures from a live JSON block (``doc["attitude"][label]``): for
     ``whole`` and ``settled``, roll / pitch / yaw RMSE (deg), velocity and horizontal
-    position RMSE and the three NEES blocks' in-band shares."""
+    position RMSE, the three NEES blocks' in-band shares and means, and the position
+    NEES's shares below and above its band."""
     def part(d: dict) -> dict:
         pos = d["nees"]["position"]
         return {"rpy": [d[k] for k in ("roll_rmse_deg", "pitch_rmse_deg", "yaw_rmse_deg")],
